@@ -1,0 +1,177 @@
+"""``svss``: the SVSS command-line tool.
+
+    svss demo --out DIR                  whole chain on the built-in scene
+    svss simulate --scene FILE --out RUN.h5
+    svss process RUN.h5 --out DIR
+    svss worker --connect ENDPOINT --out DIR
+    svss replay RUN.h5 [--endpoint E]
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+from pathlib import Path
+
+from svss_daq.config import (ConfigError, DaqConfig, HardwareConfig, ProcessingConfig,
+                             config_path, load, load_with_text, CONFIG_ENV)
+
+log = logging.getLogger("svss")
+
+
+def _setup_logging(verbosity: int) -> None:
+    level = logging.WARNING if verbosity < 0 else logging.DEBUG if verbosity > 0 else logging.INFO
+    logging.basicConfig(level=level, stream=sys.stderr,
+                        format="%(asctime)s %(levelname)-7s %(name)s: %(message)s",
+                        datefmt="%H:%M:%S")
+
+
+def _hardware(args):
+    return load_with_text(HardwareConfig, args.hardware or config_path("hardware.toml"))
+
+
+def _processing(args, default: str = "processing.toml"):
+    return load_with_text(ProcessingConfig, args.processing or config_path(default))
+
+
+def cmd_simulate(args) -> int:
+    from sim_device.point_echo import PointEchoSource
+    from sim_device.scene import load_scene
+    from svss_daq.acquisition import acquire
+    from svss_daq.rawfile import RawRunWriter
+
+    hw = _hardware(args)
+    scene = load_scene(args.scene)
+    daq = load(DaqConfig, config_path("daq.toml"))
+    source = PointEchoSource(hw, scene)
+    with RawRunWriter(args.out, hw, flush_every_pings=daq.recorder.flush_every_pings,
+                      flush_interval_s=daq.recorder.flush_interval_s,
+                      environment={"sound_speed_indicative": scene.medium.sound_speed_m_s},
+                      run_attrs={"scene_name": scene.scene.name}) as rec:
+        n = acquire(iter(source), rec, None, scene.scene.name, total=source.n_pings)
+    print(f"wrote {args.out} ({n} pings)")
+    return 0
+
+
+def cmd_process(args) -> int:
+    from svss_proc.worker import process_raw
+
+    files = process_raw(args.run, args.out, _processing(args))
+    for p in files:
+        print(p)
+    return 0
+
+
+def cmd_worker(args) -> int:
+    from svss_proc.worker import serve
+
+    files = serve(args.connect, args.out, _hardware(args), _processing(args),
+                  idle_timeout_s=args.idle_timeout)
+    for p in files:
+        print(p)
+    return 0
+
+
+def cmd_replay(args) -> int:
+    import time
+
+    from svss_daq.acquisition import acquire
+    from svss_daq.publisher import PingPublisher
+    from svss_daq.rawfile import RawRunReader
+
+    daq = load(DaqConfig, config_path("daq.toml"))
+    with RawRunReader(args.run) as run, \
+            PingPublisher(args.endpoint or daq.publisher.endpoint, daq.publisher.send_hwm) as pub:
+        print(f"replaying {args.run} ({len(run)} pings) on {pub.endpoint}", flush=True)
+        pub.wait_for_subscribers(timeout_s=args.wait)
+        pings = iter(run)
+        if args.realtime:
+            def paced(pings=pings, t0=time.monotonic()):
+                first = None
+                for p in pings:
+                    first = first if first is not None else p.transmit_time_ns
+                    delay = (p.transmit_time_ns - first) * 1e-9 - (time.monotonic() - t0)
+                    if delay > 0:
+                        time.sleep(delay)
+                    yield p
+            pings = paced()
+        acquire(pings, None, pub, Path(args.run).stem, total=len(run))
+    return 0
+
+
+def cmd_demo(args) -> int:
+    from svss.demo import run_demo
+
+    files = run_demo(Path(args.out), scene=args.scene, hardware=args.hardware,
+                     processing=args.processing)
+    print("svss demo wrote:")
+    for p in files:
+        print(f"  {p}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="svss", description="Sediment Volume Search Sonar: "
+                                "acquisition, simulation and 3-D imaging.")
+    p.add_argument("-v", "--verbose", action="count", default=0, help="more logging")
+    p.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
+    p.add_argument("--config-dir", help=f"configuration folder (default: ${CONFIG_ENV} or "
+                   "the project's config/)")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    def common(sp, processing=True):
+        sp.add_argument("--hardware", help="hardware TOML (default: config/hardware.toml)")
+        if processing:
+            sp.add_argument("--processing", help="processing TOML "
+                            "(default: config/processing.toml)")
+
+    sp = sub.add_parser("demo", help="run the whole chain on the built-in scene: simulated "
+                        "pings -> ZeroMQ -> worker process -> tiles and PNGs")
+    sp.add_argument("--out", required=True, help="output folder")
+    sp.add_argument("--scene", help="scene TOML (default: config/scenes/demo.toml)")
+    common(sp)
+    sp.set_defaults(func=cmd_demo)
+
+    sp = sub.add_parser("simulate", help="simulate a scene into a raw-run file")
+    sp.add_argument("--scene", required=True, help="scene TOML")
+    sp.add_argument("--out", required=True, help="raw-run HDF5 file to write")
+    common(sp, processing=False)
+    sp.set_defaults(func=cmd_simulate)
+
+    sp = sub.add_parser("process", help="image a raw-run file into tiles")
+    sp.add_argument("run", help="raw-run HDF5 file")
+    sp.add_argument("--out", required=True, help="output folder")
+    sp.add_argument("--processing", help="processing TOML (default: config/processing.toml)")
+    sp.set_defaults(func=cmd_process)
+
+    sp = sub.add_parser("worker", help="image pings received over ZeroMQ")
+    sp.add_argument("--connect", required=True, help="publisher endpoint")
+    sp.add_argument("--out", required=True, help="output folder")
+    sp.add_argument("--idle-timeout", type=float, default=None,
+                    help="finish after this many seconds without a message")
+    common(sp)
+    sp.set_defaults(func=cmd_worker)
+
+    sp = sub.add_parser("replay", help="publish a recorded raw run as ping messages")
+    sp.add_argument("run", help="raw-run HDF5 file")
+    sp.add_argument("--endpoint", help="endpoint to bind (default: config/daq.toml)")
+    sp.add_argument("--realtime", action="store_true", help="pace pings at their recorded "
+                    "transmit times")
+    sp.add_argument("--wait", type=float, default=60.0,
+                    help="seconds to wait for a subscriber")
+    sp.set_defaults(func=cmd_replay)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    _setup_logging(-1 if args.quiet else args.verbose)
+    if args.config_dir:
+        os.environ[CONFIG_ENV] = str(Path(args.config_dir).resolve())
+    try:
+        return args.func(args)
+    except (ConfigError, FileNotFoundError, ValueError, TimeoutError, OSError) as exc:
+        log.error("%s", exc)
+        return 2

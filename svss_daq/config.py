@@ -1,0 +1,380 @@
+"""Validated configuration loading.
+
+Every number of the hardware, the processing and the scenes lives in TOML files under
+``config/``; this module holds only their *schema*: frozen dataclasses whose fields carry
+the expected type, range and meaning. :func:`load` reads a file and builds the
+dataclass, rejecting unknown keys, missing keys, wrong types and out-of-range values
+with a :class:`ConfigError` that names the file, the dotted key and what was expected.
+
+Schema fields carry no defaults: defaults live in the config files. A field whose type
+is ``X | None`` may be omitted.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import os
+import tomllib
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+
+CONFIG_ENV = "SVSS_CONFIG_DIR"
+
+
+class ConfigError(ValueError):
+    """A configuration file is missing, unreadable or invalid."""
+
+
+def spec(doc: str, lo: float | None = None, hi: float | None = None,
+         choices: tuple | None = None, length: int | None = None,
+         min_length: int | None = None) -> Any:
+    """Declare a schema field: ``doc`` with units, inclusive range, allowed values,
+    exact or minimum sequence length."""
+    return field(metadata={"doc": doc, "lo": lo, "hi": hi, "choices": choices,
+                           "length": length, "min_length": min_length})
+
+
+# --------------------------------------------------------------------------- hardware
+
+
+@dataclass(frozen=True)
+class ReceiveSection:
+    name: str = spec("section name")
+    rows: int = spec("channels along-track", lo=1, hi=64)
+    cols: int = spec("channels cross-track", lo=1, hi=64)
+    center_m: tuple[float, float, float] = spec(
+        "section centre in the array frame (x fwd, y stbd, z down), m", length=3)
+
+
+@dataclass(frozen=True)
+class ReceiveArray:
+    pitch_m: float = spec("centre-to-centre element spacing, m", lo=1e-3, hi=1.0)
+    module_rows: int = spec("channels per module along-track", lo=1, hi=64)
+    module_cols: int = spec("channels per module cross-track", lo=1, hi=64)
+    sections: tuple[ReceiveSection, ...] = spec("array sections", min_length=1)
+
+
+@dataclass(frozen=True)
+class Projectors:
+    positions_m: tuple[tuple[float, float, float], ...] = spec(
+        "projector positions in the array frame (x fwd, y stbd, z down), m", min_length=1)
+
+
+@dataclass(frozen=True)
+class Beams:
+    projector_half_angle_deg: float = spec("projector beam cone half-angle, deg", lo=1, hi=90)
+    receiver_half_angle_deg: float = spec("hydrophone beam cone half-angle, deg", lo=1, hi=90)
+    boresight: tuple[float, float, float] = spec(
+        "common boresight direction in the body frame (unit vector, z down)", length=3)
+
+
+@dataclass(frozen=True)
+class WaveformConfig:
+    kind: str = spec("waveform type", choices=("lfm",))
+    f_start_hz: float = spec("instantaneous frequency at t = 0, Hz", lo=1.0, hi=1e6)
+    f_stop_hz: float = spec("instantaneous frequency at t = duration, Hz", lo=1.0, hi=1e6)
+    duration_s: float = spec("pulse length, s", lo=1e-6, hi=0.1)
+    center_hz: float = spec("centre (carrier) frequency for basebanding, Hz", lo=1.0, hi=1e6)
+    window: str = spec("amplitude taper", choices=("taylor", "rect", "hann"))
+    taylor_nbar: int = spec("Taylor window: number of nearly equal sidelobes", lo=1, hi=20)
+    taylor_sll_db: float = spec("Taylor window: peak sidelobe level below the main lobe, dB",
+                                lo=10, hi=120)
+    source_level_db: float = spec("source level, dB re 1 uPa at 1 m (peak of the taper)",
+                                  lo=100, hi=260)
+
+
+@dataclass(frozen=True)
+class Digitiser:
+    n_channels: int = spec("receive channels", lo=1, hi=1024)
+    sample_rate_hz: float = spec("per-channel sample rate, Hz", lo=1e3, hi=1e7)
+    window_samples: int = spec("samples per channel per ping", lo=16, hi=1_000_000)
+    window_start_s: float = spec("receive-window start after transmit, s", lo=0.0, hi=1.0)
+    group_delay_s: float = spec("digitiser filter group delay, s", lo=0.0, hi=0.01)
+    bits: int = spec("ADC resolution, bits (carried in int32)", lo=8, hi=32)
+    full_scale_v: float = spec("ADC full-scale amplitude, V", lo=1e-3, hi=100)
+    sensitivity_db_re_v_per_upa: float = spec("hydrophone sensitivity, dB re 1 V/uPa",
+                                               lo=-260, hi=-100)
+    gain_db: float = spec("analogue gain before the ADC, dB", lo=-40, hi=120)
+
+
+@dataclass(frozen=True)
+class Sequencer:
+    ping_interval_s: float = spec("ping repetition interval, s", lo=1e-3, hi=10.0)
+    projector_order: tuple[int, ...] = spec("projector indices cycled ping by ping",
+                                            min_length=1)
+
+
+@dataclass(frozen=True)
+class LeverArms:
+    array_m: tuple[float, float, float] = spec(
+        "array reference point in the body frame (x fwd, y stbd, z down), m", length=3)
+    gps_antenna_m: tuple[float, float, float] = spec("GPS antenna in the body frame, m", length=3)
+    dvl_m: tuple[float, float, float] = spec("DVL transducer head in the body frame, m", length=3)
+
+
+@dataclass(frozen=True)
+class HardwareConfig:
+    name: str = spec("hardware description")
+    receive_array: ReceiveArray = spec("receive array layout")
+    projectors: Projectors = spec("projector layout")
+    beams: Beams = spec("beam cones")
+    waveform: WaveformConfig = spec("transmit waveform")
+    digitiser: Digitiser = spec("digitiser")
+    sequencer: Sequencer = spec("transmit sequencer")
+    lever_arms: LeverArms = spec("lever arms")
+
+
+# ------------------------------------------------------------------------- processing
+
+
+@dataclass(frozen=True)
+class TileConfig:
+    length_m: float = spec("tile length along-track, m", lo=0.1, hi=1000)
+    width_m: float = spec("tile width cross-track, centred on the track line, m", lo=0.04, hi=100)
+    depth_m: float = spec("tile depth below the water-sediment interface, m", lo=0.04, hi=100)
+    top_m: float = spec("depth of the tile's first voxel layer below the interface "
+                        "(negative: above), m", lo=-10, hi=10)
+    voxel_m: float = spec("voxel edge, m", lo=1e-3, hi=1.0)
+
+
+@dataclass(frozen=True)
+class ConditioningConfig:
+    decimation: int = spec("decimation of the complex baseband relative to the ADC rate",
+                           lo=1, hi=64)
+
+
+@dataclass(frozen=True)
+class ImagingConfig:
+    sound_speed_m_s: float = spec("imaging sound speed (homogeneous medium), m/s",
+                                  lo=1000, hi=2500)
+    interface: str = spec("interface depth source", choices=("navigation", "fixed"))
+    interface_down_m: float = spec("interface depth in the survey frame when fixed, m",
+                                   lo=-1e4, hi=1e4)
+    track_line: str = spec("tile frame: from the first ping's pose or given",
+                           choices=("first_ping", "fixed"))
+    line_origin_ne_m: tuple[float, float] = spec("fixed line origin (north, east), m", length=2)
+    line_heading_deg: float = spec("fixed line heading, deg from north", lo=-360, hi=360)
+    beam_gating: bool = spec("only voxels inside both beam cones are summed")
+
+
+@dataclass(frozen=True)
+class ProcessingConfig:
+    tile: TileConfig = spec("image tile geometry")
+    conditioning: ConditioningConfig = spec("signal conditioning")
+    imaging: ImagingConfig = spec("image formation")
+
+
+# ---------------------------------------------------------------------------- daq
+
+
+@dataclass(frozen=True)
+class PublisherConfig:
+    endpoint: str = spec("ZeroMQ endpoint the ping publisher binds")
+    send_hwm: int = spec("ZeroMQ send high-water mark, messages (0: unlimited)", lo=0, hi=10**7)
+
+
+@dataclass(frozen=True)
+class RecorderConfig:
+    flush_every_pings: int = spec("flush the raw file at least every N pings", lo=1, hi=100000)
+    flush_interval_s: float = spec("flush the raw file at least every T seconds", lo=0.0, hi=3600)
+
+
+@dataclass(frozen=True)
+class DaqConfig:
+    publisher: PublisherConfig = spec("ping publisher")
+    recorder: RecorderConfig = spec("raw-run recorder")
+
+
+# ----------------------------------------------------------------------- the loader
+
+
+def _expected(f: dataclasses.Field, tp: Any) -> str:
+    m = f.metadata
+    what = _type_name(tp)
+    if m.get("choices"):
+        what += f" one of {list(m['choices'])}"
+    if m.get("lo") is not None or m.get("hi") is not None:
+        what += f" in [{m.get('lo')}, {m.get('hi')}]"
+    if m.get("length") is not None:
+        what += f" of length {m['length']}"
+    if m.get("min_length"):
+        what += f" of at least {m['min_length']} entries"
+    return f"{what} ({m.get('doc', '')})"
+
+
+def _type_name(tp: Any) -> str:
+    origin = typing.get_origin(tp)
+    if origin in (types.UnionType, typing.Union):
+        return " or ".join(_type_name(a) for a in typing.get_args(tp) if a is not type(None))
+    if origin is tuple:
+        args = typing.get_args(tp)
+        return f"array of {_type_name(args[0])}"
+    if dataclasses.is_dataclass(tp):
+        return "table"
+    return {float: "number", int: "integer", str: "string", bool: "boolean"}.get(tp, str(tp))
+
+
+def _convert(value: Any, tp: Any, f: dataclasses.Field, key: str, file: str) -> Any:
+    def fail(msg: str) -> ConfigError:
+        return ConfigError(f"{file}: key '{key}': {msg}; expected {_expected(f, tp)}")
+
+    origin = typing.get_origin(tp)
+    if origin in (types.UnionType, typing.Union):
+        inner = [a for a in typing.get_args(tp) if a is not type(None)][0]
+        return None if value is None else _convert(value, inner, f, key, file)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise fail(f"got {type(value).__name__}")
+        return _build(tp, value, key, file)
+    if origin is tuple:
+        if not isinstance(value, list):
+            raise fail(f"got {type(value).__name__}")
+        m = f.metadata
+        if m.get("length") is not None and len(value) != m["length"]:
+            raise fail(f"got {len(value)} entries")
+        if m.get("min_length") and len(value) < m["min_length"]:
+            raise fail(f"got {len(value)} entries")
+        inner = typing.get_args(tp)[0]
+        inner_field = f
+        if typing.get_origin(inner) is tuple:  # nested arrays: check inner length by type
+            n_inner = len(typing.get_args(inner)) if typing.get_args(inner)[-1] is not Ellipsis else None
+            inner_field = dataclasses.field(metadata={**m, "length": n_inner, "min_length": None})
+        return tuple(_convert(v, inner, inner_field, f"{key}[{i}]", file)
+                     for i, v in enumerate(value))
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise fail(f"got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise fail(f"got {value!r}")
+    elif tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise fail(f"got {value!r}")
+        value = float(value)
+        if value != value:
+            raise fail("got NaN")
+    elif tp is str:
+        if not isinstance(value, str):
+            raise fail(f"got {value!r}")
+    m = f.metadata
+    if m.get("choices") and value not in m["choices"]:
+        raise fail(f"got {value!r}")
+    if m.get("lo") is not None and value < m["lo"]:
+        raise fail(f"got {value!r}, below the minimum")
+    if m.get("hi") is not None and value > m["hi"]:
+        raise fail(f"got {value!r}, above the maximum")
+    return value
+
+
+def _build(cls: type[T], data: dict, prefix: str, file: str) -> T:
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        where = f"table '{prefix}'" if prefix else "top level"
+        raise ConfigError(f"{file}: unknown key '{_join(prefix, unknown[0])}' in {where}; "
+                          f"expected one of {sorted(fields)}")
+    kwargs = {}
+    for name, f in fields.items():
+        key = _join(prefix, name)
+        tp = hints[name]
+        if name not in data:
+            optional = typing.get_origin(tp) in (types.UnionType, typing.Union)
+            if optional:
+                kwargs[name] = None
+                continue
+            if typing.get_origin(tp) is tuple and f.metadata.get("min_length") == 0:
+                kwargs[name] = ()
+                continue
+            raise ConfigError(f"{file}: missing key '{key}'; expected {_expected(f, tp)}")
+        kwargs[name] = _convert(data[name], tp, f, key, file)
+    return cls(**kwargs)
+
+
+def _join(prefix: str, name: str) -> str:
+    return f"{prefix}.{name}" if prefix else name
+
+
+def from_dict(cls: type[T], data: dict, source: str = "<dict>") -> T:
+    """Build and validate schema ``cls`` from a parsed TOML mapping."""
+    return _build(cls, data, "", source)
+
+
+def read_toml(path: str | os.PathLike) -> dict:
+    """Parse a TOML file, raising :class:`ConfigError` naming the file on failure."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: configuration file not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+
+
+def load(cls: type[T], path: str | os.PathLike) -> T:
+    """Read the TOML file ``path`` and validate it against schema ``cls``."""
+    return from_dict(cls, read_toml(path), str(path))
+
+
+def loads(cls: type[T], text: str, source: str = "<string>") -> T:
+    """Validate TOML ``text`` against schema ``cls``."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{source}: not valid TOML: {exc}") from None
+    return from_dict(cls, data, source)
+
+
+def config_dir() -> Path:
+    """The configuration folder: ``$SVSS_CONFIG_DIR`` or the project's ``config/``."""
+    env = os.environ.get(CONFIG_ENV)
+    path = Path(env) if env else Path(__file__).resolve().parents[1] / "config"
+    if not path.is_dir():
+        raise ConfigError(f"{path}: configuration folder not found "
+                          f"(set {CONFIG_ENV} to the project's config/ folder)")
+    return path
+
+
+def config_path(name: str) -> Path:
+    """Path of a file inside the configuration folder, e.g. ``'hardware.toml'``."""
+    return config_dir() / name
+
+
+def digest(text: str) -> str:
+    """Short, stable identity of a configuration text (first 16 hex digits of SHA-256)."""
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class Loaded(typing.Generic[T]):
+    """A validated configuration with the exact text it came from."""
+    value: T
+    text: str
+    source: str
+
+    @property
+    def id(self) -> str:
+        return digest(self.text)
+
+
+def load_with_text(cls: type[T], path: str | os.PathLike) -> Loaded[T]:
+    """Like :func:`load` but keep the file's text (for provenance and config ids)."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: configuration file not found") from None
+    return Loaded(loads(cls, text, str(path)), text, str(path))
+
+
+def loaded_from_text(cls: type[T], text: str, source: str) -> Loaded[T]:
+    """Validate a configuration text carried in a file or message."""
+    return Loaded(loads(cls, text, source), text, source)

@@ -1,0 +1,73 @@
+"""Array geometry: receiver and projector positions in the body frame.
+
+Body frame: x forward, y starboard, z down, origin at the vessel reference point.
+The array frame has the same axes with its origin at the array reference point; the
+lever arm ``lever_arms.array_m`` places it in the body frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .config import HardwareConfig, ReceiveArray
+
+
+def section_positions(array: ReceiveArray) -> list[np.ndarray]:
+    """Element positions of each receive section in the array frame, m.
+
+    Channels are numbered module by module, aft section first; within a section modules
+    run port to starboard, and within a module channels run row by row (aft to
+    forward), port to starboard. Each array is (rows * cols, 3).
+    """
+    p = array.pitch_m
+    out = []
+    for sec in array.sections:
+        if sec.cols % array.module_cols or sec.rows % array.module_rows:
+            raise ValueError(f"receive section '{sec.name}': {sec.rows} x {sec.cols} is not a "
+                             f"whole number of {array.module_rows} x {array.module_cols} modules")
+        xs = sec.center_m[0] + (np.arange(sec.rows) - (sec.rows - 1) / 2) * p
+        ys = sec.center_m[1] + (np.arange(sec.cols) - (sec.cols - 1) / 2) * p
+        pos = []
+        for m_row in range(0, sec.rows, array.module_rows):
+            for m_col in range(0, sec.cols, array.module_cols):
+                for r in range(m_row, m_row + array.module_rows):
+                    for c in range(m_col, m_col + array.module_cols):
+                        pos.append((xs[r], ys[c], sec.center_m[2]))
+        out.append(np.array(pos, dtype=np.float64))
+    return out
+
+
+@dataclass(frozen=True)
+class ArrayGeometry:
+    """Element positions in the body frame, m, and beam cones."""
+    receivers: np.ndarray          # (n_channels, 3)
+    projectors: np.ndarray         # (n_projectors, 3)
+    boresight: np.ndarray          # (3,) unit vector, body frame
+    projector_half_angle: float    # rad
+    receiver_half_angle: float     # rad
+
+    @property
+    def n_channels(self) -> int:
+        return self.receivers.shape[0]
+
+
+def array_geometry(hw: HardwareConfig) -> ArrayGeometry:
+    """Build the body-frame array geometry from the hardware configuration."""
+    lever = np.asarray(hw.lever_arms.array_m, dtype=np.float64)
+    rx = np.concatenate(section_positions(hw.receive_array)) + lever
+    if rx.shape[0] != hw.digitiser.n_channels:
+        raise ValueError(f"hardware: the receive array has {rx.shape[0]} elements but the "
+                         f"digitiser has {hw.digitiser.n_channels} channels")
+    tx = np.asarray(hw.projectors.positions_m, dtype=np.float64) + lever
+    for i in hw.sequencer.projector_order:
+        if not 0 <= i < tx.shape[0]:
+            raise ValueError(f"hardware: sequencer.projector_order names projector {i}, "
+                             f"expected 0..{tx.shape[0] - 1}")
+    b = np.asarray(hw.beams.boresight, dtype=np.float64)
+    norm = np.linalg.norm(b)
+    if norm == 0:
+        raise ValueError("hardware: beams.boresight must be a non-zero vector")
+    return ArrayGeometry(rx, tx, b / norm, np.deg2rad(hw.beams.projector_half_angle_deg),
+                         np.deg2rad(hw.beams.receiver_half_angle_deg))

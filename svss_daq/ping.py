@@ -1,0 +1,100 @@
+"""The ping: one transmission and the 80 channels it was received on."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+#: quality flags of a navigation snapshot (bit mask)
+NAV_GPS_FIX = 1          # position from a GNSS fix at or near this time
+NAV_DEAD_RECKONED = 2    # position propagated by DVL dead reckoning
+NAV_BOTTOM_LOCK = 4      # altitude from DVL bottom track
+NAV_SIMULATED = 8        # produced by the simulator (truth)
+
+
+@dataclass(frozen=True)
+class NavSnapshot:
+    """Pose of the body origin at a ping's transmit time.
+
+    Positions in the survey frame (local NED, m); velocity NED (m/s); attitude (rad,
+    ZYX Euler: heading from north, pitch nose-up positive, roll starboard-down positive);
+    altitude of the body origin above the water-sediment interface (m); geodetic
+    position (deg, NaN when unknown); ``quality``: NAV_* bit flags.
+    """
+    time_ns: int
+    north_m: float
+    east_m: float
+    down_m: float
+    vel_north_m_s: float
+    vel_east_m_s: float
+    vel_down_m_s: float
+    roll_rad: float
+    pitch_rad: float
+    heading_rad: float
+    altitude_m: float
+    latitude_deg: float = float("nan")
+    longitude_deg: float = float("nan")
+    quality: int = 0
+
+    @property
+    def ned(self) -> np.ndarray:
+        return np.array([self.north_m, self.east_m, self.down_m])
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "NavSnapshot":
+        names = [f.name for f in dataclasses.fields(cls)]
+        missing = [n for n in names if n not in d]
+        if missing:
+            raise ValueError(f"navigation snapshot: missing field '{missing[0]}'")
+        unknown = sorted(set(d) - set(names))
+        if unknown:
+            raise ValueError(f"navigation snapshot: unknown field '{unknown[0]}'")
+        out = {}
+        for f in dataclasses.fields(cls):
+            v = d[f.name]
+            want = int if f.type in ("int", int) else float
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or (
+                    want is int and not isinstance(v, int)):
+                raise ValueError(f"navigation snapshot: field '{f.name}' expected "
+                                 f"{want.__name__}, got {v!r}")
+            out[f.name] = want(v)
+        return cls(**out)
+
+
+NAV_FIELDS = tuple(f.name for f in dataclasses.fields(NavSnapshot))
+
+
+@dataclass(frozen=True, eq=False)
+class Ping:
+    """One ping.
+
+    ``samples``: (n_channels, n_samples) int32 ADC codes (24-bit in int32), real passband;
+    the first sample is taken ``window_start_ns`` after the transmit time.
+    ``config_id``: identity of the hardware configuration the ping was acquired with.
+    """
+    sequence: int
+    projector: int
+    transmit_time_ns: int
+    sample_rate_hz: float
+    window_start_ns: int
+    samples: np.ndarray
+    nav: NavSnapshot
+    config_id: str = ""
+
+    def __post_init__(self):
+        if self.samples.ndim != 2:
+            raise ValueError(f"ping {self.sequence}: samples must be (channels, samples), "
+                             f"got shape {self.samples.shape}")
+
+    @property
+    def n_channels(self) -> int:
+        return self.samples.shape[0]
+
+    @property
+    def n_samples(self) -> int:
+        return self.samples.shape[1]

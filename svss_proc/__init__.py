@@ -1,0 +1,1 @@
+"""SVSS processing: conditioning, 3-D backprojection into tiles, image products."""

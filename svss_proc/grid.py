@@ -1,0 +1,50 @@
+"""The tile grid: voxel centres in the tile frame (along, cross, depth), m."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from svss_daq.config import TileConfig
+
+
+@dataclass(frozen=True)
+class TileGrid:
+    """Voxel-centre axes of tile ``index``: along-track covers
+    [index * length, (index + 1) * length), cross-track is centred on the line, depth
+    starts at ``top`` below the interface."""
+    index: int
+    along: np.ndarray
+    cross: np.ndarray
+    depth: np.ndarray
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return (self.along.size, self.cross.size, self.depth.size)
+
+    @property
+    def voxel_m(self) -> float:
+        return float(self.along[1] - self.along[0]) if self.along.size > 1 else float("nan")
+
+
+def n_voxels(extent_m: float, voxel_m: float) -> int:
+    """Voxels along an axis (rounded to the nearest whole voxel)."""
+    return max(1, int(math.floor(extent_m / voxel_m + 0.5)))
+
+
+def tile_grid(cfg: TileConfig, index: int) -> TileGrid:
+    """Grid of tile ``index`` for the tile configuration ``cfg``."""
+    v = cfg.voxel_m
+    na, nc, nd = (n_voxels(cfg.length_m, v), n_voxels(cfg.width_m, v),
+                  n_voxels(cfg.depth_m, v))
+    along = index * cfg.length_m + (np.arange(na) + 0.5) * v
+    cross = -0.5 * nc * v + (np.arange(nc) + 0.5) * v
+    depth = cfg.top_m + (np.arange(nd) + 0.5) * v
+    return TileGrid(index, along, cross, depth)
+
+
+def tile_index(cfg: TileConfig, along_m: float) -> int:
+    """Index of the tile holding along-track position ``along_m``."""
+    return int(math.floor(along_m / cfg.length_m))
