@@ -1,0 +1,107 @@
+"""Raw-run files: round trip, NMEA, bad files, and a writer killed with SIGKILL."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import h5py
+import numpy as np
+import pytest
+
+from svss_daq.rawfile import RawFileError, RawRunReader, RawRunWriter
+from tests.test_messages import assert_same, make_ping
+
+
+def _ping_for(hardware, i):
+    p = make_ping(i)
+    return type(p)(sequence=p.sequence, projector=p.projector,
+                   transmit_time_ns=p.transmit_time_ns, sample_rate_hz=p.sample_rate_hz,
+                   window_start_ns=p.window_start_ns, samples=p.samples, nav=p.nav,
+                   config_id=hardware.id)
+
+
+def test_round_trip(tmp_path, hardware):
+    path = tmp_path / "run.h5"
+    sent = [_ping_for(hardware, i) for i in range(12)]
+    with RawRunWriter(path, hardware, flush_every_pings=5, environment={"sound_speed": 1480.0},
+                      run_attrs={"scene_name": "t"}) as w:
+        for p in sent:
+            w.append(p)
+        w.append_nmea(123, "$GPGGA,120000.00,4052.0,N,07752.0,W,1,08,0.9,10.0,M,,,,*47\r\n")
+    with RawRunReader(path) as r:
+        assert r.clean and len(r) == 12
+        assert r.hardware.id == hardware.id and r.hardware.value == hardware.value
+        for a, b in zip(sent, r):
+            assert_same(a, b)
+        assert r.nmea() == [(123, "$GPGGA,120000.00,4052.0,N,07752.0,W,1,08,0.9,10.0,M,,,,*47")]
+        assert r.environment["sound_speed"] == 1480.0
+    with h5py.File(path, "r") as f:        # SONAR-netCDF4-like layout
+        assert f["Sonar/Beam_group1/backscatter_r"].shape == (12, 80, 1500)
+        assert f["Sonar/Beam_group1/backscatter_r"].chunks == (1, 80, 1500)
+        for g in ("Platform", "Platform/NMEA", "Environment", "Provenance", "Vendor_specific"):
+            assert g in f
+
+
+def test_writer_rejects_wrong_shape_and_config(tmp_path, hardware):
+    with RawRunWriter(tmp_path / "r.h5", hardware) as w:
+        with pytest.raises(ValueError, match=r"shape \(80, 10\)"):
+            w.append(make_ping(1, nch=80, ns=10))
+        with pytest.raises(ValueError, match="hardware config abcdef0123456789"):
+            w.append(make_ping(1))
+
+
+def test_reader_errors_name_the_file(tmp_path):
+    with pytest.raises(RawFileError, match="no such file"):
+        RawRunReader(tmp_path / "missing.h5")
+    junk = tmp_path / "junk.h5"
+    junk.write_bytes(b"not hdf5 at all" * 10)
+    with pytest.raises(RawFileError, match="junk.h5: not a readable HDF5 file"):
+        RawRunReader(junk)
+    other = tmp_path / "other.h5"
+    with h5py.File(other, "w") as f:
+        f.attrs["svss_format"] = "something-else"
+    with pytest.raises(RawFileError, match="other.h5: root attribute 'svss_format'"):
+        RawRunReader(other)
+
+
+WRITER = textwrap.dedent("""
+    import sys
+    from svss_daq.config import HardwareConfig, config_path, load_with_text
+    from svss_daq.rawfile import RawRunWriter
+    from tests.test_rawfile import _ping_for
+    hw = load_with_text(HardwareConfig, config_path("hardware.toml"))
+    w = RawRunWriter(sys.argv[1], hw, flush_every_pings=4, flush_interval_s=1e9)
+    i = 0
+    while True:
+        w.append(_ping_for(hw, i))
+        i += 1
+        if w.n_flushed == i:
+            print("flushed", i, flush=True)
+""")
+
+
+def test_sigkill_keeps_everything_up_to_last_flush(tmp_path, hardware):
+    path = tmp_path / "killed.h5"
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    proc = subprocess.Popen([sys.executable, "-c", WRITER, str(path)], stdout=subprocess.PIPE,
+                            text=True, cwd=root, env={**os.environ, "PYTHONPATH": root})
+    flushed = 0
+    deadline = time.monotonic() + 60
+    while flushed < 40 and time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        flushed = int(line.split()[1])
+    proc.send_signal(signal.SIGKILL)          # mid-run, no chance to close the file
+    proc.wait(timeout=10)
+    assert flushed >= 40, "writer did not get going"
+    with RawRunReader(path) as r:
+        assert not r.clean
+        assert len(r) >= flushed              # nothing flushed is lost
+        for i in range(len(r)):               # and everything read back is intact
+            assert_same(_ping_for(hardware, i), r.ping(i))
