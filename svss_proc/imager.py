@@ -19,7 +19,7 @@ from svss_daq.geometry import array_geometry
 from svss_daq.ping import Ping
 from svss_daq.waveform import make_waveform
 
-from .backprojection import along_reach, backproject_ping
+from .backprojection import along_reach, backproject_ping, prepare
 from .conditioning import Conditioner
 from .grid import TileGrid, tile_grid, tile_index
 
@@ -102,6 +102,7 @@ class TileImager:
             reach = (cond.t0_s + cond.dt_s * cond.data.shape[1]) * c / 2
         lo, hi = tx[0] - reach, tx[0] + reach
         cos_tx, cos_rx = math.cos(geo.projector_half_angle), math.cos(geo.receiver_half_angle)
+        kd = None
         for k in range(tile_index(tcfg, lo), tile_index(tcfg, hi) + 1):
             if k in self.done:
                 continue
@@ -112,7 +113,8 @@ class TileImager:
             ia1 = int(np.clip(np.ceil((hi - a[0]) / v) + 1, 0, a.size))
             if ia1 <= ia0:
                 continue
-            n = backproject_ping(tile.image, cond.data, cond.t0_s, cond.dt_s, cond.center_hz,
+            kd = kd or prepare(cond)
+            n = backproject_ping(tile.image, kd.d, kd.f, kd.t0, kd.dt, kd.theta, kd.halvings,
                                  c, tx, rx, bore, cos_tx, cos_rx, a, tile.grid.cross,
                                  tile.grid.depth, ia0, ia1, gating)
             tile.pings.append(ping.sequence)
