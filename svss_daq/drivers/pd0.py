@@ -1,0 +1,798 @@
+"""Teledyne RDI PD0 binary ensembles: pure decoding and an incremental stream parser.
+
+Layout of one ensemble (all integers little-endian), after the Teledyne RDI
+"Workhorse Commands and Output Data Format" manual:
+
+* header: ``0x7F 0x7F``, uint16 byte count (header to last data byte, checksum
+  excluded), a spare byte, the number of data types ``n`` and ``n`` uint16 offsets
+  (from the first header byte) to each data type;
+* data types, each starting with a uint16 ID: fixed leader ``0x0000``, variable
+  leader ``0x0080``, velocity ``0x0100``, correlation ``0x0200``, echo intensity
+  ``0x0300``, percent good ``0x0400``, bottom track ``0x0600``; others are listed
+  by ID and skipped;
+* a uint16 checksum: the sum of every byte of the ensemble modulo 65536.
+
+Decoded values are in SI units: m, m/s, s, Pa, radians (angles); temperature in
+degrees Celsius. Times are int64 nanoseconds since the Unix epoch (UTC). Bad-value
+markers (velocity -32768) and "no bottom found" (bottom-track range 0) become NaN.
+Array fields are read-only numpy arrays. Raw counts (correlation, echo intensity,
+percent good) stay as uint8 arrays.
+
+:func:`decode_ensemble` decodes one ensemble from bytes and raises
+:class:`Pd0DecodeError` on anything malformed. :class:`Pd0StreamParser` is fed bytes
+as they arrive, resynchronises on garbage, never raises and holds bounded memory.
+"""
+
+from __future__ import annotations
+
+import calendar
+import logging
+import math
+import struct
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+__all__ = [
+    "HEADER_ID",
+    "BAD_VELOCITY",
+    "MAX_ENSEMBLE_BYTES",
+    "Pd0DecodeError",
+    "FixedLeader",
+    "VariableLeader",
+    "BottomTrack",
+    "Pd0Ensemble",
+    "Pd0StreamStats",
+    "Pd0StreamParser",
+    "decode_ensemble",
+    "ensemble_checksum",
+]
+
+logger = logging.getLogger(__name__)
+
+HEADER_ID = b"\x7f\x7f"
+#: Velocity value RDI uses for "no data".
+BAD_VELOCITY = -32768
+#: Largest possible ensemble on the wire: 16-bit byte count plus the checksum.
+MAX_ENSEMBLE_BYTES = 0xFFFF + 2
+
+ID_FIXED_LEADER = 0x0000
+ID_VARIABLE_LEADER = 0x0080
+ID_VELOCITY = 0x0100
+ID_CORRELATION = 0x0200
+ID_ECHO_INTENSITY = 0x0300
+ID_PERCENT_GOOD = 0x0400
+ID_BOTTOM_TRACK = 0x0600
+
+_HEADER_FIXED_BYTES = 6
+_MIN_FIXED_LEADER = 42  # through the transmit lag distance (bytes 40-41)
+_MIN_VARIABLE_LEADER = 28  # through the temperature (bytes 26-27)
+_MIN_BOTTOM_TRACK = 44  # through the bottom-track percent good (bytes 40-43)
+_BT_RANGE_MSB_END = 81  # bytes 77-80: range MSBs, newer firmware only
+
+_DEG = math.pi / 180.0
+_SYSTEM_FREQUENCY_HZ = {0: 75e3, 1: 150e3, 2: 300e3, 3: 600e3, 4: 1200e3, 5: 2400e3}
+_BEAM_ANGLE_DEG = {0: 15.0, 1: 20.0, 2: 30.0}
+_COORDINATE_SYSTEMS = ("beam", "instrument", "ship", "earth")
+
+
+class Pd0DecodeError(ValueError):
+    """A malformed PD0 ensemble.
+
+    Attributes: ``offset`` (byte offset of the offending field, in the caller's
+    buffer or stream), ``field``, ``expected``, ``found``.
+    """
+
+    def __init__(self, offset: int, field: str, expected: str, found: str) -> None:
+        self.offset = offset
+        self.field = field
+        self.expected = expected
+        self.found = found
+        super().__init__(
+            f"PD0 decode error at byte offset {offset}: {field}: "
+            f"expected {expected}, found {found}"
+        )
+
+
+@dataclass(frozen=True)
+class FixedLeader:
+    """Instrument configuration (fixed leader, ID 0x0000)."""
+
+    firmware_version: int
+    firmware_revision: int
+    system_config: int  #: raw configuration word
+    system_frequency_hz: Optional[float]  #: None if the code is unknown
+    beam_pattern: str  #: "convex" or "concave"
+    orientation: str  #: "up" or "down" (transducer facing)
+    simulated: bool  #: real/sim flag set
+    lag_length: int
+    n_beams: int
+    n_cells: int
+    pings_per_ensemble: int
+    cell_size_m: float
+    blank_m: float
+    profiling_mode: int
+    low_corr_threshold: int  #: counts
+    n_code_reps: int
+    percent_good_min: int  #: %
+    error_velocity_max_mps: float
+    time_between_ping_groups_s: float
+    coord_transform: int  #: raw EX byte
+    coordinate_system: str  #: "beam", "instrument", "ship" or "earth"
+    heading_alignment_rad: float
+    heading_bias_rad: float  #: magnetic variation applied by the instrument (EB)
+    sensor_source: int  #: raw EZ byte
+    sensors_available: int
+    bin1_distance_m: float  #: vertical distance to the centre of cell 1
+    transmit_pulse_length_m: float
+    ref_layer_start_cell: int
+    ref_layer_end_cell: int
+    false_target_threshold: int
+    transmit_lag_m: float
+    cpu_board_serial: Optional[str]  #: hex string, None on older firmware
+    bandwidth: Optional[int]
+    power_level: Optional[int]
+    serial_number: Optional[int]
+    beam_angle_rad: Optional[float]
+
+    @property
+    def cell_distances_m(self) -> np.ndarray:
+        """Vertical distance from the transducer to each cell centre (m)."""
+        return self.bin1_distance_m + self.cell_size_m * np.arange(self.n_cells)
+
+
+@dataclass(frozen=True)
+class VariableLeader:
+    """Per-ensemble state (variable leader, ID 0x0080)."""
+
+    ensemble_number: int  #: including the MSB byte
+    time_ns: Optional[int]  #: RTC, ns since Unix epoch UTC; None if the RTC is invalid
+    rtc: tuple  #: raw (year, month, day, hour, minute, second, hundredths) as used
+    bit_result: int
+    sound_speed_mps: float
+    depth_m: float  #: depth of transducer (ED)
+    heading_rad: float
+    pitch_rad: float  #: as reported (tilt 1)
+    roll_rad: float  #: as reported (tilt 2)
+    salinity_ppt: float
+    temperature_degc: float
+    min_preping_wait_s: float
+    heading_std_rad: Optional[float]
+    pitch_std_rad: Optional[float]
+    roll_std_rad: Optional[float]
+    adc: Optional[tuple]  #: raw ADC channels 0-7
+    error_status: Optional[int]
+    pressure_pa: Optional[float]
+    pressure_variance_pa: Optional[float]
+
+
+@dataclass(frozen=True, eq=False)
+class BottomTrack:
+    """Bottom-track data (ID 0x0600); per-beam arrays have 4 entries."""
+
+    pings_per_ensemble: int
+    delay_before_reacquire: int
+    corr_mag_min: int
+    eval_amp_min: int
+    percent_good_min: int
+    mode: int
+    error_velocity_max_mps: float
+    range_m: np.ndarray  #: slant range per beam (m), NaN where no bottom was found
+    velocity_mps: np.ndarray  #: in the ensemble's coordinate system, NaN where bad
+    correlation: np.ndarray  #: uint8 counts
+    amplitude: np.ndarray  #: uint8 evaluation amplitude counts
+    percent_good: np.ndarray  #: uint8 %
+    range_raw_cm: np.ndarray  #: uint32 raw range (LSB + 65536 * MSB), cm
+    velocity_raw: np.ndarray  #: int16 raw velocity, mm/s (-32768 = bad)
+
+
+@dataclass(frozen=True, eq=False)
+class Pd0Ensemble:
+    """One decoded PD0 ensemble. Profile arrays are shaped (n_cells, n_beams)."""
+
+    fixed: FixedLeader
+    variable: VariableLeader
+    velocity_mps: Optional[np.ndarray]  #: float64 m/s, NaN where bad
+    correlation: Optional[np.ndarray]  #: uint8 counts
+    echo_intensity: Optional[np.ndarray]  #: uint8 counts (about 0.45 dB/count)
+    percent_good: Optional[np.ndarray]  #: uint8 %
+    bottom_track: Optional[BottomTrack]
+    data_type_ids: tuple  #: every data-type ID present, in order
+    n_bytes: int  #: ensemble length on the wire, checksum included
+
+    @property
+    def time_ns(self) -> Optional[int]:
+        """Ensemble time, ns since Unix epoch UTC (None if the RTC is invalid)."""
+        return self.variable.time_ns
+
+    @property
+    def ensemble_number(self) -> int:
+        return self.variable.ensemble_number
+
+    @property
+    def heading_rad(self) -> float:
+        return self.variable.heading_rad
+
+    @property
+    def pitch_rad(self) -> float:
+        return self.variable.pitch_rad
+
+    @property
+    def roll_rad(self) -> float:
+        return self.variable.roll_rad
+
+    @property
+    def sound_speed_mps(self) -> float:
+        return self.variable.sound_speed_mps
+
+    @property
+    def depth_m(self) -> float:
+        return self.variable.depth_m
+
+
+def ensemble_checksum(data: bytes, start: int = 0, n_bytes: Optional[int] = None) -> int:
+    """Sum of ``data[start:start+n_bytes]`` modulo 65536 (the PD0 checksum)."""
+    end = len(data) if n_bytes is None else start + n_bytes
+    return int(np.frombuffer(data, dtype=np.uint8, count=end - start, offset=start).sum()) & 0xFFFF
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
+class _NeedMore(Exception):
+    """Internal: the header cannot be judged until ``buf`` extends to ``need_end``."""
+
+    def __init__(self, need_end: int) -> None:
+        super().__init__(need_end)
+        self.need_end = need_end
+
+
+def _parse_header(buf, start: int, end: int, base: int) -> tuple:
+    """Validate the header at ``buf[start:end]``; return (n_bytes, offsets).
+
+    Raises :class:`Pd0DecodeError` for an impossible header and :class:`_NeedMore`
+    when ``end`` cuts it short. ``base`` is added to reported offsets.
+    """
+    avail = end - start
+    if avail < 2:
+        raise _NeedMore(start + 2)
+    if buf[start] != 0x7F or buf[start + 1] != 0x7F:
+        raise Pd0DecodeError(
+            base + start, "header ID", "0x7F7F", f"0x{buf[start]:02X}{buf[start + 1]:02X}"
+        )
+    if avail < _HEADER_FIXED_BYTES:
+        raise _NeedMore(start + _HEADER_FIXED_BYTES)
+    n_bytes = buf[start + 2] | (buf[start + 3] << 8)
+    n_types = buf[start + 5]
+    if n_types < 2:
+        raise Pd0DecodeError(
+            base + start + 5, "number of data types", ">= 2 (fixed and variable leader)", str(n_types)
+        )
+    header_len = _HEADER_FIXED_BYTES + 2 * n_types
+    if n_bytes < header_len + 2 * n_types:
+        raise Pd0DecodeError(
+            base + start + 2,
+            "ensemble byte count",
+            f">= {header_len + 2 * n_types} for {n_types} data types",
+            str(n_bytes),
+        )
+    if avail < header_len:
+        raise _NeedMore(start + header_len)
+    offsets = struct.unpack_from(f"<{n_types}H", buf, start + _HEADER_FIXED_BYTES)
+    if offsets[0] != header_len:
+        raise Pd0DecodeError(
+            base + start + _HEADER_FIXED_BYTES,
+            "offset of data type 1",
+            f"{header_len} (end of header)",
+            str(offsets[0]),
+        )
+    for k in range(1, n_types):
+        if not offsets[k - 1] + 2 <= offsets[k] <= n_bytes - 2:
+            raise Pd0DecodeError(
+                base + start + _HEADER_FIXED_BYTES + 2 * k,
+                f"offset of data type {k + 1}",
+                f"in [{offsets[k - 1] + 2}, {n_bytes - 2}]",
+                str(offsets[k]),
+            )
+    # The first two data types are always the fixed and the variable leader.
+    for k, want in ((0, ID_FIXED_LEADER), (1, ID_VARIABLE_LEADER)):
+        p = start + offsets[k]
+        if p + 2 > end:
+            raise _NeedMore(p + 2)
+        got = buf[p] | (buf[p + 1] << 8)
+        if got != want:
+            raise Pd0DecodeError(base + p, f"ID of data type {k + 1}", f"0x{want:04X}", f"0x{got:04X}")
+    return n_bytes, offsets
+
+
+def _rtc_ns(year: int, month: int, day: int, hour: int, minute: int, second: int, hundredths: int) -> Optional[int]:
+    if not (1 <= month <= 12 and 0 <= hour < 24 and 0 <= minute < 60 and 0 <= second < 60 and 0 <= hundredths < 100):
+        return None
+    if not 1 <= day <= calendar.monthrange(year, month)[1]:
+        return None
+    return (calendar.timegm((year, month, day, hour, minute, second)) * 1_000_000_000
+            + hundredths * 10_000_000)
+
+
+def _decode_fixed(buf, p: int, length: int, base: int) -> FixedLeader:
+    if length < _MIN_FIXED_LEADER:
+        raise Pd0DecodeError(base + p, "fixed leader length", f">= {_MIN_FIXED_LEADER} bytes", f"{length} bytes")
+    (fw_ver, fw_rev, cfg, sim, lag, n_beams, n_cells, pings, cell_cm, blank_cm, prof_mode,
+     corr_thr, code_reps, pg_min, err_vel_mm, tpp_min, tpp_sec, tpp_hun, ex, ea, eb, ez,
+     sensors_avail, bin1_cm, pulse_cm, ref_start, ref_end, wa, _spare, lag_cm) = struct.unpack_from(
+        "<BBHBBBBHHHBBBBHBBBBhhBBHHBBBBH", buf, p + 2
+    )
+    if n_beams < 1:
+        raise Pd0DecodeError(base + p + 8, "fixed leader number of beams", ">= 1", str(n_beams))
+    freq_code = cfg & 0x7
+    cpu_serial = bandwidth = power = serial = None
+    beam_angle_deg: Optional[float] = _BEAM_ANGLE_DEG.get((cfg >> 8) & 0x3)
+    if length >= 50:
+        cpu_serial = bytes(buf[p + 42:p + 50]).hex()
+    if length >= 53:
+        bandwidth, power = struct.unpack_from("<HB", buf, p + 50)
+    if length >= 58:
+        (serial,) = struct.unpack_from("<I", buf, p + 54)
+    if length >= 59 and buf[p + 58] != 0:
+        beam_angle_deg = float(buf[p + 58])
+    return FixedLeader(
+        firmware_version=fw_ver,
+        firmware_revision=fw_rev,
+        system_config=cfg,
+        system_frequency_hz=_SYSTEM_FREQUENCY_HZ.get(freq_code),
+        beam_pattern="convex" if cfg & 0x8 else "concave",
+        orientation="up" if cfg & 0x80 else "down",
+        simulated=bool(sim),
+        lag_length=lag,
+        n_beams=n_beams,
+        n_cells=n_cells,
+        pings_per_ensemble=pings,
+        cell_size_m=cell_cm * 0.01,
+        blank_m=blank_cm * 0.01,
+        profiling_mode=prof_mode,
+        low_corr_threshold=corr_thr,
+        n_code_reps=code_reps,
+        percent_good_min=pg_min,
+        error_velocity_max_mps=err_vel_mm * 0.001,
+        time_between_ping_groups_s=tpp_min * 60.0 + tpp_sec + tpp_hun * 0.01,
+        coord_transform=ex,
+        coordinate_system=_COORDINATE_SYSTEMS[(ex >> 3) & 0x3],
+        heading_alignment_rad=ea * 0.01 * _DEG,
+        heading_bias_rad=eb * 0.01 * _DEG,
+        sensor_source=ez,
+        sensors_available=sensors_avail,
+        bin1_distance_m=bin1_cm * 0.01,
+        transmit_pulse_length_m=pulse_cm * 0.01,
+        ref_layer_start_cell=ref_start,
+        ref_layer_end_cell=ref_end,
+        false_target_threshold=wa,
+        transmit_lag_m=lag_cm * 0.01,
+        cpu_board_serial=cpu_serial,
+        bandwidth=bandwidth,
+        power_level=power,
+        serial_number=serial,
+        beam_angle_rad=None if beam_angle_deg is None else beam_angle_deg * _DEG,
+    )
+
+
+def _decode_variable(buf, p: int, length: int, base: int) -> VariableLeader:
+    if length < _MIN_VARIABLE_LEADER:
+        raise Pd0DecodeError(
+            base + p, "variable leader length", f">= {_MIN_VARIABLE_LEADER} bytes", f"{length} bytes"
+        )
+    (ens, yy, mo, dd, hh, mi, ss, hs, ens_msb, bit, c, depth_dm, hdg, pitch, roll, sal,
+     temp) = struct.unpack_from("<HBBBBBBBBHHHHhhHh", buf, p + 2)
+    rtc = (yy + (2000 if yy < 70 else 1900), mo, dd, hh, mi, ss, hs)
+    time_ns = _rtc_ns(*rtc)
+    if length >= 65:
+        # Y2K-compliant clock (century, year, month, day, hour, minute, second, hundredths).
+        y2k = struct.unpack_from("<8B", buf, p + 57)
+        if 19 <= y2k[0] <= 21:
+            rtc2 = (y2k[0] * 100 + y2k[1],) + tuple(y2k[2:])
+            t2 = _rtc_ns(*rtc2)
+            if t2 is not None:
+                rtc, time_ns = rtc2, t2
+    if time_ns is None:
+        logger.warning("PD0 ensemble %d: invalid real-time clock %s", ens + (ens_msb << 16), rtc)
+    mpt = hdg_std = pitch_std = roll_std = adc = err_status = pres = pres_var = None
+    if length >= 31:
+        m, s, h = struct.unpack_from("<BBB", buf, p + 28)
+        mpt = m * 60.0 + s + h * 0.01
+    if length >= 34:
+        hs_, ps_, rs_ = struct.unpack_from("<BBB", buf, p + 31)
+        hdg_std, pitch_std, roll_std = hs_ * _DEG, ps_ * 0.1 * _DEG, rs_ * 0.1 * _DEG
+    if length >= 42:
+        adc = tuple(struct.unpack_from("<8B", buf, p + 34))
+    if length >= 46:
+        (err_status,) = struct.unpack_from("<I", buf, p + 42)
+    if length >= 56:
+        pr, prv = struct.unpack_from("<II", buf, p + 48)
+        pres, pres_var = pr * 10.0, prv * 10.0  # decapascal -> Pa
+    return VariableLeader(
+        ensemble_number=ens + (ens_msb << 16),
+        time_ns=time_ns,
+        rtc=rtc,
+        bit_result=bit,
+        sound_speed_mps=float(c),
+        depth_m=depth_dm * 0.1,
+        heading_rad=hdg * 0.01 * _DEG,
+        pitch_rad=pitch * 0.01 * _DEG,
+        roll_rad=roll * 0.01 * _DEG,
+        salinity_ppt=float(sal),
+        temperature_degc=temp * 0.01,
+        min_preping_wait_s=float("nan") if mpt is None else mpt,
+        heading_std_rad=hdg_std,
+        pitch_std_rad=pitch_std,
+        roll_std_rad=roll_std,
+        adc=adc,
+        error_status=err_status,
+        pressure_pa=pres,
+        pressure_variance_pa=pres_var,
+    )
+
+
+def _profile(buf, p: int, length: int, base: int, name: str, dtype: str, fixed: FixedLeader) -> np.ndarray:
+    itemsize = np.dtype(dtype).itemsize
+    need = 2 + itemsize * fixed.n_cells * fixed.n_beams
+    if length < need:
+        raise Pd0DecodeError(
+            base + p,
+            f"{name} data length",
+            f">= {need} bytes for {fixed.n_cells} cells x {fixed.n_beams} beams",
+            f"{length} bytes",
+        )
+    a = np.frombuffer(buf, dtype=dtype, count=fixed.n_cells * fixed.n_beams, offset=p + 2)
+    return a.reshape(fixed.n_cells, fixed.n_beams)
+
+
+def _velocity_si(raw: np.ndarray) -> np.ndarray:
+    v = raw.astype(np.float64) * 0.001
+    v[raw == BAD_VELOCITY] = np.nan
+    return v
+
+
+def _decode_bottom_track(buf, p: int, length: int, base: int) -> BottomTrack:
+    if length < _MIN_BOTTOM_TRACK:
+        raise Pd0DecodeError(base + p, "bottom track length", f">= {_MIN_BOTTOM_TRACK} bytes", f"{length} bytes")
+    pings, delay, corr_min, amp_min, pg_min, mode, err_max = struct.unpack_from("<HHBBBBH", buf, p + 2)
+    rng = np.frombuffer(buf, dtype="<u2", count=4, offset=p + 16).astype(np.uint32)
+    if length >= _BT_RANGE_MSB_END:
+        rng = rng + (np.frombuffer(buf, dtype=np.uint8, count=4, offset=p + 77).astype(np.uint32) << 16)
+    vel_raw = np.frombuffer(buf, dtype="<i2", count=4, offset=p + 24).astype(np.int16)
+    range_m = rng.astype(np.float64) * 0.01
+    range_m[rng == 0] = np.nan
+    return BottomTrack(
+        pings_per_ensemble=pings,
+        delay_before_reacquire=delay,
+        corr_mag_min=corr_min,
+        eval_amp_min=amp_min,
+        percent_good_min=pg_min,
+        mode=mode,
+        error_velocity_max_mps=err_max * 0.001,
+        range_m=_readonly(range_m),
+        velocity_mps=_readonly(_velocity_si(vel_raw)),
+        correlation=_readonly(np.frombuffer(buf, dtype=np.uint8, count=4, offset=p + 32).copy()),
+        amplitude=_readonly(np.frombuffer(buf, dtype=np.uint8, count=4, offset=p + 36).copy()),
+        percent_good=_readonly(np.frombuffer(buf, dtype=np.uint8, count=4, offset=p + 40).copy()),
+        range_raw_cm=_readonly(rng),
+        velocity_raw=_readonly(vel_raw),
+    )
+
+
+def decode_ensemble(
+    data, start: int = 0, *, verify_checksum: bool = True, base_offset: int = 0
+) -> Pd0Ensemble:
+    """Decode the PD0 ensemble that begins at ``data[start]``.
+
+    ``data`` (bytes-like) must hold the whole ensemble and its 2-byte checksum;
+    bytes after it are ignored. Raises :class:`Pd0DecodeError` naming the byte
+    offset (``base_offset`` + index into ``data``), the field, what was expected and
+    what was found.
+    """
+    buf = data if isinstance(data, (bytes, bytearray)) else bytes(data)
+    end = len(buf)
+    if start < 0 or start > end:
+        raise Pd0DecodeError(base_offset + start, "start", f"in [0, {end}]", str(start))
+    try:
+        n_bytes, offsets = _parse_header(buf, start, end, base_offset)
+    except _NeedMore:
+        raise Pd0DecodeError(
+            base_offset + start, "ensemble header", "a complete header", f"{end - start} bytes"
+        ) from None
+    if end - start < n_bytes + 2:
+        raise Pd0DecodeError(
+            base_offset + start,
+            "ensemble length",
+            f"{n_bytes + 2} bytes (byte count {n_bytes} + 2-byte checksum)",
+            f"{end - start} bytes",
+        )
+    if verify_checksum:
+        (stored,) = struct.unpack_from("<H", buf, start + n_bytes)
+        computed = ensemble_checksum(buf, start, n_bytes)
+        if stored != computed:
+            raise Pd0DecodeError(
+                base_offset + start + n_bytes, "checksum", f"0x{computed:04X} (sum of bytes mod 65536)",
+                f"0x{stored:04X}",
+            )
+    ends = list(offsets[1:]) + [n_bytes]
+    ids = []
+    fixed = variable = velocity = corr = echo = pg = bt = None
+    for off, nxt in zip(offsets, ends):
+        p = start + off
+        length = nxt - off
+        (type_id,) = struct.unpack_from("<H", buf, p)
+        ids.append(type_id)
+        if type_id == ID_FIXED_LEADER:
+            fixed = _decode_fixed(buf, p, length, base_offset)
+        elif type_id == ID_VARIABLE_LEADER:
+            variable = _decode_variable(buf, p, length, base_offset)
+        elif type_id in (ID_VELOCITY, ID_CORRELATION, ID_ECHO_INTENSITY, ID_PERCENT_GOOD):
+            if fixed is None:
+                raise Pd0DecodeError(base_offset + p, f"data type 0x{type_id:04X}", "after the fixed leader", "before it")
+            if type_id == ID_VELOCITY:
+                velocity = _readonly(_velocity_si(_profile(buf, p, length, base_offset, "velocity", "<i2", fixed)))
+            else:
+                name = {ID_CORRELATION: "correlation", ID_ECHO_INTENSITY: "echo intensity",
+                        ID_PERCENT_GOOD: "percent good"}[type_id]
+                arr = _readonly(_profile(buf, p, length, base_offset, name, "u1", fixed).copy())
+                if type_id == ID_CORRELATION:
+                    corr = arr
+                elif type_id == ID_ECHO_INTENSITY:
+                    echo = arr
+                else:
+                    pg = arr
+        elif type_id == ID_BOTTOM_TRACK:
+            bt = _decode_bottom_track(buf, p, length, base_offset)
+    assert fixed is not None and variable is not None  # guaranteed by _parse_header
+    return Pd0Ensemble(
+        fixed=fixed,
+        variable=variable,
+        velocity_mps=velocity,
+        correlation=corr,
+        echo_intensity=echo,
+        percent_good=pg,
+        bottom_track=bt,
+        data_type_ids=tuple(ids),
+        n_bytes=n_bytes + 2,
+    )
+
+
+@dataclass
+class Pd0StreamStats:
+    """Counters of a :class:`Pd0StreamParser` (bytes are stream bytes)."""
+
+    bytes_fed: int = 0
+    ensembles: int = 0
+    bytes_discarded: int = 0
+    discard_runs: int = 0  #: contiguous discarded stretches
+    bad_headers: int = 0
+    bad_checksums: int = 0
+    decode_errors: int = 0  #: checksum right but contents inconsistent
+    internal_errors: int = 0  #: decoder bugs caught to keep the stream alive (should stay 0)
+
+
+@dataclass
+class Pd0StreamStats:
+    """Counters of a :class:`Pd0StreamParser` (bytes are stream bytes)."""
+
+    bytes_fed: int = 0
+    ensembles: int = 0
+    bytes_discarded: int = 0
+    discard_runs: int = 0  #: contiguous discarded stretches (one warning each)
+    bad_headers: int = 0
+    bad_checksums: int = 0
+    decode_errors: int = 0  #: checksum right but contents inconsistent
+    internal_errors: int = 0  #: decoder bugs caught to keep the stream alive (should stay 0)
+
+
+class Pd0StreamParser:
+    """Incremental PD0 parser: ``for ens in parser.feed(chunk): ...``.
+
+    It searches for ``0x7F7F``, checks the header, waits for the byte count, checks
+    the checksum and decodes. On a bad header, a bad checksum or undecodable
+    contents it skips one byte and searches again. If the candidate at the front
+    cannot complete yet but a later header already yields a whole checksum-valid
+    ensemble, the front candidate is taken to be garbage (so a false header cannot
+    hold good data back). Each discarded stretch is counted and logged once
+    (warning) with its stream byte offset and reason.
+
+    It never raises on any input, does work linear in the bytes fed, and keeps at
+    most :data:`MAX_ENSEMBLE_BYTES` plus the last chunk between calls. Call
+    :meth:`flush` at the end of a stream to decode what a false header was holding
+    back and to log the final discards.
+    """
+
+    def __init__(self) -> None:
+        self._buf = bytearray()
+        self._base = 0  # stream offset of self._buf[0]
+        self._discard_start: Optional[int] = None
+        self._discard_len = 0
+        self._discard_reasons: set = set()
+        self._la_scanned = 0  # stream offset from which later headers are still unseen
+        self._la_pending: list = []  # [stream offset, stream offset it needs to reach]
+        self.stats = Pd0StreamStats()
+
+    @property
+    def buffered(self) -> int:
+        """Bytes held waiting for more data."""
+        return len(self._buf)
+
+    @property
+    def stream_offset(self) -> int:
+        """Stream offset of the first byte not yet consumed."""
+        return self._base
+
+    def feed(self, data) -> list:
+        """Add bytes; return the ensembles (:class:`Pd0Ensemble`) they complete, in order."""
+        try:
+            view = memoryview(data).cast("B")
+        except TypeError:
+            logger.warning("PD0 stream: ignored a feed of non-bytes type %s", type(data).__name__)
+            return []
+        self.stats.bytes_fed += len(view)
+        self._buf += view
+        return self._run(final=False)
+
+    def flush(self) -> list:
+        """End of stream: return what can still be decoded and discard the rest."""
+        out = self._run(final=True)
+        self._drop_all("end of stream")
+        return out
+
+    def reset(self) -> None:
+        """Drop buffered bytes (e.g. after a reconnection); counters are kept."""
+        self._drop_all("reset")
+
+    # -- internals -------------------------------------------------------------
+
+    def _drop_all(self, reason: str) -> None:
+        if self._buf:
+            self._discard(0, len(self._buf), reason)
+            self._base += len(self._buf)
+            self._buf = bytearray()
+        self._la_pending = []
+        self._la_scanned = self._base
+        self._log_discard()
+
+    def _discard(self, pos: int, n: int, reason: str) -> None:
+        if n <= 0:
+            return
+        start = self._base + pos
+        if self._discard_start is not None and self._discard_start + self._discard_len != start:
+            self._log_discard()
+        if self._discard_start is None:
+            self._discard_start = start
+            self.stats.discard_runs += 1
+        self._discard_len += n
+        self._discard_reasons.add(reason)
+        self.stats.bytes_discarded += n
+
+    def _log_discard(self) -> None:
+        if self._discard_start is not None:
+            logger.warning(
+                "PD0 stream: discarded %d bytes at stream offset %d (%s)",
+                self._discard_len, self._discard_start, "; ".join(sorted(self._discard_reasons)),
+            )
+        self._discard_start = None
+        self._discard_len = 0
+        self._discard_reasons = set()
+
+    def _judge(self, pos: int, end: int):
+        """The candidate at ``pos``: a :class:`Pd0Ensemble`, an int (the buffer end it
+        needs) or ``(reason, error)`` if it is not an ensemble."""
+        buf = self._buf
+        try:
+            n_bytes, _ = _parse_header(buf, pos, end, self._base)
+        except _NeedMore as e:
+            return e.need_end
+        except Pd0DecodeError as e:
+            return ("bad header", e)
+        if end - pos < n_bytes + 2:
+            return pos + n_bytes + 2
+        (stored,) = struct.unpack_from("<H", buf, pos + n_bytes)
+        if ensemble_checksum(buf, pos, n_bytes) != stored:
+            return ("bad checksum", None)
+        try:
+            return decode_ensemble(buf, pos, verify_checksum=False, base_offset=self._base)
+        except Pd0DecodeError as e:
+            return ("undecodable", e)
+        except Exception:  # a decoder bug must not stop acquisition
+            logger.exception("PD0 stream: internal decoder error at stream offset %d", self._base + pos)
+            return ("internal error", None)
+
+    def _lookahead(self, pos: int, end: int) -> Optional[tuple]:
+        """The first header after ``pos`` that already gives a valid ensemble.
+
+        Headers already judged invalid are not looked at again and incomplete ones
+        only once their bytes are in, so the total work stays linear.
+        """
+        base = self._base
+        front = base + pos
+        pending = [p for p in self._la_pending if p[0] > front]
+        self._la_pending = pending
+        for item in pending:
+            if base + end < item[1]:
+                continue
+            r = self._judge(item[0] - base, end)
+            if isinstance(r, Pd0Ensemble):
+                return item[0] - base, r
+            item[1] = base + r if isinstance(r, int) else -1  # -1: invalid, dropped below
+        self._la_pending = [p for p in pending if p[1] >= 0]
+        k = max(self._la_scanned - base, pos + 1)
+        while True:
+            j = self._buf.find(HEADER_ID, k, end)
+            if j < 0:
+                break
+            r = self._judge(j, end)
+            if isinstance(r, Pd0Ensemble):
+                self._la_scanned = base + j + 1
+                return j, r
+            if isinstance(r, int):
+                self._la_pending.append([base + j, base + r])
+            k = j + 1
+        self._la_scanned = base + max(end - 1, pos + 1)
+        return None
+
+    def _count(self, reason: str) -> None:
+        if reason == "bad header":
+            self.stats.bad_headers += 1
+        elif reason == "bad checksum":
+            self.stats.bad_checksums += 1
+        elif reason == "undecodable":
+            self.stats.decode_errors += 1
+        else:
+            self.stats.internal_errors += 1
+
+    def _accept(self, out: list, ens: Pd0Ensemble) -> None:
+        self._log_discard()
+        out.append(ens)
+        self.stats.ensembles += 1
+
+    def _run(self, final: bool) -> list:
+        buf = self._buf
+        end = len(buf)
+        pos = 0
+        out: list = []
+        while pos < end:
+            i = buf.find(HEADER_ID, pos)
+            if i < 0:
+                keep = 1 if (buf[end - 1] == 0x7F and not final) else 0
+                self._discard(pos, end - pos - keep, "no header")
+                pos = end - keep
+                break
+            if i > pos:
+                self._discard(pos, i - pos, "no header")
+                pos = i
+            r = self._judge(pos, end)
+            if isinstance(r, Pd0Ensemble):
+                self._accept(out, r)
+                pos += r.n_bytes
+                continue
+            if isinstance(r, int):  # incomplete: is it garbage holding good data back?
+                found = self._lookahead(pos, end)
+                if found is None:
+                    if final:
+                        self._discard(pos, end - pos, "ensemble never completed")
+                        pos = end
+                    break
+                j, ens = found
+                self._discard(pos, j - pos, "ensemble never completed")
+                self._accept(out, ens)
+                pos = j + ens.n_bytes
+                continue
+            reason, err = r
+            self._count(reason)
+            if err is not None:
+                logger.debug("PD0 stream: %s", err)
+            self._discard(pos, 1, reason)
+            pos += 1
+        if pos:
+            try:
+                del self._buf[:pos]
+            except BufferError:  # a lingering export; copy instead
+                self._buf = bytearray(self._buf[pos:])
+            self._base += pos
+        return out
