@@ -147,6 +147,8 @@ class TileConfig:
 class ConditioningConfig:
     decimation: int = spec("decimation of the complex baseband relative to the ADC rate",
                            lo=1, hi=64)
+    upsample: int = spec("band-limited (FFT) upsampling of the decimated baseband before "
+                         "interpolation", lo=1, hi=64)
 
 
 @dataclass(frozen=True)
@@ -161,6 +163,86 @@ class ImagingConfig:
     line_origin_ne_m: tuple[float, float] = spec("fixed line origin (north, east), m", length=2)
     line_heading_deg: float = spec("fixed line heading, deg from north", lo=-360, hi=360)
     beam_gating: bool = spec("only voxels inside both beam cones are summed")
+    delays: str = spec("travel times: straight rays at sound_speed_m_s; 'table': per-ping "
+                       "refraction table; 'exact': Fermat path per voxel and element",
+                       choices=("straight", "table", "exact"))
+    sediment_sound_speed_m_s: float = spec("sediment sound speed for refracted delays, m/s",
+                                           lo=1000, hi=3000)
+    table_step_m: float = spec("refraction table spacing in offset and depth, m",
+                               lo=1e-4, hi=0.5)
+    interpolation: str = spec("sample interpolation", choices=("nearest", "linear", "cubic"))
+    precision: str = spec("kernel arithmetic", choices=("float32", "float64"))
+    apodisation: str = spec("receive-aperture weighting", choices=("none", "hann"))
+    device: str = spec("where the kernel runs", choices=("cpu", "cuda"))
+
+
+@dataclass(frozen=True)
+class BackgroundConfig:
+    kernel_m: tuple[float, float, float] = spec(
+        "median kernel extent (along, cross, depth), m; rounded to odd voxel counts",
+        length=3, lo=0.0, hi=100.0)
+    method: str = spec("'exact' median, or 'histogram': the median of magnitudes quantised "
+                       "to histogram_bin_db bins (error at most half a bin)",
+                       choices=("exact", "histogram"))
+    histogram_bin_db: float = spec("histogram method: bin width, dB", lo=1e-3, hi=6.0)
+    boundary: str = spec("how windows extend past the tile's faces (scipy.ndimage modes; "
+                         "'truncate': only voxels inside)",
+                         choices=("reflect", "mirror", "nearest", "truncate"))
+    ignore_zeros: bool = spec("leave exactly-zero voxels (no ping reached them) out of the "
+                              "median")
+    floor_db: float = spec("smallest background divided by, dB re the tile's median "
+                           "background", lo=-300, hi=0)
+
+
+@dataclass(frozen=True)
+class DepthGainConfig:
+    db_per_m: float = spec("depth-varying gain added to the normalised level before "
+                           "compression (display only: detections use the level without "
+                           "it), dB/m (0: none)", lo=-200, hi=200)
+    start_m: float = spec("depth below the interface where the gain starts (0 dB above), m",
+                          lo=-10, hi=100)
+
+
+@dataclass(frozen=True)
+class DrcConfig:
+    floor_db: float = spec("normalised level shown as 0 (and everything below), dB re "
+                           "background", lo=-100, hi=100)
+    knee_db: float = spec("normalised level above which levels are compressed, dB re "
+                          "background", lo=-100, hi=200)
+    ceiling_db: float = spec("level the compressed map approaches (shown as 1), dB re "
+                             "background", lo=-100, hi=300)
+
+
+@dataclass(frozen=True)
+class DetectionConfig:
+    threshold_db: float = spec("detection threshold on the normalised level, dB re "
+                               "background", lo=0, hi=200)
+    min_voxels: int = spec("smallest contact, voxels above the threshold", lo=1, hi=10**9)
+    merge_m: tuple[float, float, float] = spec(
+        "contacts whose peaks are closer than this (along, cross, depth) are merged into "
+        "the stronger one, m", length=3, lo=0.0, hi=100.0)
+    max_per_tile: int = spec("most contacts kept per tile (strongest first)", lo=1,
+                             hi=10**6)
+    match_radius_m: float = spec("scoring: a detection within this distance of a true "
+                                 "target detects it, m", lo=0.0, hi=100)
+
+
+@dataclass(frozen=True)
+class QuicklookConfig:
+    depth_slices_m: tuple[float, ...] = spec("depths below the interface of the depth "
+                                             "slices shown, m", min_length=0)
+    dpi: int = spec("PNG resolution, dots per inch", lo=20, hi=600)
+
+
+@dataclass(frozen=True)
+class ProductsConfig:
+    background: BackgroundConfig = spec("background estimation by a 3-D median")
+    depth_gain: DepthGainConfig = spec("depth-varying gain")
+    drc: DrcConfig = spec("dynamic range compression for display")
+    detection: DetectionConfig = spec("contacts in the normalised volume")
+    quicklook: QuicklookConfig = spec("PNG quicklooks")
+    store_volumes: bool = spec("write the background and the compressed volume into the "
+                               "tile file (each as large as the magnitude)")
 
 
 @dataclass(frozen=True)
@@ -168,6 +250,8 @@ class ProcessingConfig:
     tile: TileConfig = spec("image tile geometry")
     conditioning: ConditioningConfig = spec("signal conditioning")
     imaging: ImagingConfig = spec("image formation")
+    products: ProductsConfig | None = spec("image products (omitted: tiles carry the image "
+                                           "only)")
 
 
 # ---------------------------------------------------------------------------- daq

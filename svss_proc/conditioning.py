@@ -1,9 +1,10 @@
 """Signal conditioning: matched filtering, basebanding and decimation in one FFT pass.
 
-Input: real ADC codes (channels x samples) whose sample n holds the acoustic pressure at
+Optional band-limited upsampling (zero-padding the kept band) refines the output grid
+for interpolation. Input: real ADC codes (channels x samples) whose sample n holds the acoustic pressure at
 t_n = window_start + n / fs - group_delay after transmit. Output: complex baseband
 matched-filter output in uPa (the peak magnitude of an echo A s(t - tau) is A), on the
-time axis t_m = t_first + m * D / fs, following :mod:`svss_daq.conventions`:
+time axis t_m = t_first + m * D / (U fs) (D decimation, U upsampling), following :mod:`svss_daq.conventions`:
 y(t) = analytic correlation(t) * exp(-j 2 pi f_c t).
 """
 
@@ -36,24 +37,26 @@ class Conditioned:
 class Conditioner:
     """Matched filter + baseband + decimation for one hardware configuration."""
 
-    def __init__(self, dig: Digitiser, waveform: Waveform, decimation: int):
+    def __init__(self, dig: Digitiser, waveform: Waveform, decimation: int, upsample: int = 1):
         self.fs = dig.sample_rate_hz
         self.n_in = dig.window_samples
         self.decimation = d = int(decimation)
+        self.upsample = up = int(upsample)
         self.group_delay_s = dig.group_delay_s
         self.fc = waveform.center_hz
         replica = waveform.replica(self.fs)
         n = sfft.next_fast_len(self.n_in + replica.size)
         n = d * sfft.next_fast_len(-(-n // d))          # a multiple of the decimation
         self.n_fft = n
-        self.m_out = n // d
-        self.n_out = -(-self.n_in // d)
+        m = n // d                                      # band kept around the carrier
+        self.m_out = m * up                               # inverse FFT length
+        self.n_out = -(-self.n_in // d) * up
         energy = float(replica @ replica)
         # matched filter, analytic (x2 on positive frequencies), scaled to uPa
         spec = np.conj(sfft.rfft(replica, n)) * (2.0 / energy / counts_per_upa(dig))
         k0 = int(round(self.fc * n / self.fs))
         self.f_shift = k0 * self.fs / n
-        k = k0 + np.arange(-(self.m_out // 2), self.m_out - self.m_out // 2)
+        k = k0 + np.arange(-(m // 2), m - m // 2)
         keep = (k > 0) & (k < n // 2 + 1)
         self.bins = k[keep]                               # rfft bins kept
         self.slots = np.mod(k[keep] - k0, self.m_out)     # their place in the short ifft
@@ -65,7 +68,7 @@ class Conditioner:
         z[:, self.slots] = x[:, self.bins] * self.filter
         y = sfft.ifft(z, axis=-1)[:, : self.n_out]
         t_first = window_start_s - self.group_delay_s
-        dt = self.decimation / self.fs
+        dt = self.decimation / (self.fs * self.upsample)
         tm = t_first + np.arange(self.n_out) * dt
         # z holds a(t) exp(-j 2 pi f_shift (t - t_first)); bring it to the convention
         fix = baseband_carrier(tm, self.fc) * np.exp(2j * np.pi * self.f_shift * (tm - t_first))

@@ -19,7 +19,8 @@ from svss_daq.geometry import array_geometry
 from svss_daq.ping import Ping
 from svss_daq.waveform import make_waveform
 
-from .backprojection import along_reach, backproject_ping, prepare
+from .backprojection import along_reach, prepare, run_ping
+from .refraction import TravelTimeTable, build_table
 from .conditioning import Conditioner
 from .grid import TileGrid, tile_grid, tile_index
 
@@ -28,12 +29,37 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class Tile:
-    """A tile being formed or finished: the complex image and what went into it."""
+    """A tile being formed or finished: the image (real and imaginary planes in the
+    kernel's precision while forming) and what went into it."""
     grid: TileGrid
     line: TrackLine
-    image: np.ndarray
+    re: np.ndarray
+    im: np.ndarray
     pings: list[int] = field(default_factory=list)
     updates: int = 0
+
+    @property
+    def image(self) -> np.ndarray:
+        """The complex image (along x cross x depth), complex64, uPa."""
+        out = np.empty(self.re.shape, dtype=np.complex64)
+        out.real = self.re
+        out.imag = self.im
+        return out
+
+
+def receive_apodisation(receivers_body: np.ndarray, kind: str) -> np.ndarray | None:
+    """Per-channel weights over the receive aperture (None for no weighting)."""
+    if kind == "none":
+        return None
+    w = np.ones(receivers_body.shape[0])
+    for axis in (0, 1):
+        p = receivers_body[:, axis]
+        span = np.ptp(p)
+        if span > 0:
+            pitch = np.min(np.diff(np.unique(np.round(p, 9))))
+            x = (p - p.min() + pitch) / (span + 2 * pitch)       # in (0, 1)
+            w *= np.sin(np.pi * x) ** 2
+    return w / w.mean()
 
 
 def line_from_ping(ping: Ping, proc: ProcessingConfig) -> TrackLine:
@@ -59,8 +85,12 @@ class TileImager:
         hw = hardware.value
         self.proc = processing
         self.geometry = array_geometry(hw)
+        cond = processing.conditioning
         self.conditioner = Conditioner(hw.digitiser, make_waveform(hw.waveform),
-                                       processing.conditioning.decimation)
+                                       cond.decimation, cond.upsample)
+        self.dtype = np.float32 if processing.imaging.precision == "float32" else np.float64
+        self.apod = receive_apodisation(self.geometry.receivers, processing.imaging.apodisation)
+        self._tables: dict[int, TravelTimeTable] = {}
         self.line: TrackLine | None = None
         self.active: dict[int, Tile] = {}
         self.done: set[int] = set()
@@ -70,7 +100,8 @@ class TileImager:
     def _tile(self, k: int) -> Tile:
         if k not in self.active:
             grid = tile_grid(self.proc.tile, k)
-            self.active[k] = Tile(grid, self.line, np.zeros(grid.shape, dtype=np.complex64))
+            self.active[k] = Tile(grid, self.line, np.zeros(grid.shape, dtype=self.dtype),
+                                  np.zeros(grid.shape, dtype=self.dtype))
         return self.active[k]
 
     def add(self, ping: Ping) -> list[Tile]:
@@ -92,16 +123,16 @@ class TileImager:
         rx = origin + geo.receivers @ rot.T
         bore = rot @ geo.boresight
         cond = self.conditioner(ping.samples, ping.window_start_ns * 1e-9)
-        c = self.proc.imaging.sound_speed_m_s
-        gating = self.proc.imaging.beam_gating
+        im = self.proc.imaging
+        gating = im.beam_gating
         # which tiles can this ping reach?
         max_depth = tcfg.top_m + tcfg.depth_m
         if gating:
             reach = along_reach(tx, bore, geo.projector_half_angle, max_depth)
         else:
-            reach = (cond.t0_s + cond.dt_s * cond.data.shape[1]) * c / 2
+            reach = (cond.t0_s + cond.dt_s * cond.data.shape[1]) * im.sound_speed_m_s / 2
         lo, hi = tx[0] - reach, tx[0] + reach
-        cos_tx, cos_rx = math.cos(geo.projector_half_angle), math.cos(geo.receiver_half_angle)
+        table = self._table(tx, rx, reach) if im.delays == "table" else None
         kd = None
         for k in range(tile_index(tcfg, lo), tile_index(tcfg, hi) + 1):
             if k in self.done:
@@ -113,10 +144,12 @@ class TileImager:
             ia1 = int(np.clip(np.ceil((hi - a[0]) / v) + 1, 0, a.size))
             if ia1 <= ia0:
                 continue
-            kd = kd or prepare(cond)
-            n = backproject_ping(tile.image, kd.d, kd.f, kd.t0, kd.dt, kd.theta, kd.halvings,
-                                 c, tx, rx, bore, cos_tx, cos_rx, a, tile.grid.cross,
-                                 tile.grid.depth, ia0, ia1, gating)
+            kd = kd or prepare(cond, im.interpolation, self.dtype)
+            n = run_ping(tile.re, tile.im, kd, tx, rx, a, tile.grid.cross, tile.grid.depth,
+                         ia0, ia1, bore=bore, cos_tx=math.cos(geo.projector_half_angle),
+                         cos_rx=math.cos(geo.receiver_half_angle), gating=gating,
+                         apod=self.apod, mode=im.delays, c=im.sound_speed_m_s,
+                         cw=im.sound_speed_m_s, cs=im.sediment_sound_speed_m_s, table=table)
             tile.pings.append(ping.sequence)
             tile.updates += int(n)
             self.updates += int(n)
@@ -124,6 +157,20 @@ class TileImager:
         # tiles wholly behind this ping's reach are complete (platform moves forward)
         finished = [k for k in self.active if (k + 1) * tcfg.length_m < lo]
         return [self._close(k) for k in sorted(finished)]
+
+    def _table(self, tx: np.ndarray, rx: np.ndarray, reach: float) -> TravelTimeTable:
+        """Refraction table for this ping's mean element height (cached per mm)."""
+        im, tcfg = self.proc.imaging, self.proc.tile
+        h = float(-np.mean(np.concatenate([rx[:, 2], tx[2:3]])))
+        key = int(round(h * 1000))
+        if key not in self._tables:
+            span = float(np.ptp(rx[:, 0]) + np.ptp(rx[:, 1]) + abs(rx[:, :2] - tx[:2]).max())
+            rho_max = reach + tcfg.width_m + span
+            self._tables[key] = build_table(key / 1000, rho_max, tcfg.top_m - im.table_step_m,
+                                            tcfg.top_m + tcfg.depth_m + im.table_step_m,
+                                            im.table_step_m, im.sound_speed_m_s,
+                                            im.sediment_sound_speed_m_s)
+        return self._tables[key]
 
     def _close(self, k: int) -> Tile:
         self.done.add(k)

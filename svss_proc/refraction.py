@@ -1,0 +1,157 @@
+"""Two-medium propagation through a flat water-sediment interface (Fermat's principle).
+
+Geometry: an element at height ``h`` > 0 above the interface, a point at depth ``z`` > 0
+below it and horizontal offset ``rho`` >= 0. The ray crosses the interface at horizontal
+distance ``x`` from the element, where the travel time
+
+    T(x) = sqrt(x^2 + h^2) / c_w + sqrt((rho - x)^2 + z^2) / c_s
+
+is least; T'(x) = x / (c_w r_w) - (rho - x) / (c_s r_s) increases monotonically from
+T'(0) <= 0 to T'(rho) >= 0, so the crossing is the root of T' bracketed by [0, rho]
+(Snell: cos(theta_w) / c_w = cos(theta_s) / c_s). The root is found by safeguarded Newton
+steps inside a shrinking bracket (bisection whenever Newton leaves it), which converges
+near the critical angle too, where plain Newton stalls. Points at or above the interface
+(z <= 0) are reached by a straight ray in water.
+
+This module is the project's one refraction solver: the imager uses it and the simulator
+may reuse it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+
+@nb.njit(cache=True)
+def fermat_crossing(h, rho, z, cw, cs, tol=1e-10):
+    """Horizontal distance (m) from the element to where the ray crosses the interface.
+
+    h: element height above the interface (m, > 0); rho: horizontal offset (m, >= 0);
+    z: depth below the interface (m, > 0); cw, cs: water and sediment sound speeds (m/s).
+    """
+    if rho <= 0.0:
+        return 0.0
+    lo = 0.0
+    hi = rho
+    # start from the straight line's crossing
+    x = rho * h / (h + z)
+    for _ in range(100):
+        rw = math.sqrt(x * x + h * h)
+        rs = math.sqrt((rho - x) * (rho - x) + z * z)
+        g = x / (cw * rw) - (rho - x) / (cs * rs)
+        if g > 0.0:
+            hi = x
+        else:
+            lo = x
+        dg = h * h / (cw * rw * rw * rw) + z * z / (cs * rs * rs * rs)
+        step = g / dg
+        xn = x - step
+        if not (lo < xn < hi):
+            xn = 0.5 * (lo + hi)
+        if abs(xn - x) <= tol or hi - lo <= tol:
+            return xn
+        x = xn
+    return x
+
+
+@nb.njit(cache=True)
+def one_way_time(h, rho, z, cw, cs):
+    """One-way travel time (s) from an element at height h above the interface to a point
+    at horizontal offset rho and depth z (straight in water when z <= 0)."""
+    if z <= 0.0:
+        dz = h + z
+        return math.sqrt(rho * rho + dz * dz) / cw
+    x = fermat_crossing(h, rho, z, cw, cs)
+    return math.sqrt(x * x + h * h) / cw + math.sqrt((rho - x) ** 2 + z * z) / cs
+
+
+@nb.njit(cache=True)
+def vertical_slowness(h, rho, z, cw, cs):
+    """dT/dh (s/m): the water-side vertical slowness of the ray, sqrt(1/cw^2 - p^2)
+    with p = cos(theta_w) / cw the ray parameter."""
+    if z <= 0.0:
+        dz = h + z
+        r = math.sqrt(rho * rho + dz * dz)
+        return dz / (cw * r) if r > 0.0 else 1.0 / cw
+    x = fermat_crossing(h, rho, z, cw, cs)
+    return h / (cw * math.sqrt(x * x + h * h))
+
+
+@nb.njit(parallel=True, cache=True)
+def one_way_times(h, rho, z, cw, cs):
+    """Vectorised :func:`one_way_time` over equally shaped float64 arrays."""
+    out = np.empty(rho.size)
+    hf, rf, zf = h.ravel(), rho.ravel(), z.ravel()
+    for i in nb.prange(rho.size):
+        out[i] = one_way_time(hf[i], rf[i], zf[i], cw, cs)
+    return out.reshape(rho.shape)
+
+
+@dataclass(frozen=True)
+class TravelTimeTable:
+    """One-way travel times from an element at height ``h_ref`` above the interface,
+    on a regular grid of horizontal offset rho (from 0, step ``drho``) and depth z (from
+    ``z0``, step ``dz``), with the vertical slowness for a first-order correction to
+    other element heights: T(h, rho, z) ~ T(h_ref, rho, z) + (h - h_ref) * eta."""
+    h_ref: float
+    drho: float
+    z0: float
+    dz: float
+    time: np.ndarray    # (n_rho, n_z) s
+    eta: np.ndarray     # (n_rho, n_z) s/m
+
+
+@nb.njit(parallel=True, cache=True)
+def _fill_table(h, drho, z0, dz, cw, cs, time, eta):
+    n_rho, n_z = time.shape
+    for i in nb.prange(n_rho):
+        rho = i * drho
+        for j in range(n_z):
+            z = z0 + j * dz
+            time[i, j] = one_way_time(h, rho, z, cw, cs)
+            eta[i, j] = vertical_slowness(h, rho, z, cw, cs)
+
+
+def build_table(h_ref: float, rho_max: float, z_min: float, z_max: float, step: float,
+                cw: float, cs: float) -> TravelTimeTable:
+    """Tabulate one-way times for offsets 0..rho_max and depths z_min..z_max (m)."""
+    if h_ref <= 0:
+        raise ValueError(f"travel-time table: element height above the interface must be "
+                         f"positive, got {h_ref} m")
+    n_rho = int(math.ceil(rho_max / step)) + 2
+    n_z = int(math.ceil((z_max - z_min) / step)) + 2
+    time = np.empty((n_rho, n_z))
+    eta = np.empty((n_rho, n_z))
+    _fill_table(h_ref, step, z_min, step, cw, cs, time, eta)
+    return TravelTimeTable(h_ref, step, z_min, step, time, eta)
+
+
+@nb.njit(inline="always", cache=True)
+def table_time(time, eta, inv_drho, z0, inv_dz, dh, rho, z):
+    """Bilinear look-up of a :class:`TravelTimeTable` (arrays passed apart), clamped to
+    its edges, with the first-order height correction dh * eta."""
+    n_rho, n_z = time.shape
+    u = rho * inv_drho
+    v = (z - z0) * inv_dz
+    u = min(max(u, 0.0), n_rho - 1.001)
+    v = min(max(v, 0.0), n_z - 1.001)
+    i = int(u)
+    j = int(v)
+    a = u - i
+    b = v - j
+    t = ((1 - a) * ((1 - b) * time[i, j] + b * time[i, j + 1])
+         + a * ((1 - b) * time[i + 1, j] + b * time[i + 1, j + 1]))
+    e = ((1 - a) * ((1 - b) * eta[i, j] + b * eta[i, j + 1])
+         + a * ((1 - b) * eta[i + 1, j] + b * eta[i + 1, j + 1]))
+    return t + dh * e
+
+
+def straight_ray_depth(true_depth: float, cw: float, cs: float) -> float:
+    """Apparent depth (m) of a point at ``true_depth`` below the interface, vertically
+    under the sonar, when imaged with straight rays at the water speed: the sediment leg
+    takes true_depth / cs, which a water-speed imager maps to true_depth * cw / cs."""
+    return true_depth * cw / cs
