@@ -32,13 +32,13 @@ from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
-from numba import types
-from numba.extending import overload
 
 from svss_daq.conventions import remodulation
 
 from .conditioning import Conditioned
-from .refraction import TravelTimeTable, one_way_time
+from .kernel_math import build
+from .refraction import TravelTimeTable
+from .refraction import _cpu as refraction_cpu
 
 INTERP = {"nearest": 0, "linear": 1, "cubic": 2}
 DELAY = {"straight": 0, "table": 1, "exact": 2}
@@ -83,120 +83,8 @@ def prepare(cond: Conditioned, interp: str = "linear", dtype=np.float32) -> Kern
                       cond.dt_s, theta, halvings, code)
 
 
-# ----------------------------------------------------------------- scalar building blocks
-
-
-def cast_like(ref, x):
-    """``x`` converted to the floating type of ``ref`` (numba only)."""
-    raise NotImplementedError("cast_like is for numba-compiled code only")
-
-
-@overload(cast_like, inline="always")
-def _cast_like(ref, x):
-    if ref == types.float32:
-        return lambda ref, x: np.float32(x)
-    return lambda ref, x: np.float64(x)
-
-
-
-@nb.njit(inline="always", cache=True)
-def _cis(x, halvings, one):
-    """(cos x, sin x) in the precision of ``one``, by Taylor series after halvings."""
-    for _ in range(halvings):
-        x = x * cast_like(one, 0.5)
-    x2 = x * x
-    c = one + x2 * (cast_like(one, -1 / 2) + x2 * (cast_like(one, 1 / 24) + x2 * (
-        cast_like(one, -1 / 720) + x2 * (cast_like(one, 1 / 40320)
-                                         + x2 * cast_like(one, -1 / 3628800)))))
-    s = x * (one + x2 * (cast_like(one, -1 / 6) + x2 * (cast_like(one, 1 / 120) + x2 * (
-        cast_like(one, -1 / 5040) + x2 * (cast_like(one, 1 / 362880)
-                                          + x2 * cast_like(one, -1 / 39916800))))))
-    for _ in range(halvings):
-        c, s = c * c - s * s, (one + one) * c * s
-    return c, s
-
-
-@nb.njit(inline="always", cache=True)
-def _weights(interp, w, one):
-    """Interpolation weights (up to four taps) at fractional position w."""
-    zero = one - one
-    if interp == 0:
-        return one, zero, zero, zero
-    if interp == 1:
-        return one - w, w, zero, zero
-    # Keys cubic convolution, a = -1/2, taps at -1, 0, 1, 2
-    half = one / (one + one)
-    w2 = w * w
-    w3 = w2 * w
-    c0 = half * (-w3 + (one + one) * w2 - w)
-    c1 = half * ((one + one + one) * w3 - (one + one + one + one + one) * w2) + one
-    c2 = half * (-(one + one + one) * w3 + (one + one + one + one) * w2 + w)
-    c3 = half * (w3 - w2)
-    return c0, c1, c2, c3
-
-
-@nb.njit(inline="always", cache=True)
-def _sample(re, im, ch, u, interp, halvings, theta, nt, one):
-    """Remodulated, interpolated sample of channel ``ch`` at fractional index u, branch
-    free so that the channel loop vectorises. Returns (re, im, valid as 0/1 weight)."""
-    zero = one - one
-    half = cast_like(one, 0.5)
-    if interp == 0:
-        lo = zero
-        hi = cast_like(one, nt - 1)
-        uc = min(max(u, lo), hi)
-        i0 = np.int32(uc + half)
-        shift = zero
-    elif interp == 1:
-        lo = zero
-        hi = cast_like(one, nt - 1) - cast_like(one, 1e-3)
-        uc = min(max(u, lo), hi)
-        i0 = np.int32(uc)
-        shift = half
-    else:
-        lo = one
-        hi = cast_like(one, nt - 2) - cast_like(one, 1e-3)
-        uc = min(max(u, lo), hi)
-        i0 = np.int32(uc)
-        shift = half
-    valid = (one if u >= lo else zero) * (one if u <= hi else zero)
-    w = uc - cast_like(one, i0)
-    c0, c1, c2, c3 = _weights(interp, w, one)
-    sr = c0 * re[0, ch, i0]
-    si = c0 * im[0, ch, i0]
-    if interp > 0:
-        sr += c1 * re[1, ch, i0]
-        si += c1 * im[1, ch, i0]
-    if interp == 2:
-        sr += c2 * re[2, ch, i0] + c3 * re[3, ch, i0]
-        si += c2 * im[2, ch, i0] + c3 * im[3, ch, i0]
-    cr, cs = _cis(theta * (w - shift), halvings, one)
-    return sr * cr - si * cs, sr * cs + si * cr, valid
-
-
-@nb.njit(inline="always", cache=True)
-def _time(mode, dx, dy, z, h, inv_c, cw, cs, ttab, etab, inv_drho, tz0, inv_dz, h_ref):
-    """One-way travel time from an element at height h above the interface (horizontal
-    offset (dx, dy) to the voxel at depth z below the interface)."""
-    if mode == 0:
-        dz = z + h
-        return math.sqrt(dx * dx + dy * dy + dz * dz) * inv_c
-    one = inv_c * 0 + 1
-    rho = math.sqrt(np.float64(dx) * dx + np.float64(dy) * dy)
-    if mode == 1:
-        n_rho, n_z = ttab.shape
-        u = min(max(rho * inv_drho, 0.0), n_rho - 1.001)
-        v = min(max((z - tz0) * inv_dz, 0.0), n_z - 1.001)
-        i = int(u)
-        j = int(v)
-        a = u - i
-        b = v - j
-        t = ((1 - a) * ((1 - b) * ttab[i, j] + b * ttab[i, j + 1])
-             + a * ((1 - b) * ttab[i + 1, j] + b * ttab[i + 1, j + 1]))
-        e = ((1 - a) * ((1 - b) * etab[i, j] + b * etab[i, j + 1])
-             + a * ((1 - b) * etab[i + 1, j] + b * etab[i + 1, j + 1]))
-        return cast_like(one, t + (h - h_ref) * e)
-    return cast_like(one, one_way_time(np.float64(h), rho, np.float64(z), cw, cs))
+_cpu = build(nb.njit(inline="always", cache=True), refraction_cpu)
+_voxel_sum = _cpu.voxel_sum
 
 
 # ------------------------------------------------------------------------- the kernel
@@ -211,8 +99,6 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
                rx_dy, rx_h, apod, bore, cos_tx, cos_rx, inv_c, cw, cs, ttab, etab, inv_drho,
                tz0, inv_dz, h_ref, ia0, ia1):
         one = re[0, 0, 0] * 0 + 1
-        nch = re.shape[1]
-        nt = re.shape[2]
         nc = cy.size
         nd = dz.size
         counts = np.zeros(ia1 - ia0, dtype=np.int64)
@@ -223,35 +109,13 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
             for ic in range(nc):
                 y = cy[ic]
                 for iz in range(nd):
-                    z = dz[iz]
-                    vz = z + h_tx                   # vertical offset below the projector
-                    r1 = math.sqrt(x * x + y * y + vz * vz)
-                    if gating and x * bore[0] + y * bore[1] + vz * bore[2] < r1 * cos_tx:
-                        continue
-                    t1 = _time(mode, x, y, z, h_tx, inv_c, cw, cs, ttab, etab, inv_drho,
-                               tz0, inv_dz, h_ref) - t0
-                    acc_re = one - one
-                    acc_im = one - one
-                    for ch in range(nch):             # branch free: vectorises
-                        ex = x - rx_dx[ch]
-                        ey = y - rx_dy[ch]
-                        ez = z + rx_h[ch]
-                        g = apod[ch]
-                        if gating:
-                            r2 = math.sqrt(ex * ex + ey * ey + ez * ez)
-                            inside = ex * bore[0] + ey * bore[1] + ez * bore[2] >= r2 * cos_rx
-                            g = g if inside else one - one
-                        t2 = _time(mode, ex, ey, z, rx_h[ch], inv_c, cw, cs, ttab, etab,
-                                   inv_drho, tz0, inv_dz, h_ref)
-                        u = (t1 + t2) * inv_dt
-                        sr, si, valid = _sample(re, im, ch, u, interp, halvings, theta, nt,
-                                                one)
-                        g = g * valid
-                        acc_re += g * sr
-                        acc_im += g * si
-                        n_upd += np.int64(g != 0)
-                    img_re[ia, ic, iz] += acc_re
-                    img_im[ia, ic, iz] += acc_im
+                    sr, si, n = _voxel_sum(x, y, dz[iz], interp, mode, gating, halvings, re,
+                                           im, t0, inv_dt, theta, h_tx, rx_dx, rx_dy, rx_h,
+                                           apod, bore, cos_tx, cos_rx, inv_c, cw, cs, ttab,
+                                           etab, inv_drho, tz0, inv_dz, h_ref, one)
+                    img_re[ia, ic, iz] += sr
+                    img_im[ia, ic, iz] += si
+                    n_upd += n
             counts[k] = n_upd
         return counts.sum()
 
@@ -289,12 +153,12 @@ def along_reach(tx_tile: np.ndarray, bore: np.ndarray, half_angle: float,
 _EMPTY_TABLE = np.zeros((2, 2))
 
 
-def run_ping(img_re, img_im, kd: KernelData, tx, rx, along, cross, depth, ia0, ia1, *,
-             bore, cos_tx, cos_rx, gating=True, apod=None, mode="straight", c=1500.0,
-             cw=1500.0, cs=1500.0, table: TravelTimeTable | None = None) -> int:
-    """Call :func:`backproject_ping` with geometry in the tile frame (float64): ``tx``
-    (3,), ``rx`` (channels, 3), voxel axes; the kernel precision is the image planes'."""
-    ft = img_re.dtype.type
+def geometry_args(ft, kd: KernelData, tx, rx, along, cross, depth, *, bore, cos_tx, cos_rx,
+                  apod=None, mode="straight", c=1500.0, cw=1500.0, cs=1500.0,
+                  table: TravelTimeTable | None = None) -> tuple:
+    """The kernel arguments after the image planes and before the along-track range:
+    geometry from the tile frame (float64) made relative to the projector, then cast to
+    the kernel precision ``ft``."""
     nch = rx.shape[0]
     ax = np.ascontiguousarray(along - tx[0], dtype=ft)
     cy = np.ascontiguousarray(cross - tx[1], dtype=ft)
@@ -303,8 +167,7 @@ def run_ping(img_re, img_im, kd: KernelData, tx, rx, along, cross, depth, ia0, i
     rx_dy = np.ascontiguousarray(rx[:, 1] - tx[1], dtype=ft)
     rx_h = np.ascontiguousarray(-rx[:, 2], dtype=ft)
     apod = np.ones(nch, dtype=ft) if apod is None else np.ascontiguousarray(apod, dtype=ft)
-    code = DELAY[mode]
-    if code == 1:
+    if DELAY[mode] == 1:
         if table is None:
             raise ValueError("delay mode 'table' needs a travel-time table")
         ttab, etab = table.time, table.eta
@@ -312,11 +175,23 @@ def run_ping(img_re, img_im, kd: KernelData, tx, rx, along, cross, depth, ia0, i
     else:
         ttab = etab = _EMPTY_TABLE
         inv_drho, tz0, inv_dz, h_ref = 1.0, 0.0, 1.0, 0.0
-    if kd.re.dtype != img_re.dtype:
-        raise ValueError(f"kernel data is {kd.re.dtype}, image planes are {img_re.dtype}")
-    kernel = kernel_for(kd.interp, code, gating, kd.halvings)
-    return int(kernel(
-        img_re, img_im, kd.re, kd.im, ft(kd.t0), ft(1.0 / kd.dt), ft(kd.theta),
-        ax, cy, dz, ft(-tx[2]), rx_dx, rx_dy, rx_h, apod,
-        np.ascontiguousarray(bore, dtype=ft), ft(cos_tx), ft(cos_rx), ft(1.0 / c), cw, cs,
-        ttab, etab, inv_drho, tz0, inv_dz, h_ref, ia0, ia1))
+    if kd.re.dtype != ft:
+        raise ValueError(f"kernel data is {kd.re.dtype}, the image planes are {np.dtype(ft)}")
+    return (kd.re, kd.im, ft(kd.t0), ft(1.0 / kd.dt), ft(kd.theta), ax, cy, dz, ft(-tx[2]),
+            rx_dx, rx_dy, rx_h, apod, np.ascontiguousarray(bore, dtype=ft), ft(cos_tx),
+            ft(cos_rx), ft(1.0 / c), float(cw), float(cs), ttab, etab, inv_drho, tz0, inv_dz,
+            h_ref)
+
+
+def run_ping(img_re, img_im, kd: KernelData, tx, rx, along, cross, depth, ia0, ia1, *,
+             bore, cos_tx, cos_rx, gating=True, apod=None, mode="straight", c=1500.0,
+             cw=1500.0, cs=1500.0, table: TravelTimeTable | None = None) -> int:
+    """Add one ping into the image planes (along x cross x depth) for along-track indices
+    ia0 <= ia < ia1, with geometry in the tile frame (float64): ``tx`` (3,), ``rx``
+    (channels, 3), voxel axes. The kernel precision is the image planes'. Returns the
+    number of voxel-channel updates."""
+    args = geometry_args(img_re.dtype.type, kd, tx, rx, along, cross, depth, bore=bore,
+                         cos_tx=cos_tx, cos_rx=cos_rx, apod=apod, mode=mode, c=c, cw=cw,
+                         cs=cs, table=table)
+    kernel = kernel_for(kd.interp, DELAY[mode], gating, kd.halvings)
+    return int(kernel(img_re, img_im, *args, ia0, ia1))

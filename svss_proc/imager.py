@@ -46,6 +46,12 @@ class Tile:
         out.imag = self.im
         return out
 
+    def to_host(self) -> "Tile":
+        """Bring device-resident planes (GPU imaging) back to host memory."""
+        if hasattr(self.re, "copy_to_host"):
+            self.re, self.im = self.re.copy_to_host(), self.im.copy_to_host()
+        return self
+
 
 def receive_apodisation(receivers_body: np.ndarray, kind: str) -> np.ndarray | None:
     """Per-channel weights over the receive aperture (None for no weighting)."""
@@ -91,6 +97,11 @@ class TileImager:
         self.dtype = np.float32 if processing.imaging.precision == "float32" else np.float64
         self.apod = receive_apodisation(self.geometry.receivers, processing.imaging.apodisation)
         self._tables: dict[int, TravelTimeTable] = {}
+        if processing.imaging.device == "cuda":
+            from . import gpu                   # numba-cuda only when asked for
+            self._run, self._zeros = gpu.run_ping_gpu, gpu.device_zeros
+        else:
+            self._run, self._zeros = run_ping, np.zeros
         self.line: TrackLine | None = None
         self.active: dict[int, Tile] = {}
         self.done: set[int] = set()
@@ -100,8 +111,8 @@ class TileImager:
     def _tile(self, k: int) -> Tile:
         if k not in self.active:
             grid = tile_grid(self.proc.tile, k)
-            self.active[k] = Tile(grid, self.line, np.zeros(grid.shape, dtype=self.dtype),
-                                  np.zeros(grid.shape, dtype=self.dtype))
+            self.active[k] = Tile(grid, self.line, self._zeros(grid.shape, dtype=self.dtype),
+                                  self._zeros(grid.shape, dtype=self.dtype))
         return self.active[k]
 
     def add(self, ping: Ping) -> list[Tile]:
@@ -145,7 +156,7 @@ class TileImager:
             if ia1 <= ia0:
                 continue
             kd = kd or prepare(cond, im.interpolation, self.dtype)
-            n = run_ping(tile.re, tile.im, kd, tx, rx, a, tile.grid.cross, tile.grid.depth,
+            n = self._run(tile.re, tile.im, kd, tx, rx, a, tile.grid.cross, tile.grid.depth,
                          ia0, ia1, bore=bore, cos_tx=math.cos(geo.projector_half_angle),
                          cos_rx=math.cos(geo.receiver_half_angle), gating=gating,
                          apod=self.apod, mode=im.delays, c=im.sound_speed_m_s,
@@ -174,7 +185,7 @@ class TileImager:
 
     def _close(self, k: int) -> Tile:
         self.done.add(k)
-        return self.active.pop(k)
+        return self.active.pop(k).to_host()
 
     def finish(self) -> list[Tile]:
         """Return every tile still being formed."""

@@ -21,64 +21,75 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numba as nb
 import numpy as np
 
 
-@nb.njit(cache=True)
-def fermat_crossing(h, rho, z, cw, cs, tol=1e-10):
-    """Horizontal distance (m) from the element to where the ray crosses the interface.
+def build_refraction(jit):
+    """The scalar refraction functions compiled with ``jit`` (numba's CPU ``njit`` or a
+    CUDA device decorator), so that CPU and GPU kernels share one definition."""
 
-    h: element height above the interface (m, > 0); rho: horizontal offset (m, >= 0);
-    z: depth below the interface (m, > 0); cw, cs: water and sediment sound speeds (m/s).
-    """
-    if rho <= 0.0:
-        return 0.0
-    lo = 0.0
-    hi = rho
-    # start from the straight line's crossing
-    x = rho * h / (h + z)
-    for _ in range(100):
-        rw = math.sqrt(x * x + h * h)
-        rs = math.sqrt((rho - x) * (rho - x) + z * z)
-        g = x / (cw * rw) - (rho - x) / (cs * rs)
-        if g > 0.0:
-            hi = x
-        else:
-            lo = x
-        dg = h * h / (cw * rw * rw * rw) + z * z / (cs * rs * rs * rs)
-        step = g / dg
-        xn = x - step
-        if not (lo < xn < hi):
-            xn = 0.5 * (lo + hi)
-        if abs(xn - x) <= tol or hi - lo <= tol:
-            return xn
-        x = xn
-    return x
+    @jit
+    def fermat_crossing(h, rho, z, cw, cs):
+        """Horizontal distance (m) from the element to where the ray crosses the interface.
+
+        h: element height above the interface (m, > 0); rho: horizontal offset (m, >= 0);
+        z: depth below the interface (m, > 0); cw, cs: water and sediment speeds (m/s).
+        Safeguarded Newton inside a shrinking bracket, to 1e-10 m.
+        """
+        if rho <= 0.0:
+            return 0.0
+        lo = 0.0
+        hi = rho
+        x = rho * h / (h + z)                # the straight line's crossing
+        for _ in range(100):
+            rw = math.sqrt(x * x + h * h)
+            rs = math.sqrt((rho - x) * (rho - x) + z * z)
+            g = x / (cw * rw) - (rho - x) / (cs * rs)
+            if g > 0.0:
+                hi = x
+            else:
+                lo = x
+            dg = h * h / (cw * rw * rw * rw) + z * z / (cs * rs * rs * rs)
+            xn = x - g / dg
+            if not (lo < xn < hi):
+                xn = 0.5 * (lo + hi)
+            if abs(xn - x) <= 1e-10 or hi - lo <= 1e-10:
+                return xn
+            x = xn
+        return x
+
+    @jit
+    def one_way_time(h, rho, z, cw, cs):
+        """One-way travel time (s) from an element at height h above the interface to a
+        point at horizontal offset rho and depth z (straight in water when z <= 0)."""
+        if z <= 0.0:
+            dz = h + z
+            return math.sqrt(rho * rho + dz * dz) / cw
+        x = fermat_crossing(h, rho, z, cw, cs)
+        return math.sqrt(x * x + h * h) / cw + math.sqrt((rho - x) ** 2 + z * z) / cs
+
+    @jit
+    def vertical_slowness(h, rho, z, cw, cs):
+        """dT/dh (s/m): the water-side vertical slowness of the ray, sqrt(1/cw^2 - p^2)
+        with p = cos(theta_w) / cw the ray parameter."""
+        if z <= 0.0:
+            dz = h + z
+            r = math.sqrt(rho * rho + dz * dz)
+            return dz / (cw * r) if r > 0.0 else 1.0 / cw
+        x = fermat_crossing(h, rho, z, cw, cs)
+        return h / (cw * math.sqrt(x * x + h * h))
+
+    return SimpleNamespace(fermat_crossing=fermat_crossing, one_way_time=one_way_time,
+                           vertical_slowness=vertical_slowness)
 
 
-@nb.njit(cache=True)
-def one_way_time(h, rho, z, cw, cs):
-    """One-way travel time (s) from an element at height h above the interface to a point
-    at horizontal offset rho and depth z (straight in water when z <= 0)."""
-    if z <= 0.0:
-        dz = h + z
-        return math.sqrt(rho * rho + dz * dz) / cw
-    x = fermat_crossing(h, rho, z, cw, cs)
-    return math.sqrt(x * x + h * h) / cw + math.sqrt((rho - x) ** 2 + z * z) / cs
-
-
-@nb.njit(cache=True)
-def vertical_slowness(h, rho, z, cw, cs):
-    """dT/dh (s/m): the water-side vertical slowness of the ray, sqrt(1/cw^2 - p^2)
-    with p = cos(theta_w) / cw the ray parameter."""
-    if z <= 0.0:
-        dz = h + z
-        r = math.sqrt(rho * rho + dz * dz)
-        return dz / (cw * r) if r > 0.0 else 1.0 / cw
-    x = fermat_crossing(h, rho, z, cw, cs)
-    return h / (cw * math.sqrt(x * x + h * h))
+_cpu = build_refraction(nb.njit(cache=True))
+fermat_crossing = _cpu.fermat_crossing
+one_way_time = _cpu.one_way_time
+vertical_slowness = _cpu.vertical_slowness
 
 
 @nb.njit(parallel=True, cache=True)
@@ -128,26 +139,6 @@ def build_table(h_ref: float, rho_max: float, z_min: float, z_max: float, step: 
     eta = np.empty((n_rho, n_z))
     _fill_table(h_ref, step, z_min, step, cw, cs, time, eta)
     return TravelTimeTable(h_ref, step, z_min, step, time, eta)
-
-
-@nb.njit(inline="always", cache=True)
-def table_time(time, eta, inv_drho, z0, inv_dz, dh, rho, z):
-    """Bilinear look-up of a :class:`TravelTimeTable` (arrays passed apart), clamped to
-    its edges, with the first-order height correction dh * eta."""
-    n_rho, n_z = time.shape
-    u = rho * inv_drho
-    v = (z - z0) * inv_dz
-    u = min(max(u, 0.0), n_rho - 1.001)
-    v = min(max(v, 0.0), n_z - 1.001)
-    i = int(u)
-    j = int(v)
-    a = u - i
-    b = v - j
-    t = ((1 - a) * ((1 - b) * time[i, j] + b * time[i, j + 1])
-         + a * ((1 - b) * time[i + 1, j] + b * time[i + 1, j + 1]))
-    e = ((1 - a) * ((1 - b) * eta[i, j] + b * eta[i, j + 1])
-         + a * ((1 - b) * eta[i + 1, j] + b * eta[i + 1, j + 1]))
-    return t + dh * e
 
 
 def straight_ray_depth(true_depth: float, cw: float, cs: float) -> float:

@@ -1,0 +1,175 @@
+"""Scalar building blocks of the backprojection kernels, defined once for the CPU and
+the GPU: :func:`build` compiles them with a given decorator (numba's ``njit`` for the CPU
+kernels, a CUDA device decorator for the GPU kernel).
+
+Phase factor: (cos x, sin x) by a Taylor series for |x| <= 1.4 rad, after ``halvings``
+halvings of the angle, squared back. Interpolation weights: nearest, linear, and Keys'
+cubic convolution (a = -1/2). Travel times: straight rays, a refraction table with a
+first-order height correction, or the exact Fermat path.
+"""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+from numba import types
+from numba.extending import overload
+
+
+def cast_like(ref, x):
+    """``x`` converted to the floating type of ``ref`` (float32 or float64)."""
+    return np.asarray(ref).dtype.type(x)
+
+
+@overload(cast_like, inline="always", target="generic")
+def _cast_like(ref, x):
+    if ref == types.float32:
+        return lambda ref, x: np.float32(x)
+    return lambda ref, x: np.float64(x)
+
+
+def build(jit, refr):
+    """The scalar functions compiled with ``jit``; ``refr`` holds the matching
+    refraction functions (:func:`svss_proc.refraction.build_refraction`)."""
+    one_way_time = refr.one_way_time
+
+    @jit
+    def cis(x, halvings, one):
+        """(cos x, sin x) in the precision of ``one``, by Taylor series after halvings."""
+        for _ in range(halvings):
+            x = x * cast_like(one, 0.5)
+        x2 = x * x
+        c = one + x2 * (cast_like(one, -1 / 2) + x2 * (cast_like(one, 1 / 24) + x2 * (
+            cast_like(one, -1 / 720) + x2 * (cast_like(one, 1 / 40320)
+                                             + x2 * cast_like(one, -1 / 3628800)))))
+        s = x * (one + x2 * (cast_like(one, -1 / 6) + x2 * (cast_like(one, 1 / 120) + x2 * (
+            cast_like(one, -1 / 5040) + x2 * (cast_like(one, 1 / 362880)
+                                              + x2 * cast_like(one, -1 / 39916800))))))
+        for _ in range(halvings):
+            c, s = c * c - s * s, (one + one) * c * s
+        return c, s
+
+
+    @jit
+    def weights(interp, w, one):
+        """Interpolation weights (up to four taps) at fractional position w."""
+        zero = one - one
+        if interp == 0:
+            return one, zero, zero, zero
+        if interp == 1:
+            return one - w, w, zero, zero
+        # Keys cubic convolution, a = -1/2, taps at -1, 0, 1, 2
+        half = one / (one + one)
+        w2 = w * w
+        w3 = w2 * w
+        c0 = half * (-w3 + (one + one) * w2 - w)
+        c1 = half * ((one + one + one) * w3 - (one + one + one + one + one) * w2) + one
+        c2 = half * (-(one + one + one) * w3 + (one + one + one + one) * w2 + w)
+        c3 = half * (w3 - w2)
+        return c0, c1, c2, c3
+
+
+    @jit
+    def sample(re, im, ch, u, interp, halvings, theta, nt, one):
+        """Remodulated, interpolated sample of channel ``ch`` at fractional index u, branch
+        free so that the channel loop vectorises. Returns (re, im, valid as 0/1 weight)."""
+        zero = one - one
+        half = cast_like(one, 0.5)
+        if interp == 0:
+            lo = zero
+            hi = cast_like(one, nt - 1)
+            uc = min(max(u, lo), hi)
+            i0 = np.int32(uc + half)
+            shift = zero
+        elif interp == 1:
+            lo = zero
+            hi = cast_like(one, nt - 1) - cast_like(one, 1e-3)
+            uc = min(max(u, lo), hi)
+            i0 = np.int32(uc)
+            shift = half
+        else:
+            lo = one
+            hi = cast_like(one, nt - 2) - cast_like(one, 1e-3)
+            uc = min(max(u, lo), hi)
+            i0 = np.int32(uc)
+            shift = half
+        valid = (one if u >= lo else zero) * (one if u <= hi else zero)
+        w = uc - cast_like(one, i0)
+        c0, c1, c2, c3 = weights(interp, w, one)
+        sr = c0 * re[0, ch, i0]
+        si = c0 * im[0, ch, i0]
+        if interp > 0:
+            sr += c1 * re[1, ch, i0]
+            si += c1 * im[1, ch, i0]
+        if interp == 2:
+            sr += c2 * re[2, ch, i0] + c3 * re[3, ch, i0]
+            si += c2 * im[2, ch, i0] + c3 * im[3, ch, i0]
+        cr, cs = cis(theta * (w - shift), halvings, one)
+        return sr * cr - si * cs, sr * cs + si * cr, valid
+
+
+    @jit
+    def travel_time(mode, dx, dy, z, h, inv_c, cw, cs, ttab, etab, inv_drho, tz0, inv_dz, h_ref):
+        """One-way travel time from an element at height h above the interface (horizontal
+        offset (dx, dy) to the voxel at depth z below the interface)."""
+        if mode == 0:
+            dz = z + h
+            return math.sqrt(dx * dx + dy * dy + dz * dz) * inv_c
+        one = inv_c * 0 + 1
+        rho = math.sqrt(np.float64(dx) * dx + np.float64(dy) * dy)
+        if mode == 1:
+            n_rho, n_z = ttab.shape
+            u = min(max(rho * inv_drho, 0.0), n_rho - 1.001)
+            v = min(max((z - tz0) * inv_dz, 0.0), n_z - 1.001)
+            i = int(u)
+            j = int(v)
+            a = u - i
+            b = v - j
+            t = ((1 - a) * ((1 - b) * ttab[i, j] + b * ttab[i, j + 1])
+                 + a * ((1 - b) * ttab[i + 1, j] + b * ttab[i + 1, j + 1]))
+            e = ((1 - a) * ((1 - b) * etab[i, j] + b * etab[i, j + 1])
+                 + a * ((1 - b) * etab[i + 1, j] + b * etab[i + 1, j + 1]))
+            return cast_like(one, t + (h - h_ref) * e)
+        return cast_like(one, one_way_time(np.float64(h), rho, np.float64(z), cw, cs))
+
+    @jit
+    def voxel_sum(x, y, z, interp, mode, gating, halvings, re, im, t0, inv_dt, theta, h_tx,
+                  rx_dx, rx_dy, rx_h, apod, bore, cos_tx, cos_rx, inv_c, cw, cs, ttab, etab,
+                  inv_drho, tz0, inv_dz, h_ref, one):
+        """One ping's coherent sum at one voxel, (x, y) its offset from the projector and
+        z its depth below the interface (m). Returns (re, im, updates); no update when
+        the voxel is outside the projector's cone (with gating)."""
+        zero = one - one
+        nch = re.shape[1]
+        nt = re.shape[2]
+        vz = z + h_tx                                # vertical offset below the projector
+        r1 = math.sqrt(x * x + y * y + vz * vz)
+        if gating and x * bore[0] + y * bore[1] + vz * bore[2] < r1 * cos_tx:
+            return zero, zero, 0
+        t1 = travel_time(mode, x, y, z, h_tx, inv_c, cw, cs, ttab, etab, inv_drho, tz0,
+                         inv_dz, h_ref) - t0
+        acc_re = zero
+        acc_im = zero
+        n_upd = 0
+        for ch in range(nch):                        # branch free: vectorises on the CPU
+            ex = x - rx_dx[ch]
+            ey = y - rx_dy[ch]
+            ez = z + rx_h[ch]
+            g = apod[ch]
+            if gating:
+                r2 = math.sqrt(ex * ex + ey * ey + ez * ez)
+                g = g if ex * bore[0] + ey * bore[1] + ez * bore[2] >= r2 * cos_rx else zero
+            t2 = travel_time(mode, ex, ey, z, rx_h[ch], inv_c, cw, cs, ttab, etab, inv_drho,
+                             tz0, inv_dz, h_ref)
+            u = (t1 + t2) * inv_dt
+            sr, si, valid = sample(re, im, ch, u, interp, halvings, theta, nt, one)
+            g = g * valid
+            acc_re += g * sr
+            acc_im += g * si
+            n_upd += np.int64(g != zero)
+        return acc_re, acc_im, n_upd
+
+    return SimpleNamespace(cis=cis, weights=weights, sample=sample, travel_time=travel_time,
+                           voxel_sum=voxel_sum)
