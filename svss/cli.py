@@ -5,6 +5,8 @@
     svss process RUN.h5 --out DIR
     svss worker --connect ENDPOINT --out DIR
     svss replay RUN.h5 [--endpoint E]
+    svss inspect FILE [--json]
+    svss score TILES_DIR --scene FILE [--radius M] [--out REPORT.json]
 """
 
 from __future__ import annotations
@@ -112,6 +114,29 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def cmd_inspect(args) -> int:
+    import json
+
+    from svss.inspect import format_summary, summarise
+
+    summary = summarise(args.file)
+    print(json.dumps(summary, indent=2) if args.json else format_summary(summary))
+    return 0
+
+
+def cmd_score(args) -> int:
+    import json
+
+    from svss.score import format_report, score_tiles
+
+    report = score_tiles(args.tiles, args.scene, args.radius)
+    print(format_report(report))
+    if args.out:
+        Path(args.out).write_text(json.dumps(report, indent=2))
+        log.info("wrote %s", args.out)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="svss", description="Sediment Volume Search Sonar: "
                                 "acquisition, simulation and 3-D imaging.")
@@ -162,6 +187,20 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--wait", type=float, default=60.0,
                     help="seconds to wait for a subscriber")
     sp.set_defaults(func=cmd_replay)
+
+    sp = sub.add_parser("inspect", help="summarise a tile file or a raw-run file")
+    sp.add_argument("file", help="tile or raw-run HDF5 file")
+    sp.add_argument("--json", action="store_true", help="print the summary as JSON")
+    sp.set_defaults(func=cmd_inspect)
+
+    sp = sub.add_parser("score", help="score a folder of tiles' detections against a "
+                        "simulated scene's targets")
+    sp.add_argument("tiles", help="folder of tile_*.h5 files")
+    sp.add_argument("--scene", required=True, help="scene TOML the run was simulated from")
+    sp.add_argument("--radius", type=float, default=None, help="match radius, m (default: "
+                    "products.detection.match_radius_m of the tiles' processing)")
+    sp.add_argument("--out", help="also write the report as JSON to this file")
+    sp.set_defaults(func=cmd_score)
     return p
 
 

@@ -221,6 +221,10 @@ class DetectionConfig:
     merge_m: tuple[float, float, float] = spec(
         "contacts whose peaks are closer than this (along, cross, depth) are merged into "
         "the stronger one, m", length=3, lo=0.0, hi=100.0)
+    sidelobe_db: float = spec("a contact this much (or more) weaker than a stronger one "
+                              "within sidelobe_m is taken for its sidelobe and dropped, dB",
+                              lo=0, hi=300)
+    sidelobe_m: float = spec("sidelobe suppression radius, m (0: none)", lo=0.0, hi=100)
     max_per_tile: int = spec("most contacts kept per tile (strongest first)", lo=1,
                              hi=10**6)
     match_radius_m: float = spec("scoring: a detection within this distance of a true "

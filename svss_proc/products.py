@@ -1,29 +1,140 @@
-"""Writing a finished tile's files: the HDF5 tile and its quicklook PNG."""
+"""Image products of a finished tile, and writing its files (HDF5 tile + PNG quicklook).
+
+:func:`compute_products` runs the chain of docs/products.md on a tile's magnitude:
+background (3-D median), normalisation, level in dB, display gain, dynamic range
+compression, maximum intensity projections and detections.
+"""
 
 from __future__ import annotations
 
 import logging
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
+import numpy as np
 
+from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig, ProductsConfig
+
+from . import drc as drc_mod
+from .background import kernel_voxels, median_background
+from .detect import detect
 from .imager import Tile
-from .quicklook import mip_png
-from .tiles import tile_name, write_tile
+from .quicklook import mip_png, products_png
+from .tiles import MIPS, tile_name, write_tile
 
 log = logging.getLogger(__name__)
 
 
+@dataclass
+class Products:
+    """A tile's products. Volumes are along x cross x depth; ``background`` in uPa
+    (None when not kept), ``level`` the normalised level in dB re background (no display
+    gain), ``drc`` display values 0..1 (None when not kept), ``mips`` the maximum
+    intensity projections (:data:`svss_proc.tiles.MIPS`) of level + gain (dB),
+    ``detections`` a :data:`svss_proc.detect.DTYPE` table, ``timings`` seconds per
+    stage."""
+    method: str
+    kernel_m: tuple[float, float, float]
+    kernel_voxels: tuple[int, int, int]
+    boundary: str
+    ignore_zeros: bool
+    max_error_db: float
+    floor_upa: float
+    background: np.ndarray | None
+    level: np.ndarray
+    gain_db: np.ndarray
+    drc: np.ndarray | None
+    mips: dict[str, np.ndarray]
+    detections: np.ndarray
+    drc_attrs: dict = field(default_factory=dict)
+    detection_attrs: dict = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.ndarray],
+                     voxel_m: float, cfg: ProductsConfig, keep_volumes: bool = True
+                     ) -> Products:
+    """Products of one tile. ``image``: complex image or magnitude (along x cross x
+    depth, uPa); ``axes``: voxel-centre coordinates (m); ``voxel_m``: voxel edge (m).
+    ``keep_volumes``: return the background and compressed volumes (else None)."""
+    t = {}
+    t0 = time.perf_counter()
+    mag = np.abs(image).astype(np.float32, copy=False)
+    bcfg = cfg.background
+    kernel = kernel_voxels(bcfg.kernel_m, voxel_m)
+    bg = median_background(mag, kernel, bcfg.method, bcfg.histogram_bin_db, bcfg.boundary,
+                           bcfg.ignore_zeros)
+    t1 = time.perf_counter()
+    t["background"] = t1 - t0
+    floor = drc_mod.background_floor(bg, bcfg.floor_db)
+    level = drc_mod.level_db(drc_mod.normalise(mag, bg, bcfg.floor_db))
+    t2 = time.perf_counter()
+    t["normalisation"] = t2 - t1
+    g = cfg.depth_gain
+    gain = drc_mod.depth_gain_db(axes[2], g.db_per_m, g.start_m).astype(np.float32)
+    display = level + gain[None, None, :] if np.any(gain) else level
+    d = cfg.drc
+    comp = drc_mod.compress(display, d.floor_db, d.knee_db, d.ceiling_db) if keep_volumes \
+        else None
+    # MIPs commute with the monotone compression: compress(mip) == mip(compress)
+    mips = {name: np.fmax.reduce(display, axis=axis) for name, (axis, _) in MIPS.items()}
+    t3 = time.perf_counter()
+    t["compression_and_mips"] = t3 - t2
+    dc = cfg.detection
+    table = detect(level, mag, bg, axes, dc.threshold_db, dc.min_voxels, dc.merge_m,
+                   dc.max_per_tile, dc.sidelobe_db, dc.sidelobe_m)
+    t["detection"] = time.perf_counter() - t3
+    return Products(
+        method=bcfg.method, kernel_m=tuple(bcfg.kernel_m), kernel_voxels=kernel,
+        boundary=bcfg.boundary, ignore_zeros=bcfg.ignore_zeros,
+        max_error_db=0.0 if bcfg.method == "exact" else bcfg.histogram_bin_db / 2,
+        floor_upa=floor, background=bg if keep_volumes else None, level=level,
+        gain_db=gain, drc=comp, mips=mips, detections=table,
+        drc_attrs={"floor_db": d.floor_db, "knee_db": d.knee_db,
+                   "ceiling_db": d.ceiling_db, "depth_gain_db_per_m": g.db_per_m,
+                   "depth_gain_start_m": g.start_m},
+        detection_attrs={"threshold_db": dc.threshold_db, "min_voxels": dc.min_voxels,
+                         "merge_m": np.asarray(dc.merge_m),
+                         "sidelobe_db": dc.sidelobe_db, "sidelobe_m": dc.sidelobe_m,
+                         "max_per_tile": dc.max_per_tile},
+        timings=t)
+
+
+def tile_title(name: str, tile: Tile) -> str:
+    """One line naming a tile: index, along-track span, pings."""
+    g = tile.grid
+    pings = (f"pings {min(tile.pings)}-{max(tile.pings)} ({len(tile.pings)})"
+             if tile.pings else "no pings")
+    return (f"SVSS {name}: along-track {g.along[0]:.2f}-{g.along[-1]:.2f} m, {pings}")
+
+
 def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
               processing: Loaded[ProcessingConfig]) -> list[Path]:
-    """Write ``tile_NNNN.h5`` and ``tile_NNNN_mip.png`` into ``out_dir``; return paths."""
+    """Compute the products (when the processing configuration has a ``[products]``
+    table) and write ``tile_NNNN.h5`` and ``tile_NNNN_mip.png`` into ``out_dir``;
+    return the paths."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     name = tile_name(tile.grid.index)
-    h5 = write_tile(out / f"{name}.h5", tile, hardware, processing)
-    png = mip_png(out / f"{name}_mip.png", tile.image, tile.grid,
-                  f"SVSS {name}: {len(tile.pings)} pings, along-track "
-                  f"{tile.grid.along[0]:.2f}-{tile.grid.along[-1]:.2f} m")
-    log.info("wrote %s (%d pings, %.2e voxel-channel updates) and %s", h5, len(tile.pings),
-             tile.updates, png.name)
+    pcfg = processing.value.products
+    voxel = processing.value.tile.voxel_m
+    title = tile_title(name, tile)
+    ident = (f"line origin N {tile.line.origin_ne[0]:.2f} E {tile.line.origin_ne[1]:.2f} m,"
+             f" heading {np.degrees(tile.line.heading):.1f} deg\nconfigs: hardware "
+             f"{hardware.id}, processing {processing.id}")
+    if pcfg is None:
+        h5 = write_tile(out / f"{name}.h5", tile, hardware, processing)
+        png = mip_png(out / f"{name}_mip.png", tile.image, tile.grid, title)
+        log.info("wrote %s (%d pings, no products) and %s", h5, len(tile.pings), png.name)
+        return [h5, png]
+    g = tile.grid
+    prods = compute_products(tile.image, (g.along, g.cross, g.depth), voxel, pcfg,
+                             keep_volumes=pcfg.store_volumes)
+    h5 = write_tile(out / f"{name}.h5", tile, hardware, processing, prods)
+    png = products_png(out / f"{name}_mip.png", prods.mips, prods.level, prods.gain_db,
+                       prods.detections, g, voxel, pcfg, title, ident)
+    log.info("wrote %s (%d pings, %d detections; background %s %dx%dx%d in %.2f s) and %s",
+             h5, len(tile.pings), len(prods.detections), prods.method,
+             *prods.kernel_voxels, prods.timings["background"], png.name)
     return [h5, png]

@@ -1,0 +1,155 @@
+"""``svss score TILES_DIR --scene SCENE.toml``: detections of a folder of tiles against a
+simulated scene's ground truth.
+
+The truth is read here, in the command-line tool, never in ``svss_proc``. Every true
+target with along/cross/depth coordinates in the scene (``[[points]]`` and any other
+array of tables with ``along_m``, ``cross_m``, ``depth_m``) is placed in the survey frame
+through the scene's own track line, then into each tile's frame through the line the
+tile was imaged in (its root attributes), so the comparison holds whether the tiles
+were formed with ``track_line = "first_ping"`` or a fixed line. Targets outside every
+tile's volume are listed but not scored.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from sim_device.scene import load_scene
+from sim_device.track import truth_line
+from svss_daq.frames import TrackLine
+from svss_proc import detect, tiles
+
+
+def scene_truth(scene) -> list[dict]:
+    """True targets of a scene: ``table`` (the scene's array of tables they come from,
+    e.g. ``points``), ``index`` in it, ``scene_m`` (along, cross, depth; m, in the
+    scene's own frame) and their other ``fields``."""
+    out = []
+    for f in dataclasses.fields(scene):
+        items = getattr(scene, f.name)
+        if not isinstance(items, tuple):
+            continue
+        for i, item in enumerate(items):
+            if dataclasses.is_dataclass(item) and all(
+                    hasattr(item, k) for k in ("along_m", "cross_m", "depth_m")):
+                extra = {k: v for k, v in dataclasses.asdict(item).items()
+                         if k not in ("along_m", "cross_m", "depth_m")}
+                out.append({"table": f.name, "index": i,
+                            "scene_m": [item.along_m, item.cross_m, item.depth_m],
+                            "fields": extra})
+    return out
+
+
+def _tile_line(attrs: dict) -> TrackLine:
+    return TrackLine((float(attrs["line_origin_north_m"]), float(attrs["line_origin_east_m"])),
+                     float(attrs["line_heading_rad"]), float(attrs["interface_down_m"]))
+
+
+def _radius_from_tile(path: Path) -> float | None:
+    with h5py.File(path, "r") as f:
+        if "provenance/processing_config_toml" not in f:
+            return None
+        text = f["provenance/processing_config_toml"][()]
+    text = text.decode() if isinstance(text, bytes) else str(text)
+    try:
+        return float(tomllib.loads(text)["products"]["detection"]["match_radius_m"])
+    except (KeyError, tomllib.TOMLDecodeError, TypeError, ValueError):
+        return None
+
+
+def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
+                radius_m: float | None = None) -> dict:
+    """Score every ``tile_*.h5`` in ``tiles_dir`` against the scene's targets. The match
+    radius is ``radius_m`` or the ``products.detection.match_radius_m`` the tiles were
+    processed with. Returns a JSON-serialisable report."""
+    tiles_dir = Path(tiles_dir)
+    paths = sorted(tiles_dir.glob("tile_*.h5"))
+    if not paths:
+        raise FileNotFoundError(f"{tiles_dir}: no tile_*.h5 files")
+    if radius_m is None:
+        radius_m = _radius_from_tile(paths[0])
+        if radius_m is None:
+            raise ValueError(f"{paths[0]}: its processing configuration has no "
+                             "products.detection.match_radius_m; give --radius")
+    scene = load_scene(scene_path)
+    truth = scene_truth(scene)
+    truth_ned = truth_line(scene.track).tile_to_ned(
+        np.array([t["scene_m"] for t in truth], dtype=np.float64).reshape(-1, 3))
+    det_rows, det_ned = [], []
+    covered = np.zeros(len(truth), dtype=bool)
+    for path in paths:
+        table, attrs = tiles.read_detections(path)
+        line = _tile_line(attrs)
+        with h5py.File(path, "r") as f:
+            axes = [f[d][()] for d in tiles.DIMS]
+        voxel = float(attrs["voxel_m"])
+        t_tile = line.ned_to_tile(truth_ned)
+        inside = np.ones(len(truth), dtype=bool)
+        for k, ax in enumerate(axes):
+            inside &= (t_tile[:, k] >= ax[0] - voxel / 2) & (t_tile[:, k] <= ax[-1] + voxel / 2)
+        covered |= inside
+        for t, pos in zip(np.flatnonzero(inside), t_tile[inside]):
+            truth[t].setdefault("tile_m", {})[path.name] = pos.tolist()
+        if len(table):
+            xyz = np.stack([table["along_m"], table["cross_m"], table["depth_m"]], axis=1)
+            det_ned.append(line.tile_to_ned(xyz))
+            for i, row in enumerate(table):
+                det_rows.append({"tile": path.name, "row": i,
+                                 **{k: row[k].item() for k in detect.DTYPE.names}})
+    det_ned = np.concatenate(det_ned) if det_ned else np.zeros((0, 3))
+    scored = np.flatnonzero(covered)
+    result = detect.score(det_ned, truth_ned[scored], radius_m)
+    for t in truth:
+        t["status"] = "outside"
+    for t in scored:
+        truth[t]["status"] = "missed"
+    for ti, di, dist in result.pairs:
+        t = truth[scored[ti]]
+        t.update(status="detected", detection=di, distance_m=dist,
+                 excess_db=det_rows[di]["excess_db"])
+    for di in result.false_alarms:
+        det_rows[di]["status"] = "false alarm"
+    for di in result.duplicates:
+        det_rows[di]["status"] = "duplicate"
+    for _, di, _ in result.pairs:
+        det_rows[di]["status"] = "hit"
+    summary = result.summary()
+    summary["outside"] = int(len(truth) - scored.size)
+    return {"tiles_dir": str(tiles_dir), "scene": str(scene_path), "scene_name":
+            scene.scene.name, "tiles": [p.name for p in paths], "match_radius_m": radius_m,
+            "summary": summary, "truth": truth, "detections": det_rows}
+
+
+def _f(v) -> str:
+    return "-" if v is None else f"{v:.2f}"
+
+
+def format_report(r: dict) -> str:
+    """Text of a :func:`score_tiles` report."""
+    s = r["summary"]
+    lines = [f"scene {r['scene_name']} against {len(r['tiles'])} tile(s) in {r['tiles_dir']}"
+             f" (match radius {r['match_radius_m']:g} m)",
+             f"  {s['truth']} target(s) in the imaged volume ({s['outside']} outside), "
+             f"{s['detections']} detection(s): {s['hits']} detected, {s['misses']} missed, "
+             f"{s['false_alarms']} false alarm(s), {s['duplicates']} duplicate(s); "
+             f"Pd = {_f(s['probability_of_detection'])}",
+             "  target        along_m  cross_m  depth_m  status     dist_m  excess_dB"]
+    for t in r["truth"]:
+        a, c, d = t["scene_m"]
+        dist = f"{t['distance_m']:.3f}" if "distance_m" in t else "-"
+        exc = f"{t['excess_db']:.1f}" if "excess_db" in t else "-"
+        lines.append(f"  {t['table']}[{t['index']}]".ljust(15) + f"{a:7.3f} {c:8.3f} {d:8.3f}"
+                     f"  {t['status']:<9} {dist:>7} {exc:>10}")
+    fa = [d for d in r["detections"] if d.get("status") == "false alarm"]
+    if fa:
+        lines.append("  false alarms (tile frame):")
+        for d in fa:
+            lines.append(f"    {d['tile']}#{d['row']}: along {d['along_m']:.3f} cross "
+                         f"{d['cross_m']:.3f} depth {d['depth_m']:.3f} m, excess "
+                         f"{d['excess_db']:.1f} dB")
+    return "\n".join(lines)
