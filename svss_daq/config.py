@@ -466,3 +466,60 @@ def load_with_text(cls: type[T], path: str | os.PathLike) -> Loaded[T]:
 def loaded_from_text(cls: type[T], text: str, source: str) -> Loaded[T]:
     """Validate a configuration text carried in a file or message."""
     return Loaded(loads(cls, text, source), text, source)
+
+
+# -------------------------------------------------------------------------- devices
+
+
+@dataclass(frozen=True)
+class SequencerLinkConfig:
+    port: str = spec("serial port of the transmit sequencer (device path or symlink)")
+    baudrate: int = spec("serial baud rate, bit/s", lo=1200, hi=4_000_000)
+    reply_timeout_s: float = spec("wait for a command's reply, s", lo=0.01, hi=60)
+    retries: int = spec("re-sends of a command after a reply timeout", lo=0, hi=20)
+    open_timeout_s: float = spec("wait for the port to open, s", lo=0.01, hi=600)
+
+
+@dataclass(frozen=True)
+class DigitiserLinkConfig:
+    host: str = spec("digitiser host name or address")
+    port: int = spec("digitiser TCP port", lo=1, hi=65535)
+    connect_timeout_s: float = spec("TCP connect timeout, s", lo=0.01, hi=600)
+    reply_timeout_s: float = spec("wait for a control reply, s", lo=0.01, hi=60)
+    reconnect_initial_s: float = spec("first reconnection delay, s (doubles)", lo=0.001, hi=60)
+    reconnect_max_s: float = spec("largest reconnection delay, s", lo=0.001, hi=600)
+    ping_timeout_s: float = spec("a ping with no new frame for this long is reported "
+                                 "incomplete, s", lo=0.01, hi=60)
+    max_payload_bytes: int = spec("largest frame payload accepted, bytes",
+                                  lo=1024, hi=1 << 30)
+
+
+@dataclass(frozen=True)
+class NavigationConfig:
+    origin_latitude_deg: float | None = spec(
+        "survey origin geodetic latitude, deg (omitted: the first GPS fix)", lo=-90, hi=90)
+    origin_longitude_deg: float | None = spec(
+        "survey origin longitude, deg (omitted: the first GPS fix)", lo=-180, hi=360)
+    origin_height_m: float | None = spec(
+        "survey origin ellipsoidal height, m (omitted: the first GPS fix)", lo=-1e4, hi=1e5)
+    dvl_beam_angle_deg: float = spec("DVL Janus beam angle from the vertical, deg "
+                                     "(RDI: 20 or 30)", lo=1, hi=60)
+    dvl_min_beams: int = spec("valid bottom-track beams needed for velocity and "
+                              "altitude", lo=3, hi=4)
+    gps_smoothing_s: float = spec("window of the GPS-minus-dead-reckoning offset "
+                                  "smoother, s (0: none)", lo=0, hi=600)
+    gps_fix_max_age_s: float = spec("a pose further than this from a GPS fix is flagged "
+                                    "dead-reckoned, s", lo=0.01, hi=600)
+    dvl_max_gap_s: float = spec("DVL samples further apart than this break dead "
+                                "reckoning, s", lo=0.01, hi=600)
+    heading_max_age_s: float = spec("HDT heading older than this falls back to the RMC "
+                                    "course, s", lo=0.01, hi=600)
+    course_min_speed_m_s: float = spec("RMC course is used as heading only above this "
+                                       "speed, m/s", lo=0, hi=50)
+
+
+@dataclass(frozen=True)
+class DevicesConfig:
+    sequencer: SequencerLinkConfig = spec("transmit sequencer serial link")
+    digitiser: DigitiserLinkConfig = spec("digitiser TCP link")
+    navigation: NavigationConfig = spec("navigation: survey origin, DVL geometry, fusion")
