@@ -37,7 +37,8 @@ from typing import Iterable, Optional, Sequence
 import numpy as np
 
 from svss_daq.frames import body_to_ned
-from svss_daq.ping import NAV_BOTTOM_LOCK, NAV_DEAD_RECKONED, NAV_GPS_FIX, NavSnapshot
+from svss_daq.ping import (NAV_BOTTOM_LOCK, NAV_DEAD_RECKONED, NAV_GPS_FIX,
+                           NAV_HEADING_FROM_COURSE, NAV_NO_HEADING, NavSnapshot)
 
 __all__ = [
     "WGS84_A", "WGS84_F", "NAV_HEADING_FROM_COURSE", "NAV_NO_HEADING", "GpsFix",
@@ -53,8 +54,6 @@ WGS84_F = 1.0 / 298.257223563       #: flattening
 WGS84_E2 = WGS84_F * (2.0 - WGS84_F)
 
 #: extra quality bits beside those of svss_daq.ping
-NAV_HEADING_FROM_COURSE = 16  #: heading is the GPS course over ground (no HDT in time)
-NAV_NO_HEADING = 32           #: no heading at all (heading 0 used, lever arms unreliable)
 
 #: the yaw rate for the DVL lever-arm term is the heading change over +-0.5 s
 YAW_RATE_HALF_WINDOW_S = 0.5

@@ -12,6 +12,8 @@ NAV_GPS_FIX = 1          # position from a GNSS fix at or near this time
 NAV_DEAD_RECKONED = 2    # position propagated by DVL dead reckoning
 NAV_BOTTOM_LOCK = 4      # altitude from DVL bottom track
 NAV_SIMULATED = 8        # produced by the simulator (truth)
+NAV_HEADING_FROM_COURSE = 16   # heading is the GPS course over ground (no HDT in time)
+NAV_NO_HEADING = 32      # no heading at all (heading 0 used, lever arms unreliable)
 
 
 @dataclass(frozen=True)

@@ -567,20 +567,6 @@ class Pd0StreamStats:
     bytes_fed: int = 0
     ensembles: int = 0
     bytes_discarded: int = 0
-    discard_runs: int = 0  #: contiguous discarded stretches
-    bad_headers: int = 0
-    bad_checksums: int = 0
-    decode_errors: int = 0  #: checksum right but contents inconsistent
-    internal_errors: int = 0  #: decoder bugs caught to keep the stream alive (should stay 0)
-
-
-@dataclass
-class Pd0StreamStats:
-    """Counters of a :class:`Pd0StreamParser` (bytes are stream bytes)."""
-
-    bytes_fed: int = 0
-    ensembles: int = 0
-    bytes_discarded: int = 0
     discard_runs: int = 0  #: contiguous discarded stretches (one warning each)
     bad_headers: int = 0
     bad_checksums: int = 0
