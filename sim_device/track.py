@@ -1,4 +1,5 @@
-"""The simulated platform track: the true pose of every ping."""
+"""The simulated platform track: the true pose of every ping (nominal straight line plus
+optional sinusoidal motion; the navigation reports this truth)."""
 
 from __future__ import annotations
 
@@ -31,16 +32,48 @@ def truth_line(track: TrackConfig) -> TrackLine:
                      np.deg2rad(track.heading_deg), track.body_down_m + track.altitude_m)
 
 
-def ping_pose(track: TrackConfig, hw: HardwareConfig, i: int) -> NavSnapshot:
-    """True pose of ping ``i`` on a straight, level track at constant speed."""
+def motion_phases(seed: int) -> np.ndarray:
+    """Phases (rad) of heave, sway, roll, pitch and yaw, drawn from the scene seed."""
+    return np.random.default_rng([seed, 0x6D6F74]).uniform(0.0, 2.0 * np.pi, 5)
+
+
+def motion_at(track: TrackConfig, seed: int, t_s: float) -> dict[str, float]:
+    """Platform motion about the nominal track at time ``t_s`` (s from the first ping):
+    heave (m, down), sway (m, starboard), roll, pitch, yaw (rad) and the heave and sway
+    rates (m/s). All zero without ``track.motion``."""
+    m = track.motion
+    if m is None:
+        return dict(heave=0.0, sway=0.0, roll=0.0, pitch=0.0, yaw=0.0, heave_rate=0.0,
+                    sway_rate=0.0)
+    ph = motion_phases(seed)
+    amps = (m.heave_m, m.sway_m, np.deg2rad(m.roll_deg), np.deg2rad(m.pitch_deg),
+            np.deg2rad(m.yaw_deg))
+    periods = (m.heave_period_s, m.sway_period_s, m.roll_period_s, m.pitch_period_s,
+               m.yaw_period_s)
+    w = [2.0 * np.pi / p for p in periods]
+    val = [a * np.sin(wk * t_s + p) for a, wk, p in zip(amps, w, ph)]
+    rate = [a * wk * np.cos(wk * t_s + p) for a, wk, p in zip(amps, w, ph)]
+    return dict(heave=float(val[0]), sway=float(val[1]), roll=float(val[2]),
+                pitch=float(val[3]), yaw=float(val[4]), heave_rate=float(rate[0]),
+                sway_rate=float(rate[1]))
+
+
+def ping_pose(track: TrackConfig, hw: HardwareConfig, i: int, seed: int = 0) -> NavSnapshot:
+    """True pose of ping ``i``: a straight track at constant speed, plus the scene's
+    platform motion if any (its phases drawn from ``seed``, the scene seed)."""
     dt = hw.sequencer.ping_interval_s
     h = np.deg2rad(track.heading_deg)
     s = i * dt * track.speed_m_s
     t_ns = parse_utc_ns(track.start_time_utc) + int(round(i * dt * 1e9))
+    mo = motion_at(track, seed, i * dt)
+    sway = mo["sway"]
     return NavSnapshot(
         time_ns=t_ns,
-        north_m=track.start_ne_m[0] + s * np.cos(h), east_m=track.start_ne_m[1] + s * np.sin(h),
-        down_m=track.body_down_m,
-        vel_north_m_s=track.speed_m_s * np.cos(h), vel_east_m_s=track.speed_m_s * np.sin(h),
-        vel_down_m_s=0.0, roll_rad=0.0, pitch_rad=0.0, heading_rad=float(h),
-        altitude_m=track.altitude_m, quality=NAV_SIMULATED)
+        north_m=track.start_ne_m[0] + s * np.cos(h) - sway * np.sin(h),
+        east_m=track.start_ne_m[1] + s * np.sin(h) + sway * np.cos(h),
+        down_m=track.body_down_m + mo["heave"],
+        vel_north_m_s=track.speed_m_s * np.cos(h) - mo["sway_rate"] * np.sin(h),
+        vel_east_m_s=track.speed_m_s * np.sin(h) + mo["sway_rate"] * np.cos(h),
+        vel_down_m_s=mo["heave_rate"], roll_rad=mo["roll"], pitch_rad=mo["pitch"],
+        heading_rad=float(h + mo["yaw"]), altitude_m=track.altitude_m - mo["heave"],
+        quality=NAV_SIMULATED)

@@ -39,7 +39,8 @@ def _processing(args, default: str = "processing.toml"):
 
 
 def cmd_simulate(args) -> int:
-    from sim_device.point_echo import PointEchoSource
+    from sim_device.environment import water_sound_speed
+    from sim_device.environment_source import EnvironmentSource
     from sim_device.scene import load_scene
     from svss_daq.acquisition import acquire
     from svss_daq.rawfile import RawRunWriter
@@ -47,10 +48,10 @@ def cmd_simulate(args) -> int:
     hw = _hardware(args)
     scene = load_scene(args.scene)
     daq = load(DaqConfig, config_path("daq.toml"))
-    source = PointEchoSource(hw, scene)
+    source = EnvironmentSource(hw, scene)
     with RawRunWriter(args.out, hw, flush_every_pings=daq.recorder.flush_every_pings,
                       flush_interval_s=daq.recorder.flush_interval_s,
-                      environment={"sound_speed_indicative": scene.medium.sound_speed_m_s},
+                      environment={"sound_speed_indicative": water_sound_speed(scene)},
                       run_attrs={"scene_name": scene.scene.name}) as rec:
         n = acquire(iter(source), rec, None, scene.scene.name, total=source.n_pings)
     print(f"wrote {args.out} ({n} pings)")

@@ -13,7 +13,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from sim_device.point_echo import PointEchoSource
+from sim_device.environment import water_sound_speed
+from sim_device.environment_source import EnvironmentSource
 from sim_device.scene import load_scene
 from svss_daq.acquisition import acquire
 from svss_daq.config import DaqConfig, HardwareConfig, config_path, load, load_with_text
@@ -35,7 +36,7 @@ def run_demo(out: Path, scene: str | None = None, hardware: str | None = None,
     hw = load_with_text(HardwareConfig, hw_path)
     sc = load_scene(scene or config_path(DEMO_SCENE))
     daq = load(DaqConfig, config_path("daq.toml"))
-    source = PointEchoSource(hw, sc)
+    source = EnvironmentSource(hw, sc)
     raw = out / "run.h5"
     tiles = out / "tiles"
     with PingPublisher("tcp://127.0.0.1:*", daq.publisher.send_hwm) as pub:
@@ -49,7 +50,7 @@ def run_demo(out: Path, scene: str | None = None, hardware: str | None = None,
             with RawRunWriter(raw, hw, flush_every_pings=daq.recorder.flush_every_pings,
                               flush_interval_s=daq.recorder.flush_interval_s,
                               environment={"sound_speed_indicative":
-                                           sc.medium.sound_speed_m_s},
+                                           water_sound_speed(sc)},
                               run_attrs={"scene_name": sc.scene.name}) as rec:
                 acquire(iter(source), rec, pub, sc.scene.name, total=source.n_pings)
             log.info("all %d pings recorded and published; waiting for the worker",

@@ -1,0 +1,276 @@
+#!/usr/bin/env python
+"""Benchmark the simulated device's environment synthesis (``sim_device``).
+
+1. Throughput: pings per second for the seed's sand (and silt) scene, 80 channels, at
+   the scene file's fidelity; the time for a reference tile's worth of pings (15 m at
+   1 m/s and 10 pings/s: 150 pings), measured on ``--pings`` pings and extrapolated, or
+   run in full with ``--full-tile``.
+2. Cost follows the scatterers in view: the same ping of the sand scene in a scene
+   twice as long (and ten times as long) costs the same.
+3. Fidelity options (scatterer density, multipath order, volume depth cut-off,
+   precision): each row lowers one option from the highest-fidelity setting; time per
+   ping against the error relative to that setting:
+   * ``wave_err``: ||p - p_ref|| / ||p_ref|| over the noise-free samples (meaningful when
+     the seabed is the same realisation: multipath, cut-off, precision);
+   * ``energy_err_db``: 10 log10 of the ping energy (channels, pings, whole window)
+     relative to the reference's;
+   * ``profile_err_db``: rms over 0.2 ms bins of 10 log10(I / I_ref), I the mean square
+     over channels and pings, in the bins where the reference is above the noise (a
+     statistical measure, for the density rows; its floor is the ``other seed`` row; a
+     missing late arrival, e.g. multipath, counts with its full dB deficit).
+
+Usage::
+
+    python benchmarks/bench_possm.py --out bench_possm.json [--pings 3]
+                                     [--fidelity-pings 2] [--quick] [--full-tile]
+                                     [--threads N] [--only throughput,length,fidelity]
+                                     [--scenes seed_cylinder_sand,seed_cylinder_silt]
+
+Prints the tables and writes them to ``--out`` (JSON). The first ping of each source
+compiles or loads the numba kernels and is not timed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import logging
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numba  # noqa: E402
+
+from sim_device.environment_source import EnvironmentSource  # noqa: E402
+from sim_device.scene import load_scene  # noqa: E402
+from svss_daq.config import HardwareConfig, config_path, load_with_text  # noqa: E402
+
+log = logging.getLogger("bench_possm")
+
+TILE_PINGS = 150            # 15 m tile at 1 m/s and 10 pings/s (DESIGN.md)
+FIRST_PING = 100            # pings well inside the track
+
+
+def with_fidelity(scene, density=1.0, order=None, cutoff=None, precision=None, seed=None):
+    sc = scene.scattering
+    scat = dataclasses.replace(
+        sc, interface_density_per_m2=sc.interface_density_per_m2 * density,
+        volume_density_per_m3=sc.volume_density_per_m3 * density,
+        volume_max_depth_m=sc.volume_max_depth_m if cutoff is None else cutoff,
+        precision=sc.precision if precision is None else precision)
+    surf = scene.surface if order is None else dataclasses.replace(scene.surface,
+                                                                   multipath_order=order)
+    out = dataclasses.replace(scene, scattering=scat, surface=surf, targets=())
+    if seed is not None:
+        out = dataclasses.replace(out, scene=dataclasses.replace(out.scene, seed=seed))
+    return out
+
+
+_warm: set = set()
+
+
+def time_pings(src: EnvironmentSource, pings: list[int], keep: bool = False):
+    """Wall time per ping (s) of ``src.pressure`` over ``pings``, the pings' statistics,
+    and the pressures if ``keep``. The first source of each precision runs one untimed
+    ping first (numba compiles or loads its kernels)."""
+    if src.precision not in _warm:
+        src.pressure(pings[0] - 1)
+        _warm.add(src.precision)
+    out, times, stats = [], [], []
+    for i in pings:
+        t0 = time.perf_counter()
+        p = src.pressure(i)
+        times.append(time.perf_counter() - t0)
+        stats.append(dict(src.last_stats))
+        if keep:
+            out.append(p)
+    return np.array(times), stats, out
+
+
+def throughput(hw, name: str, n: int, full_tile: bool) -> dict:
+    scene = with_fidelity(load_scene(config_path(f"scenes/{name}.toml")))
+    src = EnvironmentSource(hw, scene)
+    pings = list(range(FIRST_PING, FIRST_PING + (TILE_PINGS if full_tile else n)))
+    times, stats, _ = time_pings(src, pings)
+    per_ping = float(np.median(times))
+    echoes = float(np.mean([s["echoes"] for s in stats]))
+    row = {
+        "scene": name, "channels": src.geometry.n_channels,
+        "multipath_order": src.order, "pings_timed": len(pings),
+        "s_per_ping_median": per_ping, "s_per_ping_min": float(times.min()),
+        "pings_per_s": 1.0 / per_ping,
+        "tile_s": float(times.sum()) if full_tile else per_ping * TILE_PINGS,
+        "tile_measured": full_tile,
+        "scatterers_generated": int(np.mean([s["generated"] for s in stats])),
+        "scatterers_in_view": int(np.mean([s["in_view"] for s in stats])),
+        "echoes_per_ping": int(echoes),
+        "ns_per_echo": per_ping / max(echoes, 1.0) * 1e9,
+        "coherent_paths": int(stats[-1].get("coherent_paths", 0)),
+    }
+    return row
+
+
+def scene_length(hw, n: int) -> list[dict]:
+    base = load_scene(config_path("scenes/seed_cylinder_sand.toml"))
+    rows = []
+    for factor in (1, 2, 10):
+        sc = with_fidelity(base)
+        sc = dataclasses.replace(sc, track=dataclasses.replace(
+            sc.track, n_pings=sc.track.n_pings * factor))
+        src = EnvironmentSource(hw, sc)
+        times, stats, _ = time_pings(src, list(range(FIRST_PING, FIRST_PING + n)))
+        rows.append({"track_pings": sc.track.n_pings,
+                     "track_m": sc.track.n_pings * hw.value.sequencer.ping_interval_s
+                     * sc.track.speed_m_s,
+                     "s_per_ping_median": float(np.median(times)),
+                     "s_per_ping_min": float(times.min()),
+                     "scatterers_generated": int(stats[-1]["generated"]),
+                     "echoes_per_ping": int(stats[-1]["echoes"])})
+    return rows
+
+
+def profile(ps: list[np.ndarray], nbin: int = 25) -> np.ndarray:
+    """Mean square over channels and pings in bins of ``nbin`` samples."""
+    p = np.stack(ps)
+    n = p.shape[-1] // nbin * nbin
+    return np.mean(p[..., :n] ** 2, axis=(0, 1)).reshape(-1, nbin).mean(axis=1)
+
+
+def fidelity(hw, n: int, quick: bool) -> tuple[dict, list[dict]]:
+    """The fidelity table on ``n`` pings of the sand scene."""
+    base = load_scene(config_path("scenes/seed_cylinder_sand.toml"))
+    top = dict(density=2.0, order=2, cutoff=3.0, precision="exact")
+    pings = list(range(FIRST_PING, FIRST_PING + n))
+    ref_src = EnvironmentSource(hw, with_fidelity(base, **top))
+    t_ref, s_ref, p_ref = time_pings(ref_src, pings, keep=True)
+    noise = ref_src.noise_power
+    i_ref = profile(p_ref)
+    above = i_ref > noise
+    reference = {"options": top, "s_per_ping": float(np.median(t_ref)),
+                 "echoes_per_ping": int(np.mean([s["echoes"] for s in s_ref])),
+                 "bins_above_noise": int(above.sum())}
+    variants = [("density", 1.0), ("density", 0.5), ("density", 0.25),
+                ("order", 1), ("order", 0),
+                ("cutoff", 2.5), ("cutoff", 1.5), ("cutoff", 1.0), ("cutoff", 0.5),
+                ("precision", "float64"), ("precision", "float32"),
+                ("seed", base.scene.seed + 1)]
+    if quick:
+        variants = [("density", 0.5), ("order", 0), ("cutoff", 1.0),
+                    ("precision", "float64"), ("seed", base.scene.seed + 1)]
+    rows = []
+    for key, value in variants:
+        opts = dict(top)
+        if key == "seed":
+            sc = with_fidelity(base, **opts, seed=value)
+            label = "other seed (same fidelity)"
+        else:
+            opts[key] = value
+            sc = with_fidelity(base, **opts)
+            label = f"{key} = {value}"
+        src = EnvironmentSource(hw, sc)
+        t, s, p = time_pings(src, pings, keep=True)
+        same_seabed = key in ("order", "cutoff", "precision")
+        wave = (float(np.sqrt(sum(np.sum((a - b) ** 2) for a, b in zip(p, p_ref))
+                              / sum(np.sum(b ** 2) for b in p_ref)))
+                if same_seabed else None)
+        i_opt = profile(p)
+        ratio = i_opt[above] / i_ref[above]
+        rows.append({"option": label, "s_per_ping": float(np.median(t)),
+                     "speedup": float(np.median(t_ref) / np.median(t)),
+                     "echoes_per_ping": int(np.mean([x["echoes"] for x in s])),
+                     "wave_err": wave,
+                     "energy_err_db": float(10 * np.log10(i_opt.sum() / i_ref.sum())),
+                     "profile_err_db": float(np.sqrt(np.mean((10 * np.log10(
+                         np.maximum(ratio, 1e-30))) ** 2)))})
+        log.info("%s: %.2f s/ping", label, rows[-1]["s_per_ping"])
+    return reference, rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", required=True, help="JSON file for the results")
+    ap.add_argument("--pings", type=int, default=3, help="pings timed per throughput "
+                    "measurement")
+    ap.add_argument("--fidelity-pings", type=int, default=2,
+                    help="pings per row of the fidelity table")
+    ap.add_argument("--full-tile", action="store_true",
+                    help="time a whole tile (150 pings) instead of extrapolating")
+    ap.add_argument("--quick", action="store_true", help="fewer fidelity rows")
+    ap.add_argument("--threads", type=int, default=None, help="numba threads")
+    ap.add_argument("--hardware", default=None, help="hardware TOML")
+    ap.add_argument("--only", default="throughput,length,fidelity",
+                    help="comma-separated sections to run")
+    ap.add_argument("--scenes", default="seed_cylinder_sand,seed_cylinder_silt",
+                    help="comma-separated scenes (config/scenes) for the throughput")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger("sim_device").setLevel(logging.ERROR)
+    if args.threads:
+        numba.set_num_threads(args.threads)
+    hw = load_with_text(HardwareConfig, args.hardware or config_path("hardware.toml"))
+    result = {"machine": {"python": platform.python_version(), "numba": numba.__version__,
+                          "threads": numba.get_num_threads(), "cpus": os.cpu_count(),
+                          "load_avg": list(os.getloadavg())}}
+
+    only = set(args.only.split(","))
+    if "throughput" in only:
+        throughput_section(hw, args, result)
+    if "length" in only:
+        length_section(hw, args, result)
+    if "fidelity" in only:
+        fidelity_section(hw, args, result)
+    result["machine"]["load_avg_end"] = list(os.getloadavg())
+    Path(args.out).write_text(json.dumps(result, indent=2))
+    log.info("wrote %s", args.out)
+    return 0
+
+
+def throughput_section(hw, args, result) -> None:
+    print("\n== throughput (scene files' fidelity, 80 channels) ==")
+    rows = [throughput(hw, name, args.pings, args.full_tile)
+            for name in args.scenes.split(",")]
+    print(f"{'scene':22s} {'order':>5s} {'s/ping':>7s} {'min':>7s} {'pings/s':>7s} "
+          f"{'tile (s)':>9s} {'in view':>8s} {'echoes':>10s} {'ns/echo':>7s}")
+    for r in rows:
+        print(f"{r['scene']:22s} {r['multipath_order']:5d} {r['s_per_ping_median']:7.2f} "
+              f"{r['s_per_ping_min']:7.2f} "
+              f"{r['pings_per_s']:7.3f} {r['tile_s']:9.0f} {r['scatterers_in_view']:8d} "
+              f"{r['echoes_per_ping']:10d} {r['ns_per_echo']:7.1f}")
+    result["throughput"] = rows
+
+
+def length_section(hw, args, result) -> None:
+    print("\n== cost per ping against the scene's length (sand) ==")
+    rows = scene_length(hw, args.pings)
+    print(f"{'track (m)':>9s} {'s/ping':>7s} {'min':>7s} {'generated':>10s} {'echoes':>10s}")
+    for r in rows:
+        print(f"{r['track_m']:9.0f} {r['s_per_ping_median']:7.2f} {r['s_per_ping_min']:7.2f} "
+              f"{r['scatterers_generated']:10d} {r['echoes_per_ping']:10d}")
+    result["scene_length"] = rows
+
+
+def fidelity_section(hw, args, result) -> None:
+    print("\n== fidelity options (sand): one option lowered from the highest fidelity ==")
+    ref, rows = fidelity(hw, args.fidelity_pings, args.quick)
+    print(f"reference {ref['options']}: {ref['s_per_ping']:.2f} s/ping, "
+          f"{ref['echoes_per_ping']} echoes/ping, {ref['bins_above_noise']} bins above noise")
+    print(f"{'option':28s} {'s/ping':>7s} {'speedup':>7s} {'echoes':>10s} {'wave_err':>9s} "
+          f"{'energy dB':>9s} {'profile dB':>10s}")
+    for r in rows:
+        w = f"{r['wave_err']:9.2e}" if r["wave_err"] is not None else f"{'-':>9s}"
+        print(f"{r['option']:28s} {r['s_per_ping']:7.2f} {r['speedup']:7.2f} "
+              f"{r['echoes_per_ping']:10d} {w} {r['energy_err_db']:9.2f} "
+              f"{r['profile_err_db']:10.2f}")
+    result["fidelity_reference"] = ref
+    result["fidelity"] = rows
+
+
+if __name__ == "__main__":
+    sys.exit(main())
