@@ -149,15 +149,14 @@ def ray_parameter(rho, h, c, n):
     return t / (cmax * math.sqrt(1.0 + t * t))
 
 
-@nb.njit(cache=True)
-def ray_terms(t, rho, h, c, n, src):
-    """For the ray with fastest-medium tan ``t``: slowness p (s/m), travel time (s),
-    spreading amplitude (1/m) of a source in medium ``src``, and cos(phi_0), the
-    cosine of the ray's angle from the vertical in medium 0.
+@nb.njit(cache=True, inline="always")
+def ray_amplitude_terms(t, rho, h, c, alpha, n, src):
+    """(p, tau, spreading, cos phi_0, attenuation in Np) of a ray through media 0..n-1
+    with amplitude attenuation ``alpha`` (Np/m) over the path length h_i / cos(phi_i) in
+    each medium.
 
     eta_i = sqrt(1/c_i^2 - p^2) is formed as sqrt(1 + t^2 (1 - r_i^2)) / (c_i sqrt(1 + t^2))
-    (no cancellation near the critical angle); T = p rho + sum h_i eta_i.
-    """
+    (no cancellation near the critical angle); T = p rho + sum h_i eta_i."""
     cmax = fastest(h, c, n)
     if cmax == 0.0:
         cmax = c[0]
@@ -169,9 +168,10 @@ def ray_terms(t, rho, h, c, n, src):
     s2 = 0.0
     eta_src = 0.0
     cos0 = 1.0
+    att = 0.0
     for i in range(n):
         r = c[i] / cmax
-        g = math.sqrt(1.0 + tt * (1.0 - r * r)) / q       # cos(phi_i) = c_i eta_i
+        g = math.sqrt(1.0 + tt * (1.0 - r * r)) / q
         eta = g / c[i]
         if i == src:
             eta_src = eta
@@ -181,8 +181,18 @@ def ray_terms(t, rho, h, c, n, src):
             tau += h[i] * eta
             s1 += h[i] / eta
             s2 += h[i] / (c[i] * c[i] * eta * eta * eta)
+            att += alpha[i] * h[i] / g
     den = eta_src * eta_src * s1 * s2
     spread = 1.0 / math.sqrt(den) if den > 0.0 else 0.0
+    return p, tau, spread, cos0, att
+
+
+@nb.njit(cache=True)
+def ray_terms(t, rho, h, c, n, src):
+    """For the ray with fastest-medium tan ``t``: slowness p (s/m), travel time (s),
+    spreading amplitude (1/m) of a source in medium ``src``, and cos(phi_0), the
+    cosine of the ray's angle from the vertical in medium 0 (no attenuation)."""
+    p, tau, spread, cos0, _ = ray_amplitude_terms(t, rho, h, c, np.zeros(max(n, 1)), n, src)
     return p, tau, spread, cos0
 
 

@@ -31,8 +31,7 @@ from .acoustics import reflection_coefficient
 from .beams import BeamTable
 from .environment import Media
 from .multipath import CoherentPath, image_depth, leg_image
-from .refraction import ray_tan, reflection
-from .synthesis import ray_amplitude_terms
+from .refraction import ray_amplitude_terms, ray_tan, reflection
 
 
 @dataclass

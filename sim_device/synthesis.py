@@ -37,7 +37,7 @@ import scipy.fft as sfft
 from svss_daq.conventions import ECHO_PHASE_SIGN, baseband_carrier
 from svss_daq.waveform import Waveform
 
-from .refraction import leg_extents, ray_tan, reflection, table_ray_tan
+from .refraction import leg_extents, ray_amplitude_terms, ray_tan, reflection, table_ray_tan
 
 #: columns of an element-image row: x, y (m), height above the interface (m), direction
 #: (+1: leaves the element downwards), the surface factor R_s^n_s, seabed bounces n_b
@@ -88,44 +88,6 @@ def gain(cos_off, front, back, lo_front, lo_back):
     if back.size > 0 and -cos_off >= lo_back:
         return _interp(back, (-cos_off - lo_back) / (1.0 - lo_back))
     return 0.0
-
-
-@nb.njit(cache=True, inline="always")
-def ray_amplitude_terms(t, rho, h, c, alpha, n, src):
-    """(p, tau, spreading, cos phi_0, attenuation in Np) of a ray through media 0..n-1
-    (see :func:`sim_device.refraction.ray_terms`), with amplitude attenuation ``alpha``
-    (Np/m) over the path length h_i / cos(phi_i) in each medium."""
-    cmax = 0.0
-    for i in range(n):
-        if h[i] > 0.0 and c[i] > cmax:
-            cmax = c[i]
-    if cmax == 0.0:
-        cmax = c[0]
-    q = math.sqrt(1.0 + t * t)
-    p = t / (cmax * q)
-    tt = t * t
-    tau = p * rho
-    s1 = 0.0
-    s2 = 0.0
-    eta_src = 0.0
-    cos0 = 1.0
-    att = 0.0
-    for i in range(n):
-        r = c[i] / cmax
-        g = math.sqrt(1.0 + tt * (1.0 - r * r)) / q
-        eta = g / c[i]
-        if i == src:
-            eta_src = eta
-        if i == 0:
-            cos0 = g
-        if h[i] > 0.0:
-            tau += h[i] * eta
-            s1 += h[i] / eta
-            s2 += h[i] / (c[i] * c[i] * eta * eta * eta)
-            att += alpha[i] * h[i] / g
-    den = eta_src * eta_src * s1 * s2
-    spread = 1.0 / math.sqrt(den) if den > 0.0 else 0.0
-    return p, tau, spread, cos0, att
 
 
 @nb.njit(cache=True, inline="always")
