@@ -47,17 +47,22 @@ def scene_for(n_pings: int):
                                points=pts)
 
 
-def reference_tile(hw, proc, pings):
-    """Image pings into the reference tiles; return rate and the full tile's figures."""
-    imager = TileImager(hw, proc)
-    imager.add(pings[0])                       # compile outside the timing
+def image_all(hw, proc, pings):
+    """Image every ping (kernels compiled beforehand); return the tiles, the imager and
+    the seconds it took."""
+    TileImager(hw, proc).add(pings[0])         # compile outside the timing
     imager = TileImager(hw, proc)
     t0 = time.perf_counter()
     tiles = []
     for p in pings:
         tiles += imager.add(p)
     tiles += imager.finish()
-    el = time.perf_counter() - t0
+    return tiles, imager, time.perf_counter() - t0
+
+
+def reference_tile(hw, proc, pings):
+    """Image pings into the reference tiles; return rate and the full tile's figures."""
+    tiles, imager, el = image_all(hw, proc, pings)
     rate = imager.updates / el
     full = max(tiles, key=lambda t: t.updates)
     return {"pings": len(pings), "seconds": el, "updates": imager.updates,
@@ -113,15 +118,7 @@ def options_table(hw, proc, pings):
                                  delays=delays, sediment_sound_speed_m_s=1767.0)
         cond = dataclasses.replace(base.conditioning, upsample=upsample)
         p = dataclasses.replace(base, imaging=im, conditioning=cond)
-        imager = TileImager(hw, p)
-        imager.add(pings[0])                    # compile outside the timing
-        imager = TileImager(hw, p)
-        t0 = time.perf_counter()
-        tiles = []
-        for ping in pings:
-            tiles += imager.add(ping)
-        tiles += imager.finish()
-        el = time.perf_counter() - t0
+        tiles, imager, el = image_all(hw, p, pings)
         if not chosen:                          # the reference run picks the fullest tile
             chosen["index"] = max(tiles, key=lambda t: t.updates).grid.index
         t = next(t for t in tiles if t.grid.index == chosen["index"])

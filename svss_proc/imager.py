@@ -7,6 +7,7 @@ pings; never the truth of a scene.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from dataclasses import dataclass, field
@@ -38,9 +39,10 @@ class Tile:
     pings: list[int] = field(default_factory=list)
     updates: int = 0
 
-    @property
+    @functools.cached_property
     def image(self) -> np.ndarray:
-        """The complex image (along x cross x depth), complex64, uPa."""
+        """The complex image (along x cross x depth), complex64, uPa; built once, when
+        the tile is finished."""
         out = np.empty(self.re.shape, dtype=np.complex64)
         out.real = self.re
         out.imag = self.im

@@ -11,6 +11,8 @@ from typing import Callable
 
 import numpy as np
 
+from ._bessel import bessel_first, bessel_second
+
 log = logging.getLogger(__name__)
 
 #: Default relative truncation tolerance of the modal series.
@@ -184,3 +186,41 @@ def target_strength(amplitude) -> np.ndarray:
     """Target strength TS = 20 log10 |f| (dB re 1 m²) from a scattering amplitude f (m)."""
     with np.errstate(divide="ignore"):
         return 20.0 * np.log10(np.abs(amplitude))
+
+
+def modal_amplitudes(f: np.ndarray, a: float, fluid, material, spherical: bool,
+                     elastic_ratio: Callable, weight: Callable[[np.ndarray], np.ndarray],
+                     tol: float = DEFAULT_TOL, max_terms: int | None = None
+                     ) -> tuple[ModalSeries, np.ndarray]:
+    """Modal amplitudes weight(n) b_n of a sphere (``spherical``) or an infinite cylinder
+    of radius ``a`` (m) at frequencies ``f`` (Hz, 1-D) in ``fluid``: rigid when
+    ``material`` is None, else elastic with the shape's ``elastic_ratio(n, x, x1, x2,
+    rho_ratio, is_fluid) -> (num, den)``. Returns the series and the wavenumbers (rad/m).
+    """
+    k = 2.0 * np.pi * f / fluid.sound_speed
+    x_all = k * a
+    if material is None:
+        x_max = x_all
+
+        def coef(n, rows):
+            _, jd = bessel_first(int(n[-1]), x_all[rows], spherical)
+            _, yd = bessel_second(int(n[-1]), x_all[rows], spherical)
+            return weight(n[None, :]) * (-jd / (jd + 1j * yd))
+    else:
+        omega = 2.0 * np.pi * f
+        x1_all = omega * a / material.complex_c_l
+        x2_all = (omega * a / material.complex_c_t if not material.is_fluid
+                  else np.zeros_like(x1_all))
+        x_max = np.maximum(np.maximum(x_all, np.abs(x1_all)), np.abs(x2_all))
+        rho_ratio = fluid.density / material.density
+
+        def coef(n, rows):
+            nn = n[None, :]
+            num, den = elastic_ratio(nn, x_all[rows][:, None], x1_all[rows][:, None],
+                                     x2_all[rows][:, None], rho_ratio, material.is_fluid)
+            j, jd = bessel_first(int(n[-1]), x_all[rows], spherical)
+            y, yd = bessel_second(int(n[-1]), x_all[rows], spherical)
+            b = -(den * j + num * jd) / (den * (j + 1j * y) + num * (jd + 1j * yd))
+            return weight(nn) * b
+
+    return sum_modal_series(coef, x_max, tol=tol, max_terms=max_terms), k

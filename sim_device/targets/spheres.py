@@ -22,9 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._bessel import bessel_first, bessel_second
+from ._bessel import bessel_first
 from ._series import (DEFAULT_TOL, as_frequency, complex_matmul, legendre_table,
-                      regular_pair, sum_modal_series, target_strength)
+                      modal_amplitudes, regular_pair, target_strength)
 from .materials import ElasticMaterial, Fluid
 
 __all__ = [
@@ -99,36 +99,8 @@ def sphere_modal_series(freq, radius: float, fluid: Fluid,
     """
     f = np.atleast_1d(as_frequency(freq)).ravel()
     a = _check_radius(radius)
-    k = 2.0 * np.pi * f / fluid.sound_speed
-    x_all = k * a
-    if material is None:
-        x_max = x_all
-
-        def coef(n, rows):
-            nn = n[None, :]
-            _, jd = bessel_first(int(n[-1]), x_all[rows], True)
-            _, yd = bessel_second(int(n[-1]), x_all[rows], True)
-            b = -jd / (jd + 1j * yd)
-            return (2 * nn + 1) * b
-    else:
-        omega = 2.0 * np.pi * f
-        x1_all = omega * a / material.complex_c_l
-        x2_all = (omega * a / material.complex_c_t if not material.is_fluid
-                  else np.zeros_like(x1_all))
-        x_max = np.maximum(np.maximum(x_all, np.abs(x1_all)), np.abs(x2_all))
-        rho_ratio = fluid.density / material.density
-
-        def coef(n, rows):
-            x = x_all[rows][:, None]
-            nn = n[None, :]
-            num, den = _elastic_ratio(nn, x, x1_all[rows][:, None], x2_all[rows][:, None],
-                                      rho_ratio, material.is_fluid)
-            j, jd = bessel_first(int(n[-1]), x_all[rows], True)
-            y, yd = bessel_second(int(n[-1]), x_all[rows], True)
-            b = -(den * j + num * jd) / (den * (j + 1j * y) + num * (jd + 1j * yd))
-            return (2 * nn + 1) * b
-
-    s = sum_modal_series(coef, x_max, tol=tol, max_terms=max_terms)
+    s, k = modal_amplitudes(f, a, fluid, material, True, _elastic_ratio,
+                            lambda n: 2 * n + 1, tol=tol, max_terms=max_terms)
     return SphereSeries(s.coefficients, s.n_terms, s.converged, k)
 
 
