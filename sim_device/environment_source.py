@@ -14,12 +14,11 @@ samples. Per ping:
    scatterers (:mod:`sim_device.possm`); with the scene's points they go through the two
    synthesis passes (:mod:`sim_device.synthesis`);
 4. coherent returns of the interface and deeper boundaries (:mod:`sim_device.specular`);
-5. noise (:mod:`sim_device.noise`) and quantisation to int32 ADC codes.
-
-A scene without targets never pays for target scattering; the ``targets`` of a scene are
-kept for the target-scattering model, which can add its echoes through
-``EnvironmentSource.contributions`` (callables of the source, the ping index and its
-geometry returning pressure); they are not synthesised here.
+5. the scene's targets (:mod:`sim_device.targets.echo`), through
+   ``EnvironmentSource.contributions`` (callables of the source, the ping index and its
+   geometry returning pressure). A scene without targets never pays for target
+   scattering;
+6. noise (:mod:`sim_device.noise`) and quantisation to int32 ADC codes.
 """
 
 from __future__ import annotations
@@ -51,6 +50,7 @@ from .refraction import two_medium_table
 from .scene import SceneConfig
 from .specular import (PathSet, SpectralSynthesiser, boundary_paths, interface_paths,
                        merge, select)
+from .targets.echo import TargetEchoes, build_targets
 from .synthesis import MED_INTERFACE, PulseSynthesiser, accumulate, transmit_legs
 from .track import ping_pose, truth_line
 
@@ -173,14 +173,12 @@ class EnvironmentSource:
         else:
             self.points = _empty_scatterers()
         self.allowed = self._choose_paths()
-        if scene.targets:
-            log.warning("scene %r lists %d target(s); target scattering is the target "
-                        "model's (sim_device.targets) and is not synthesised by this "
-                        "source unless a contribution is added", scene.scene.name,
-                        len(scene.targets))
-        #: extra pressure contributions (e.g. a target model): callables
-        #: f(source, i, geometry) -> (n_channels, n_samples) uPa, added by pressure(i)
+        #: extra pressure contributions: callables f(source, i, geometry) ->
+        #: (n_channels, n_samples) uPa, added by pressure(i); the scene's targets are one
         self.contributions: list = []
+        self.targets = build_targets(scene, media, source=f"scene {scene.scene.name!r}")
+        if self.targets:
+            self.contributions.append(TargetEchoes(self, self.targets))
         self.last_stats: dict = {}
 
     def with_seed(self, seed: int) -> "EnvironmentSource":

@@ -164,20 +164,34 @@ class TransducerConfig:
 
 @dataclass(frozen=True)
 class TargetConfig:
-    """A target for the target-scattering model (sim_device.targets); placeholder here."""
+    """A target of the target-scattering model (:mod:`sim_device.targets`)."""
     kind: str = spec("target type", choices=("cylinder", "sphere", "disc"))
-    material: str = spec("material name in config/materials.toml")
+    material: str = spec("material name in config/materials.toml, or 'rigid' (rigid, "
+                         "fixed)")
     along_m: float = spec("centre along-track from the first ping, m", lo=-1e4, hi=1e4)
     cross_m: float = spec("centre cross-track, starboard positive, m", lo=-1e3, hi=1e3)
-    depth_m: float = spec("centre depth below the water-sediment interface, m",
-                          lo=-100, hi=100)
+    depth_m: float = spec("centre depth below the water-sediment interface (negative: "
+                          "above it, proud), m", lo=-100, hi=100)
     radius_m: float = spec("radius, m", lo=1e-4, hi=100)
     length_m: float | None = spec("cylinder length, m", lo=1e-4, hi=100)
-    axis_heading_deg: float | None = spec("cylinder axis azimuth from along-track, deg",
-                                          lo=-360, hi=360)
-    axis_tilt_deg: float | None = spec("cylinder axis tilt from horizontal, deg",
+    axis_heading_deg: float | None = spec("cylinder axis (disc: normal tilt direction) "
+                                          "azimuth from along-track, deg", lo=-360, hi=360)
+    axis_tilt_deg: float | None = spec("cylinder axis tilt from horizontal, positive end "
+                                       "down (disc: normal tilt from vertical), deg",
                                        lo=-90, hi=90)
     description: str | None = spec("what the target is")
+
+
+@dataclass(frozen=True)
+class TargetModelConfig:
+    """Fidelity of the target-scattering model (speed against accuracy)."""
+    truncation_tol: float = spec("relative tolerance of the modal series' truncation",
+                                 lo=1e-16, hi=1e-1)
+    freq_step_hz: float = spec("cylinders: step of the form table over projected "
+                               "frequency, Hz (0: sum the series at every frequency)",
+                               lo=0, hi=5000)
+    bistatic: str = spec("cylinders: monostatic model along the bisector at Kell's "
+                         "frequency f cos(beta/2) or at f", choices=("kell", "bisector"))
 
 
 @dataclass(frozen=True)
@@ -193,6 +207,8 @@ class SceneConfig:
     transducers: TransducerConfig | None = spec("directivity (absent: hard cones)")
     targets: tuple[TargetConfig, ...] = spec("targets (target-scattering model)",
                                              min_length=0)
+    target_model: TargetModelConfig | None = spec("target-model fidelity (absent: "
+                                                  "defaults)")
 
 
 def check_scene(sc: SceneConfig, source: str = "<scene>") -> SceneConfig:
@@ -251,6 +267,9 @@ def check_scene(sc: SceneConfig, source: str = "<scene>") -> SceneConfig:
     for k, t in enumerate(sc.targets):
         if t.kind == "cylinder" and t.length_m is None:
             raise fail(f"targets[{k}].length_m", "a cylinder needs its length")
+        if t.kind != "cylinder" and t.length_m is not None:
+            raise fail(f"targets[{k}].length_m", f"only cylinders have a length (this "
+                       f"target is a {t.kind})")
     return sc
 
 

@@ -198,6 +198,29 @@ class SpectralSynthesiser:
         self.t_lo = float(t_first) - (self.n_pulse - self.pad + 1) / self.fs
         self.t_hi = float(t_first) + (self.n + self.pad + 1) / self.fs
 
+    def band(self, rel: float = 1e-6) -> np.ndarray:
+        """Indices of the positive-frequency bins where the pulse spectrum exceeds
+        ``rel`` times its peak (outside them a path's spectrum does not matter)."""
+        mag = np.abs(self.spectrum)
+        return np.flatnonzero((mag > rel * mag.max()) & (self.f > 0))
+
+    def responses(self, n_channels: int, channel: np.ndarray, tau: np.ndarray,
+                  resp: np.ndarray, bins: np.ndarray, scale: float) -> np.ndarray:
+        """Pressure (n_channels, samples) of M echoes: echo m reaches channel
+        ``channel[m]`` with delay ``tau[m]`` (s) and the frequency response ``resp[m]``
+        (engineering convention e^{+j omega t}) on the bins ``bins``; times ``scale``."""
+        y = np.zeros((n_channels, self.spectrum.size), dtype=np.complex128)
+        ok = (tau > self.t_lo) & (tau < self.t_hi)
+        if np.any(ok):
+            fb = self.f[bins]
+            echo = resp[ok] * np.exp(-2j * np.pi * fb * (tau[ok, None] - self.pad / self.fs
+                                                         - self.t0))
+            part = np.zeros((n_channels, bins.size), dtype=np.complex128)
+            np.add.at(part, channel[ok], echo)
+            y[:, bins] = part
+        out = sfft.irfft(y * self.spectrum * scale, self.n_fft, axis=-1)
+        return out[:, self.lead:self.lead + self.n]
+
     def __call__(self, paths: PathSet, scale: float) -> np.ndarray:
         """Pressure (channels, samples) of ``paths`` times ``scale`` (source level)."""
         n_ch = paths.tau.shape[0]

@@ -33,6 +33,7 @@ __all__ = [
     "BistaticGeometry",
     "angle_between",
     "bistatic_geometry",
+    "bistatic_from_directions",
     "equivalent_monostatic_frequency",
     "max_bistatic_angle",
     "sphere_bisector_error",
@@ -72,8 +73,16 @@ def bistatic_geometry(projector, receiver, target) -> BistaticGeometry:
     p = np.asarray(projector, dtype=np.float64)
     r = np.asarray(receiver, dtype=np.float64)
     t = np.asarray(target, dtype=np.float64)
-    to_p = _unit(p - t, "projector - target")
-    to_r = _unit(r - t, "receiver - target")
+    return bistatic_from_directions(-_unit(p - t, "projector - target"),
+                                    _unit(r - t, "receiver - target"))
+
+
+def bistatic_from_directions(incident_dir, scattered_dir) -> BistaticGeometry:
+    """Bistatic geometry from the directions of travel at the target (unit vectors
+    (…, 3)): incident (towards the target) and scattered (away from it). Refracted paths
+    give these, not straight lines to the elements."""
+    to_p = -np.asarray(incident_dir, dtype=np.float64)
+    to_r = np.asarray(scattered_dir, dtype=np.float64)
     cos_beta = np.clip(np.sum(to_p * to_r, axis=-1), -1.0, 1.0)
     # atan2 form: accurate for small β (arccos loses precision near 1).
     cross = np.linalg.norm(np.cross(to_p, to_r), axis=-1)

@@ -44,6 +44,7 @@ __all__ = [
     "infinite_cylinder_form",
     "infinite_cylinder_form_function",
     "finite_cylinder_backscatter",
+    "cylinder_backscatter_at",
     "finite_cylinder_target_strength",
     "urick_cylinder_broadside_ts",
     "cylinder_rayleigh_form",
@@ -151,32 +152,45 @@ def finite_cylinder_backscatter(freq, radius: float, length: float, fluid: Fluid
     """
     shape = np.shape(freq) + np.shape(aspect)
     f = np.atleast_1d(as_frequency(freq)).ravel()
+    psi = np.asarray(aspect, dtype=float).ravel()
+    out = cylinder_backscatter_at(f[:, None], psi[None, :], radius, length, fluid,
+                                  material, end_caps=end_caps, tol=tol)
+    return out.reshape(shape)
+
+
+def cylinder_backscatter_at(freq, aspect, radius: float, length: float, fluid: Fluid,
+                            material: ElasticMaterial | None = None,
+                            end_caps: bool = True, tol: float = DEFAULT_TOL,
+                            form=None) -> np.ndarray:
+    """:func:`finite_cylinder_backscatter` element by element: ``freq`` (Hz) and
+    ``aspect`` (rad) broadcast together. ``form``, if given, replaces the modal series:
+    a callable giving T(π) at projected frequencies (Hz, 1-D), e.g. a table."""
+    f, psi = np.broadcast_arrays(np.asarray(freq, dtype=float), np.asarray(aspect, dtype=float))
+    if np.any(~np.isfinite(f)) or np.any(f <= 0):
+        raise ValueError("frequency must be positive and finite (Hz)")
     a = _positive(radius, "radius")
     length = _positive(length, "length")
-    psi = np.asarray(aspect, dtype=float).ravel()
     if not np.all(np.isfinite(psi)):
         raise ValueError("aspect must be finite (rad)")
     cos_psi = np.cos(psi)
     sin_psi = np.abs(np.sin(psi))
     k = 2.0 * np.pi * f / fluid.sound_speed
-    # Side: infinite-cylinder solution at the projected frequency f·sinψ.
-    # Aspects ψ and π − ψ share sin ψ: evaluate each distinct value once.
-    sin_u, inverse = np.unique(np.round(sin_psi, 14), return_inverse=True)
+    # Side: infinite-cylinder solution at the projected frequency f·sinψ, each distinct
+    # value once (aspects ψ and π − ψ share it).
     min_f = _MIN_KA * fluid.sound_speed / (2.0 * np.pi * a)
-    f_proj = np.maximum(np.outer(f, sin_u), min_f)             # (F, U)
-    t = infinite_cylinder_form(f_proj.ravel(), a, fluid, material, tol=tol)
-    t = t.reshape(f_proj.shape)[:, inverse.ravel()]
-    delta = np.outer(k, cos_psi) * length
-    side = (-1j * length / np.pi) * np.sinc(delta / np.pi) * t
-    total = side
+    f_proj = np.maximum(f * np.round(sin_psi, 14), min_f)
+    uniq, inverse = np.unique(f_proj, return_inverse=True)
+    t_u = (infinite_cylinder_form(uniq, a, fluid, material, tol=tol) if form is None
+           else form(uniq))
+    t = t_u[inverse.reshape(f_proj.shape)]
+    delta = k * cos_psi * length
+    total = (-1j * length / np.pi) * np.sinc(delta / np.pi) * t
     if end_caps:
         refl = 1.0 if material is None else material.normal_incidence_reflection(fluid)
-        kk = k[:, None]
-        cap = (-1j * kk * a * a / 2.0) * refl * np.abs(cos_psi)[None, :] \
-            * kirchhoff_disc_directivity(2.0 * kk * a * sin_psi[None, :]) \
-            * np.exp(-1j * kk * length * np.abs(cos_psi)[None, :])
-        total = side + cap
-    return total.reshape(shape)
+        total = total + ((-1j * k * a * a / 2.0) * refl * np.abs(cos_psi)
+                         * kirchhoff_disc_directivity(2.0 * k * a * sin_psi)
+                         * np.exp(-1j * k * length * np.abs(cos_psi)))
+    return total
 
 
 def finite_cylinder_target_strength(freq, radius: float, length: float, fluid: Fluid,
