@@ -4,10 +4,11 @@ A few paths per channel, so each is synthesised exactly in the frequency domain,
 the frequency dependence of its coherent loss (Eckart 1953: R_coh = R exp(-2 k^2 h^2
 sin^2 theta), PHYSICS.md section 3) and of the sediment attenuation (linear in f):
 
-    P(f) = S(f) A exp(-beta f^2 - gamma f - j 2 pi f tau)
+    P(f) = S(f) conj(A) exp(-beta f^2 - gamma f - j 2 pi f tau)
 
 with S the spectrum of the transmit pulse, A the frequency-independent factor (source
-level, beam gains, Rayleigh coefficients, spreading, water absorption), beta the Eckart
+level, beam gains, Rayleigh coefficients, spreading, water absorption; complex in the
+physics convention exp(-i omega t), hence conjugated for numpy's FFT), beta the Eckart
 exponent and gamma the sediment attenuation per Hz along the path.
 
 * Interface: reflection sequences from :func:`sim_device.multipath.coherent_paths`;
@@ -38,7 +39,8 @@ from .refraction import ray_amplitude_terms, ray_tan, reflection
 class PathSet:
     """Coherent paths of one ping: arrays (channels, paths)."""
     tau: np.ndarray         # s
-    amp: np.ndarray         # complex, frequency-independent factor (without source level)
+    amp: np.ndarray         # complex, frequency-independent factor (without source level),
+    #                         physics convention exp(-i omega t) as the Rayleigh coefficient
     beta: np.ndarray        # s^2: exp(-beta f^2)
     gamma: np.ndarray       # s:   exp(-gamma f)
     label: list[str]        # one per path
@@ -233,6 +235,7 @@ class SpectralSynthesiser:
                 continue
             expo = (-paths.beta[ok, j, None] * f * f - paths.gamma[ok, j, None] * f
                     - 2j * np.pi * f * (tau[ok, None] - self.pad / self.fs - self.t0))
-            y[ok] += paths.amp[ok, j, None] * np.exp(expo)
+            # conj: the factors are in the physics convention, the FFT's is e^{+j omega t}
+            y[ok] += np.conj(paths.amp[ok, j, None]) * np.exp(expo)
         out = sfft.irfft(y * self.spectrum * scale, self.n_fft, axis=-1)
         return out[:, self.lead:self.lead + self.n]
