@@ -66,7 +66,7 @@ def make_target(spec: dict, along: float, depth: float) -> TargetConfig:
     return TargetConfig(**fields)
 
 
-def source_with(hw, base, tgt, tol=1e-8, step=25.0):
+def source_with(hw, base, tgt, tol=1e-8, step=5.0):
     sc = dataclasses.replace(base, targets=(tgt,), target_model=TargetModelConfig(
         truncation_tol=tol, freq_step_hz=step, bistatic="kell"))
     return EnvironmentSource(hw, sc)

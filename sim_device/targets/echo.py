@@ -38,7 +38,7 @@ from .paths import target_legs
 log = logging.getLogger(__name__)
 
 #: defaults of the scene's [target_model] table (docs/targets.md, benchmark figures)
-DEFAULT_FREQ_STEP_HZ = 25.0
+DEFAULT_FREQ_STEP_HZ = 5.0
 DEFAULT_BISTATIC = "kell"
 #: material name of a rigid, fixed target (no entry in the materials table)
 RIGID = "rigid"
