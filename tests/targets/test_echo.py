@@ -400,3 +400,44 @@ def test_scene_target_errors_name_the_key(hardware, tmp_path):
     bad.write_text(text.replace('kind = "cylinder"', 'kind = "sphere"'))
     with pytest.raises(ConfigError, match=r"targets\[0\]\.length_m"):
         load_scene(bad)
+
+
+# ------------------------------------------------------------------ through the imager
+
+
+def test_buried_target_echoes_image_at_the_target(hardware):
+    """End to end: pings of a small buried rigid sphere (targets only, quantised ADC
+    codes) imaged by svss_proc with the refraction table peak at the sphere's position
+    in the imager's own tile frame (within half a voxel plus the radius)."""
+    from svss_daq.config import ProcessingConfig, load
+    from svss_proc.imager import TileImager
+    from sim_device.track import truth_line
+
+    hw = hardware.value
+    sc = sand_scene()
+    a, depth = 0.01, 0.3
+    along = EnvironmentSource(hardware, sc).frame(30).tx[0]
+    truth = np.array([along, 0.05, depth])
+    src = EnvironmentSource(hardware, dataclasses.replace(sc, targets=(
+        target(along=truth[0], cross=truth[1], depth=truth[2], radius=a),)))
+    pings = [src.ping(i) for i in range(14, 47)]
+    assert max(np.abs(p.samples).max() for p in pings) > 1000      # well above 1 count
+    proc = load(ProcessingConfig, config_path("processing.toml"))
+    proc = dataclasses.replace(
+        proc, products=None,
+        tile=dataclasses.replace(proc.tile, length_m=0.4, width_m=0.3, depth_m=0.3,
+                                 top_m=0.15, voxel_m=0.01),
+        imaging=dataclasses.replace(proc.imaging, delays="table", interpolation="linear",
+                                    sound_speed_m_s=C_W,
+                                    sediment_sound_speed_m_s=float(src.media.c[1])))
+    imager = TileImager(hardware, proc)
+    tiles = []
+    for p in pings:
+        tiles += imager.add(p)
+    tiles += imager.finish()
+    tile = max(tiles, key=lambda t: np.abs(t.image).max())
+    mag = np.abs(tile.image)
+    idx = np.unravel_index(mag.argmax(), mag.shape)
+    pos = np.array([tile.grid.along[idx[0]], tile.grid.cross[idx[1]], tile.grid.depth[idx[2]]])
+    expect = tile.line.ned_to_tile(truth_line(sc.track).tile_to_ned(truth[None, :]))[0]
+    assert np.all(np.abs(pos - expect) <= 0.5 * 0.01 + a), (pos, expect)
