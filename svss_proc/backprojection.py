@@ -20,9 +20,21 @@ one tap, s = 0, w in [-1/2, 1/2); linear: two taps, s = 1/2; cubic (Keys, a = -1
 four taps k = -1..2, s = 1/2). The remaining factor is a short Taylor series of an angle
 below 1.4 rad (halved and squared back when theta is larger), exact to ~1e-7 in float32.
 
+Loop order (CPU): prange over along-track slices; per voxel column (along, cross) the
+projector delays and cone mask are computed once per depth, then channels are the outer
+loop and depth the inner one. The depth loop is branch free and vectorises (16 float32
+lanes on AVX-512): within one channel consecutive depths read nearby samples of one
+tap row (gathers with 32-bit indices; in float32 the (re, im) pairs are packed into one
+uint64 so that a tap costs one 64-bit gather), the accumulators are a per-column depth
+buffer, and the depth range is the projector cone's interval padded to whole vectors
+(masked lanes weigh 0). With the refraction table the horizontal offset of a (column,
+channel) pair is constant along depth, so the table row is fixed and the table is
+interpolated in z once per call at the voxel depths. The GPU kernel
+(:mod:`svss_proc.gpu`) keeps the voxel-order sum of :mod:`svss_proc.kernel_math`.
+
 Precision: geometry is computed in float64 relative to the ping's projector and handed
-to the kernel in the chosen precision (float32 or float64); the kernel accumulates each
-ping in that precision and the tile in complex64.
+to the kernel in the chosen precision (float32 or float64); the kernel computes and
+accumulates each ping in that precision and the tile in complex64.
 """
 
 from __future__ import annotations
@@ -32,11 +44,14 @@ from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
+from llvmlite import ir as llvm_ir
+from numba import types
+from numba.extending import intrinsic, overload
 
 from svss_daq.conventions import remodulation
 
 from .conditioning import Conditioned
-from .kernel_math import build
+from .kernel_math import build, cast_like
 from .refraction import TravelTimeTable
 from .refraction import _cpu as refraction_cpu
 
@@ -84,15 +99,158 @@ def prepare(cond: Conditioned, interp: str = "linear", dtype=np.float32) -> Kern
 
 
 _cpu = build(nb.njit(inline="always", cache=True), refraction_cpu)
-_voxel_sum = _cpu.voxel_sum
+_voxel_sum = _cpu.voxel_sum          # voxel-order sum (the GPU kernel's building block)
+_cis = _cpu.cis
+_weights = _cpu.weights
+_travel_time = _cpu.travel_time
+
+LANES = 16          # depth loop trip counts are padded to a multiple of this (one zmm)
+
+
+@nb.njit(inline="always", cache=True)
+def _position(u, interp, nt, one):
+    """Sample index (unsigned 31-bit: no negative-index wraparound, 32-bit gather
+    indices), fractional position, phase shift s and validity (0/1) of the fractional
+    sample index u, as in :mod:`svss_proc.kernel_math` ``sample``."""
+    zero = one - one
+    half = one / (one + one)
+    if interp == 0:
+        lo = zero
+        hi = cast_like(one, nt - 1)
+        uc = min(max(u, lo), hi)
+        i0 = np.uint32(uc + half) & np.uint32(0x7FFFFFFF)
+        shift = zero
+    elif interp == 1:
+        lo = zero
+        hi = cast_like(one, nt - 1) - cast_like(one, 1e-3)
+        uc = min(max(u, lo), hi)
+        i0 = np.uint32(uc) & np.uint32(0x7FFFFFFF)
+        shift = half
+    else:
+        lo = one
+        hi = cast_like(one, nt - 2) - cast_like(one, 1e-3)
+        uc = min(max(u, lo), hi)
+        i0 = np.uint32(uc) & np.uint32(0x7FFFFFFF)
+        shift = half
+    valid = (one if u >= lo else zero) * (one if u <= hi else zero)
+    return i0, uc - cast_like(one, i0), shift, valid
+
+
+@nb.njit(inline="always", cache=True)
+def _sample_cpu(re, im, ch, u, interp, halvings, theta, nt, one):
+    """The CPU twin of :mod:`svss_proc.kernel_math` ``sample`` (same arithmetic, 32-bit
+    gather indices). Returns (re, im, valid as 0/1 weight)."""
+    i0, w, shift, valid = _position(u, interp, nt, one)
+    c0, c1, c2, c3 = _weights(interp, w, one)
+    sr = c0 * re[0, ch, i0]
+    si = c0 * im[0, ch, i0]
+    if interp > 0:
+        sr += c1 * re[1, ch, i0]
+        si += c1 * im[1, ch, i0]
+    if interp == 2:
+        sr += c2 * re[2, ch, i0] + c3 * re[3, ch, i0]
+        si += c2 * im[2, ch, i0] + c3 * im[3, ch, i0]
+    cr, cs = _cis(theta * (w - shift), halvings, one)
+    return sr * cr - si * cs, sr * cs + si * cr, valid
+
+
+@intrinsic
+def _f32_bits(typingctx, x):
+    """The bits of a float32 as a uint64 (high half zero)."""
+    if x != types.float32:
+        return None
+
+    def codegen(context, builder, sig, args):
+        bits = builder.bitcast(args[0], llvm_ir.IntType(32))
+        return builder.zext(bits, llvm_ir.IntType(64))
+    return types.uint64(x), codegen
+
+
+@intrinsic
+def _f32_lo(typingctx, v):
+    """The float32 in the low half of a uint64."""
+    if v != types.uint64:
+        return None
+
+    def codegen(context, builder, sig, args):
+        bits = builder.trunc(args[0], llvm_ir.IntType(32))
+        return builder.bitcast(bits, llvm_ir.FloatType())
+    return types.float32(v), codegen
+
+
+@intrinsic
+def _f32_hi(typingctx, v):
+    """The float32 in the high half of a uint64."""
+    if v != types.uint64:
+        return None
+
+    def codegen(context, builder, sig, args):
+        bits = builder.trunc(builder.lshr(args[0], args[0].type(32)), llvm_ir.IntType(32))
+        return builder.bitcast(bits, llvm_ir.FloatType())
+    return types.float32(v), codegen
+
+
+@nb.njit(inline="always", cache=True)
+def _sample_packed(pk, ch, u, interp, halvings, theta, nt, one):
+    """:func:`_sample_cpu` from float32 tap planes packed as (re, im) pairs in uint64
+    (:func:`_pack`): one 64-bit gather per tap instead of two 32-bit ones."""
+    i0, w, shift, valid = _position(u, interp, nt, one)
+    c0, c1, c2, c3 = _weights(interp, w, one)
+    v = pk[0, ch, i0]
+    sr = c0 * _f32_lo(v)
+    si = c0 * _f32_hi(v)
+    if interp > 0:
+        v = pk[1, ch, i0]
+        sr += c1 * _f32_lo(v)
+        si += c1 * _f32_hi(v)
+    if interp == 2:
+        v = pk[2, ch, i0]
+        v3 = pk[3, ch, i0]
+        sr += c2 * _f32_lo(v) + c3 * _f32_lo(v3)
+        si += c2 * _f32_hi(v) + c3 * _f32_hi(v3)
+    cr, cs = _cis(theta * (w - shift), halvings, one)
+    return sr * cr - si * cs, sr * cs + si * cr, valid
+
+
+def _pack(re, im):
+    """float32 tap planes as (re, im) pairs in uint64, (taps, channels, n); a dummy
+    for float64."""
+
+
+@overload(_pack, inline="always")
+def _pack_impl(re, im):
+    if re.dtype == types.float32:
+        def impl(re, im):
+            pk = np.empty(re.shape, dtype=np.uint64)
+            for k in range(re.shape[0]):
+                for c in range(re.shape[1]):
+                    for n in range(re.shape[2]):
+                        pk[k, c, n] = _f32_bits(re[k, c, n]) | (_f32_bits(im[k, c, n])
+                                                                 << np.uint64(32))
+            return pk
+        return impl
+    return lambda re, im: np.empty((1, 1, 1), dtype=np.uint64)
+
+
+def _is_float32(x):
+    """True when ``x`` is a float32 (a compile-time constant in numba code)."""
+    return np.asarray(x).dtype == np.float32
+
+
+@overload(_is_float32)
+def _is_float32_impl(x):
+    if x == types.float32:
+        return lambda x: True
+    return lambda x: False
 
 
 # ------------------------------------------------------------------------- the kernel
 
 
-def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
-    """Compile-time specialisation of the kernel on interpolation, delay mode and gating
-    (constant branches fold away, so the straight-ray channel loop vectorises)."""
+def _make_voxel_kernel(interp: int, mode: int, gating: bool, halvings: int):
+    """Voxel-order kernel (channel loop innermost, :mod:`svss_proc.kernel_math`
+    ``voxel_sum``), used for exact Fermat delays, whose per-pair solve dominates and does
+    not vectorise."""
 
     @nb.njit(parallel=True, fastmath=True, cache=True)
     def kernel(img_re, img_im, re, im, t0, inv_dt, theta, ax, cy, dz, h_tx, rx_dx,
@@ -116,6 +274,132 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
                     img_re[ia, ic, iz] += sr
                     img_im[ia, ic, iz] += si
                     n_upd += n
+            counts[k] = n_upd
+        return counts.sum()
+
+    return kernel
+
+
+def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
+    """Column-order kernel for straight rays (mode 0) and the refraction table (mode 1),
+    specialised at compile time on interpolation, delay mode and gating (constant
+    branches fold away, so that the depth loop vectorises). Keep the prange body free of
+    array views: numba then marks the arrays noalias, which the depth loop needs to
+    vectorise (gathers next to accumulator stores)."""
+    if mode == 2:
+        return _make_voxel_kernel(interp, mode, gating, halvings)
+
+    @nb.njit(parallel=True, fastmath=True, cache=True)
+    def kernel(img_re, img_im, re, im, t0, inv_dt, theta, ax, cy, dz, h_tx, rx_dx,
+               rx_dy, rx_h, apod, bore, cos_tx, cos_rx, inv_c, cw, cs, ttab, etab, inv_drho,
+               tz0, inv_dz, h_ref, ia0, ia1):
+        one = cast_like(re[0, 0, 0], 1)          # the kernel precision
+        zero = one - one
+        ft = img_re.dtype
+        nch = re.shape[1]
+        nt = re.shape[2]
+        nc = cy.size
+        nd = dz.size
+        npad = nd + LANES                            # room for a padded depth range
+        b0, b1, b2 = bore[0], bore[1], bore[2]
+        k_straight = inv_c * inv_dt                  # samples per metre of receive path
+        dzp = np.empty(npad, dtype=ft)               # depths, padded with the last one
+        for iz in range(npad if nd > 0 else 0):
+            dzp[iz] = dz[min(iz, nd - 1)]
+        # table: times and slownesses interpolated in z at the voxel depths, (n_rho, npad)
+        n_rho = ttab.shape[0]
+        if mode == 1:
+            tz = np.empty((n_rho, npad), dtype=ft)
+            ez_tab = np.empty((n_rho, npad), dtype=ft)
+            n_z = ttab.shape[1]
+            for iz in range(npad):
+                v = min(max((dzp[iz] - tz0) * inv_dz, 0.0), n_z - 1.001)
+                j = int(v)
+                b = v - j
+                for i in range(n_rho):
+                    tz[i, iz] = (1 - b) * ttab[i, j] + b * ttab[i, j + 1]
+                    ez_tab[i, iz] = (1 - b) * etab[i, j] + b * etab[i, j + 1]
+        else:
+            tz = np.empty((1, 1), dtype=ft)
+            ez_tab = np.empty((1, 1), dtype=ft)
+        packed = _is_float32(one)                 # float32: (re, im) pairs in uint64
+        pk = _pack(re, im)
+        counts = np.zeros(ia1 - ia0, dtype=np.int64)
+        for k in nb.prange(ia1 - ia0):
+            ia = ia0 + k
+            x = ax[ia]
+            u1 = np.zeros(npad, dtype=ft)            # projector delay - t0, samples
+            txm = np.zeros(npad, dtype=ft)           # 1 inside the projector cone, else 0
+            acc_re = np.empty(npad, dtype=ft)
+            acc_im = np.empty(npad, dtype=ft)
+            n_upd = 0
+            for ic in range(nc):
+                y = cy[ic]
+                for iz in range(nd):
+                    z = dzp[iz]
+                    vz = z + h_tx
+                    inside = True
+                    if gating:
+                        r1 = math.sqrt(x * x + y * y + vz * vz)
+                        inside = x * b0 + y * b1 + vz * b2 >= r1 * cos_tx
+                    txm[iz] = one if inside else zero
+                    u1[iz] = (_travel_time(mode, x, y, z, h_tx, inv_c, cw, cs, ttab, etab,
+                                           inv_drho, tz0, inv_dz, h_ref) - t0) * inv_dt
+                # the cone's depth interval, padded to whole vectors (txm = 0 outside)
+                lo = 0
+                while lo < nd and txm[lo] == zero:
+                    lo += 1
+                hi = nd
+                while hi > lo and txm[hi - 1] == zero:
+                    hi -= 1
+                if hi <= lo:
+                    continue
+                z_lo = np.uint64(lo)                 # unsigned: no negative-index wraparound
+                z_hi = z_lo + np.uint64((hi - lo + LANES - 1) // LANES * LANES)
+                for iz in range(z_lo, z_hi):
+                    acc_re[iz] = zero
+                    acc_im[iz] = zero
+                for ch in range(nch):
+                    ex = x - rx_dx[ch]
+                    ey = y - rx_dy[ch]
+                    h = rx_h[ch]
+                    e2 = ex * ex + ey * ey
+                    eb = ex * b0 + ey * b1
+                    g0 = apod[ch]
+                    # table: row and weight of the horizontal offset, height correction
+                    rho = math.sqrt(np.float64(ex) * ex + np.float64(ey) * ey)
+                    ur = min(max(rho * inv_drho, 0.0), n_rho - 1.001)
+                    ir = int(ur)
+                    a = cast_like(one, ur - ir)
+                    dh = cast_like(one, h - h_ref)
+                    n_ch = zero                          # updates (exact: < 2^24)
+                    for iz in range(z_lo, z_hi):        # vectorised over depth
+                        z = dzp[iz]
+                        ez = z + h
+                        g = g0 * txm[iz]
+                        r2 = math.sqrt(e2 + ez * ez)     # dead code in ungated table mode
+                        if gating:
+                            g = g if eb + ez * b2 >= r2 * cos_rx else zero
+                        if mode == 0:
+                            u = u1[iz] + r2 * k_straight
+                        else:
+                            t2 = ((one - a) * (tz[ir, iz] + dh * ez_tab[ir, iz])
+                                  + a * (tz[ir + 1, iz] + dh * ez_tab[ir + 1, iz]))
+                            u = u1[iz] + t2 * inv_dt
+                        if packed:
+                            sr, si, valid = _sample_packed(pk, ch, u, interp, halvings,
+                                                           theta, nt, one)
+                        else:
+                            sr, si, valid = _sample_cpu(re, im, ch, u, interp, halvings,
+                                                        theta, nt, one)
+                        g = g * valid
+                        acc_re[iz] += g * sr
+                        acc_im[iz] += g * si
+                        n_ch += one if g != zero else zero
+                    n_upd += np.int64(n_ch)
+                for iz in range(lo, hi):
+                    img_re[ia, ic, iz] += acc_re[iz]
+                    img_im[ia, ic, iz] += acc_im[iz]
             counts[k] = n_upd
         return counts.sum()
 
