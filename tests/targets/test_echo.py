@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from sim_device.acoustics import (cone_gate, load_sediments, piston_directivity,
-                                  piston_radius_for_half_angle, reflection_coefficient)
+from sim_device.acoustics import load_sediments, reflection_coefficient
 from sim_device.environment_source import EnvironmentSource
 from sim_device.scene import TargetConfig, load_scene
 from sim_device.targets import Fluid, sphere_scattering_amplitude
@@ -22,6 +21,8 @@ from svss_daq.config import ConfigError, config_path
 from svss_daq.scaling import counts_per_upa
 from svss_daq.waveform import make_waveform
 from svss_proc.conditioning import Conditioner
+from tests.sim.test_specular import gain  # piston beams with the seed scenes' 2 deg taper
+from tests.sim.test_specular import peak_time_and_level as peak
 
 C_W = 1500.0
 FS = 125e3
@@ -57,27 +58,9 @@ def water_scene(*targets):
     return dataclasses.replace(quiet(sc, seabed=False), targets=tuple(targets))
 
 
-def gain(cos_off, half_deg):
-    """Piston beam inside a cone with a 2 degree taper (the seed scenes' transducers)."""
-    h = math.radians(half_deg)
-    a = piston_radius_for_half_angle(h, 27500.0, C_W)
-    th = np.arccos(np.clip(cos_off, -1, 1))
-    return cone_gate(th, h, math.radians(2)) * piston_directivity(th, 27500.0, a, C_W)
-
-
 def compressed(hw, p):
     cond = Conditioner(hw.digitiser, make_waveform(hw.waveform), 1)
     return cond(p * counts_per_upa(hw.digitiser), hw.digitiser.window_start_s)
-
-
-def peak(y, t0, dt, near, half_width):
-    """Sub-sample peak (time, level) of |y| within ``half_width`` s of ``near``."""
-    k0 = int(round((near - half_width - t0) / dt))
-    k1 = int(round((near + half_width - t0) / dt))
-    k = k0 + int(np.argmax(np.abs(y[k0:k1])))
-    m = np.abs(y[k - 1:k + 2])
-    frac = 0.5 * (m[0] - m[2]) / (m[0] - 2 * m[1] + m[2])
-    return t0 + (k + frac) * dt, m[1] - 0.25 * (m[0] - m[2]) * frac
 
 
 def pulse_power_spectrum(hw):
