@@ -94,7 +94,6 @@ class TargetEchoes:
         if not seen:
             return None
         rx_legs = target_legs(g.rx, target.position, target.medium, media, True)
-        n_ch = g.rx.shape[0]
         parts = []
         for a in seen:
             g_tx = float(source.tx_beam(np.array([a.look[0] @ bore]))[0])
@@ -112,7 +111,7 @@ class TargetEchoes:
                               np.broadcast_to(a.arrive[0], (ch.size, 3)), -b.arrive[ch]))
         if not parts:
             return None
-        return tuple(np.concatenate(x) for x in zip(*parts)) + (n_ch,)
+        return tuple(np.concatenate(x) for x in zip(*parts))
 
     def __call__(self, source, i: int, g) -> np.ndarray:
         t0 = time.perf_counter()
@@ -125,7 +124,7 @@ class TargetEchoes:
             p = self.paths(source, g, target)
             if p is None:
                 continue
-            ch, tau, amp, beta, gamma, k_in, k_out, _ = p
+            ch, tau, amp, beta, gamma, k_in, k_out = p
             in_view += 1
             rows += ch.size
             form = target.amplitude(f, k_in, k_out)                       # (M, F)

@@ -39,7 +39,6 @@ from ..refraction import leg_extents, ray_amplitude_terms, ray_tan, reflection
 
 #: leg kinds
 DIRECT, REFLECTED, REFRACTED = 0, 1, 2
-_LEG_NAMES = {DIRECT: "direct", REFLECTED: "interface-reflected", REFRACTED: "refracted"}
 
 
 @dataclass
@@ -57,10 +56,6 @@ class Legs:
     gamma: np.ndarray       # s, sediment attenuation exp(-gamma f)
     look: np.ndarray        # (n, 3)
     arrive: np.ndarray      # (n, 3)
-
-    @property
-    def name(self) -> str:
-        return _LEG_NAMES[self.kind]
 
 
 @nb.njit(cache=True)
