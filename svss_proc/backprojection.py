@@ -22,15 +22,17 @@ below 1.4 rad (halved and squared back when theta is larger), exact to ~1e-7 in 
 
 Loop order (CPU): prange over along-track slices; per voxel column (along, cross) the
 projector delays and cone mask are computed once per depth, then channels are the outer
-loop and depth the inner one. The depth loop is branch free and vectorises (16 float32
-lanes on AVX-512): within one channel consecutive depths read nearby samples of one
-tap row (gathers with 32-bit indices; in float32 the (re, im) pairs are packed into one
-uint64 so that a tap costs one 64-bit gather), the accumulators are a per-column depth
-buffer, and the depth range is the projector cone's interval padded to whole vectors
-(masked lanes weigh 0). With the refraction table the horizontal offset of a (column,
-channel) pair is constant along depth, so the table row is fixed and the table is
-interpolated in z once per call at the voxel depths. The GPU kernel
-(:mod:`svss_proc.gpu`) keeps the voxel-order sum of :mod:`svss_proc.kernel_math`.
+loop and depth the inner one, over the projector cone's depth interval padded to whole
+16-lane vectors (padded lanes weigh 0). Per channel the depth loop runs in three
+branch-free passes: delays, sample indices, fractions and weights (vectorised); the tap
+samples, 16 depths at a time by :mod:`svss_proc.window_gather` (consecutive depths read
+samples within a 32-sample window, served by two loads and one permute instead of a
+hardware gather); then interpolation, phase and accumulation (vectorised). The passes
+exchange data through per-slice work rows allocated outside the parallel loop. With the
+refraction table the horizontal offset of a (column, channel) pair is constant along
+depth, so the table row is fixed and the table is interpolated in z once per call at the
+voxel depths. The GPU kernel (:mod:`svss_proc.gpu`) and exact Fermat delays keep the
+voxel-order sum of :mod:`svss_proc.kernel_math`.
 
 Precision: geometry is computed in float64 relative to the ping's projector and handed
 to the kernel in the chosen precision (float32 or float64); the kernel computes and
@@ -44,9 +46,6 @@ from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
-from llvmlite import ir as llvm_ir
-from numba import types
-from numba.extending import intrinsic, overload
 
 from svss_daq.conventions import remodulation
 
@@ -54,6 +53,7 @@ from .conditioning import Conditioned
 from .kernel_math import build, cast_like
 from .refraction import TravelTimeTable
 from .refraction import _cpu as refraction_cpu
+from .window_gather import LANES, window_gather_1, window_gather_2, window_gather_4
 
 INTERP = {"nearest": 0, "linear": 1, "cubic": 2}
 DELAY = {"straight": 0, "table": 1, "exact": 2}
@@ -104,7 +104,6 @@ _cis = _cpu.cis
 _weights = _cpu.weights
 _travel_time = _cpu.travel_time
 
-LANES = 16          # depth loop trip counts are padded to a multiple of this (one zmm)
 
 
 @nb.njit(inline="always", cache=True)
@@ -134,114 +133,6 @@ def _position(u, interp, nt, one):
         shift = half
     valid = (one if u >= lo else zero) * (one if u <= hi else zero)
     return i0, uc - cast_like(one, i0), shift, valid
-
-
-@nb.njit(inline="always", cache=True)
-def _sample_cpu(re, im, ch, u, interp, halvings, theta, nt, one):
-    """The CPU twin of :mod:`svss_proc.kernel_math` ``sample`` (same arithmetic, 32-bit
-    gather indices). Returns (re, im, valid as 0/1 weight)."""
-    i0, w, shift, valid = _position(u, interp, nt, one)
-    c0, c1, c2, c3 = _weights(interp, w, one)
-    sr = c0 * re[0, ch, i0]
-    si = c0 * im[0, ch, i0]
-    if interp > 0:
-        sr += c1 * re[1, ch, i0]
-        si += c1 * im[1, ch, i0]
-    if interp == 2:
-        sr += c2 * re[2, ch, i0] + c3 * re[3, ch, i0]
-        si += c2 * im[2, ch, i0] + c3 * im[3, ch, i0]
-    cr, cs = _cis(theta * (w - shift), halvings, one)
-    return sr * cr - si * cs, sr * cs + si * cr, valid
-
-
-@intrinsic
-def _f32_bits(typingctx, x):
-    """The bits of a float32 as a uint64 (high half zero)."""
-    if x != types.float32:
-        return None
-
-    def codegen(context, builder, sig, args):
-        bits = builder.bitcast(args[0], llvm_ir.IntType(32))
-        return builder.zext(bits, llvm_ir.IntType(64))
-    return types.uint64(x), codegen
-
-
-@intrinsic
-def _f32_lo(typingctx, v):
-    """The float32 in the low half of a uint64."""
-    if v != types.uint64:
-        return None
-
-    def codegen(context, builder, sig, args):
-        bits = builder.trunc(args[0], llvm_ir.IntType(32))
-        return builder.bitcast(bits, llvm_ir.FloatType())
-    return types.float32(v), codegen
-
-
-@intrinsic
-def _f32_hi(typingctx, v):
-    """The float32 in the high half of a uint64."""
-    if v != types.uint64:
-        return None
-
-    def codegen(context, builder, sig, args):
-        bits = builder.trunc(builder.lshr(args[0], args[0].type(32)), llvm_ir.IntType(32))
-        return builder.bitcast(bits, llvm_ir.FloatType())
-    return types.float32(v), codegen
-
-
-@nb.njit(inline="always", cache=True)
-def _sample_packed(pk, ch, u, interp, halvings, theta, nt, one):
-    """:func:`_sample_cpu` from float32 tap planes packed as (re, im) pairs in uint64
-    (:func:`_pack`): one 64-bit gather per tap instead of two 32-bit ones."""
-    i0, w, shift, valid = _position(u, interp, nt, one)
-    c0, c1, c2, c3 = _weights(interp, w, one)
-    v = pk[0, ch, i0]
-    sr = c0 * _f32_lo(v)
-    si = c0 * _f32_hi(v)
-    if interp > 0:
-        v = pk[1, ch, i0]
-        sr += c1 * _f32_lo(v)
-        si += c1 * _f32_hi(v)
-    if interp == 2:
-        v = pk[2, ch, i0]
-        v3 = pk[3, ch, i0]
-        sr += c2 * _f32_lo(v) + c3 * _f32_lo(v3)
-        si += c2 * _f32_hi(v) + c3 * _f32_hi(v3)
-    cr, cs = _cis(theta * (w - shift), halvings, one)
-    return sr * cr - si * cs, sr * cs + si * cr, valid
-
-
-def _pack(re, im):
-    """float32 tap planes as (re, im) pairs in uint64, (taps, channels, n); a dummy
-    for float64."""
-
-
-@overload(_pack, inline="always")
-def _pack_impl(re, im):
-    if re.dtype == types.float32:
-        def impl(re, im):
-            pk = np.empty(re.shape, dtype=np.uint64)
-            for k in range(re.shape[0]):
-                for c in range(re.shape[1]):
-                    for n in range(re.shape[2]):
-                        pk[k, c, n] = _f32_bits(re[k, c, n]) | (_f32_bits(im[k, c, n])
-                                                                 << np.uint64(32))
-            return pk
-        return impl
-    return lambda re, im: np.empty((1, 1, 1), dtype=np.uint64)
-
-
-def _is_float32(x):
-    """True when ``x`` is a float32 (a compile-time constant in numba code)."""
-    return np.asarray(x).dtype == np.float32
-
-
-@overload(_is_float32)
-def _is_float32_impl(x):
-    if x == types.float32:
-        return lambda x: True
-    return lambda x: False
 
 
 # ------------------------------------------------------------------------- the kernel
@@ -289,12 +180,16 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
     if mode == 2:
         return _make_voxel_kernel(interp, mode, gating, halvings)
 
+    ntap = len(_TAPS[interp])
+    shift_s = _SHIFT[interp]                 # phase reference of the fraction, samples
+
     @nb.njit(parallel=True, fastmath=True, cache=True)
     def kernel(img_re, img_im, re, im, t0, inv_dt, theta, ax, cy, dz, h_tx, rx_dx,
                rx_dy, rx_h, apod, bore, cos_tx, cos_rx, inv_c, cw, cs, ttab, etab, inv_drho,
                tz0, inv_dz, h_ref, ia0, ia1):
         one = cast_like(re[0, 0, 0], 1)          # the kernel precision
         zero = one - one
+        shift = cast_like(one, shift_s)
         ft = img_re.dtype
         nch = re.shape[1]
         nt = re.shape[2]
@@ -322,16 +217,25 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
         else:
             tz = np.empty((1, 1), dtype=ft)
             ez_tab = np.empty((1, 1), dtype=ft)
-        packed = _is_float32(one)                 # float32: (re, im) pairs in uint64
-        pk = _pack(re, im)
-        counts = np.zeros(ia1 - ia0, dtype=np.int64)
-        for k in nb.prange(ia1 - ia0):
+        # per along-track slice work rows (allocated here, outside the parallel loop, so
+        # that they reach it as distinct arrays): projector delay and cone mask (zero
+        # beyond the last depth: padded lanes weigh 0), accumulators, and per channel the
+        # sample index, fraction, weight and gathered taps of each depth
+        nk = ia1 - ia0
+        counts = np.zeros(nk, dtype=np.int64)
+        u1_w = np.zeros(nk * npad, dtype=ft)         # projector delay - t0, samples
+        txm_w = np.zeros(nk * npad, dtype=ft)        # 1 inside the projector cone, else 0
+        acr_w = np.empty(nk * npad, dtype=ft)
+        aci_w = np.empty(nk * npad, dtype=ft)
+        idx_w = np.empty(nk * npad, dtype=np.uint32)
+        frac_w = np.empty(nk * npad, dtype=ft)
+        wt_w = np.empty(nk * npad, dtype=ft)
+        tap_w = np.empty(nk * 2 * ntap * npad, dtype=ft)  # re taps, then im taps
+        for k in nb.prange(nk):
             ia = ia0 + k
             x = ax[ia]
-            u1 = np.zeros(npad, dtype=ft)            # projector delay - t0, samples
-            txm = np.zeros(npad, dtype=ft)           # 1 inside the projector cone, else 0
-            acc_re = np.empty(npad, dtype=ft)
-            acc_im = np.empty(npad, dtype=ft)
+            bs = np.uint64(k * npad)                 # unsigned: no negative-index wraparound
+            bt = np.uint64(k * 2 * ntap * npad)
             n_upd = 0
             for ic in range(nc):
                 y = cy[ic]
@@ -342,23 +246,24 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
                     if gating:
                         r1 = math.sqrt(x * x + y * y + vz * vz)
                         inside = x * b0 + y * b1 + vz * b2 >= r1 * cos_tx
-                    txm[iz] = one if inside else zero
-                    u1[iz] = (_travel_time(mode, x, y, z, h_tx, inv_c, cw, cs, ttab, etab,
-                                           inv_drho, tz0, inv_dz, h_ref) - t0) * inv_dt
+                    txm_w[bs + iz] = one if inside else zero
+                    u1_w[bs + iz] = (_travel_time(mode, x, y, z, h_tx, inv_c, cw, cs, ttab,
+                                                  etab, inv_drho, tz0, inv_dz, h_ref)
+                                     - t0) * inv_dt
                 # the cone's depth interval, padded to whole vectors (txm = 0 outside)
                 lo = 0
-                while lo < nd and txm[lo] == zero:
+                while lo < nd and txm_w[bs + lo] == zero:
                     lo += 1
                 hi = nd
-                while hi > lo and txm[hi - 1] == zero:
+                while hi > lo and txm_w[bs + hi - 1] == zero:
                     hi -= 1
                 if hi <= lo:
                     continue
-                z_lo = np.uint64(lo)                 # unsigned: no negative-index wraparound
+                z_lo = np.uint64(lo)
                 z_hi = z_lo + np.uint64((hi - lo + LANES - 1) // LANES * LANES)
                 for iz in range(z_lo, z_hi):
-                    acc_re[iz] = zero
-                    acc_im[iz] = zero
+                    acr_w[bs + iz] = zero
+                    aci_w[bs + iz] = zero
                 for ch in range(nch):
                     ex = x - rx_dx[ch]
                     ey = y - rx_dy[ch]
@@ -373,33 +278,55 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
                     a = cast_like(one, ur - ir)
                     dh = cast_like(one, h - h_ref)
                     n_ch = zero                          # updates (exact: < 2^24)
-                    for iz in range(z_lo, z_hi):        # vectorised over depth
+                    for iz in range(z_lo, z_hi):        # delays and weights (vectorised)
                         z = dzp[iz]
                         ez = z + h
-                        g = g0 * txm[iz]
+                        g = g0 * txm_w[bs + iz]
                         r2 = math.sqrt(e2 + ez * ez)     # dead code in ungated table mode
                         if gating:
                             g = g if eb + ez * b2 >= r2 * cos_rx else zero
                         if mode == 0:
-                            u = u1[iz] + r2 * k_straight
+                            u = u1_w[bs + iz] + r2 * k_straight
                         else:
                             t2 = ((one - a) * (tz[ir, iz] + dh * ez_tab[ir, iz])
                                   + a * (tz[ir + 1, iz] + dh * ez_tab[ir + 1, iz]))
-                            u = u1[iz] + t2 * inv_dt
-                        if packed:
-                            sr, si, valid = _sample_packed(pk, ch, u, interp, halvings,
-                                                           theta, nt, one)
+                            u = u1_w[bs + iz] + t2 * inv_dt
+                        i0, w, _, valid = _position(u, interp, nt, one)
+                        idx_w[bs + iz] = i0
+                        frac_w[bs + iz] = w
+                        wt_w[bs + iz] = g * valid
+                    for off in range(z_lo, z_hi, LANES):  # taps, 16 depths at a time
+                        if ntap == 1:
+                            window_gather_1(re, im, ch, idx_w, bs + off, tap_w, bt + off,
+                                            npad)
+                        elif ntap == 2:
+                            window_gather_2(re, im, ch, idx_w, bs + off, tap_w, bt + off,
+                                            npad)
                         else:
-                            sr, si, valid = _sample_cpu(re, im, ch, u, interp, halvings,
-                                                        theta, nt, one)
-                        g = g * valid
-                        acc_re[iz] += g * sr
-                        acc_im[iz] += g * si
+                            window_gather_4(re, im, ch, idx_w, bs + off, tap_w, bt + off,
+                                            npad)
+                    for iz in range(z_lo, z_hi):        # interpolate, phase, sum (vectorised)
+                        w = frac_w[bs + iz]
+                        g = wt_w[bs + iz]
+                        c0, c1, c2, c3 = _weights(interp, w, one)
+                        sr = c0 * tap_w[bt + iz]
+                        si = c0 * tap_w[bt + np.uint64(ntap * npad) + iz]
+                        if ntap > 1:
+                            sr += c1 * tap_w[bt + np.uint64(npad) + iz]
+                            si += c1 * tap_w[bt + np.uint64((ntap + 1) * npad) + iz]
+                        if ntap > 2:
+                            sr += (c2 * tap_w[bt + np.uint64(2 * npad) + iz]
+                                   + c3 * tap_w[bt + np.uint64(3 * npad) + iz])
+                            si += (c2 * tap_w[bt + np.uint64((ntap + 2) * npad) + iz]
+                                   + c3 * tap_w[bt + np.uint64((ntap + 3) * npad) + iz])
+                        cr, cs = _cis(theta * (w - shift), halvings, one)
+                        acr_w[bs + iz] += g * (sr * cr - si * cs)
+                        aci_w[bs + iz] += g * (sr * cs + si * cr)
                         n_ch += one if g != zero else zero
                     n_upd += np.int64(n_ch)
                 for iz in range(lo, hi):
-                    img_re[ia, ic, iz] += acc_re[iz]
-                    img_im[ia, ic, iz] += acc_im[iz]
+                    img_re[ia, ic, iz] += acr_w[bs + iz]
+                    img_im[ia, ic, iz] += aci_w[bs + iz]
             counts[k] = n_upd
         return counts.sum()
 
