@@ -27,6 +27,7 @@ import os
 import platform
 import sys
 import time
+import tracemalloc
 
 import numpy as np
 
@@ -61,15 +62,21 @@ def image_all(hw, proc, pings):
 
 
 def reference_tile(hw, proc, pings):
-    """Image pings into the reference tiles; return rate and the full tile's figures."""
+    """Image pings into the reference tiles; return rate, the full tile's figures and the
+    peak memory that imaging allocated through numpy (tracemalloc; the pings themselves
+    were allocated before)."""
+    tracemalloc.start()
     tiles, imager, el = image_all(hw, proc, pings)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
     rate = imager.updates / el
     full = max(tiles, key=lambda t: t.updates)
     return {"pings": len(pings), "seconds": el, "updates": imager.updates,
             "updates_per_s": rate, "tile_index": full.grid.index,
             "tile_shape": list(full.grid.shape), "tile_updates": full.updates,
             "tile_pings": len(full.pings), "seconds_per_tile": full.updates / rate,
-            "real_time_factor": 15.0 / (full.updates / rate)}
+            "real_time_factor": 15.0 / (full.updates / rate),
+            "imaging_peak_gib": peak / 2**30}
 
 
 def numpy_baseline(hw, proc, pings, n_pings: int = 2):
@@ -184,7 +191,8 @@ def main(argv=None) -> int:
         print(f"reference tile {r['tile_shape']} from {r['tile_pings']} pings: "
               f"{r['tile_updates']:.2e} voxel-channel updates")
         print(f"  {r['updates_per_s']:.3e} updates/s, {r['seconds_per_tile']:.1f} s per tile, "
-              f"real-time factor {r['real_time_factor']:.2f} at 1 m/s")
+              f"real-time factor {r['real_time_factor']:.2f} at 1 m/s, imaging peak "
+              f"{r['imaging_peak_gib']:.2f} GiB")
         f = result["real_time_setting"]
         print(f"  4 cm voxels, nearest: {f['seconds_per_tile']:.1f} s per tile, real-time "
               f"factor {f['real_time_factor']:.2f}")
