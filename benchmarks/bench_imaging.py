@@ -1,12 +1,13 @@
 """Imaging benchmark: the reference tile workload and the speed/accuracy table.
 
-    python benchmarks/bench_imaging.py --out bench_imaging.json [--quick]
+    python benchmarks/bench_imaging.py --out bench_imaging.json [--quick] [--repeat N]
 
 1. Reference tile (DESIGN.md): a full 15 m x 2 m x 2 m tile at 2 cm (750 x 100 x 100
    voxels) from 80 channels, platform 2 m above a flat interface at 1 m/s and 10 pings/s,
    beam cones on, with the default processing (config/processing.toml). Reports
    voxel-channel updates per second, seconds per tile and the real-time factor at 1 m/s
-   (15 s of survey per tile), and in the same run the same sum written as a plain numpy
+   (15 s of survey per tile; the fastest of --repeat passes, all recorded), and in the
+   same run the same sum written as a plain numpy
    loop over channels with nearest-neighbour look-up (research-code style), as a ratio.
 2. Options table on a sub-tile (1.5 m x 1 m x 1 m, 40 pings): interpolation x precision x
    delay model (and FFT upsampling), time per ping and image error relative to the
@@ -61,17 +62,25 @@ def image_all(hw, proc, pings):
     return tiles, imager, time.perf_counter() - t0
 
 
-def reference_tile(hw, proc, pings):
-    """Image pings into the reference tiles; return rate, the full tile's figures and the
-    peak memory that imaging allocated through numpy (tracemalloc; the pings themselves
-    were allocated before)."""
-    tracemalloc.start()
-    tiles, imager, el = image_all(hw, proc, pings)
-    peak = tracemalloc.get_traced_memory()[1]
-    tracemalloc.stop()
+def reference_tile(hw, proc, pings, repeat: int = 1):
+    """Image pings into the reference tiles ``repeat`` times (this machine shares its
+    host: the fastest pass is reported, every pass's seconds recorded); return rate, the
+    full tile's figures and the peak memory that imaging allocated through numpy
+    (tracemalloc, first pass; the pings themselves were allocated before)."""
+    passes = []
+    peak = 0
+    for i in range(repeat):
+        if i == 0:
+            tracemalloc.start()
+        passes.append(image_all(hw, proc, pings))
+        if i == 0:
+            peak = tracemalloc.get_traced_memory()[1]
+            tracemalloc.stop()
+    tiles, imager, el = min(passes, key=lambda p: p[2])
     rate = imager.updates / el
     full = max(tiles, key=lambda t: t.updates)
-    return {"pings": len(pings), "seconds": el, "updates": imager.updates,
+    return {"pings": len(pings), "seconds": el, "seconds_all_passes": [p[2] for p in passes],
+            "updates": imager.updates,
             "updates_per_s": rate, "tile_index": full.grid.index,
             "tile_shape": list(full.grid.shape), "tile_updates": full.updates,
             "tile_pings": len(full.pings), "seconds_per_tile": full.updates / rate,
@@ -154,6 +163,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="bench_imaging.json", help="JSON file for the figures")
     ap.add_argument("--quick", action="store_true", help="options table only")
+    ap.add_argument("--repeat", type=int, default=3,
+                    help="passes over the reference tile (the fastest is reported)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     hw = load_with_text(HardwareConfig, config_path("hardware.toml"))
@@ -171,13 +182,13 @@ def main(argv=None) -> int:
         log.info("reference tile: %d pings, default processing (%s, %s, %s delays)",
                  len(pings), proc.imaging.interpolation, proc.imaging.precision,
                  proc.imaging.delays)
-        result["reference_tile"] = reference_tile(hw, proc, pings)
+        result["reference_tile"] = reference_tile(hw, proc, pings, args.repeat)
         result["numpy_baseline"] = numpy_baseline(hw, proc, pings)
         fast = dataclasses.replace(proc, tile=dataclasses.replace(proc.tile, voxel_m=0.04),
                                    imaging=dataclasses.replace(proc.imaging,
                                                                interpolation="nearest"))
         result["real_time_setting"] = {"voxel_m": 0.04, "interpolation": "nearest",
-                                       **reference_tile(hw, fast, pings)}
+                                       **reference_tile(hw, fast, pings, args.repeat)}
         result["speedup_vs_numpy"] = (result["reference_tile"]["updates_per_s"]
                                       / result["numpy_baseline"]["updates_per_s"])
         with open(args.out, "w") as fh:
