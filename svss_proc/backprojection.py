@@ -105,12 +105,11 @@ _weights = _cpu.weights
 _travel_time = _cpu.travel_time
 
 
-
 @nb.njit(inline="always", cache=True)
 def _position(u, interp, nt, one):
-    """Sample index (unsigned 31-bit: no negative-index wraparound, 32-bit gather
-    indices), fractional position, phase shift s and validity (0/1) of the fractional
-    sample index u, as in :mod:`svss_proc.kernel_math` ``sample``."""
+    """Sample index (unsigned 31-bit: no negative-index wraparound, 32-bit indices),
+    fractional position and validity (0/1) of the fractional sample index u, as in
+    :mod:`svss_proc.kernel_math` ``sample``."""
     zero = one - one
     half = one / (one + one)
     if interp == 0:
@@ -118,21 +117,18 @@ def _position(u, interp, nt, one):
         hi = cast_like(one, nt - 1)
         uc = min(max(u, lo), hi)
         i0 = np.uint32(uc + half) & np.uint32(0x7FFFFFFF)
-        shift = zero
     elif interp == 1:
         lo = zero
         hi = cast_like(one, nt - 1) - cast_like(one, 1e-3)
         uc = min(max(u, lo), hi)
         i0 = np.uint32(uc) & np.uint32(0x7FFFFFFF)
-        shift = half
     else:
         lo = one
         hi = cast_like(one, nt - 2) - cast_like(one, 1e-3)
         uc = min(max(u, lo), hi)
         i0 = np.uint32(uc) & np.uint32(0x7FFFFFFF)
-        shift = half
     valid = (one if u >= lo else zero) * (one if u <= hi else zero)
-    return i0, uc - cast_like(one, i0), shift, valid
+    return i0, uc - cast_like(one, i0), valid
 
 
 # ------------------------------------------------------------------------- the kernel
@@ -291,7 +287,7 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
                             t2 = ((one - a) * (tz[ir, iz] + dh * ez_tab[ir, iz])
                                   + a * (tz[ir + 1, iz] + dh * ez_tab[ir + 1, iz]))
                             u = u1_w[bs + iz] + t2 * inv_dt
-                        i0, w, _, valid = _position(u, interp, nt, one)
+                        i0, w, valid = _position(u, interp, nt, one)
                         idx_w[bs + iz] = i0
                         frac_w[bs + iz] = w
                         wt_w[bs + iz] = g * valid
