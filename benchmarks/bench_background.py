@@ -5,7 +5,7 @@ cross x depth: the seed's 15 m x 2 m x 2 m at 2 cm) with the seed's kernel
 
 Side by side in one run:
 
-- ``histogram``: the approximation (``svss_proc.background.median_histogram``) on the
+- ``histogram``: the approximation (``svss_proc.products.background.median_histogram``) on the
   full tile, and the whole normalisation (background, division, level in dB);
 - ``exact``: the exact median (``median_exact``) on the full tile, the reference for
   the approximation's error;
@@ -44,8 +44,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numba  # noqa: E402
 
 from svss_daq.config import ProcessingConfig, config_path, load  # noqa: E402
-from svss_proc.background import kernel_voxels, median_exact, median_histogram  # noqa: E402
-from svss_proc.drc import level_db, normalise  # noqa: E402
+from svss_proc.products.background import kernel_voxels, median_exact, median_histogram  # noqa: E402
+from svss_proc.products.drc import level_db, normalise  # noqa: E402
 
 log = logging.getLogger("bench_background")
 

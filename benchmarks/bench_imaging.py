@@ -37,7 +37,7 @@ from sim_device.scene import load_scene
 from svss_daq.config import (HardwareConfig, ProcessingConfig, config_path, load,
                              load_with_text)
 from svss_daq.frames import body_to_ned
-from svss_proc.imager import TileImager, line_from_ping
+from svss_proc.imaging.imager import TileImager, line_from_ping
 
 log = logging.getLogger("bench_imaging")
 
@@ -93,7 +93,7 @@ def numpy_baseline(hw, proc, pings, n_pings: int = 2):
     imager = TileImager(hw, proc)
     geo = imager.geometry
     line = line_from_ping(pings[0], proc)
-    from svss_proc.grid import tile_grid
+    from svss_proc.imaging.grid import tile_grid
     grid = tile_grid(proc.tile, 1)
     X, Y, Z = np.meshgrid(grid.along, grid.cross, grid.depth, indexing="ij")
     img = np.zeros(X.shape, dtype=np.complex128)

@@ -29,8 +29,8 @@ from bench_imaging import scene_for
 from sim_device.point_echo import PointEchoSource
 from svss_daq.config import (HardwareConfig, ProcessingConfig, config_path, load,
                              load_with_text)
-from svss_proc import backprojection
-from svss_proc.imager import TileImager
+from svss_proc.imaging import cpu_kernel as backprojection
+from svss_proc.imaging.imager import TileImager
 
 log = logging.getLogger("bench_kernel_ab")
 ROOT = pathlib.Path(__file__).resolve().parents[1]

@@ -22,7 +22,8 @@ import numpy as np
 from sim_device.scene import load_scene
 from sim_device.track import truth_line
 from svss_daq.frames import TrackLine
-from svss_proc import detect, tiles
+from svss_proc.products import detect
+from svss_proc import tiles
 
 
 def scene_truth(scene) -> list[dict]:

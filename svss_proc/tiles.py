@@ -6,8 +6,10 @@ maximum intensity projections, detections) and provenance. See docs/formats.md.
 
 from __future__ import annotations
 
+import functools
 import json
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -16,12 +18,13 @@ import numpy as np
 
 from svss_daq import __version__
 from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
+from svss_daq.frames import TrackLine
 
-from . import detect
-from .imager import Tile
+from .products import detect
+from .imaging.grid import TileGrid
 
 if TYPE_CHECKING:
-    from .products import Products
+    from .products.chain import Products
 
 TILE_FORMAT = "svss-tile"
 TILE_FORMAT_VERSION = 2
@@ -32,6 +35,33 @@ MIPS = {"mip_depth": (2, ("along", "cross")), "mip_cross": (1, ("along", "depth"
         "mip_along": (0, ("cross", "depth"))}
 DRC_SCALE = np.float32(1.0 / 255.0)
 _GZIP = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
+
+
+@dataclass
+class Tile:
+    """A tile being formed or finished: the image (real and imaginary planes in the
+    kernel's precision while forming) and what went into it."""
+    grid: TileGrid
+    line: TrackLine
+    re: np.ndarray
+    im: np.ndarray
+    pings: list[int] = field(default_factory=list)
+    updates: int = 0
+
+    @functools.cached_property
+    def image(self) -> np.ndarray:
+        """The complex image (along x cross x depth), complex64, uPa; built once, when
+        the tile is finished."""
+        out = np.empty(self.re.shape, dtype=np.complex64)
+        out.real = self.re
+        out.imag = self.im
+        return out
+
+    def to_host(self) -> "Tile":
+        """Bring device-resident planes (GPU imaging) back to host memory."""
+        if hasattr(self.re, "copy_to_host"):
+            self.re, self.im = self.re.copy_to_host(), self.im.copy_to_host()
+        return self
 
 
 def tile_name(index: int) -> str:
@@ -145,7 +175,7 @@ def read_tile(path: str | Path) -> dict:
     """Read a tile file into plain arrays: image, magnitude, along, cross, depth,
     ping_sequence, attrs and, when the file has them, background, drc (decoded to
     0..1), depth_gain_db, the MIPs (``mip_depth``, ``mip_cross``, ``mip_along``),
-    ``detections`` (a table of :data:`svss_proc.detect.DTYPE` rows) and the
+    ``detections`` (a table of :data:`svss_proc.products.detect.DTYPE` rows) and the
     configuration texts (``hardware_config_toml``, ``processing_config_toml``)."""
     path = Path(path)
     with h5py.File(path, "r") as f:

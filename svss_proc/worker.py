@@ -16,8 +16,8 @@ from svss_daq.ping import Ping
 from svss_daq.progress import Progress
 from svss_daq.rawfile import RawRunReader
 
-from .imager import TileImager
-from .products import save_tile
+from .imaging.imager import TileImager
+from .products.chain import save_tile
 
 log = logging.getLogger(__name__)
 

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
-from svss_proc.backprojection import along_reach, prepare, run_ping
+from svss_proc.imaging.cpu_kernel import along_reach, prepare, run_ping
 from svss_proc.conditioning import Conditioned
-from svss_proc.refraction import build_table
+from svss_proc.imaging.delays import build_table
 
 CW, CS = 1500.0, 1767.0
 

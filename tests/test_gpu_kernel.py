@@ -20,7 +20,7 @@ SCRIPT = textwrap.dedent("""
     import sys, numpy as np
     from numba import cuda
     from tests.test_gpu_kernel import case_inputs
-    from svss_proc.gpu import run_ping_gpu
+    from svss_proc.imaging.gpu_kernel import run_ping_gpu
     out = {}
     for name, (kd, geo, kw) in case_inputs().items():
         re = cuda.to_device(np.zeros(geo["shape"], kd.re.dtype))
@@ -35,9 +35,9 @@ SCRIPT = textwrap.dedent("""
 
 def case_inputs():
     """Small random problems, one per option combination."""
-    from svss_proc.backprojection import prepare
+    from svss_proc.imaging.cpu_kernel import prepare
     from svss_proc.conditioning import Conditioned
-    from svss_proc.refraction import build_table
+    from svss_proc.imaging.delays import build_table
     rng = np.random.default_rng(11)
     nch, nt = 6, 260
     data = (rng.normal(size=(nch, nt)) + 1j * rng.normal(size=(nch, nt))).astype(np.complex64)
@@ -61,7 +61,7 @@ def case_inputs():
 
 
 def cpu_results():
-    from svss_proc.backprojection import run_ping
+    from svss_proc.imaging.cpu_kernel import run_ping
     out = {}
     for name, (kd, geo, kw) in case_inputs().items():
         re = np.zeros(geo["shape"], kd.re.dtype)

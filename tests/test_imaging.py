@@ -17,7 +17,7 @@ from svss_daq.geometry import array_geometry
 from svss_daq.ping import NavSnapshot, Ping
 from svss_daq.scaling import counts_per_upa
 from svss_daq.waveform import make_waveform
-from svss_proc.imager import TileImager
+from svss_proc.imaging.imager import TileImager
 
 CW, SAND = 1500.0, 1767.0
 ALTITUDE = 2.5          # body origin above the interface; the array is 0.5 m lower

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from sim_device.refraction import solve_leg
-from svss_proc.refraction import one_way_time, vertical_slowness
+from svss_proc.imaging.delays import one_way_time, vertical_slowness
 
 
 @pytest.mark.parametrize("cs", [1476.0, 1767.0, 2000.0])

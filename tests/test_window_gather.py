@@ -4,7 +4,7 @@ import numba as nb
 import numpy as np
 import pytest
 
-from svss_proc.window_gather import (HAS_AVX512, LANES, WINDOW, window_gather_1,
+from svss_proc.imaging.window_gather import (HAS_AVX512, LANES, WINDOW, window_gather_1,
                                      window_gather_2, window_gather_4)
 
 GATHERS = {1: window_gather_1, 2: window_gather_2, 4: window_gather_4}

@@ -10,7 +10,7 @@ import dataclasses
 
 import numpy as np
 
-from svss_proc.imager import Tile
+from svss_proc.tiles import Tile
 
 VOXEL = 0.02
 

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
-from svss_proc.background import (kernel_voxels, median_background, median_exact,
+from svss_proc.products.background import (kernel_voxels, median_background, median_exact,
                                   median_histogram)
 
 

@@ -14,8 +14,8 @@ import pytest
 from svss_daq.frames import TrackLine
 from svss_daq.ping import NavSnapshot, Ping
 from svss_daq.rawfile import RawRunWriter
-from svss_proc.grid import tile_grid
-from svss_proc.products import compute_products
+from svss_proc.imaging.grid import tile_grid
+from svss_proc.products.chain import compute_products
 from svss_proc.tiles import read_tile, write_tile
 
 from . import VOXEL, make_tile, plant, rayleigh_median, speckle

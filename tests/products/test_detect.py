@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from svss_daq.config import ProcessingConfig, config_path, load
-from svss_proc.detect import detect, score
-from svss_proc.drc import level_db, normalise
-from svss_proc.background import median_exact
-from svss_proc.products import compute_products
+from svss_proc.products.detect import detect, score
+from svss_proc.products.drc import level_db, normalise
+from svss_proc.products.background import median_exact
+from svss_proc.products.chain import compute_products
 
 from . import VOXEL, plant, rayleigh_median, speckle
 

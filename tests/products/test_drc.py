@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from svss_daq.config import ProcessingConfig, config_path, load
-from svss_proc.drc import (MIN_DB, background_floor, compress, depth_gain_db, expand,
+from svss_proc.products.drc import (MIN_DB, background_floor, compress, depth_gain_db, expand,
                            level_db, normalise)
-from svss_proc.products import compute_products
+from svss_proc.products.chain import compute_products
 
 from . import VOXEL, speckle
 

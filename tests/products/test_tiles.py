@@ -10,8 +10,8 @@ import xarray as xr
 
 from svss_daq.config import ProcessingConfig, loaded_from_text
 from svss_daq.frames import TrackLine
-from svss_proc.grid import tile_grid
-from svss_proc.products import compute_products, save_tile
+from svss_proc.imaging.grid import tile_grid
+from svss_proc.products.chain import compute_products, save_tile
 from svss_proc.tiles import DIMS, read_tile, write_tile
 
 from . import VOXEL, make_tile, plant, rayleigh_median, speckle

@@ -176,7 +176,7 @@ def test_two_medium_terms_equal_the_general_terms():
 
 def test_agrees_with_the_imagers_refraction_solver():
     # one physics, two solvers: the imager's safeguarded two-medium Fermat solve
-    from svss_proc.refraction import one_way_time
+    from svss_proc.imaging.delays import one_way_time
     rng = np.random.default_rng(3)
     for _ in range(200):
         h, z, rho = rng.uniform(0.5, 4), rng.uniform(1e-3, 3), rng.uniform(0, 5)

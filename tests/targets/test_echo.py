@@ -393,7 +393,7 @@ def test_buried_target_echoes_image_at_the_target(hardware):
     codes) imaged by svss_proc with the refraction table peak at the sphere's position
     in the imager's own tile frame (within half a voxel plus the radius)."""
     from svss_daq.config import ProcessingConfig, load
-    from svss_proc.imager import TileImager
+    from svss_proc.imaging.imager import TileImager
     from sim_device.track import truth_line
 
     hw = hardware.value

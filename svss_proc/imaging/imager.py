@@ -7,10 +7,8 @@ pings; never the truth of a scene.
 
 from __future__ import annotations
 
-import functools
 import logging
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -20,39 +18,13 @@ from svss_daq.geometry import array_geometry
 from svss_daq.ping import Ping
 from svss_daq.waveform import make_waveform
 
-from .backprojection import along_reach, prepare, run_ping
-from .refraction import TravelTimeTable, build_table
-from .conditioning import Conditioner
-from .grid import TileGrid, tile_grid, tile_index
+from .cpu_kernel import along_reach, prepare, run_ping
+from .delays import TravelTimeTable, build_table
+from ..conditioning import Conditioner
+from .grid import tile_grid, tile_index
+from ..tiles import Tile
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class Tile:
-    """A tile being formed or finished: the image (real and imaginary planes in the
-    kernel's precision while forming) and what went into it."""
-    grid: TileGrid
-    line: TrackLine
-    re: np.ndarray
-    im: np.ndarray
-    pings: list[int] = field(default_factory=list)
-    updates: int = 0
-
-    @functools.cached_property
-    def image(self) -> np.ndarray:
-        """The complex image (along x cross x depth), complex64, uPa; built once, when
-        the tile is finished."""
-        out = np.empty(self.re.shape, dtype=np.complex64)
-        out.real = self.re
-        out.imag = self.im
-        return out
-
-    def to_host(self) -> "Tile":
-        """Bring device-resident planes (GPU imaging) back to host memory."""
-        if hasattr(self.re, "copy_to_host"):
-            self.re, self.im = self.re.copy_to_host(), self.im.copy_to_host()
-        return self
 
 
 def receive_apodisation(receivers_body: np.ndarray, kind: str) -> np.ndarray | None:

@@ -1,7 +1,7 @@
 """The backprojection kernel on an NVIDIA GPU (numba-cuda): one thread per voxel.
 
-It computes the same sum as the CPU kernel (:mod:`svss_proc.backprojection`) from the same
-scalar building blocks (:mod:`svss_proc.kernel_math`, compiled as CUDA device functions).
+It computes the same sum as the CPU kernel (:mod:`svss_proc.imaging.cpu_kernel`) from the same
+scalar building blocks (:mod:`svss_proc.imaging.kernel_math`, compiled as CUDA device functions).
 Tile image planes stay on the device while a tile forms. On machines without a GPU it
 runs under numba's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``), which the tests use on
 small grids.
@@ -14,9 +14,9 @@ import math
 import numpy as np
 from numba import cuda
 
-from .backprojection import DELAY, KernelData, geometry_args
+from .cpu_kernel import DELAY, KernelData, geometry_args
 from .kernel_math import build
-from .refraction import TravelTimeTable, build_refraction
+from .delays import TravelTimeTable, build_refraction
 
 _dev = cuda.jit(device=True)
 _math = build(_dev, build_refraction(_dev))
@@ -67,7 +67,7 @@ def kernel_for(interp: int, mode: int, gating: bool, halvings: int):
 def run_ping_gpu(img_re, img_im, kd: KernelData, tx, rx, along, cross, depth, ia0, ia1, *,
                  bore, cos_tx, cos_rx, gating=True, apod=None, mode="straight", c=1500.0,
                  cw=1500.0, cs=1500.0, table: TravelTimeTable | None = None) -> int:
-    """GPU counterpart of :func:`svss_proc.backprojection.run_ping`; ``img_re``/``img_im``
+    """GPU counterpart of :func:`svss_proc.imaging.cpu_kernel.run_ping`; ``img_re``/``img_im``
     are device arrays (``cuda.to_device``) that accumulate across pings."""
     args = geometry_args(img_re.dtype.type, kd, tx, rx, along, cross, depth, bore=bore,
                          cos_tx=cos_tx, cos_rx=cos_rx, apod=apod, mode=mode, c=c, cw=cw,

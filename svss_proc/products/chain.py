@@ -19,9 +19,8 @@ from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig, ProductsCo
 from . import drc as drc_mod
 from .background import kernel_voxels, median_background
 from .detect import detect
-from .imager import Tile
 from .quicklook import mip_png, products_png
-from .tiles import MIPS, tile_name, write_tile
+from ..tiles import MIPS, Tile, tile_name, write_tile
 
 log = logging.getLogger(__name__)
 
@@ -32,7 +31,7 @@ class Products:
     (None when not kept), ``level`` the normalised level in dB re background (no display
     gain), ``drc`` display values 0..1 (None when not kept), ``mips`` the maximum
     intensity projections (:data:`svss_proc.tiles.MIPS`) of level + gain (dB),
-    ``detections`` a :data:`svss_proc.detect.DTYPE` table, ``timings`` seconds per
+    ``detections`` a :data:`svss_proc.products.detect.DTYPE` table, ``timings`` seconds per
     stage."""
     method: str
     kernel_m: tuple[float, float, float]

@@ -32,7 +32,7 @@ def _cast_like(ref, x):
 
 def build(jit, refr):
     """The scalar functions compiled with ``jit``; ``refr`` holds the matching
-    refraction functions (:func:`svss_proc.refraction.build_refraction`)."""
+    refraction functions (:func:`svss_proc.imaging.delays.build_refraction`)."""
     one_way_time = refr.one_way_time
 
     @jit

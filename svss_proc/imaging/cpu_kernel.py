@@ -6,7 +6,7 @@ One ping's coherent sum is added into a tile:
 
 with y the complex baseband matched-filter output (:mod:`svss_daq.conventions`), a_ch an
 optional apodisation weight, t the one-way travel times (straight rays, a refraction
-table, or exact Fermat paths: :mod:`svss_proc.refraction`), and, with gating on, only
+table, or exact Fermat paths: :mod:`svss_proc.imaging.delays`), and, with gating on, only
 voxels inside both the projector's and the receiver's beam cones.
 
 Phase without trigonometry: :func:`prepare` folds the remodulation at the sample times
@@ -25,14 +25,14 @@ projector delays and cone mask are computed once per depth, then channels are th
 loop and depth the inner one, over the projector cone's depth interval padded to whole
 16-lane vectors (padded lanes weigh 0). Per channel the depth loop runs in three
 branch-free passes: delays, sample indices, fractions and weights (vectorised); the tap
-samples, 16 depths at a time by :mod:`svss_proc.window_gather` (consecutive depths read
+samples, 16 depths at a time by :mod:`svss_proc.imaging.window_gather` (consecutive depths read
 samples within a 32-sample window, served by two loads and one permute instead of a
 hardware gather); then interpolation, phase and accumulation (vectorised). The passes
 exchange data through per-slice work rows allocated outside the parallel loop. With the
 refraction table the horizontal offset of a (column, channel) pair is constant along
 depth, so the table row is fixed and the table is interpolated in z once per call at the
-voxel depths. The GPU kernel (:mod:`svss_proc.gpu`) and exact Fermat delays keep the
-voxel-order sum of :mod:`svss_proc.kernel_math`.
+voxel depths. The GPU kernel (:mod:`svss_proc.imaging.gpu_kernel`) and exact Fermat delays keep the
+voxel-order sum of :mod:`svss_proc.imaging.kernel_math`.
 
 Precision: geometry is computed in float64 relative to the ping's projector and handed
 to the kernel in the chosen precision (float32 or float64); the kernel computes and
@@ -49,10 +49,10 @@ import numpy as np
 
 from svss_daq.conventions import remodulation
 
-from .conditioning import Conditioned
+from ..conditioning import Conditioned
 from .kernel_math import build, cast_like
-from .refraction import TravelTimeTable
-from .refraction import _cpu as refraction_cpu
+from .delays import TravelTimeTable
+from .delays import _cpu as refraction_cpu
 from .window_gather import LANES, window_gather_1, window_gather_2, window_gather_4
 
 INTERP = {"nearest": 0, "linear": 1, "cubic": 2}
@@ -109,7 +109,7 @@ _travel_time = _cpu.travel_time
 def _position(u, interp, nt, one):
     """Sample index (unsigned 31-bit: no negative-index wraparound, 32-bit indices),
     fractional position and validity (0/1) of the fractional sample index u, as in
-    :mod:`svss_proc.kernel_math` ``sample``."""
+    :mod:`svss_proc.imaging.kernel_math` ``sample``."""
     zero = one - one
     half = one / (one + one)
     if interp == 0:
@@ -135,7 +135,7 @@ def _position(u, interp, nt, one):
 
 
 def _make_voxel_kernel(interp: int, mode: int, gating: bool, halvings: int):
-    """Voxel-order kernel (channel loop innermost, :mod:`svss_proc.kernel_math`
+    """Voxel-order kernel (channel loop innermost, :mod:`svss_proc.imaging.kernel_math`
     ``voxel_sum``), used for exact Fermat delays, whose per-pair solve dominates and does
     not vectorise."""
 

@@ -1,7 +1,7 @@
 """Normalisation by the background, depth-varying gain and dynamic range compression.
 
 The chain (docs/products.md), for a magnitude ``m`` (uPa) and its background ``b``
-(uPa, :mod:`svss_proc.background`):
+(uPa, :mod:`svss_proc.products.background`):
 
 1. normalised amplitude ``r = m / max(b, b_floor)``, where ``b_floor`` is the tile's
    median background times ``10**(floor_db / 20)``: never a division by zero, and

@@ -23,7 +23,7 @@ from matplotlib.colors import Normalize  # noqa: E402
 from svss_daq.config import ProductsConfig  # noqa: E402
 
 from .drc import compress  # noqa: E402
-from .grid import TileGrid  # noqa: E402
+from ..imaging.grid import TileGrid  # noqa: E402
 
 log = logging.getLogger(__name__)
 
