@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .config import HardwareConfig, ReceiveArray
+from .frames import TrackLine, body_to_ned
+from .ping import NavSnapshot
 
 
 def section_positions(array: ReceiveArray) -> list[np.ndarray]:
@@ -71,3 +73,31 @@ def array_geometry(hw: HardwareConfig) -> ArrayGeometry:
         raise ValueError("hardware: beams.boresight must be a non-zero vector")
     return ArrayGeometry(rx, tx, b / norm, np.deg2rad(hw.beams.projector_half_angle_deg),
                          np.deg2rad(hw.beams.receiver_half_angle_deg))
+
+
+@dataclass(frozen=True)
+class PlacedArray:
+    """One ping's elements in the tile frame (along, cross, depth below the interface)
+    or, without a track line, the survey frame (north, east, down), m: projector (3,),
+    receivers (n_channels, 3), boresight (3,) unit vector."""
+    tx: np.ndarray
+    rx: np.ndarray
+    bore: np.ndarray
+    projector: int
+
+
+def place_array(geometry: ArrayGeometry, nav: NavSnapshot, projector: int,
+                line: TrackLine | None = None) -> PlacedArray:
+    """The array at pose ``nav`` with projector ``projector`` transmitting, in the tile
+    frame of ``line`` (or the survey frame when ``line`` is None)."""
+    if not 0 <= projector < geometry.projectors.shape[0]:
+        raise ValueError(f"projector {projector} does not exist: the array has "
+                         f"{geometry.projectors.shape[0]} (0..{geometry.projectors.shape[0] - 1})")
+    rot = body_to_ned(nav.roll_rad, nav.pitch_rad, nav.heading_rad)
+    origin = nav.ned
+    if line is not None:
+        rot = line.rotation_from_ned() @ rot
+        origin = line.ned_to_tile(origin)
+    return PlacedArray(origin + rot @ geometry.projectors[projector],
+                       origin + geometry.receivers @ rot.T, rot @ geometry.boresight,
+                       int(projector))

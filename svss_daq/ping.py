@@ -71,6 +71,27 @@ class NavSnapshot:
 NAV_FIELDS = tuple(f.name for f in dataclasses.fields(NavSnapshot))
 
 
+@dataclass(frozen=True)
+class SampleAxis:
+    """A uniform time axis: sample n at ``start_s + n * step_s`` (s after transmit)."""
+    start_s: float
+    step_s: float
+    n: int
+
+    def times(self) -> np.ndarray:
+        """The sample times, s (float64)."""
+        return self.start_s + self.step_s * np.arange(self.n)
+
+    @property
+    def end_s(self) -> float:
+        """Time just past the last sample, s."""
+        return self.start_s + self.step_s * self.n
+
+    def shifted(self, by_s: float) -> "SampleAxis":
+        """The same samples, every time moved by ``by_s``."""
+        return SampleAxis(self.start_s + by_s, self.step_s, self.n)
+
+
 @dataclass(frozen=True, eq=False)
 class Ping:
     """One ping.
@@ -92,6 +113,14 @@ class Ping:
         if self.samples.ndim != 2:
             raise ValueError(f"ping {self.sequence}: samples must be (channels, samples), "
                              f"got shape {self.samples.shape}")
+
+    @property
+    def sample_axis(self) -> SampleAxis:
+        """When each sample was taken, s after transmit: ``window_start + n / fs``. The
+        acoustic arrival time of a sample is this minus the digitiser's group delay
+        (:func:`svss_daq.assembly.acoustic_axis`)."""
+        return SampleAxis(self.window_start_ns * 1e-9, 1.0 / self.sample_rate_hz,
+                          self.samples.shape[1])
 
     @property
     def n_channels(self) -> int:

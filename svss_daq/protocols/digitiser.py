@@ -24,7 +24,7 @@ __all__ = [
     "MAGIC", "VERSION", "HEADER", "HEADER_SIZE", "FrameType", "SampleFormat", "CommandCode",
     "ReplyStatus", "DigitiserProtocolError", "FrameHeader", "DataFrame", "CommandFrame",
     "ReplyFrame", "CorruptFrame", "encode_data_frames", "encode_command", "encode_reply",
-    "decode_header", "decode_frame", "FrameStreamParser", "PingAssembler", "CompletePing",
+    "decode_header", "decode_frame", "FrameStreamParser", "FrameReassembler", "CompletePing",
     "IncompletePing", "DigitiserStreamDecoder",
 ]
 
@@ -392,7 +392,7 @@ class _Open:
     problem: str = ""
 
 
-class PingAssembler:
+class FrameReassembler:
     """Reassemble pings from data frames.
 
     The frames of a ping are sent together (in any order among themselves) before the
@@ -482,11 +482,11 @@ class PingAssembler:
 
 class DigitiserStreamDecoder:
     """Bytes in, pings and control frames out: :class:`FrameStreamParser` feeding a
-    :class:`PingAssembler`. Never raises on any input."""
+    :class:`FrameReassembler`. Never raises on any input."""
 
     def __init__(self, max_payload: int = DEFAULT_MAX_PAYLOAD) -> None:
         self.frames = FrameStreamParser(max_payload)
-        self.assembler = PingAssembler()
+        self.assembler = FrameReassembler()
 
     def feed(self, data: bytes) -> list:
         out: list = []
