@@ -97,7 +97,7 @@ def numpy_baseline(hw, proc, pings, n_pings: int = 2):
     grid = tile_grid(proc.tile, 1)
     X, Y, Z = np.meshgrid(grid.along, grid.cross, grid.depth, indexing="ij")
     img = np.zeros(X.shape, dtype=np.complex128)
-    c = proc.imaging.sound_speed_m_s
+    c = proc.imaging.water_sound_speed_m_s
     cos_tx, cos_rx = math.cos(geo.projector_half_angle), math.cos(geo.receiver_half_angle)
     updates = 0
     mid = len(pings) // 2

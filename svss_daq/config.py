@@ -153,8 +153,8 @@ class ConditioningConfig:
 
 @dataclass(frozen=True)
 class ImagingConfig:
-    sound_speed_m_s: float = spec("imaging sound speed (homogeneous medium), m/s",
-                                  lo=1000, hi=2500)
+    water_sound_speed_m_s: float = spec("water sound speed for imaging delays, m/s",
+                                        lo=1000, hi=2500)
     interface: str = spec("interface depth source", choices=("navigation", "fixed"))
     interface_down_m: float = spec("interface depth in the survey frame when fixed, m",
                                    lo=-1e4, hi=1e4)
@@ -163,7 +163,7 @@ class ImagingConfig:
     line_origin_ne_m: tuple[float, float] = spec("fixed line origin (north, east), m", length=2)
     line_heading_deg: float = spec("fixed line heading, deg from north", lo=-360, hi=360)
     beam_gating: bool = spec("only voxels inside both beam cones are summed")
-    delays: str = spec("travel times: straight rays at sound_speed_m_s; 'table': per-ping "
+    delays: str = spec("travel times: straight rays at water_sound_speed_m_s; 'table': per-ping "
                        "refraction table; 'exact': Fermat path per voxel and element",
                        choices=("straight", "table", "exact"))
     sediment_sound_speed_m_s: float = spec("sediment sound speed for refracted delays, m/s",

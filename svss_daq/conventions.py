@@ -28,3 +28,6 @@ def remodulation(tau_s: np.ndarray, fc_hz: float) -> np.ndarray:
 #: sign of the phase of an echo at delay tau (exp(SIGN * j 2 pi f_c tau)); kernels that
 #: compute the phase inline use this constant so that the convention stays in one place.
 ECHO_PHASE_SIGN = -1.0
+
+#: sign of the phase an imager applies at delay tau (exp(SIGN * j 2 pi f_c tau)).
+REMODULATION_SIGN = -ECHO_PHASE_SIGN

@@ -1,48 +1,76 @@
 """Signal conditioning: matched filtering, basebanding and decimation in one FFT pass.
 
 Optional band-limited upsampling (zero-padding the kept band) refines the output grid
-for interpolation. Input: real ADC codes (channels x samples) whose sample n holds the acoustic pressure at
-t_n = window_start + n / fs - group_delay after transmit. Output: complex baseband
-matched-filter output in uPa (the peak magnitude of an echo A s(t - tau) is A), on the
-time axis t_m = t_first + m * D / (U fs) (D decimation, U upsampling), following :mod:`svss_daq.conventions`:
-y(t) = analytic correlation(t) * exp(-j 2 pi f_c t).
+for interpolation. Input: real ADC codes (channels x samples) on the ping's sample axis
+(:attr:`svss_daq.ping.Ping.sample_axis`); sample n holds the acoustic pressure that
+arrived one group delay earlier (:func:`svss_daq.assembly.acoustic_axis`). Output: the
+complex matched-filter output in uPa (the peak magnitude of an echo A s(t - tau) is A) on
+the arrival-time axis t_m = t_first + m * D / (U fs) (D decimation, U upsampling).
+
+The output is kept as the analytic correlation's samples a(t_m), which is what the
+imaging kernels sum (:mod:`svss_proc.imaging.kernel_args`);
+:attr:`Conditioned.data` gives the complex baseband of :mod:`svss_daq.conventions`. Each
+is one multiplication away from the FFT's output: no conversion undoes another.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.fft as sfft
 
+from svss_daq.assembly import acoustic_axis
 from svss_daq.config import Digitiser
-from svss_daq.conventions import baseband_carrier
+from svss_daq.conventions import baseband_carrier, remodulation
+from svss_daq.ping import Ping, SampleAxis
 from svss_daq.scaling import counts_per_upa
 from svss_daq.waveform import Waveform
 
 
 @dataclass(frozen=True)
 class Conditioned:
-    """Complex baseband matched-filter output of one ping.
-
-    ``data``: (channels, n) complex64 in uPa; sample m is the echo delay
-    ``t0_s + m * dt_s`` after transmit.
-    """
-    data: np.ndarray
-    t0_s: float
-    dt_s: float
+    """Matched-filter output of one ping: ``analytic`` (channels, n) complex128, uPa, the
+    analytic correlation at the arrival times of ``axis`` (s after transmit)."""
+    analytic: np.ndarray
+    axis: SampleAxis
     center_hz: float
+
+    @classmethod
+    def from_baseband(cls, data: np.ndarray, axis: SampleAxis,
+                      center_hz: float) -> "Conditioned":
+        """From complex baseband samples (the convention of :mod:`svss_daq.conventions`)."""
+        analytic = np.asarray(data, dtype=np.complex128) * remodulation(axis.times(), center_hz)
+        return cls(analytic, axis, center_hz)
+
+    @functools.cached_property
+    def data(self) -> np.ndarray:
+        """Complex baseband (:mod:`svss_daq.conventions`), complex64, uPa."""
+        return (self.analytic * baseband_carrier(self.axis.times(), self.center_hz)
+                ).astype(np.complex64)
+
+    @property
+    def t0_s(self) -> float:
+        return self.axis.start_s
+
+    @property
+    def dt_s(self) -> float:
+        return self.axis.step_s
 
 
 class Conditioner:
     """Matched filter + baseband + decimation for one hardware configuration."""
 
     def __init__(self, dig: Digitiser, waveform: Waveform, decimation: int, upsample: int = 1):
+        self.digitiser = dig
         self.fs = dig.sample_rate_hz
         self.n_in = dig.window_samples
+        #: the configured sample axis (window start, sample rate, window length)
+        self.sample_axis = SampleAxis(dig.window_start_s, 1.0 / dig.sample_rate_hz,
+                                      dig.window_samples)
         self.decimation = d = int(decimation)
         self.upsample = up = int(upsample)
-        self.group_delay_s = dig.group_delay_s
         self.fc = waveform.center_hz
         replica = waveform.replica(self.fs)
         n = sfft.next_fast_len(self.n_in + replica.size)
@@ -62,14 +90,23 @@ class Conditioner:
         self.slots = np.mod(k[keep] - k0, self.m_out)     # their place in the short ifft
         self.filter = (spec[self.bins] * (self.m_out / n)).astype(np.complex128)
 
-    def __call__(self, codes: np.ndarray, window_start_s: float) -> Conditioned:
+    def ping(self, ping: Ping) -> Conditioned:
+        """Condition a ping on its own sample axis."""
+        return self(ping.samples, ping.sample_axis)
+
+    def __call__(self, codes: np.ndarray, axis: SampleAxis | None = None) -> Conditioned:
+        """Condition ADC codes taken on ``axis`` (default: the configured window)."""
+        axis = self.sample_axis if axis is None else axis
+        if abs(axis.step_s * self.fs - 1.0) > 1e-9:
+            raise ValueError(f"conditioning: samples at {1 / axis.step_s:g} Hz, the "
+                             f"digitiser is configured for {self.fs:g} Hz")
         x = sfft.rfft(np.asarray(codes, dtype=np.float64), self.n_fft, axis=-1)
         z = np.zeros((x.shape[0], self.m_out), dtype=np.complex128)
         z[:, self.slots] = x[:, self.bins] * self.filter
         y = sfft.ifft(z, axis=-1)[:, : self.n_out]
-        t_first = window_start_s - self.group_delay_s
-        dt = self.decimation / (self.fs * self.upsample)
-        tm = t_first + np.arange(self.n_out) * dt
-        # z holds a(t) exp(-j 2 pi f_shift (t - t_first)); bring it to the convention
-        fix = baseband_carrier(tm, self.fc) * np.exp(2j * np.pi * self.f_shift * (tm - t_first))
-        return Conditioned((y * fix).astype(np.complex64), t_first, dt, self.fc)
+        arrival = acoustic_axis(axis, self.digitiser)
+        out = SampleAxis(arrival.start_s, self.decimation / (self.fs * self.upsample),
+                         self.n_out)
+        # y holds a(t) exp(-j 2 pi f_shift (t - t_first)): bring back the analytic samples
+        shift = np.exp(2j * np.pi * self.f_shift * (out.times() - out.start_s))
+        return Conditioned(y * shift, out, self.fc)

@@ -9,9 +9,12 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
-from svss_proc.imaging.cpu_kernel import along_reach, prepare, run_ping
+from svss_daq.ping import SampleAxis
 from svss_proc.conditioning import Conditioned
+from svss_proc.imaging.cpu_kernel import run_ping
 from svss_proc.imaging.delays import build_table
+from svss_proc.imaging.imager import along_reach
+from svss_proc.imaging.kernel_args import DelayModel, prepare
 
 CW, CS = 1500.0, 1767.0
 
@@ -106,12 +109,13 @@ def test_kernel_matches_direct_sum(interp, precision, mode):
     ref = direct_sum(data.astype(np.complex128), t0, dt, fc, tx, rx, bore, cos_tx, cos_rx,
                      along, cross, depth, True, interp, mode, apod)
     ft = np.float32 if precision == "float32" else np.float64
-    kd = prepare(Conditioned(data, t0, dt, fc), interp, ft)
+    cond = Conditioned.from_baseband(data, SampleAxis(t0, dt, data.shape[1]), fc)
+    kd = prepare(cond, interp, ft)
     re, im = np.zeros(ref.shape, ft), np.zeros(ref.shape, ft)
     table = (build_table(2.0, 4.0, -0.2, 1.0, 0.005, CW, CS) if mode == "table" else None)
     n = run_ping(re, im, kd, tx, rx, along, cross, depth, 0, along.size, bore=bore,
-                 cos_tx=cos_tx, cos_rx=cos_rx, gating=True, apod=apod, mode=mode, c=CW,
-                 cw=CW, cs=CS, table=table)
+                 cos_tx=cos_tx, cos_rx=cos_rx, gating=True, apod=apod, 
+                 delays=DelayModel(mode, CW, CS, table))
     assert n > 0
     assert np.count_nonzero(ref == 0) > 0          # the cones really exclude voxels
     err = np.abs(re + 1j * im - ref).max() / np.abs(ref).max()
@@ -140,11 +144,12 @@ def test_window_path_matches_direct_sum(interp, mode):
     assert np.abs(two_way[:, :, 16:] - two_way[:, :, :-16]).max() < 30
     ref = direct_sum(data.astype(np.complex128), t0, dt, fc, tx, rx, bore, cos_tx, cos_rx,
                      along, cross, depth, True, interp, mode, np.ones(rx.shape[0]))
-    kd = prepare(Conditioned(data, t0, dt, fc), interp, np.float32)
+    cond = Conditioned.from_baseband(data, SampleAxis(t0, dt, data.shape[1]), fc)
+    kd = prepare(cond, interp, np.float32)
     re, im = np.zeros(ref.shape, np.float32), np.zeros(ref.shape, np.float32)
     table = build_table(2.0, 4.0, -0.2, 1.2, 0.005, CW, CS) if mode == "table" else None
     run_ping(re, im, kd, tx, rx, along, cross, depth, 0, along.size, bore=bore, cos_tx=cos_tx,
-             cos_rx=cos_rx, gating=True, mode=mode, c=CW, cw=CW, cs=CS, table=table)
+             cos_rx=cos_rx, gating=True, delays=DelayModel(mode, CW, CS, table))
     assert np.count_nonzero(ref) > 0.5 * ref.size
     err = np.abs(re + 1j * im - ref).max() / np.abs(ref).max()
     assert err < 1e-4 + (3e-3 if mode == "table" else 0), err
@@ -153,12 +158,14 @@ def test_window_path_matches_direct_sum(interp, mode):
 def test_partial_along_range_and_no_gating():
     rng = np.random.default_rng(5)
     data, tx, rx = scene(rng)
-    kd = prepare(Conditioned(data, 1e-3, 16e-6, 27.5e3), "linear", np.float64)
+    cond = Conditioned.from_baseband(data, SampleAxis(1e-3, 16e-6, data.shape[1]), 27.5e3)
+    kd = prepare(cond, "linear", np.float64)
     along, cross, depth = np.linspace(-1, 1, 7), np.linspace(-0.5, 0.5, 3), np.linspace(0, 1, 3)
     bore = np.array([0.0, 0.0, 1.0])
     full = [np.zeros((7, 3, 3)), np.zeros((7, 3, 3))]
     part = [np.zeros((7, 3, 3)), np.zeros((7, 3, 3))]
-    kw = dict(bore=bore, cos_tx=0.9, cos_rx=0.6, gating=False)
+    kw = dict(bore=bore, cos_tx=0.9, cos_rx=0.6, gating=False,
+              delays=DelayModel("straight", CW, CW))
     run_ping(*full, kd, tx, rx, along, cross, depth, 0, 7, **kw)
     run_ping(*part, kd, tx, rx, along, cross, depth, 2, 5, **kw)
     assert not part[0][:2].any() and not part[0][5:].any()

@@ -4,11 +4,13 @@ convention's phase exp(-j 2 pi f_c tau), whatever the window start and group del
 from __future__ import annotations
 
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import scipy.signal
 
+from svss_daq.ping import SampleAxis
 from svss_daq.scaling import counts_per_upa
 from svss_daq.waveform import make_waveform
 from svss_proc.conditioning import Conditioner
@@ -18,8 +20,8 @@ def _upsampled(cond, factor=16):
     """Band-limited (FFT) interpolation of the conditioned output: exact for a signal
     inside the baseband Nyquist band, so the checks below test conditioning alone."""
     n = cond.data.shape[1]
-    return dataclasses.replace(cond, data=scipy.signal.resample(cond.data, n * factor, axis=1),
-                               dt_s=cond.dt_s / factor)
+    return SimpleNamespace(data=scipy.signal.resample(cond.data, n * factor, axis=1),
+                           t0_s=cond.t0_s, dt_s=cond.dt_s / factor)
 
 
 def _interp(cond, ch, t):
@@ -43,7 +45,7 @@ def test_echo_delay_amplitude_and_phase(hardware, decimation, window_start, grou
     x = np.zeros((taus.size, t.size))
     for i, (tau, a) in enumerate(zip(taus, amps)):
         x[i] = a * wf.real(t - tau) * counts_per_upa(dig)
-    cond = Conditioner(dig, wf, decimation)(x, window_start)
+    cond = Conditioner(dig, wf, decimation)(x, SampleAxis(window_start, 1 / fs, t.size))
     assert cond.data.dtype == np.complex64
     cond = _upsampled(cond)
     for i, (tau, a) in enumerate(zip(taus, amps)):
@@ -65,7 +67,7 @@ def test_range_resolution_is_c_over_2b(hardware):
     t = -dig.group_delay_s + np.arange(dig.window_samples) / fs
     tau = 4e-3
     x = (wf.real(t - tau) * counts_per_upa(dig))[None]
-    cond = Conditioner(dig, wf, 1)(x, 0.0)
+    cond = Conditioner(dig, wf, 1)(x)
     tt = tau + np.linspace(-60e-6, 60e-6, 2401)
     env = np.abs([_interp(cond, 0, s) for s in tt])
     env /= env.max()

@@ -23,8 +23,8 @@ SCRIPT = textwrap.dedent("""
     from svss_proc.imaging.gpu_kernel import run_ping_gpu
     out = {}
     for name, (kd, geo, kw) in case_inputs().items():
-        re = cuda.to_device(np.zeros(geo["shape"], kd.re.dtype))
-        im = cuda.to_device(np.zeros(geo["shape"], kd.re.dtype))
+        re = cuda.to_device(np.zeros(geo["shape"], kd.dtype))
+        im = cuda.to_device(np.zeros(geo["shape"], kd.dtype))
         n = run_ping_gpu(re, im, kd, geo["tx"], geo["rx"], geo["along"], geo["cross"],
                          geo["depth"], 0, geo["shape"][0], **kw)
         out[name] = re.copy_to_host() + 1j * im.copy_to_host()
@@ -35,9 +35,10 @@ SCRIPT = textwrap.dedent("""
 
 def case_inputs():
     """Small random problems, one per option combination."""
-    from svss_proc.imaging.cpu_kernel import prepare
+    from svss_daq.ping import SampleAxis
     from svss_proc.conditioning import Conditioned
     from svss_proc.imaging.delays import build_table
+    from svss_proc.imaging.kernel_args import DelayModel, prepare
     rng = np.random.default_rng(11)
     nch, nt = 6, 260
     data = (rng.normal(size=(nch, nt)) + 1j * rng.normal(size=(nch, nt))).astype(np.complex64)
@@ -52,10 +53,11 @@ def case_inputs():
     for interp in ("nearest", "linear", "cubic"):
         for prec in (np.float32, np.float64):
             for mode in ("straight", "table", "exact"):
-                kd = prepare(Conditioned(data, 1e-3, 16e-6, 27.5e3), interp, prec)
+                cond = Conditioned.from_baseband(data, SampleAxis(1e-3, 16e-6, nt), 27.5e3)
+                kd = prepare(cond, interp, prec)
                 kw = dict(bore=np.array([0.0, 0.0, 1.0]), cos_tx=0.9, cos_rx=0.64,
-                          gating=True, apod=rng.uniform(0.5, 1.5, nch), mode=mode, c=1500.0,
-                          cw=1500.0, cs=1767.0, table=table)
+                          gating=True, apod=rng.uniform(0.5, 1.5, nch),
+                          delays=DelayModel(mode, 1500.0, 1767.0, table))
                 cases[f"{interp}-{prec.__name__}-{mode}"] = (kd, geo, kw)
     return cases
 
@@ -64,8 +66,8 @@ def cpu_results():
     from svss_proc.imaging.cpu_kernel import run_ping
     out = {}
     for name, (kd, geo, kw) in case_inputs().items():
-        re = np.zeros(geo["shape"], kd.re.dtype)
-        im = np.zeros(geo["shape"], kd.re.dtype)
+        re = np.zeros(geo["shape"], kd.dtype)
+        im = np.zeros(geo["shape"], kd.dtype)
         n = run_ping(re, im, kd, geo["tx"], geo["rx"], geo["along"], geo["cross"],
                      geo["depth"], 0, geo["shape"][0], **kw)
         out[name] = (re + 1j * im, n)

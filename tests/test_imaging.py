@@ -149,7 +149,7 @@ def water_pings(hardware):
 def test_point_focus_resolution_and_gain(hardware, water_pings):
     pings, pairs = water_pings
     proc = processing(delays="straight", interpolation="linear", precision="float64",
-                      sound_speed_m_s=CW)
+                      water_sound_speed_m_s=CW)
     # the line origin is the first ping's body origin (along -3.0 m): shift the truth
     tile = image(hardware, proc, pings)
     truth = TARGET_WATER + [3.0, 0.0, 0.0]
@@ -179,7 +179,7 @@ def test_point_focus_resolution_and_gain(hardware, water_pings):
 def test_other_interpolations_focus(hardware, water_pings, interp):
     pings, pairs = water_pings
     proc = processing(delays="straight", interpolation=interp, precision="float32",
-                      sound_speed_m_s=CW)
+                      water_sound_speed_m_s=CW)
     tile = image(hardware, proc, pings)
     pos, _ = peak(tile)
     assert np.all(np.abs(pos - (TARGET_WATER + [3.0, 0, 0])) <= 0.5 * proc.tile.voxel_m)
@@ -196,7 +196,7 @@ def test_buried_point_focuses_at_true_depth_with_refraction(hardware, sand_pings
     pings, pairs = sand_pings
     # the exact Fermat path per voxel and element is the slow reference: coarser voxels
     proc = processing(voxel_m=0.02 if delays == "exact" else 0.01, delays=delays,
-                      interpolation="linear", precision="float32", sound_speed_m_s=CW,
+                      interpolation="linear", precision="float32", water_sound_speed_m_s=CW,
                       sediment_sound_speed_m_s=SAND, table_step_m=0.01)
     tile = image(hardware, proc, pings)
     pos, _ = peak(tile)
@@ -208,7 +208,7 @@ def test_buried_point_focuses_at_true_depth_with_refraction(hardware, sand_pings
 def test_straight_rays_displace_buried_point_as_predicted(hardware, sand_pings):
     pings, _ = sand_pings
     proc = processing(delays="straight", interpolation="linear", precision="float32",
-                      sound_speed_m_s=CW)
+                      water_sound_speed_m_s=CW)
     tile = image(hardware, proc, pings)
     pos, _ = peak(tile)
     truth = TARGET_WATER + [3.0, 0, 0]
@@ -234,7 +234,7 @@ def test_float32_far_from_the_line_origin_agrees_with_float64(hardware):
     images = {}
     for prec in ("float32", "float64"):
         proc = processing(delays="straight", interpolation="linear", precision=prec,
-                          sound_speed_m_s=CW, track_line="fixed",
+                          water_sound_speed_m_s=CW, track_line="fixed",
                           line_origin_ne_m=(0.0, 0.0), line_heading_deg=0.0)
         tile = image(hardware, proc, pings)
         assert tile.grid.index > 50000

@@ -9,16 +9,13 @@ optional apodisation weight, t the one-way travel times (straight rays, a refrac
 table, or exact Fermat paths: :mod:`svss_proc.imaging.delays`), and, with gating on, only
 voxels inside both the projector's and the receiver's beam cones.
 
-Phase without trigonometry: :func:`prepare` folds the remodulation at the sample times
-into "tap planes"
-
-    P_k[n] = y_{n+k} exp(+j 2 pi f_c t_{n+k}) exp(-j theta (k - s)),  theta = 2 pi f_c dt,
-
-so that y(tau) e^{+j 2 pi f_c tau} = e^{j theta (w - s)} sum_k c_k(w) P_k[n], with n and
-w the integer and fractional sample of tau and c_k the interpolation weights (nearest:
-one tap, s = 0, w in [-1/2, 1/2); linear: two taps, s = 1/2; cubic (Keys, a = -1/2):
-four taps k = -1..2, s = 1/2). The remaining factor is a short Taylor series of an angle
-below 1.4 rad (halved and squared back when theta is larger), exact to ~1e-7 in float32.
+Phase without trigonometry: the kernels read "tap planes" that fold the remodulation
+into the samples (:mod:`svss_proc.imaging.kernel_args`); the remaining factor
+exp(j theta (w - s)) is a short Taylor series of an angle below 1.4 rad (halved and
+squared back when theta is larger), exact to ~1e-7 in float32. The kernels take one
+structured argument, :class:`~svss_proc.imaging.kernel_args.KernelArgs` (tap planes,
+voxel geometry, travel-time model), and are specialised at compile time on the
+interpolation, delay mode, gating and the number of angle halvings.
 
 Loop order (CPU): prange over along-track slices; per voxel column (along, cross) the
 projector delays and cone mask are computed once per depth, then channels are the outer
@@ -42,67 +39,22 @@ accumulates each ping in that precision and the tile in complex64.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
 
-from svss_daq.conventions import remodulation
-
-from ..conditioning import Conditioned
-from .kernel_math import build, cast_like
-from .delays import TravelTimeTable
 from .delays import _cpu as refraction_cpu
+from .kernel_args import (EXACT, LINEAR, NEAREST, SHIFT, STRAIGHT, TABLE, TAPS, DelayModel,
+                          KernelArgs, KernelData, TapPlanes, TravelTimes, VoxelGeometry,
+                          kernel_args)
+from .kernel_math import build, cast_like
 from .window_gather import LANES, window_gather_1, window_gather_2, window_gather_4
-
-INTERP = {"nearest": 0, "linear": 1, "cubic": 2}
-DELAY = {"straight": 0, "table": 1, "exact": 2}
-_TAPS = {0: (0,), 1: (0, 1), 2: (-1, 0, 1, 2)}
-_SHIFT = {0: 0.0, 1: 0.5, 2: 0.5}
-MAX_HALF_ANGLE = 1.4      # rad: Taylor series range of the phase factor
-
-
-@dataclass(frozen=True)
-class KernelData:
-    """One ping's data prepared for the kernels."""
-    re: np.ndarray      # (taps, channels, n) tap planes, real parts
-    im: np.ndarray      # (taps, channels, n) imaginary parts
-    t0: float           # s, delay of sample 0
-    dt: float           # s
-    theta: float        # rad, 2 pi f_c dt
-    halvings: int       # angle halvings before the series
-    interp: int         # INTERP code
-
-
-def prepare(cond: Conditioned, interp: str = "linear", dtype=np.float32) -> KernelData:
-    """Fold the remodulation into tap planes for interpolation ``interp``."""
-    code = INTERP[interp]
-    n = cond.data.shape[1]
-    t = cond.t0_s + cond.dt_s * np.arange(n)
-    theta = 2.0 * math.pi * cond.center_hz * cond.dt_s
-    y = cond.data.astype(np.complex128) * remodulation(t, cond.center_hz)
-    s = _SHIFT[code]
-    taps = _TAPS[code]
-    planes = np.zeros((len(taps), y.shape[0], n), dtype=np.complex128)
-    for i, k in enumerate(taps):
-        shifted = np.zeros_like(y)
-        if k >= 0:
-            shifted[:, : n - k] = y[:, k:]
-        else:
-            shifted[:, -k:] = y[:, :k]
-        planes[i] = shifted * np.exp(-1j * theta * (k - s))
-    max_angle = 0.5 * theta     # |w - s| <= 1/2 for every interpolation
-    halvings = max(0, math.ceil(math.log2(max(max_angle, 1e-12) / MAX_HALF_ANGLE)))
-    return KernelData(np.ascontiguousarray(planes.real, dtype=dtype),
-                      np.ascontiguousarray(planes.imag, dtype=dtype), cond.t0_s,
-                      cond.dt_s, theta, halvings, code)
 
 
 _cpu = build(nb.njit(inline="always", cache=True), refraction_cpu)
 _voxel_sum = _cpu.voxel_sum          # voxel-order sum (the GPU kernel's building block)
 _cis = _cpu.cis
 _weights = _cpu.weights
-_travel_time = _cpu.travel_time
 
 
 @nb.njit(inline="always", cache=True)
@@ -112,12 +64,12 @@ def _position(u, interp, nt, one):
     :mod:`svss_proc.imaging.kernel_math` ``sample``."""
     zero = one - one
     half = one / (one + one)
-    if interp == 0:
+    if interp == NEAREST:
         lo = zero
         hi = cast_like(one, nt - 1)
         uc = min(max(u, lo), hi)
         i0 = np.uint32(uc + half) & np.uint32(0x7FFFFFFF)
-    elif interp == 1:
+    elif interp == LINEAR:
         lo = zero
         hi = cast_like(one, nt - 1) - cast_like(one, 1e-3)
         uc = min(max(u, lo), hi)
@@ -131,6 +83,25 @@ def _position(u, interp, nt, one):
     return i0, uc - cast_like(one, i0), valid
 
 
+@nb.njit(inline="always", cache=True)
+def _table_row(dx, dy, h, inv_drho, n_rho, h_ref, one):
+    """Row and weight of the horizontal offset (dx, dy) in the refraction table, and the
+    height offset h - h_ref of the element, for :func:`_table_time`."""
+    rho = math.sqrt(np.float64(dx) * dx + np.float64(dy) * dy)
+    ur = min(max(rho * inv_drho, 0.0), n_rho - 1.001)
+    ir = int(ur)
+    return ir, cast_like(one, ur - ir), cast_like(one, h - h_ref)
+
+
+@nb.njit(inline="always", cache=True)
+def _table_time(tz, ez, ir, a, dh, iz, one):
+    """One-way time from the table interpolated at the voxel depths (``tz``, ``ez``:
+    (n_rho, depths)): linear in offset between rows ir and ir + 1, first-order in the
+    element height."""
+    return ((one - a) * (tz[ir, iz] + dh * ez[ir, iz])
+            + a * (tz[ir + 1, iz] + dh * ez[ir + 1, iz]))
+
+
 # ------------------------------------------------------------------------- the kernel
 
 
@@ -140,24 +111,34 @@ def _make_voxel_kernel(interp: int, mode: int, gating: bool, halvings: int):
     not vectorise."""
 
     @nb.njit(parallel=True, fastmath=True, cache=True)
-    def kernel(img_re, img_im, re, im, t0, inv_dt, theta, ax, cy, dz, h_tx, rx_dx,
-               rx_dy, rx_h, apod, bore, cos_tx, cos_rx, inv_c, cw, cs, ttab, etab, inv_drho,
-               tz0, inv_dz, h_ref, ia0, ia1):
+    def kernel(img_re, img_im, args, ia0, ia1):
+        # numba's parallel loop takes flat arguments: unpack the bundles here and
+        # rebuild them inside the loop
+        p, g, d = args.planes, args.geometry, args.delays
+        re, im, t0, inv_dt, theta = p.re, p.im, p.t0, p.inv_dt, p.theta
+        ax, cy, dz, h_tx, rx_dx, rx_dy, rx_h, apod, bore, cos_tx, cos_rx = (
+            g.ax, g.cy, g.dz, g.h_tx, g.rx_dx, g.rx_dy, g.rx_h, g.apod, g.bore, g.cos_tx,
+            g.cos_rx)
+        inv_cw, cw, cs, ttab, etab, inv_drho, z0, inv_dz, h_ref = (
+            d.inv_cw, d.cw, d.cs, d.time, d.eta, d.inv_drho, d.z0, d.inv_dz, d.h_ref)
         one = re[0, 0, 0] * 0 + 1
         nc = cy.size
         nd = dz.size
         counts = np.zeros(ia1 - ia0, dtype=np.int64)
         for k in nb.prange(ia1 - ia0):
+            a = KernelArgs(TapPlanes(re, im, t0, inv_dt, theta),
+                           VoxelGeometry(ax, cy, dz, h_tx, rx_dx, rx_dy, rx_h, apod, bore,
+                                         cos_tx, cos_rx),
+                           TravelTimes(inv_cw, cw, cs, ttab, etab, inv_drho, z0, inv_dz,
+                                       h_ref))
             ia = ia0 + k
             x = ax[ia]
             n_upd = 0
             for ic in range(nc):
                 y = cy[ic]
                 for iz in range(nd):
-                    sr, si, n = _voxel_sum(x, y, dz[iz], interp, mode, gating, halvings, re,
-                                           im, t0, inv_dt, theta, h_tx, rx_dx, rx_dy, rx_h,
-                                           apod, bore, cos_tx, cos_rx, inv_c, cw, cs, ttab,
-                                           etab, inv_drho, tz0, inv_dz, h_ref, one)
+                    sr, si, n = _voxel_sum(x, y, dz[iz], interp, mode, gating, halvings, a,
+                                           one)
                     img_re[ia, ic, iz] += sr
                     img_im[ia, ic, iz] += si
                     n_upd += n
@@ -173,16 +154,38 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
     branches fold away, so that the depth loop vectorises). Keep the prange body free of
     array views: numba then marks the arrays noalias, which the depth loop needs to
     vectorise (gathers next to accumulator stores)."""
-    if mode == 2:
+    if mode == EXACT:
         return _make_voxel_kernel(interp, mode, gating, halvings)
 
-    ntap = len(_TAPS[interp])
-    shift_s = _SHIFT[interp]                 # phase reference of the fraction, samples
+    ntap = len(TAPS[interp])
+    shift_s = SHIFT[interp]                 # phase reference of the fraction, samples
 
     @nb.njit(parallel=True, fastmath=True, cache=True)
-    def kernel(img_re, img_im, re, im, t0, inv_dt, theta, ax, cy, dz, h_tx, rx_dx,
-               rx_dy, rx_h, apod, bore, cos_tx, cos_rx, inv_c, cw, cs, ttab, etab, inv_drho,
-               tz0, inv_dz, h_ref, ia0, ia1):
+    def kernel(img_re, img_im, args, ia0, ia1):
+        # unpacked here, outside the parallel loop: the loop body then sees plain arrays
+        re = args.planes.re
+        im = args.planes.im
+        t0 = args.planes.t0
+        inv_dt = args.planes.inv_dt
+        theta = args.planes.theta
+        ax = args.geometry.ax
+        cy = args.geometry.cy
+        dz = args.geometry.dz
+        h_tx = args.geometry.h_tx
+        rx_dx = args.geometry.rx_dx
+        rx_dy = args.geometry.rx_dy
+        rx_h = args.geometry.rx_h
+        apod = args.geometry.apod
+        bore = args.geometry.bore
+        cos_tx = args.geometry.cos_tx
+        cos_rx = args.geometry.cos_rx
+        inv_c = args.delays.inv_cw
+        ttab = args.delays.time
+        etab = args.delays.eta
+        inv_drho = args.delays.inv_drho
+        tz0 = args.delays.z0
+        inv_dz = args.delays.inv_dz
+        h_ref = args.delays.h_ref
         one = cast_like(re[0, 0, 0], 1)          # the kernel precision
         zero = one - one
         shift = cast_like(one, shift_s)
@@ -199,7 +202,7 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
             dzp[iz] = dz[min(iz, nd - 1)]
         # table: times and slownesses interpolated in z at the voxel depths, (n_rho, npad)
         n_rho = ttab.shape[0]
-        if mode == 1:
+        if mode == TABLE:
             tz = np.empty((n_rho, npad), dtype=ft)
             ez_tab = np.empty((n_rho, npad), dtype=ft)
             n_z = ttab.shape[1]
@@ -235,17 +238,20 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
             n_upd = 0
             for ic in range(nc):
                 y = cy[ic]
+                ir1, a1, dh1 = _table_row(x, y, h_tx, inv_drho, n_rho, h_ref, one)
                 for iz in range(nd):
                     z = dzp[iz]
                     vz = z + h_tx
+                    r1 = math.sqrt(x * x + y * y + vz * vz)
                     inside = True
                     if gating:
-                        r1 = math.sqrt(x * x + y * y + vz * vz)
                         inside = x * b0 + y * b1 + vz * b2 >= r1 * cos_tx
                     txm_w[bs + iz] = one if inside else zero
-                    u1_w[bs + iz] = (_travel_time(mode, x, y, z, h_tx, inv_c, cw, cs, ttab,
-                                                  etab, inv_drho, tz0, inv_dz, h_ref)
-                                     - t0) * inv_dt
+                    if mode == STRAIGHT:
+                        t1 = r1 * inv_c
+                    else:
+                        t1 = _table_time(tz, ez_tab, ir1, a1, dh1, iz, one)
+                    u1_w[bs + iz] = (t1 - t0) * inv_dt
                 # the cone's depth interval, padded to whole vectors (txm = 0 outside)
                 lo = 0
                 while lo < nd and txm_w[bs + lo] == zero:
@@ -267,12 +273,7 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
                     e2 = ex * ex + ey * ey
                     eb = ex * b0 + ey * b1
                     g0 = apod[ch]
-                    # table: row and weight of the horizontal offset, height correction
-                    rho = math.sqrt(np.float64(ex) * ex + np.float64(ey) * ey)
-                    ur = min(max(rho * inv_drho, 0.0), n_rho - 1.001)
-                    ir = int(ur)
-                    a = cast_like(one, ur - ir)
-                    dh = cast_like(one, h - h_ref)
+                    ir, a, dh = _table_row(ex, ey, h, inv_drho, n_rho, h_ref, one)
                     n_ch = zero                          # updates (exact: < 2^24)
                     for iz in range(z_lo, z_hi):        # delays and weights (vectorised)
                         z = dzp[iz]
@@ -281,12 +282,11 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
                         r2 = math.sqrt(e2 + ez * ez)     # dead code in ungated table mode
                         if gating:
                             g = g if eb + ez * b2 >= r2 * cos_rx else zero
-                        if mode == 0:
+                        if mode == STRAIGHT:
                             u = u1_w[bs + iz] + r2 * k_straight
                         else:
-                            t2 = ((one - a) * (tz[ir, iz] + dh * ez_tab[ir, iz])
-                                  + a * (tz[ir + 1, iz] + dh * ez_tab[ir + 1, iz]))
-                            u = u1_w[bs + iz] + t2 * inv_dt
+                            u = (u1_w[bs + iz]
+                                 + _table_time(tz, ez_tab, ir, a, dh, iz, one) * inv_dt)
                         i0, w, valid = _position(u, interp, nt, one)
                         idx_w[bs + iz] = i0
                         frac_w[bs + iz] = w
@@ -315,9 +315,9 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
                                    + c3 * tap_w[bt + np.uint64(3 * npad) + iz])
                             si += (c2 * tap_w[bt + np.uint64((ntap + 2) * npad) + iz]
                                    + c3 * tap_w[bt + np.uint64((ntap + 3) * npad) + iz])
-                        cr, cs = _cis(theta * (w - shift), halvings, one)
-                        acr_w[bs + iz] += g * (sr * cr - si * cs)
-                        aci_w[bs + iz] += g * (sr * cs + si * cr)
+                        cr, ci = _cis(theta * (w - shift), halvings, one)
+                        acr_w[bs + iz] += g * (sr * cr - si * ci)
+                        aci_w[bs + iz] += g * (sr * ci + si * cr)
                         n_ch += one if g != zero else zero
                     n_upd += np.int64(n_ch)
                 for iz in range(lo, hi):
@@ -333,72 +333,25 @@ _KERNELS: dict[tuple[int, int, bool, int], object] = {}
 
 
 def kernel_for(interp: int, mode: int, gating: bool, halvings: int):
-    """The compiled kernel for an (interpolation, delay mode, gating) combination.
-
-    Kernel arguments: image planes (along x cross x depth), tap planes, t0 (s), 1/dt
-    (1/s), theta; geometry relative to the projector: ``ax``/``cy`` voxel
-    along/cross offsets, ``dz`` voxel depths below the interface, ``h_tx``/``rx_h``
-    element heights above the interface, ``rx_dx``/``rx_dy`` receiver offsets (m);
-    apodisation, boresight and cone cosines; 1/c; the water and sediment speeds and the
-    refraction table; the along-track index range. Returns the voxel-channel updates.
-    """
+    """The compiled kernel ``kernel(img_re, img_im, args: KernelArgs, ia0, ia1)`` for an
+    (interpolation, delay mode, gating, halvings) combination: adds one ping into the
+    image planes (along x cross x depth) for along-track indices ia0 <= ia < ia1 and
+    returns the voxel-channel updates."""
     key = (interp, mode, bool(gating), int(halvings))
     if key not in _KERNELS:
         _KERNELS[key] = _make_kernel(*key)
     return _KERNELS[key]
 
 
-def along_reach(tx_tile: np.ndarray, bore: np.ndarray, half_angle: float,
-                max_depth: float) -> float:
-    """Largest horizontal distance from the projector at which a voxel no deeper than
-    ``max_depth`` (tile frame) can lie inside the projector cone, m."""
-    tilt = math.acos(max(-1.0, min(1.0, float(bore[2]))))
-    cone = min(half_angle + tilt, math.radians(89.0))
-    return max(0.0, (max_depth - float(tx_tile[2]))) * math.tan(cone)
-
-
-_EMPTY_TABLE = np.zeros((2, 2))
-
-
-def geometry_args(ft, kd: KernelData, tx, rx, along, cross, depth, *, bore, cos_tx, cos_rx,
-                  apod=None, mode="straight", c=1500.0, cw=1500.0, cs=1500.0,
-                  table: TravelTimeTable | None = None) -> tuple:
-    """The kernel arguments after the image planes and before the along-track range:
-    geometry from the tile frame (float64) made relative to the projector, then cast to
-    the kernel precision ``ft``."""
-    nch = rx.shape[0]
-    ax = np.ascontiguousarray(along - tx[0], dtype=ft)
-    cy = np.ascontiguousarray(cross - tx[1], dtype=ft)
-    dz = np.ascontiguousarray(depth, dtype=ft)
-    rx_dx = np.ascontiguousarray(rx[:, 0] - tx[0], dtype=ft)
-    rx_dy = np.ascontiguousarray(rx[:, 1] - tx[1], dtype=ft)
-    rx_h = np.ascontiguousarray(-rx[:, 2], dtype=ft)
-    apod = np.ones(nch, dtype=ft) if apod is None else np.ascontiguousarray(apod, dtype=ft)
-    if DELAY[mode] == 1:
-        if table is None:
-            raise ValueError("delay mode 'table' needs a travel-time table")
-        ttab, etab = table.time, table.eta
-        inv_drho, tz0, inv_dz, h_ref = 1 / table.drho, table.z0, 1 / table.dz, table.h_ref
-    else:
-        ttab = etab = _EMPTY_TABLE
-        inv_drho, tz0, inv_dz, h_ref = 1.0, 0.0, 1.0, 0.0
-    if kd.re.dtype != ft:
-        raise ValueError(f"kernel data is {kd.re.dtype}, the image planes are {np.dtype(ft)}")
-    return (kd.re, kd.im, ft(kd.t0), ft(1.0 / kd.dt), ft(kd.theta), ax, cy, dz, ft(-tx[2]),
-            rx_dx, rx_dy, rx_h, apod, np.ascontiguousarray(bore, dtype=ft), ft(cos_tx),
-            ft(cos_rx), ft(1.0 / c), float(cw), float(cs), ttab, etab, inv_drho, tz0, inv_dz,
-            h_ref)
-
-
 def run_ping(img_re, img_im, kd: KernelData, tx, rx, along, cross, depth, ia0, ia1, *,
-             bore, cos_tx, cos_rx, gating=True, apod=None, mode="straight", c=1500.0,
-             cw=1500.0, cs=1500.0, table: TravelTimeTable | None = None) -> int:
+             bore, cos_tx, cos_rx, delays: DelayModel, gating=True, apod=None) -> int:
     """Add one ping into the image planes (along x cross x depth) for along-track indices
     ia0 <= ia < ia1, with geometry in the tile frame (float64): ``tx`` (3,), ``rx``
     (channels, 3), voxel axes. The kernel precision is the image planes'. Returns the
     number of voxel-channel updates."""
-    args = geometry_args(img_re.dtype.type, kd, tx, rx, along, cross, depth, bore=bore,
-                         cos_tx=cos_tx, cos_rx=cos_rx, apod=apod, mode=mode, c=c, cw=cw,
-                         cs=cs, table=table)
-    kernel = kernel_for(kd.interp, DELAY[mode], gating, kd.halvings)
-    return int(kernel(img_re, img_im, *args, ia0, ia1))
+    if kd.dtype != img_re.dtype:
+        raise ValueError(f"kernel data is {kd.dtype}, the image planes are {img_re.dtype}")
+    args = kernel_args(kd, tx, rx, along, cross, depth, bore=bore, cos_tx=cos_tx,
+                       cos_rx=cos_rx, apod=apod, delays=delays)
+    kernel = kernel_for(kd.interp, delays.code, gating, kd.halvings)
+    return int(kernel(img_re, img_im, args, ia0, ia1))

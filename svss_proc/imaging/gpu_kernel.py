@@ -14,9 +14,9 @@ import math
 import numpy as np
 from numba import cuda
 
-from .cpu_kernel import DELAY, KernelData, geometry_args
+from .delays import build_refraction
+from .kernel_args import DelayModel, KernelData, kernel_args
 from .kernel_math import build
-from .delays import TravelTimeTable, build_refraction
 
 _dev = cuda.jit(device=True)
 _math = build(_dev, build_refraction(_dev))
@@ -28,23 +28,19 @@ _KERNELS: dict = {}
 
 def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
     @cuda.jit
-    def kernel(img_re, img_im, re, im, t0, inv_dt, theta, ax, cy, dz, h_tx, rx_dx, rx_dy,
-               rx_h, apod, bore, cos_tx, cos_rx, inv_c, cw, cs, ttab, etab, inv_drho, tz0,
-               inv_dz, h_ref, ia0, ia1, counts):
+    def kernel(img_re, img_im, args, ia0, ia1, counts):
         i = cuda.grid(1)
-        nc = cy.size
-        nd = dz.size
+        nc = args.geometry.cy.size
+        nd = args.geometry.dz.size
         if i >= (ia1 - ia0) * nc * nd:
             return
         ia = ia0 + i // (nc * nd)
         rem = i % (nc * nd)
         ic = rem // nd
         iz = rem % nd
-        one = re[0, 0, 0] * 0 + 1
-        sr, si, n = _voxel_sum(ax[ia], cy[ic], dz[iz], interp, mode, gating, halvings, re, im,
-                               t0, inv_dt, theta, h_tx, rx_dx, rx_dy, rx_h, apod, bore, cos_tx,
-                               cos_rx, inv_c, cw, cs, ttab, etab, inv_drho, tz0, inv_dz, h_ref,
-                               one)
+        one = args.planes.re[0, 0, 0] * 0 + 1
+        sr, si, n = _voxel_sum(args.geometry.ax[ia], args.geometry.cy[ic],
+                               args.geometry.dz[iz], interp, mode, gating, halvings, args, one)
         img_re[ia, ic, iz] += sr                   # each thread owns its voxel
         img_im[ia, ic, iz] += si
         counts[i] = n
@@ -64,19 +60,27 @@ def kernel_for(interp: int, mode: int, gating: bool, halvings: int):
     return _KERNELS[key]
 
 
+def _to_device(bundle):
+    """A named bundle with its arrays copied to the GPU (nested bundles too)."""
+    return type(bundle)(*(cuda.to_device(v) if isinstance(v, np.ndarray)
+                          else _to_device(v) if isinstance(v, tuple) else v
+                          for v in bundle))
+
+
 def run_ping_gpu(img_re, img_im, kd: KernelData, tx, rx, along, cross, depth, ia0, ia1, *,
-                 bore, cos_tx, cos_rx, gating=True, apod=None, mode="straight", c=1500.0,
-                 cw=1500.0, cs=1500.0, table: TravelTimeTable | None = None) -> int:
-    """GPU counterpart of :func:`svss_proc.imaging.cpu_kernel.run_ping`; ``img_re``/``img_im``
-    are device arrays (``cuda.to_device``) that accumulate across pings."""
-    args = geometry_args(img_re.dtype.type, kd, tx, rx, along, cross, depth, bore=bore,
-                         cos_tx=cos_tx, cos_rx=cos_rx, apod=apod, mode=mode, c=c, cw=cw,
-                         cs=cs, table=table)
+                 bore, cos_tx, cos_rx, delays: DelayModel, gating=True, apod=None) -> int:
+    """GPU counterpart of :func:`svss_proc.imaging.cpu_kernel.run_ping`;
+    ``img_re``/``img_im`` are device arrays (``cuda.to_device``) that accumulate across
+    pings."""
+    if kd.dtype != img_re.dtype:
+        raise ValueError(f"kernel data is {kd.dtype}, the image planes are {img_re.dtype}")
+    args = kernel_args(kd, tx, rx, along, cross, depth, bore=bore, cos_tx=cos_tx,
+                       cos_rx=cos_rx, apod=apod, delays=delays)
     n = (ia1 - ia0) * cross.size * depth.size
     if n <= 0:
         return 0
     counts = cuda.device_array(n, dtype=np.int64)
-    dev = [cuda.to_device(a) if isinstance(a, np.ndarray) else a for a in args]
-    kernel = kernel_for(kd.interp, DELAY[mode], gating, kd.halvings)
-    kernel[math.ceil(n / THREADS), THREADS](img_re, img_im, *dev, ia0, ia1, counts)
+    kernel = kernel_for(kd.interp, delays.code, gating, kd.halvings)
+    kernel[math.ceil(n / THREADS), THREADS](img_re, img_im, _to_device(args), ia0, ia1,
+                                            counts)
     return int(counts.copy_to_host().sum())

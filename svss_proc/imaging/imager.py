@@ -13,13 +13,14 @@ import math
 import numpy as np
 
 from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
-from svss_daq.frames import TrackLine, body_to_ned
-from svss_daq.geometry import array_geometry
+from svss_daq.frames import TrackLine
+from svss_daq.geometry import array_geometry, place_array
 from svss_daq.ping import Ping
 from svss_daq.waveform import make_waveform
 
-from .cpu_kernel import along_reach, prepare, run_ping
+from .cpu_kernel import run_ping
 from .delays import TravelTimeTable, build_table
+from .kernel_args import DelayModel, prepare
 from ..conditioning import Conditioner
 from .grid import tile_grid, tile_index
 from ..tiles import Tile
@@ -40,6 +41,15 @@ def receive_apodisation(receivers_body: np.ndarray, kind: str) -> np.ndarray | N
             x = (p - p.min() + pitch) / (span + 2 * pitch)       # in (0, 1)
             w *= np.sin(np.pi * x) ** 2
     return w / w.mean()
+
+
+def along_reach(tx_tile: np.ndarray, bore: np.ndarray, half_angle: float,
+                max_depth: float) -> float:
+    """Largest horizontal distance from the projector at which a voxel no deeper than
+    ``max_depth`` (tile frame) can lie inside the projector cone, m."""
+    tilt = math.acos(max(-1.0, min(1.0, float(bore[2]))))
+    cone = min(half_angle + tilt, math.radians(89.0))
+    return max(0.0, (max_depth - float(tx_tile[2]))) * math.tan(cone)
 
 
 def line_from_ping(ping: Ping, proc: ProcessingConfig) -> TrackLine:
@@ -99,15 +109,10 @@ class TileImager:
             log.info("tile frame: origin N %.2f E %.2f m, heading %.1f deg, interface %.2f m",
                      *self.line.origin_ne, math.degrees(self.line.heading),
                      self.line.interface_down)
-        geo, line, tcfg = self.geometry, self.line, self.proc.tile
-        nav = ping.nav
-        rot = line.rotation_from_ned() @ body_to_ned(nav.roll_rad, nav.pitch_rad,
-                                                      nav.heading_rad)
-        origin = line.ned_to_tile(nav.ned)
-        tx = origin + rot @ geo.projectors[ping.projector]
-        rx = origin + geo.receivers @ rot.T
-        bore = rot @ geo.boresight
-        cond = self.conditioner(ping.samples, ping.window_start_ns * 1e-9)
+        geo, tcfg = self.geometry, self.proc.tile
+        placed = place_array(geo, ping.nav, ping.projector, self.line)
+        tx, rx, bore = placed.tx, placed.rx, placed.bore
+        cond = self.conditioner.ping(ping)
         im = self.proc.imaging
         gating = im.beam_gating
         # which tiles can this ping reach?
@@ -115,9 +120,10 @@ class TileImager:
         if gating:
             reach = along_reach(tx, bore, geo.projector_half_angle, max_depth)
         else:
-            reach = (cond.t0_s + cond.dt_s * cond.data.shape[1]) * im.sound_speed_m_s / 2
+            reach = cond.axis.end_s * im.water_sound_speed_m_s / 2
         lo, hi = tx[0] - reach, tx[0] + reach
-        table = self._table(tx, rx, reach) if im.delays == "table" else None
+        delays = DelayModel(im.delays, im.water_sound_speed_m_s, im.sediment_sound_speed_m_s,
+                            self._table(tx, rx, reach) if im.delays == "table" else None)
         kd = None
         for k in range(tile_index(tcfg, lo), tile_index(tcfg, hi) + 1):
             if k in self.done:
@@ -131,10 +137,9 @@ class TileImager:
                 continue
             kd = kd or prepare(cond, im.interpolation, self.dtype)
             n = self._run(tile.re, tile.im, kd, tx, rx, a, tile.grid.cross, tile.grid.depth,
-                         ia0, ia1, bore=bore, cos_tx=math.cos(geo.projector_half_angle),
-                         cos_rx=math.cos(geo.receiver_half_angle), gating=gating,
-                         apod=self.apod, mode=im.delays, c=im.sound_speed_m_s,
-                         cw=im.sound_speed_m_s, cs=im.sediment_sound_speed_m_s, table=table)
+                          ia0, ia1, bore=bore, cos_tx=math.cos(geo.projector_half_angle),
+                          cos_rx=math.cos(geo.receiver_half_angle), delays=delays,
+                          gating=gating, apod=self.apod)
             tile.pings.append(ping.sequence)
             tile.updates += int(n)
             self.updates += int(n)
@@ -153,7 +158,7 @@ class TileImager:
             rho_max = reach + tcfg.width_m + span
             self._tables[key] = build_table(key / 1000, rho_max, tcfg.top_m - im.table_step_m,
                                             tcfg.top_m + tcfg.depth_m + im.table_step_m,
-                                            im.table_step_m, im.sound_speed_m_s,
+                                            im.table_step_m, im.water_sound_speed_m_s,
                                             im.sediment_sound_speed_m_s)
         return self._tables[key]
 

@@ -17,6 +17,8 @@ import numpy as np
 from numba import types
 from numba.extending import overload
 
+from .kernel_args import CUBIC, LINEAR, NEAREST, STRAIGHT, TABLE
+
 
 def cast_like(ref, x):
     """``x`` converted to the floating type of ``ref`` (float32 or float64)."""
@@ -56,9 +58,9 @@ def build(jit, refr):
     def weights(interp, w, one):
         """Interpolation weights (up to four taps) at fractional position w."""
         zero = one - one
-        if interp == 0:
+        if interp == NEAREST:
             return one, zero, zero, zero
-        if interp == 1:
+        if interp == LINEAR:
             return one - w, w, zero, zero
         # Keys cubic convolution, a = -1/2, taps at -1, 0, 1, 2
         half = one / (one + one)
@@ -77,13 +79,13 @@ def build(jit, refr):
         free so that the channel loop vectorises. Returns (re, im, valid as 0/1 weight)."""
         zero = one - one
         half = cast_like(one, 0.5)
-        if interp == 0:
+        if interp == NEAREST:
             lo = zero
             hi = cast_like(one, nt - 1)
             uc = min(max(u, lo), hi)
             i0 = np.int32(uc + half)
             shift = zero
-        elif interp == 1:
+        elif interp == LINEAR:
             lo = zero
             hi = cast_like(one, nt - 1) - cast_like(one, 1e-3)
             uc = min(max(u, lo), hi)
@@ -100,29 +102,32 @@ def build(jit, refr):
         c0, c1, c2, c3 = weights(interp, w, one)
         sr = c0 * re[0, ch, i0]
         si = c0 * im[0, ch, i0]
-        if interp > 0:
+        if interp != NEAREST:
             sr += c1 * re[1, ch, i0]
             si += c1 * im[1, ch, i0]
-        if interp == 2:
+        if interp == CUBIC:
             sr += c2 * re[2, ch, i0] + c3 * re[3, ch, i0]
             si += c2 * im[2, ch, i0] + c3 * im[3, ch, i0]
-        cr, cs = cis(theta * (w - shift), halvings, one)
-        return sr * cr - si * cs, sr * cs + si * cr, valid
+        cr, ci = cis(theta * (w - shift), halvings, one)
+        return sr * cr - si * ci, sr * ci + si * cr, valid
 
 
     @jit
-    def travel_time(mode, dx, dy, z, h, inv_c, cw, cs, ttab, etab, inv_drho, tz0, inv_dz, h_ref):
-        """One-way travel time from an element at height h above the interface (horizontal
-        offset (dx, dy) to the voxel at depth z below the interface)."""
-        if mode == 0:
+    def travel_time(mode, dx, dy, z, h, tt):
+        """One-way travel time from an element at height h above the interface
+        (horizontal offset (dx, dy) to the voxel at depth z below the interface), with
+        the travel-time model ``tt`` (:class:`~svss_proc.imaging.kernel_args.TravelTimes`)."""
+        if mode == STRAIGHT:
             dz = z + h
-            return math.sqrt(dx * dx + dy * dy + dz * dz) * inv_c
-        one = inv_c * 0 + 1
+            return math.sqrt(dx * dx + dy * dy + dz * dz) * tt.inv_cw
+        one = tt.inv_cw * 0 + 1
         rho = math.sqrt(np.float64(dx) * dx + np.float64(dy) * dy)
-        if mode == 1:
+        if mode == TABLE:
+            ttab = tt.time
+            etab = tt.eta
             n_rho, n_z = ttab.shape
-            u = min(max(rho * inv_drho, 0.0), n_rho - 1.001)
-            v = min(max((z - tz0) * inv_dz, 0.0), n_z - 1.001)
+            u = min(max(rho * tt.inv_drho, 0.0), n_rho - 1.001)
+            v = min(max((z - tt.z0) * tt.inv_dz, 0.0), n_z - 1.001)
             i = int(u)
             j = int(v)
             a = u - i
@@ -131,25 +136,35 @@ def build(jit, refr):
                  + a * ((1 - b) * ttab[i + 1, j] + b * ttab[i + 1, j + 1]))
             e = ((1 - a) * ((1 - b) * etab[i, j] + b * etab[i, j + 1])
                  + a * ((1 - b) * etab[i + 1, j] + b * etab[i + 1, j + 1]))
-            return cast_like(one, t + (h - h_ref) * e)
-        return cast_like(one, one_way_time(np.float64(h), rho, np.float64(z), cw, cs))
+            return cast_like(one, t + (h - tt.h_ref) * e)
+        return cast_like(one, one_way_time(np.float64(h), rho, np.float64(z), tt.cw, tt.cs))
 
     @jit
-    def voxel_sum(x, y, z, interp, mode, gating, halvings, re, im, t0, inv_dt, theta, h_tx,
-                  rx_dx, rx_dy, rx_h, apod, bore, cos_tx, cos_rx, inv_c, cw, cs, ttab, etab,
-                  inv_drho, tz0, inv_dz, h_ref, one):
+    def voxel_sum(x, y, z, interp, mode, gating, halvings, args, one):
         """One ping's coherent sum at one voxel, (x, y) its offset from the projector and
-        z its depth below the interface (m). Returns (re, im, updates); no update when
-        the voxel is outside the projector's cone (with gating)."""
+        z its depth below the interface (m); ``args`` a
+        :class:`~svss_proc.imaging.kernel_args.KernelArgs`. Returns (re, im, updates); no
+        update when the voxel is outside the projector's cone (with gating)."""
         zero = one - one
+        p = args.planes
+        g = args.geometry
+        tt = args.delays
+        re = p.re
+        im = p.im
+        rx_dx = g.rx_dx
+        rx_dy = g.rx_dy
+        rx_h = g.rx_h
+        apod = g.apod
+        b0 = g.bore[0]
+        b1 = g.bore[1]
+        b2 = g.bore[2]
         nch = re.shape[1]
         nt = re.shape[2]
-        vz = z + h_tx                                # vertical offset below the projector
+        vz = z + g.h_tx                              # vertical offset below the projector
         r1 = math.sqrt(x * x + y * y + vz * vz)
-        if gating and x * bore[0] + y * bore[1] + vz * bore[2] < r1 * cos_tx:
+        if gating and x * b0 + y * b1 + vz * b2 < r1 * g.cos_tx:
             return zero, zero, 0
-        t1 = travel_time(mode, x, y, z, h_tx, inv_c, cw, cs, ttab, etab, inv_drho, tz0,
-                         inv_dz, h_ref) - t0
+        t1 = travel_time(mode, x, y, z, g.h_tx, tt) - p.t0
         acc_re = zero
         acc_im = zero
         n_upd = 0
@@ -157,18 +172,17 @@ def build(jit, refr):
             ex = x - rx_dx[ch]
             ey = y - rx_dy[ch]
             ez = z + rx_h[ch]
-            g = apod[ch]
+            w = apod[ch]
             if gating:
                 r2 = math.sqrt(ex * ex + ey * ey + ez * ez)
-                g = g if ex * bore[0] + ey * bore[1] + ez * bore[2] >= r2 * cos_rx else zero
-            t2 = travel_time(mode, ex, ey, z, rx_h[ch], inv_c, cw, cs, ttab, etab, inv_drho,
-                             tz0, inv_dz, h_ref)
-            u = (t1 + t2) * inv_dt
-            sr, si, valid = sample(re, im, ch, u, interp, halvings, theta, nt, one)
-            g = g * valid
-            acc_re += g * sr
-            acc_im += g * si
-            n_upd += np.int64(g != zero)
+                w = w if ex * b0 + ey * b1 + ez * b2 >= r2 * g.cos_rx else zero
+            t2 = travel_time(mode, ex, ey, z, rx_h[ch], tt)
+            u = (t1 + t2) * p.inv_dt
+            sr, si, valid = sample(re, im, ch, u, interp, halvings, p.theta, nt, one)
+            w = w * valid
+            acc_re += w * sr
+            acc_im += w * si
+            n_upd += np.int64(w != zero)
         return acc_re, acc_im, n_upd
 
     return SimpleNamespace(cis=cis, weights=weights, sample=sample, travel_time=travel_time,

@@ -287,14 +287,14 @@ def test_mean_field_is_the_coherent_return(hardware):
     hwv = hw8.value
     cond = Conditioner(hwv.digitiser, make_waveform(hwv.waveform), 1)
     cpu = counts_per_upa(hwv.digitiser)
-    yc = cond(EnvironmentSource(hw8, sc).specular(ping) * cpu, 0.0).data
+    yc = cond(EnvironmentSource(hw8, sc).specular(ping) * cpu).data
     k = np.argmax(np.abs(yc), axis=1)
     rows = np.arange(yc.shape[0])
     peaks = []
     src = EnvironmentSource(hw8, sc)
     for s in range(201, 1201):
         p = src.with_seed(s).pressure(ping)
-        peaks.append(cond(p * cpu, 0.0).data[rows, k])
+        peaks.append(cond(p * cpu).data[rows, k])
     peaks = np.array(peaks)                       # (seabeds, channels), complex
     mean = peaks.mean(axis=0)
     stderr = peaks.std(axis=0) / math.sqrt(peaks.shape[0] - 1)

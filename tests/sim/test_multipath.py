@@ -95,7 +95,7 @@ def test_multipath_arrival_times_and_levels(hardware, point_scene):
         src.allowed = np.zeros((3, 3), dtype=bool)
         src.allowed[a, b] = True
         p = src.pressure(i)[ch]
-        t = cond(p[None, :] * cpu, hw.digitiser.window_start_s)
+        t = cond(p[None, :] * cpu)
         y = t.data[0]
 
         # expected: straight unfolded legs from the element images (independent geometry):

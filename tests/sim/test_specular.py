@@ -93,7 +93,7 @@ def test_interface_specular_delay_and_eckart_level(hardware):
     g = src.frame(i)
     p = src.pressure(i)
     cond = Conditioner(hw.digitiser, make_waveform(hw.waveform), 1)
-    y = cond(p * counts_per_upa(hw.digitiser), hw.digitiser.window_start_s)
+    y = cond(p * counts_per_upa(hw.digitiser))
     sand = load_sediments()["medium_sand"]
     rho, nu, d = sand.ratios(1000.0, C_W)
     wf = make_waveform(hw.waveform)
@@ -131,7 +131,7 @@ def test_deeper_layer_boundary_returns_at_the_refracted_delay(hardware):
     g = src.frame(i)
     p = src.pressure(i)
     cond = Conditioner(hw.digitiser, make_waveform(hw.waveform), 1)
-    y = cond(p * counts_per_upa(hw.digitiser), hw.digitiser.window_start_s)
+    y = cond(p * counts_per_upa(hw.digitiser))
     silt = load_sediments()["very_fine_silt"]
     sand = load_sediments()["medium_sand"]
     p0 = 10 ** (hw.waveform.source_level_db / 20)
@@ -178,7 +178,7 @@ def test_extremes_zero_roughness_and_very_high_attenuation(hardware):
     i = 3
     g = src.frame(i)
     cond = Conditioner(hw.digitiser, make_waveform(hw.waveform), 1)
-    y = cond(src.pressure(i) * counts_per_upa(hw.digitiser), hw.digitiser.window_start_s)
+    y = cond(src.pressure(i) * counts_per_upa(hw.digitiser))
     sand = load_sediments()["medium_sand"]
     ch = 33
     img = np.array([g.tx[0], g.tx[1], -g.tx[2]])

@@ -60,7 +60,7 @@ def water_scene(*targets):
 
 def compressed(hw, p):
     cond = Conditioner(hw.digitiser, make_waveform(hw.waveform), 1)
-    return cond(p * counts_per_upa(hw.digitiser), hw.digitiser.window_start_s)
+    return cond(p * counts_per_upa(hw.digitiser))
 
 
 def pulse_power_spectrum(hw):
@@ -411,7 +411,7 @@ def test_buried_target_echoes_image_at_the_target(hardware):
         tile=dataclasses.replace(proc.tile, length_m=0.4, width_m=0.3, depth_m=0.3,
                                  top_m=0.15, voxel_m=0.01),
         imaging=dataclasses.replace(proc.imaging, delays="table", interpolation="linear",
-                                    sound_speed_m_s=C_W,
+                                    water_sound_speed_m_s=C_W,
                                     sediment_sound_speed_m_s=float(src.media.c[1])))
     imager = TileImager(hardware, proc)
     tiles = []

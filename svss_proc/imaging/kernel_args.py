@@ -1,0 +1,171 @@
+"""What the backprojection kernels take: one ping's tap planes, the voxel and element
+geometry relative to the projector, and the travel-time model, each a named bundle
+(``NamedTuple``, which numba passes to CPU and GPU kernels alike), and the kernels' modes
+as named constants.
+
+Tap planes fold the remodulation y(tau) exp(+j 2 pi f_c tau) (:mod:`svss_daq.conventions`)
+into the samples, so that the kernels need no trigonometry:
+
+    P_k[n] = a(t_{n+k}) exp(-j theta (k - s)),  theta = 2 pi f_c dt (signed by the
+    convention),
+
+with a the analytic matched-filter output (:class:`svss_proc.conditioning.Conditioned`),
+so that y(tau) exp(+j 2 pi f_c tau) = exp(j theta (w - s)) sum_k c_k(w) P_k[n], n and w
+the integer and fractional sample of tau and c_k the interpolation weights (nearest: one
+tap, s = 0; linear: two taps, s = 1/2; cubic (Keys, a = -1/2): taps k = -1..2, s = 1/2).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from svss_daq.conventions import REMODULATION_SIGN
+
+from ..conditioning import Conditioned
+from .delays import TravelTimeTable
+
+#: interpolation modes
+NEAREST, LINEAR, CUBIC = 0, 1, 2
+INTERP = {"nearest": NEAREST, "linear": LINEAR, "cubic": CUBIC}
+#: delay modes: straight rays at the water speed, the refraction table, exact Fermat paths
+STRAIGHT, TABLE, EXACT = 0, 1, 2
+DELAY = {"straight": STRAIGHT, "table": TABLE, "exact": EXACT}
+TAPS = {NEAREST: (0,), LINEAR: (0, 1), CUBIC: (-1, 0, 1, 2)}
+SHIFT = {NEAREST: 0.0, LINEAR: 0.5, CUBIC: 0.5}     # phase reference of the fraction
+MAX_HALF_ANGLE = 1.4      # rad: Taylor series range of the phase factor
+
+
+class TapPlanes(NamedTuple):
+    """One ping's samples for the kernels, in the kernel precision."""
+    re: np.ndarray        # (taps, channels, n) real parts
+    im: np.ndarray        # (taps, channels, n) imaginary parts
+    t0: float             # s, delay of sample 0
+    inv_dt: float         # 1/s, samples per second
+    theta: float          # rad, phase step per sample (signed)
+
+
+class VoxelGeometry(NamedTuple):
+    """Voxels and elements relative to the ping's projector, in the kernel precision."""
+    ax: np.ndarray        # (n_along,) voxel along-track offsets, m
+    cy: np.ndarray        # (n_cross,) voxel cross-track offsets, m
+    dz: np.ndarray        # (n_depth,) voxel depths below the interface, m
+    h_tx: float           # projector height above the interface, m
+    rx_dx: np.ndarray     # (channels,) receiver along-track offsets, m
+    rx_dy: np.ndarray     # (channels,) receiver cross-track offsets, m
+    rx_h: np.ndarray      # (channels,) receiver heights above the interface, m
+    apod: np.ndarray      # (channels,) apodisation weights
+    bore: np.ndarray      # (3,) boresight, unit vector
+    cos_tx: float         # cosine of the projector cone's half angle
+    cos_rx: float         # cosine of the receiver cone's half angle
+
+
+class TravelTimes(NamedTuple):
+    """The travel-time model: water and sediment speeds and, for table delays, the
+    refraction table (float64)."""
+    inv_cw: float         # 1 / water sound speed, s/m, kernel precision (straight rays)
+    cw: float             # water sound speed, m/s
+    cs: float             # sediment sound speed, m/s
+    time: np.ndarray      # (n_rho, n_z) table one-way times, s
+    eta: np.ndarray       # (n_rho, n_z) table vertical slowness, s/m
+    inv_drho: float       # 1 / table offset step, 1/m
+    z0: float             # table first depth, m
+    inv_dz: float         # 1 / table depth step, 1/m
+    h_ref: float          # table element height, m
+
+
+class KernelArgs(NamedTuple):
+    """Everything a kernel reads for one ping."""
+    planes: TapPlanes
+    geometry: VoxelGeometry
+    delays: TravelTimes
+
+
+@dataclass(frozen=True)
+class KernelData:
+    """One ping's tap planes and what the kernel is specialised on."""
+    planes: TapPlanes
+    interp: int           # NEAREST, LINEAR or CUBIC
+    halvings: int         # angle halvings before the phase series
+
+    @property
+    def dtype(self) -> np.dtype:
+        return self.planes.re.dtype
+
+
+@dataclass(frozen=True)
+class DelayModel:
+    """How delays are computed: ``mode`` 'straight', 'table' or 'exact', the water and
+    sediment sound speeds (m/s) and, for 'table', the refraction table."""
+    mode: str
+    water_sound_speed: float
+    sediment_sound_speed: float
+    table: TravelTimeTable | None = None
+
+    def __post_init__(self):
+        if self.mode not in DELAY:
+            raise ValueError(f"delay mode {self.mode!r}, expected one of {sorted(DELAY)}")
+        if self.mode == "table" and self.table is None:
+            raise ValueError("delay mode 'table' needs a travel-time table")
+
+    @property
+    def code(self) -> int:
+        return DELAY[self.mode]
+
+
+def prepare(cond: Conditioned, interp: str, dtype) -> KernelData:
+    """Tap planes of a conditioned ping for interpolation ``interp`` in precision
+    ``dtype`` (float32 or float64)."""
+    code = INTERP[interp]
+    a = cond.analytic
+    n = a.shape[1]
+    theta = REMODULATION_SIGN * 2.0 * math.pi * cond.center_hz * cond.axis.step_s
+    s = SHIFT[code]
+    taps = TAPS[code]
+    planes = np.zeros((len(taps), a.shape[0], n), dtype=np.complex128)
+    for i, k in enumerate(taps):
+        if k >= 0:
+            planes[i, :, : n - k] = a[:, k:]
+        else:
+            planes[i, :, -k:] = a[:, :k]
+        planes[i] *= np.exp(-1j * theta * (k - s))
+    max_angle = 0.5 * abs(theta)     # |w - s| <= 1/2 for every interpolation
+    halvings = max(0, math.ceil(math.log2(max(max_angle, 1e-12) / MAX_HALF_ANGLE)))
+    ft = np.dtype(dtype).type
+    return KernelData(TapPlanes(np.ascontiguousarray(planes.real, dtype=ft),
+                                np.ascontiguousarray(planes.imag, dtype=ft),
+                                ft(cond.axis.start_s), ft(1.0 / cond.axis.step_s), ft(theta)),
+                      code, halvings)
+
+
+_EMPTY_TABLE = np.zeros((2, 2))
+
+
+def kernel_args(kd: KernelData, tx, rx, along, cross, depth, *, bore, cos_tx: float,
+                cos_rx: float, apod, delays: DelayModel) -> KernelArgs:
+    """The kernel's argument for one ping: geometry from the tile frame (float64) made
+    relative to the projector, then cast to the kernel precision."""
+    ft = kd.dtype.type
+    nch = rx.shape[0]
+    if kd.planes.re.shape[1] != nch:
+        raise ValueError(f"the ping has {kd.planes.re.shape[1]} channels, the array "
+                         f"geometry {nch}")
+    geo = VoxelGeometry(
+        np.ascontiguousarray(along - tx[0], dtype=ft),
+        np.ascontiguousarray(cross - tx[1], dtype=ft),
+        np.ascontiguousarray(depth, dtype=ft), ft(-tx[2]),
+        np.ascontiguousarray(rx[:, 0] - tx[0], dtype=ft),
+        np.ascontiguousarray(rx[:, 1] - tx[1], dtype=ft),
+        np.ascontiguousarray(-rx[:, 2], dtype=ft),
+        np.ones(nch, dtype=ft) if apod is None else np.ascontiguousarray(apod, dtype=ft),
+        np.ascontiguousarray(bore, dtype=ft), ft(cos_tx), ft(cos_rx))
+    t = delays.table
+    if delays.code == TABLE:
+        tables = (t.time, t.eta, 1.0 / t.drho, float(t.z0), 1.0 / t.dz, float(t.h_ref))
+    else:
+        tables = (_EMPTY_TABLE, _EMPTY_TABLE, 1.0, 0.0, 1.0, 0.0)
+    cw, cs = float(delays.water_sound_speed), float(delays.sediment_sound_speed)
+    return KernelArgs(kd.planes, geo, TravelTimes(ft(1.0 / cw), cw, cs, *tables))
