@@ -1,4 +1,5 @@
-"""Two-medium propagation through a flat water-sediment interface (Fermat's principle).
+"""Imaging delays: travel times through a flat water-sediment interface (Fermat's
+principle), exactly per voxel and element or from a per-ping table.
 
 Geometry: an element at height ``h`` > 0 above the interface, a point at depth ``z`` > 0
 below it and horizontal offset ``rho`` >= 0. The ray crosses the interface at horizontal
@@ -13,8 +14,9 @@ steps inside a shrinking bracket (bisection whenever Newton leaves it), which co
 near the critical angle too, where plain Newton stalls. Points at or above the interface
 (z <= 0) are reached by a straight ray in water.
 
-This module is the project's one refraction solver: the imager uses it and the simulator
-may reuse it.
+The scalar functions are built once for the CPU and once for the GPU
+(:func:`build_refraction`); the kernels choose between straight rays, the table and the
+exact path (:mod:`svss_proc.imaging.kernel_math`).
 """
 
 from __future__ import annotations
@@ -92,16 +94,6 @@ one_way_time = _cpu.one_way_time
 vertical_slowness = _cpu.vertical_slowness
 
 
-@nb.njit(parallel=True, cache=True)
-def one_way_times(h, rho, z, cw, cs):
-    """Vectorised :func:`one_way_time` over equally shaped float64 arrays."""
-    out = np.empty(rho.size)
-    hf, rf, zf = h.ravel(), rho.ravel(), z.ravel()
-    for i in nb.prange(rho.size):
-        out[i] = one_way_time(hf[i], rf[i], zf[i], cw, cs)
-    return out.reshape(rho.shape)
-
-
 @dataclass(frozen=True)
 class TravelTimeTable:
     """One-way travel times from an element at height ``h_ref`` above the interface,
@@ -128,8 +120,9 @@ def _fill_table(h, drho, z0, dz, cw, cs, time, eta):
 
 
 def build_table(h_ref: float, rho_max: float, z_min: float, z_max: float, step: float,
-                cw: float, cs: float) -> TravelTimeTable:
-    """Tabulate one-way times for offsets 0..rho_max and depths z_min..z_max (m)."""
+                water_sound_speed: float, sediment_sound_speed: float) -> TravelTimeTable:
+    """Tabulate one-way times for offsets 0..rho_max and depths z_min..z_max (m), for
+    the water and sediment sound speeds (m/s)."""
     if h_ref <= 0:
         raise ValueError(f"travel-time table: element height above the interface must be "
                          f"positive, got {h_ref} m")
@@ -137,12 +130,5 @@ def build_table(h_ref: float, rho_max: float, z_min: float, z_max: float, step: 
     n_z = int(math.ceil((z_max - z_min) / step)) + 2
     time = np.empty((n_rho, n_z))
     eta = np.empty((n_rho, n_z))
-    _fill_table(h_ref, step, z_min, step, cw, cs, time, eta)
+    _fill_table(h_ref, step, z_min, step, water_sound_speed, sediment_sound_speed, time, eta)
     return TravelTimeTable(h_ref, step, z_min, step, time, eta)
-
-
-def straight_ray_depth(true_depth: float, cw: float, cs: float) -> float:
-    """Apparent depth (m) of a point at ``true_depth`` below the interface, vertically
-    under the sonar, when imaged with straight rays at the water speed: the sediment leg
-    takes true_depth / cs, which a water-speed imager maps to true_depth * cw / cs."""
-    return true_depth * cw / cs
