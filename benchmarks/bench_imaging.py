@@ -32,7 +32,7 @@ import tracemalloc
 
 import numpy as np
 
-from sim_device.point_echo import PointEchoSource
+from sim_device.environment_source import EnvironmentSource
 from sim_device.scene import load_scene
 from svss_daq.config import (HardwareConfig, ProcessingConfig, config_path, load,
                              load_with_text)
@@ -175,7 +175,7 @@ def main(argv=None) -> int:
                           "numba_threads": int(os.environ.get("NUMBA_NUM_THREADS", 0))
                           or os.cpu_count()}}
     scene = scene_for(340)
-    src = PointEchoSource(hw, scene)
+    src = EnvironmentSource(hw, scene)
     log.info("simulating pings")
     if not args.quick:
         pings = [src.ping(i) for i in range(90, 340)]

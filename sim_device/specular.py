@@ -16,7 +16,7 @@ exponent and gamma the sediment attenuation per Hz along the path.
 * Boundary k >= 2 (between sediment layers k-1 and k): the ray crosses the water
   (projector and receiver legs, with their image heights for multipath) and every
   layer above twice; it takes T = (1 + R)(1 - R) at each boundary crossed, R_coh of
-  boundary k, the layered-media spreading of :mod:`sim_device.refraction` and the
+  boundary k, the layered-media spreading of :mod:`sim_device.layered_rays` and the
   attenuation of each layer. Reverberation between boundaries is not modelled.
 """
 
@@ -32,7 +32,7 @@ from .acoustics import reflection_coefficient
 from .beams import BeamTable
 from .environment import Media
 from .multipath import CoherentPath, image_depth, leg_image
-from .refraction import ray_amplitude_terms, ray_tan, reflection
+from .layered_rays import ray_amplitude_terms, ray_tan, reflection
 
 
 @dataclass

@@ -34,10 +34,10 @@ import numba as nb
 import numpy as np
 import scipy.fft as sfft
 
-from svss_daq.conventions import ECHO_PHASE_SIGN, baseband_carrier
+from svss_daq.conventions import ECHO_PHASE_SIGN, baseband_carrier, remodulation
 from svss_daq.waveform import Waveform
 
-from .refraction import leg_extents, ray_amplitude_terms, ray_tan, reflection, table_ray_tan
+from .layered_rays import leg_extents, ray_amplitude_terms, ray_tan, reflection, table_ray_tan
 
 #: columns of an element-image row: x, y (m), height above the interface (m), direction
 #: (+1: leaves the element downwards), the surface factor R_s^n_s, seabed bounces n_b
@@ -351,7 +351,7 @@ class PulseSynthesiser:
         self.n_fft = sfft.next_fast_len(self.n_buf + n_pulse - 1)
         self.pulse_fft = sfft.fft(self.pulse_bb, self.n_fft)
         t = self.t_first + np.arange(self.n) / fs
-        self.remod = np.conj(baseband_carrier(t, self.fc))
+        self.remod = remodulation(t, self.fc)
 
     def buffer(self, n_channels: int) -> np.ndarray:
         return np.zeros((n_channels, self.n_buf), dtype=np.complex128)

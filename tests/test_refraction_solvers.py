@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim_device.refraction import solve_leg
+from sim_device.layered_rays import solve_leg
 from svss_proc.imaging.delays import one_way_time, vertical_slowness
 
 

@@ -19,7 +19,7 @@ from .directivity import cone_gate, piston_directivity, piston_radius_for_half_a
 from .interface import (band_limited_rms_roughness, coherent_reflection_coefficient,
                         critical_angle, eckart_factor, reflection_coefficient,
                         snell_grazing_angle, transmission_coefficient, transmitted_angle)
-from .noise import (ambient_noise_spectrum_level, band_noise_level, band_noise_rms_pressure,
+from .ambient_noise import (ambient_noise_spectrum_level, band_noise_level, band_noise_rms_pressure,
                     white_noise_rms_per_sample)
 from .sediments import Sediment, SedimentConfigError, load_sediments
 

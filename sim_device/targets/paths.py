@@ -6,7 +6,7 @@ interface) to the target centre:
 
 * **Buried** (centre in sediment medium m >= 1): the refracted ray through the water and
   the layers above, solved in a proven bracket by Brent's method
-  (:func:`sim_device.refraction.ray_tan`, Fermat's condition). Per leg: travel time,
+  (:func:`sim_device.layered_rays.ray_tan`, Fermat's condition). Per leg: travel time,
   layered-media spreading (source in water for the incident leg, in medium m for the
   scattered leg), plane-wave pressure transmission at each boundary crossed (downwards
   1 + R, upwards 1 - R, R the Rayleigh coefficient of that boundary on the ray) and the
@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from ..refraction import leg_extents, ray_amplitude_terms, ray_tan, reflection
+from ..layered_rays import leg_extents, ray_amplitude_terms, ray_tan, reflection
 
 #: leg kinds
 DIRECT, REFLECTED, REFRACTED = 0, 1, 2

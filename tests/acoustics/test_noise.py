@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from sim_device.acoustics.noise import (ambient_noise_spectrum_level, band_noise_level,
+from sim_device.acoustics.ambient_noise import (ambient_noise_spectrum_level, band_noise_level,
                                         band_noise_power, band_noise_rms_pressure,
                                         knudsen_level_1khz, thermal_noise_spectrum_level,
                                         white_noise_rms_per_sample)

@@ -11,9 +11,9 @@ import pytest
 from scipy.signal import welch
 
 from sim_device.acoustics import ambient_noise_spectrum_level
-from sim_device.acoustics.noise import band_noise_power
+from sim_device.acoustics.ambient_noise import band_noise_power
 from sim_device.environment_source import EnvironmentSource
-from sim_device.noise import band_power, knudsen_noise
+from sim_device.receiver_noise import band_power, knudsen_noise
 from sim_device.scene import load_scene
 from svss_daq.config import config_path
 from svss_daq.scaling import counts_per_upa

@@ -11,7 +11,7 @@ import pytest
 from scipy.optimize import minimize_scalar
 
 from sim_device.acoustics import reflection_coefficient
-from sim_device.refraction import (leg_extents, ray_tan, ray_terms, reflection,
+from sim_device.layered_rays import (leg_extents, ray_tan, ray_terms, reflection,
                                    solve_leg, table_ray_tan, two_medium_table)
 from sim_device.synthesis import ray_amplitude_terms, two_medium_terms
 

@@ -75,7 +75,7 @@ def test_scatterers_only_where_the_projector_can_see(hardware, sand):
     g = src.frame(i)
     s = src.scatterers(i, g)
     # every generated cell touches the cone's reach; nothing is made far away
-    reach0 = src._tx_reach(g)(0.0)[0]
+    reach0 = src.seabed.reach(g.tx, g.bore, np.flatnonzero(src.allowed.any(axis=1)))(0.0)[0]
     horiz = np.hypot(s.x - g.tx[0], s.y - g.tx[1])
     cell = sand.scattering.cell_m
     assert horiz.max() < reach0 + 2 * math.sqrt(2) * cell + 0.3 * 1.0

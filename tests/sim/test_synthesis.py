@@ -1,6 +1,6 @@
 """Echo synthesis: fractional-delay accumulation against an independent band-limited
-echo, the pulse as the digitiser sees it, the phase rotation, the beam tables, and the
-Foundation's point source reproduced."""
+echo, the pulse as the digitiser sees it, the phase rotation, the beam tables, a point
+scatterer's exact echo (written out here) reproduced, and noise and quantisation."""
 
 from __future__ import annotations
 
@@ -13,10 +13,12 @@ import pytest
 from sim_device.acoustics import piston_directivity, piston_radius_for_half_angle
 from sim_device.beams import beam_table
 from sim_device.environment_source import EnvironmentSource
-from sim_device.point_echo import PointEchoSource
 from sim_device.scene import PointTarget, load_scene
+from sim_device.track import ping_pose, truth_line
 from sim_device.synthesis import AA_PASS, AA_STOP, cis_cycles, digitised_pulse
 from svss_daq.config import config_path
+from svss_daq.frames import body_to_ned
+from svss_daq.geometry import array_geometry
 from svss_daq.scaling import counts_per_upa
 from svss_daq.waveform import make_waveform
 from svss_proc.conditioning import Conditioner
@@ -73,14 +75,44 @@ def test_point_echo_matches_an_independent_band_limited_echo(hardware, demo):
     assert checked >= 8
 
 
-def test_point_echo_images_like_the_foundation_source(hardware, demo):
-    # the matched-filter output (what the imager uses) is the point source's: the
+def exact_point_echo(hw, sc, i, target):
+    """A point scatterer's echo with the exact (not band-limited) pulse, in a homogeneous
+    lossless medium with hard beam cones: p0 10^(TS/20) / (r1 r2) s(t - (r1 + r2)/c),
+    its geometry written out here from the pose, the body-frame array and the line."""
+    nav = ping_pose(sc.track, hw, i, sc.scene.seed)
+    geo = array_geometry(hw)
+    rot = body_to_ned(nav.roll_rad, nav.pitch_rad, nav.heading_rad)
+    proj = hw.sequencer.projector_order[i % len(hw.sequencer.projector_order)]
+    tx = nav.ned + rot @ geo.projectors[proj]
+    rx = nav.ned + geo.receivers @ rot.T
+    bore = rot @ geo.boresight
+    xt = truth_line(sc.track).tile_to_ned(
+        np.array([target.along_m, target.cross_m, target.depth_m]))
+    r1 = np.linalg.norm(xt - tx)
+    r2 = np.linalg.norm(xt - rx, axis=1)
+    c = sc.medium.sound_speed_m_s
+    p0 = 10 ** (hw.waveform.source_level_db / 20)
+    wf = make_waveform(hw.waveform)
+    dig = hw.digitiser
+    t = dig.window_start_s - dig.group_delay_s + np.arange(dig.window_samples) / dig.sample_rate_hz
+    out = np.zeros((r2.size, t.size))
+    if (xt - tx) @ bore < r1 * math.cos(geo.projector_half_angle):
+        return out
+    seen = (xt - rx) @ bore >= r2 * math.cos(geo.receiver_half_angle)
+    for ch in np.flatnonzero(seen):
+        out[ch] = (p0 * 10 ** (target.target_strength_db / 20) / (r1 * r2[ch])
+                   * wf.real(t - (r1 + r2[ch]) / c))
+    return out
+
+
+def test_point_echo_images_like_the_exact_echo(hardware, demo):
+    # the matched-filter output (what the imager uses) is the exact echo's: the
     # digitiser's anti-alias filter only removes the pulse's out-of-band edges
     hw = hardware.value
-    sc = one_point(demo, PointTarget(along_m=5.0, cross_m=-0.1, depth_m=0.3,
-                                     target_strength_db=-20.0))
+    tgt = PointTarget(along_m=5.0, cross_m=-0.1, depth_m=0.3, target_strength_db=-20.0)
+    sc = one_point(demo, tgt)
     a = EnvironmentSource(hardware, sc).pressure(20)
-    b = PointEchoSource(hardware, sc).pressure(20)
+    b = exact_point_echo(hw, sc, 20, tgt)
     cond = Conditioner(hw.digitiser, make_waveform(hw.waveform), 1)
     cpu = counts_per_upa(hw.digitiser)
     ya, yb = cond(a * cpu).data, cond(b * cpu).data
@@ -93,6 +125,20 @@ def test_point_echo_images_like_the_foundation_source(hardware, demo):
     ratio = ya[rows, k[rows]] / yb[rows, k[rows]]
     assert np.all(np.abs(20 * np.log10(np.abs(ratio))) < 0.05)
     assert np.all(np.abs(np.angle(ratio)) < math.radians(1.0))
+
+
+def test_electronic_noise_level_and_quantisation(hardware, demo):
+    far = PointTarget(along_m=300.0, cross_m=0.0, depth_m=0.5, target_strength_db=0.0)
+    sc = dataclasses.replace(one_point(demo, far), noise=dataclasses.replace(
+        demo.noise, electronic_rms_counts=50.0, sea_state=None))
+    src = EnvironmentSource(hardware, sc)
+    ping = src.ping(0)
+    assert ping.samples.dtype == np.int32 and ping.samples.shape == (80, 1500)
+    assert abs(ping.samples.std() - 50.0) < 1.0
+    assert ping.config_id == hardware.id
+    again = EnvironmentSource(hardware, sc).ping(0).samples
+    np.testing.assert_array_equal(again, ping.samples)        # seeded by scene and ping
+    assert not np.array_equal(src.ping(1).samples, ping.samples)
 
 
 def test_outside_the_beams_is_silent(hardware, demo):

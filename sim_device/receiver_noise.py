@@ -13,7 +13,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.fft as sfft
 
-from .acoustics.noise import ambient_noise_spectrum_level, band_noise_power
+from svss_daq.scaling import counts_per_upa
+
+from .acoustics.ambient_noise import ambient_noise_spectrum_level, band_noise_power
 
 
 def knudsen_noise(rng: np.random.Generator, n_channels: int, n_samples: int, fs: float,
@@ -46,3 +48,34 @@ def band_power(sea_state: float | None, band: tuple[float, float] | None,
             p += float(band_noise_power(lo, hi, sea_state))
     p += electronic_upa_rms ** 2 * (f_high - f_low) / (fs / 2.0)
     return p
+
+
+class ReceiverNoise:
+    """The noise of a scene's receivers on the digitiser's grid: ambient (Knudsen) and
+    electronic, drawn per ping from the scene seed and the ping index."""
+
+    def __init__(self, noise, waveform, digitiser):
+        self.cfg = noise
+        self.fs = digitiser.sample_rate_hz
+        self.n_samples = digitiser.window_samples
+        self.counts_per_upa = counts_per_upa(digitiser)
+        self.electronic_upa = noise.electronic_rms_counts / self.counts_per_upa
+        f_lo = min(waveform.f_start_hz, waveform.f_stop_hz)
+        f_hi = max(waveform.f_start_hz, waveform.f_stop_hz)
+        #: noise power in the pulse's band, uPa^2
+        self.power = band_power(noise.sea_state, noise.ambient_band_hz, f_lo, f_hi,
+                                self.electronic_upa, self.fs)
+
+    def series(self, seed: int, i: int, n_channels: int) -> np.ndarray:
+        """Noise (uPa) of ping ``i``, (n_channels, n_samples)."""
+        shape = (n_channels, self.n_samples)
+        out = np.zeros(shape)
+        nz = self.cfg
+        if nz.sea_state is not None:
+            rng = np.random.default_rng([seed, i, 1])
+            out += knudsen_noise(rng, shape[0], shape[1], self.fs, nz.sea_state,
+                                 nz.ambient_band_hz)
+        if nz.electronic_rms_counts > 0:
+            rng = np.random.default_rng([seed, i])
+            out += rng.normal(0.0, self.electronic_upa, shape)
+        return out
