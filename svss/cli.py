@@ -118,7 +118,7 @@ def cmd_demo(args) -> int:
 def cmd_inspect(args) -> int:
     import json
 
-    from svss.inspect import format_summary, summarise
+    from svss.summary import format_summary, summarise
 
     summary = summarise(args.file)
     print(json.dumps(summary, indent=2) if args.json else format_summary(summary))

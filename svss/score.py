@@ -13,17 +13,68 @@ tile's volume are listed but not scored.
 from __future__ import annotations
 
 import dataclasses
-import tomllib
+from dataclasses import dataclass
 from pathlib import Path
 
-import h5py
 import numpy as np
 
 from sim_device.scene import load_scene
 from sim_device.track import truth_line
+from svss_daq.config import ConfigError, ProcessingConfig, loads
 from svss_daq.frames import TrackLine
-from svss_proc.products import detect
 from svss_proc import tiles
+from svss_proc.products import detect
+
+
+@dataclass
+class Score:
+    """Detections against ground truth. ``pairs``: (truth index, detection index,
+    distance m) one-to-one, nearest first; a detection within the radius of a true
+    target already detected by another is a ``duplicate``, not a false alarm."""
+    n_truth: int
+    n_detections: int
+    pairs: list[tuple[int, int, float]]
+    missed: list[int]
+    false_alarms: list[int]
+    duplicates: list[int]
+
+    @property
+    def hits(self) -> int:
+        return len(self.pairs)
+
+    @property
+    def probability_of_detection(self) -> float:
+        return self.hits / self.n_truth if self.n_truth else float("nan")
+
+    def summary(self) -> dict:
+        return {"truth": self.n_truth, "detections": self.n_detections, "hits": self.hits,
+                "misses": len(self.missed), "false_alarms": len(self.false_alarms),
+                "duplicates": len(self.duplicates),
+                "probability_of_detection": (self.probability_of_detection
+                                             if self.n_truth else None)}
+
+
+def score(detections_m: np.ndarray, truth_m: np.ndarray, radius_m: float) -> Score:
+    """Match detections (n, 3) to true targets (m, 3), positions (along, cross, depth) in
+    one frame (m): a pair is closer than ``radius_m`` (Euclidean); pairs are taken
+    nearest first, each target and each detection at most once."""
+    det = np.asarray(detections_m, dtype=np.float64).reshape(-1, 3)
+    truth = np.asarray(truth_m, dtype=np.float64).reshape(-1, 3)
+    dist = np.linalg.norm(truth[:, None, :] - det[None, :, :], axis=2)
+    ti, di = np.nonzero(dist <= radius_m)
+    order = np.argsort(dist[ti, di], kind="stable")
+    used_t, used_d, pairs = set(), set(), []
+    for t, d in zip(ti[order], di[order]):
+        if t not in used_t and d not in used_d:
+            used_t.add(int(t))
+            used_d.add(int(d))
+            pairs.append((int(t), int(d), float(dist[t, d])))
+    near = (dist <= radius_m).any(axis=0) if truth.size else np.zeros(len(det), bool)
+    rest = [d for d in range(len(det)) if d not in used_d]
+    return Score(n_truth=len(truth), n_detections=len(det), pairs=pairs,
+                 missed=[t for t in range(len(truth)) if t not in used_t],
+                 false_alarms=[d for d in rest if not near[d]],
+                 duplicates=[d for d in rest if near[d]])
 
 
 def scene_truth(scene) -> list[dict]:
@@ -51,16 +102,19 @@ def _tile_line(attrs: dict) -> TrackLine:
                      float(attrs["line_heading_rad"]), float(attrs["interface_down_m"]))
 
 
-def _radius_from_tile(path: Path) -> float | None:
-    with h5py.File(path, "r") as f:
-        if "provenance/processing_config_toml" not in f:
-            return None
-        text = f["provenance/processing_config_toml"][()]
-    text = text.decode() if isinstance(text, bytes) else str(text)
-    try:
-        return float(tomllib.loads(text)["products"]["detection"]["match_radius_m"])
-    except (KeyError, tomllib.TOMLDecodeError, TypeError, ValueError):
+def _radius_from_tile(path: Path, header: dict) -> float | None:
+    """The match radius the tile was processed with (its stored processing
+    configuration), None when it has no detection settings."""
+    text = header.get("processing_config_toml")
+    if text is None:
         return None
+    try:
+        proc = loads(ProcessingConfig, text, f"{path}:/provenance/processing_config_toml")
+    except ConfigError as exc:
+        raise ValueError(f"{exc}; give --radius") from None
+    if proc.products is None:
+        return None
+    return float(proc.products.detection.match_radius_m)
 
 
 def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
@@ -73,7 +127,7 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
     if not paths:
         raise FileNotFoundError(f"{tiles_dir}: no tile_*.h5 files")
     if radius_m is None:
-        radius_m = _radius_from_tile(paths[0])
+        radius_m = _radius_from_tile(paths[0], tiles.read_tile_header(paths[0]))
         if radius_m is None:
             raise ValueError(f"{paths[0]}: its processing configuration has no "
                              "products.detection.match_radius_m; give --radius")
@@ -84,10 +138,10 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
     det_rows, det_ned = [], []
     covered = np.zeros(len(truth), dtype=bool)
     for path in paths:
-        table, attrs = tiles.read_detections(path)
+        header = tiles.read_tile_header(path)
+        table, attrs = header["detections"], header["attrs"]
         line = _tile_line(attrs)
-        with h5py.File(path, "r") as f:
-            axes = [f[d][()] for d in tiles.DIMS]
+        axes = [header[d] for d in tiles.DIMS]
         voxel = float(attrs["voxel_m"])
         t_tile = line.ned_to_tile(truth_ned)
         inside = np.ones(len(truth), dtype=bool)
@@ -104,7 +158,7 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
                                  **{k: row[k].item() for k in detect.DTYPE.names}})
     det_ned = np.concatenate(det_ned) if det_ned else np.zeros((0, 3))
     scored = np.flatnonzero(covered)
-    result = detect.score(det_ned, truth_ned[scored], radius_m)
+    result = score(det_ned, truth_ned[scored], radius_m)
     for t in truth:
         t["status"] = "outside"
     for t in scored:

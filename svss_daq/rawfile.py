@@ -179,6 +179,22 @@ class RawRunWriter:
         self.close()
 
 
+def svss_format(path: str | Path) -> str | None:
+    """The ``svss_format`` root attribute of an SVSS HDF5 file (a raw run or a tile),
+    None when it has none; also reads files a killed writer left open."""
+    path = Path(path)
+    if not path.is_file():
+        raise RawFileError(f"{path}: no such file")
+    for kw in ({}, {"libver": "latest", "swmr": True}):
+        try:
+            with h5py.File(path, "r", **kw) as f:
+                fmt = f.attrs.get("svss_format")
+            return fmt.decode() if isinstance(fmt, bytes) else fmt
+        except OSError as exc:
+            err = exc
+    raise RawFileError(f"{path}: not an HDF5 file ({err})")
+
+
 class RawRunReader:
     """Read a raw-run file, also one whose writer died (up to its last flush)."""
 
@@ -228,6 +244,25 @@ class RawRunReader:
 
     def __len__(self) -> int:
         return self.n_pings
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(channels, samples per ping) of the recorded pings."""
+        return tuple(self.beam["backscatter_r"].shape[1:])
+
+    def ping_table(self) -> dict[str, np.ndarray]:
+        """Per-ping records of every ping: ``ping_time`` (ns), ``ping_sequence``,
+        ``transmit_projector``, ``window_start_ns``."""
+        return dict(self._meta)
+
+    def nav_table(self) -> dict[str, np.ndarray]:
+        """Navigation of every ping: ``time1`` (ns) and the :class:`NavSnapshot` fields."""
+        return dict(self._nav)
+
+    @property
+    def provenance(self) -> dict:
+        """The writer's provenance attributes (empty when the file has none)."""
+        return dict(self._f["Provenance"].attrs) if "Provenance" in self._f else {}
 
     def nav(self, i: int) -> NavSnapshot:
         kw = {k: self._nav[k][i].item() for k in NAV_FIELDS[1:]}

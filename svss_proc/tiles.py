@@ -171,33 +171,62 @@ def _text(v) -> str:
     return v.decode() if isinstance(v, bytes) else str(v)
 
 
+def _open_tile(path: Path) -> h5py.File:
+    """Open a tile file for reading, checking its format and version."""
+    try:
+        f = h5py.File(path, "r")
+    except (OSError, FileNotFoundError) as exc:
+        raise ValueError(f"{path}: not a readable HDF5 file ({exc})") from None
+    fmt = _text(f.attrs.get("svss_format", ""))
+    if fmt != TILE_FORMAT:
+        f.close()
+        raise ValueError(f"{path}: root attribute 'svss_format' is {fmt!r}; expected "
+                         f"{TILE_FORMAT!r}")
+    version = int(f.attrs.get("svss_format_version", -1))
+    if version not in READABLE_VERSIONS:
+        f.close()
+        raise ValueError(f"{path}: svss_format_version {version}; this software reads "
+                         f"versions {READABLE_VERSIONS}")
+    return f
+
+
+def _header(f: h5py.File) -> dict:
+    out = {k: f[k][()] for k in (*DIMS, "ping_sequence")}
+    out["attrs"] = dict(f.attrs)
+    out["detections"] = _read_detections(f)
+    out["products"] = [k for k in ("background", "drc", *MIPS, "detections") if k in f]
+    if "background" in f:
+        out["background_attrs"] = {k: v for k, v in f["background"].attrs.items()
+                                   if k != "DIMENSION_LIST"}
+    for k in ("hardware_config_toml", "processing_config_toml"):
+        if f"provenance/{k}" in f:
+            out[k] = _text(f[f"provenance/{k}"][()])
+    return out
+
+
+def read_tile_header(path: str | Path) -> dict:
+    """Everything of a tile file but its volumes: the axes (``along``, ``cross``,
+    ``depth``), ``ping_sequence``, ``attrs``, ``detections``, the names of the
+    ``products`` it holds, ``background_attrs`` and the configuration texts."""
+    with _open_tile(Path(path)) as f:
+        return _header(f)
+
+
 def read_tile(path: str | Path) -> dict:
-    """Read a tile file into plain arrays: image, magnitude, along, cross, depth,
-    ping_sequence, attrs and, when the file has them, background, drc (decoded to
-    0..1), depth_gain_db, the MIPs (``mip_depth``, ``mip_cross``, ``mip_along``),
-    ``detections`` (a table of :data:`svss_proc.products.detect.DTYPE` rows) and the
-    configuration texts (``hardware_config_toml``, ``processing_config_toml``)."""
-    path = Path(path)
-    with h5py.File(path, "r") as f:
-        if f.attrs.get("svss_format") != TILE_FORMAT:
-            raise ValueError(f"{path}: root attribute 'svss_format' is "
-                             f"{f.attrs.get('svss_format')!r}; expected {TILE_FORMAT!r}")
-        version = int(f.attrs.get("svss_format_version", -1))
-        if version not in READABLE_VERSIONS:
-            raise ValueError(f"{path}: svss_format_version {version}; this software reads "
-                             f"versions {READABLE_VERSIONS}")
-        out = {k: f[k][()] for k in ("image", "magnitude", *DIMS, "ping_sequence")}
-        out["attrs"] = dict(f.attrs)
+    """Read a tile file into plain arrays: :func:`read_tile_header` plus image,
+    magnitude and, when the file has them, background, drc (decoded to 0..1),
+    depth_gain_db and the MIPs (``mip_depth``, ``mip_cross``, ``mip_along``)."""
+    with _open_tile(Path(path)) as f:
+        out = _header(f)
+        out["image"] = f["image"][()]
+        out["magnitude"] = (f["magnitude"][()] if "magnitude" in f
+                            else np.abs(out["image"]))
         for k in ("background", "depth_gain_db", *MIPS):
             if k in f:
                 out[k] = f[k][()]
         if "drc" in f:
             ds = f["drc"]
             out["drc"] = ds[()].astype(np.float32) * np.float32(ds.attrs["scale_factor"])
-        out["detections"] = _read_detections(f)
-        for k in ("hardware_config_toml", "processing_config_toml"):
-            if f"provenance/{k}" in f:
-                out[k] = _text(f[f"provenance/{k}"][()])
     return out
 
 
@@ -214,7 +243,5 @@ def _read_detections(f: h5py.File) -> np.ndarray:
 
 def read_detections(path: str | Path) -> tuple[np.ndarray, dict]:
     """The detection table of a tile file and the tile's root attributes."""
-    with h5py.File(path, "r") as f:
-        if f.attrs.get("svss_format") != TILE_FORMAT:
-            raise ValueError(f"{path}: not an SVSS tile file")
-        return _read_detections(f), dict(f.attrs)
+    h = read_tile_header(path)
+    return h["detections"], h["attrs"]

@@ -1,7 +1,7 @@
 """Diffuse bottom backscatter after APL-UW TR 9407 (PHYSICS.md section 4).
 
 σ_b(θ) = σ_br(θ) + σ_bv(θ), every cross section linear, per unit area and solid angle
-(backscattering strength = 10 log10 σ; see :mod:`.decibels`).
+(backscattering strength = 10 log10 σ; see :mod:`svss_daq.decibels`).
 
 Roughness spectrum: W(K) = w2 K^−γ (K rad/m, w2 in m^(4−γ)), 2 < γ < 4, α = γ/2 − 1.
 

@@ -8,7 +8,7 @@
   taper of given width centred on the edge (gain ½ at the half-angle; width 0 gives the
   hard edge with the boundary itself inside).
 
-Angles in radians, frequency Hz, speeds m/s, lengths m. dB helpers: :mod:`.decibels`
+Angles in radians, frequency Hz, speeds m/s, lengths m. dB helpers: :mod:`svss_daq.decibels`
 (20 log10 for these amplitude gains).
 """
 

@@ -1,4 +1,4 @@
-"""Contacts in the background-normalised volume, and scoring against ground truth.
+"""Contacts in the background-normalised volume.
 
 Detection (docs/products.md): voxels whose normalised level (dB re background) reaches
 ``threshold_db`` are grouped into 26-connected regions; regions of fewer than
@@ -15,17 +15,18 @@ that a voxel reaches ``T`` dB is ``2 ** -(10 ** (T / 10))``: 1.7e-5 at 12 dB, 2.
 14 dB, 3e-10 at 15 dB; multiply by a tile's 7.5 million voxels (fewer independent
 resolution cells in a real image) for the expected false voxels per tile.
 
-This module never sees the truth of a scene; :func:`score` compares positions given
-to it.
+This module never sees the truth of a scene: scoring against ground truth is the
+``svss score`` command's (:mod:`svss.score`).
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
+
+from svss_daq.decibels import amplitude_to_db
 
 log = logging.getLogger(__name__)
 
@@ -126,8 +127,8 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
     for row, c in zip(out, kept):
         p = c["peak"]
         row["along_m"], row["cross_m"], row["depth_m"] = c["pos"]
-        row["peak_db"] = _db(mag[p])
-        row["background_db"] = _db(background[p])
+        row["peak_db"] = amplitude_to_db(mag[p])
+        row["background_db"] = amplitude_to_db(background[p])
         row["excess_db"] = c["excess"]
         ext = (c["hi"] - c["lo"]) * np.asarray(voxel)
         row["extent_along_m"], row["extent_cross_m"], row["extent_depth_m"] = ext
@@ -135,59 +136,3 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
     log.debug("%d regions above %.1f dB, %d of at least %d voxels, %d sidelobes, "
               "%d contacts", n, threshold_db, keep.size, min_voxels, n_sidelobes, out.size)
     return out
-
-
-def _db(x: float) -> float:
-    x = float(abs(x))
-    return 20.0 * np.log10(x) if x > 0 else float("-inf")
-
-
-@dataclass
-class Score:
-    """Detections against ground truth. ``pairs``: (truth index, detection index,
-    distance m) one-to-one, nearest first; a detection within the radius of a true
-    target already detected by another is a ``duplicate``, not a false alarm."""
-    n_truth: int
-    n_detections: int
-    pairs: list[tuple[int, int, float]]
-    missed: list[int]
-    false_alarms: list[int]
-    duplicates: list[int]
-
-    @property
-    def hits(self) -> int:
-        return len(self.pairs)
-
-    @property
-    def probability_of_detection(self) -> float:
-        return self.hits / self.n_truth if self.n_truth else float("nan")
-
-    def summary(self) -> dict:
-        return {"truth": self.n_truth, "detections": self.n_detections, "hits": self.hits,
-                "misses": len(self.missed), "false_alarms": len(self.false_alarms),
-                "duplicates": len(self.duplicates),
-                "probability_of_detection": (self.probability_of_detection
-                                             if self.n_truth else None)}
-
-
-def score(detections_m: np.ndarray, truth_m: np.ndarray, radius_m: float) -> Score:
-    """Match detections (n, 3) to true targets (m, 3), positions (along, cross, depth) in
-    one frame (m): a pair is closer than ``radius_m`` (Euclidean); pairs are taken
-    nearest first, each target and each detection at most once."""
-    det = np.asarray(detections_m, dtype=np.float64).reshape(-1, 3)
-    truth = np.asarray(truth_m, dtype=np.float64).reshape(-1, 3)
-    dist = np.linalg.norm(truth[:, None, :] - det[None, :, :], axis=2)
-    ti, di = np.nonzero(dist <= radius_m)
-    order = np.argsort(dist[ti, di], kind="stable")
-    used_t, used_d, pairs = set(), set(), []
-    for t, d in zip(ti[order], di[order]):
-        if t not in used_t and d not in used_d:
-            used_t.add(int(t))
-            used_d.add(int(d))
-            pairs.append((int(t), int(d), float(dist[t, d])))
-    near = (dist <= radius_m).any(axis=0) if truth.size else np.zeros(len(det), bool)
-    rest = [d for d in range(len(det)) if d not in used_d]
-    return Score(n_truth=len(truth), n_detections=len(det), pairs=pairs,
-                 missed=[t for t in range(len(truth)) if t not in used_t],
-                 false_alarms=[d for d in rest if not near[d]],
-                 duplicates=[d for d in rest if near[d]])

@@ -21,6 +21,7 @@ from matplotlib.cm import ScalarMappable  # noqa: E402
 from matplotlib.colors import Normalize  # noqa: E402
 
 from svss_daq.config import ProductsConfig  # noqa: E402
+from svss_daq.decibels import amplitude_to_db_floored  # noqa: E402
 
 from .drc import compress  # noqa: E402
 from ..imaging.grid import TileGrid  # noqa: E402
@@ -28,15 +29,6 @@ from ..imaging.grid import TileGrid  # noqa: E402
 log = logging.getLogger(__name__)
 
 CMAP = "magma"
-
-
-def db(x: np.ndarray, floor_db: float = -300.0) -> np.ndarray:
-    """20 log10 |x| with a floor for zeros (no log of zero)."""
-    mag = np.abs(x)
-    out = np.full(mag.shape, floor_db, dtype=np.float64)
-    pos = mag > 0
-    out[pos] = 20.0 * np.log10(mag[pos])
-    return np.maximum(out, floor_db)
 
 
 def _edges(axis: np.ndarray, voxel_m: float) -> tuple[float, float]:
@@ -61,7 +53,8 @@ def mip_png(path: str | Path, image: np.ndarray, grid: TileGrid, title: str,
     """Write the three maximum intensity projections of |image| (dB re its peak)."""
     mag = np.abs(image)
     peak = mag.max()
-    rel = db(mag / peak) if peak > 0 else np.full(mag.shape, -dynamic_range_db)
+    rel = (amplitude_to_db_floored(mag / peak, -300.0) if peak > 0
+           else np.full(mag.shape, -dynamic_range_db))
     v = grid.voxel_m
     ea, ec, ed = _edges(grid.along, v), _edges(grid.cross, v), _edges(grid.depth, v)
     fig, axes = plt.subplots(3, 1, figsize=(10, 9), constrained_layout=True,

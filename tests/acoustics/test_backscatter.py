@@ -16,7 +16,7 @@ from sim_device.acoustics.backscatter import (BLEND_CENTRE, blend_weight, bottom
                                               sigma_interface, sigma_kirchhoff,
                                               sigma_perturbation, sigma_total, sigma_volume,
                                               volume_strength_from_sigma2)
-from sim_device.acoustics.decibels import power_to_db
+from svss_daq.decibels import power_to_db
 from sim_device.acoustics.interface import reflection_coefficient, vertical_wavenumber_ratio
 from sim_device.acoustics.sediments import Sediment
 

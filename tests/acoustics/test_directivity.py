@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.special import j1
 
-from sim_device.acoustics.decibels import (amplitude_to_db, db_to_amplitude, db_to_power,
+from svss_daq.decibels import (amplitude_to_db, db_to_amplitude, db_to_power,
                                            power_to_db)
 from sim_device.acoustics.directivity import (cone_gate, piston_directivity,
                                               piston_first_null, piston_radius_for_half_angle,

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from svss_daq.config import ProcessingConfig, config_path, load
-from svss_proc.products.detect import detect, score
+from svss.score import score
+from svss_proc.products.detect import detect
 from svss_proc.products.drc import level_db, normalise
 from svss_proc.products.background import median_exact
 from svss_proc.products.chain import compute_products

@@ -10,28 +10,21 @@ import json
 import math
 from pathlib import Path
 
-import h5py
 import numpy as np
 
 from svss_daq import rawfile
+from svss_daq.decibels import amplitude_to_db
 from svss_proc import tiles
 
 
 def file_kind(path: str | Path) -> str:
     """``"tile"`` or ``"raw"`` from the file's ``svss_format`` attribute."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
     try:
-        with h5py.File(path, "r", libver="latest", swmr=True) as f:
-            fmt = f.attrs.get("svss_format")
-    except OSError:
-        try:
-            with h5py.File(path, "r") as f:
-                fmt = f.attrs.get("svss_format")
-        except OSError as exc:
-            raise ValueError(f"{path}: not an HDF5 file ({exc})") from None
-    fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
+        fmt = rawfile.svss_format(path)
+    except rawfile.RawFileError as exc:
+        if not Path(path).is_file():
+            raise FileNotFoundError(str(exc)) from None
+        raise ValueError(str(exc)) from None
     if fmt == tiles.TILE_FORMAT:
         return "tile"
     if fmt == rawfile.FORMAT:
@@ -56,7 +49,9 @@ def _plain(v):
 
 
 def _db(x: float) -> float | None:
-    return 20.0 * math.log10(x) if x > 0 and math.isfinite(x) else None
+    """The level of an amplitude in dB, None where it has none (zero, not finite)."""
+    v = float(amplitude_to_db(x)) if math.isfinite(x) else math.nan
+    return v if math.isfinite(v) else None
 
 
 def _axis(values: np.ndarray) -> dict:
@@ -68,21 +63,18 @@ def _axis(values: np.ndarray) -> dict:
 def summarise_tile(path: str | Path) -> dict:
     """Identity, grid, pings, image level, products and detections of a tile file."""
     path = Path(path)
-    with h5py.File(path, "r") as f:
-        attrs = {k: _plain(v) for k, v in f.attrs.items()}
-        axes = {d: f[d][()] for d in tiles.DIMS}
-        pings = f["ping_sequence"][()]
-        mag = f["magnitude"][()] if "magnitude" in f else np.abs(f["image"][()])
-        bg = f["background"] if "background" in f else None
-        bg_attrs = {k: _plain(v) for k, v in bg.attrs.items()
-                    if k not in ("DIMENSION_LIST",)} if bg is not None else {}
-        bg_med = None
-        if bg is not None:
-            b = bg[()]
-            b = b[np.isfinite(b) & (b > 0)]
-            bg_med = _db(float(np.median(b))) if b.size else None
-        products = [k for k in ("background", "drc", *tiles.MIPS, "detections") if k in f]
-    det, _ = tiles.read_detections(path)
+    t = tiles.read_tile(path)
+    attrs = {k: _plain(v) for k, v in t["attrs"].items()}
+    axes = {d: t[d] for d in tiles.DIMS}
+    pings = t["ping_sequence"]
+    mag = t["magnitude"]
+    bg_attrs = {k: _plain(v) for k, v in t.get("background_attrs", {}).items()}
+    bg_med = None
+    if "background" in t:
+        b = t["background"]
+        b = b[np.isfinite(b) & (b > 0)]
+        bg_med = _db(float(np.median(b))) if b.size else None
+    det = t["detections"]
     peak_idx = np.unravel_index(int(np.argmax(mag)), mag.shape) if mag.size else None
     nonzero = mag[mag > 0]
     out = {
@@ -106,13 +98,13 @@ def summarise_tile(path: str | Path) -> dict:
             if peak_idx is not None else None,
             "median_db_re_upa": _db(float(np.median(nonzero))) if nonzero.size else None,
         },
-        "products": products,
+        "products": t["products"],
         "background": ({"method": bg_attrs.get("background_method"),
                         "kernel_voxels": bg_attrs.get("background_kernel_voxels"),
                         "kernel_m": bg_attrs.get("background_kernel_m"),
                         "boundary": bg_attrs.get("background_boundary"),
                         "max_error_db": bg_attrs.get("background_max_error_db"),
-                        "median_db_re_upa": bg_med} if bg is not None else None),
+                        "median_db_re_upa": bg_med} if "background" in t else None),
         "detections": [{k: _plain(row[k]) for k in det.dtype.names} for row in det],
         "provenance": {k: attrs.get(k) for k in ("software_name", "software_version",
                                                  "creation_time_utc", "hardware_config_id",
@@ -129,21 +121,19 @@ def summarise_raw(path: str | Path) -> dict:
     with rawfile.RawRunReader(path) as run:
         n = len(run)
         hw = run.hardware
-        beam = run.beam
-        f = beam.file
-        times, seq, proj = (beam[k][:n] for k in ("ping_time", "ping_sequence",
+        per_ping = run.ping_table()
+        times, seq, proj = (per_ping[k] for k in ("ping_time", "ping_sequence",
                                                   "transmit_projector"))
-        nav = {k: f["Platform"][k][:n] for k in ("time1", "north_m", "east_m",
-                                                 "heading_rad", "altitude_m", "quality")}
+        nav = run.nav_table()
         gaps = int(np.count_nonzero(np.diff(seq) != 1)) if n > 1 else 0
+        channels, samples = run.shape
         out = {
             "kind": "raw", "file": str(path), "clean": run.clean,
             "format_version": _plain(run.attrs.get("svss_format_version")),
             "run_attrs": {k: _plain(v) for k, v in run.attrs.items()
                           if k not in ("Conventions", "svss_format", "svss_format_version")},
             "hardware": {"name": hw.value.name, "config_id": hw.id,
-                         "channels": int(beam["backscatter_r"].shape[1]),
-                         "samples_per_ping": int(beam["backscatter_r"].shape[2]),
+                         "channels": int(channels), "samples_per_ping": int(samples),
                          "sample_rate_hz": run.sample_rate_hz},
             "pings": {"n": n, "first_sequence": int(seq[0]) if n else None,
                       "last_sequence": int(seq[-1]) if n else None,
@@ -165,8 +155,8 @@ def summarise_raw(path: str | Path) -> dict:
                 "rms_counts": float(np.sqrt(np.mean(s.astype(np.float64) ** 2))),
                 "peak_counts": int(np.abs(s).max()),
                 "peak_fraction_of_full_scale": float(np.abs(s).max() / full)}
-        if "Provenance" in f:
-            out["provenance"] = {k: _plain(v) for k, v in f["Provenance"].attrs.items()}
+        if run.provenance:
+            out["provenance"] = {k: _plain(v) for k, v in run.provenance.items()}
     return out
 
 

@@ -2,7 +2,8 @@
 
 Power-like quantities (scattering cross sections σ, intensities, spectral densities)
 use 10·log10; amplitude-like quantities (pressures, directivity gains, reflection
-coefficients) use 20·log10. Zero maps to −inf without a floating-point warning.
+coefficients) use 20·log10. Zero maps to −inf without a floating-point warning. The one definition of decibels in
+the project: the simulator, the products and the tool all use it.
 """
 
 from __future__ import annotations
@@ -10,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["power_to_db", "db_to_power", "amplitude_to_db", "db_to_amplitude"]
+__all__ = ["power_to_db", "db_to_power", "amplitude_to_db", "db_to_amplitude",
+           "amplitude_to_db_floored"]
 
 
 def power_to_db(value: ArrayLike) -> np.ndarray:
@@ -35,3 +37,8 @@ def amplitude_to_db(value: ArrayLike) -> np.ndarray:
 def db_to_amplitude(level_db: ArrayLike) -> np.ndarray:
     """Inverse of :func:`amplitude_to_db`: 10**(level/20)."""
     return np.power(10.0, np.asarray(level_db, dtype=float) / 20.0)
+
+
+def amplitude_to_db_floored(value: ArrayLike, floor_db: float) -> np.ndarray:
+    """:func:`amplitude_to_db` limited below at ``floor_db`` (zeros give the floor)."""
+    return np.maximum(amplitude_to_db(value), floor_db)
