@@ -438,12 +438,6 @@ class Navigator:
                         f.latitude_deg, f.longitude_deg)
         self.fixes.append(f)
 
-    def add_heading(self, h: HeadingSample) -> None:
-        self.headings.append(h)
-
-    def add_dvl(self, d: DvlSample) -> None:
-        self.dvl.append(d)
-
     def add_nmea(self, records: Iterable) -> None:
         fixes, heads = samples_from_nmea(records, self.cfg.course_min_speed_m_s)
         for f in fixes:

@@ -606,11 +606,6 @@ class Pd0StreamParser:
         """Bytes held waiting for more data."""
         return len(self._buf)
 
-    @property
-    def stream_offset(self) -> int:
-        """Stream offset of the first byte not yet consumed."""
-        return self._base
-
     def feed(self, data) -> list:
         """Add bytes; return the ensembles (:class:`Pd0Ensemble`) they complete, in order."""
         try:
