@@ -112,8 +112,8 @@ def imager_class(pkg: str) -> type:
         try:
             return importlib.import_module(name).TileImager
         except ModuleNotFoundError as exc:
-            if exc.name != name:               # a real import error inside the module
-                raise
+            if not exc.name or not (name + ".").startswith(exc.name + "."):
+                raise                          # a real import error inside the module
     raise RuntimeError(f"no TileImager in {pkg} ({', '.join(IMAGER_MODULES)})")
 
 
@@ -125,7 +125,7 @@ def side_at(rev: str, label: str, workdir: pathlib.Path) -> Side:
     tmp = top / "_archive"
     tmp.mkdir(parents=True)
     with tarfile.open(fileobj=io.BytesIO(git("archive", sha, *PACKAGES))) as tar:
-        tar.extractall(tmp)
+        tar.extractall(tmp, **({"filter": "data"} if hasattr(tarfile, "data_filter") else {}))
     for pkg in PACKAGES:
         for f in sorted((tmp / pkg).rglob("*.py")):
             dest = top / f"{pkg}_{label}" / f.relative_to(tmp / pkg)
