@@ -1,5 +1,5 @@
-"""The backprojection kernels against a plain float64 summation written here, for every
-interpolation, precision and delay option."""
+"""The backprojection kernels against a plain float64 summation (tests/references.py),
+for every interpolation, precision and delay option."""
 
 from __future__ import annotations
 
@@ -7,7 +7,6 @@ import math
 
 import numpy as np
 import pytest
-from scipy.optimize import minimize_scalar
 
 from svss_daq.ping import SampleAxis
 from svss_proc.conditioning import Conditioned
@@ -15,65 +14,9 @@ from svss_proc.imaging.cpu_kernel import run_ping
 from svss_proc.imaging.delays import build_table
 from svss_proc.imaging.imager import along_reach
 from svss_proc.imaging.kernel_args import DelayModel, prepare
+from tests.references import direct_sum
 
 CW, CS = 1500.0, 1767.0
-
-
-def keys(s):
-    """Keys cubic convolution kernel, a = -1/2."""
-    s = abs(s)
-    if s < 1:
-        return 1.5 * s**3 - 2.5 * s**2 + 1
-    if s < 2:
-        return -0.5 * s**3 + 2.5 * s**2 - 4 * s + 2
-    return 0.0
-
-
-def sample(y, u, interp):
-    n = y.size
-    if interp == "nearest":
-        i = int(np.floor(u + 0.5))
-        return y[i] if 0 <= i < n else None
-    if interp == "linear":
-        i = int(np.floor(u))
-        return y[i] + (u - i) * (y[i + 1] - y[i]) if 0 <= i < n - 1 else None
-    i = int(np.floor(u))
-    if not 1 <= i < n - 2:
-        return None
-    return sum(keys(u - j) * y[j] for j in range(i - 1, i + 3))
-
-
-def travel_time(p, q, mode):
-    """One-way time between an element p above the interface (z < 0) and a voxel q."""
-    if mode == "straight" or q[2] <= 0:
-        return np.linalg.norm(q - p) / CW
-    rho = np.hypot(*(q[:2] - p[:2]))
-    h, z = -p[2], q[2]
-    res = minimize_scalar(lambda x: np.hypot(x, h) / CW + np.hypot(rho - x, z) / CS,
-                          bounds=(0, rho), method="bounded", options={"xatol": 1e-12})
-    return res.fun
-
-
-def direct_sum(data, t0, dt, fc, tx, rx, bore, cos_tx, cos_rx, along, cross, depth, gating,
-               interp, mode, apod):
-    img = np.zeros((along.size, cross.size, depth.size), dtype=np.complex128)
-    for i, x in enumerate(along):
-        for j, y in enumerate(cross):
-            for k, z in enumerate(depth):
-                v = np.array([x, y, z])
-                r1 = np.linalg.norm(v - tx)
-                if gating and (v - tx) @ bore < r1 * cos_tx:
-                    continue
-                t1 = travel_time(tx, v, mode)
-                for ch in range(rx.shape[0]):
-                    r2 = np.linalg.norm(v - rx[ch])
-                    if gating and (v - rx[ch]) @ bore < r2 * cos_rx:
-                        continue
-                    tau = t1 + travel_time(rx[ch], v, mode)
-                    s = sample(data[ch], (tau - t0) / dt, interp)
-                    if s is not None:
-                        img[i, j, k] += apod[ch] * s * np.exp(2j * np.pi * fc * tau)
-    return img
 
 
 def scene(rng, nch=6, nt=300, dt=16e-6):
@@ -107,7 +50,7 @@ def test_kernel_matches_direct_sum(interp, precision, mode):
     apod = rng.uniform(0.5, 1.5, rx.shape[0])
     cos_tx, cos_rx = math.cos(math.radians(25)), math.cos(math.radians(50))
     ref = direct_sum(data.astype(np.complex128), t0, dt, fc, tx, rx, bore, cos_tx, cos_rx,
-                     along, cross, depth, True, interp, mode, apod)
+                     along, cross, depth, True, interp, mode, apod, CW, CS)
     ft = np.float32 if precision == "float32" else np.float64
     cond = Conditioned.from_baseband(data, SampleAxis(t0, dt, data.shape[1]), fc)
     kd = prepare(cond, interp, ft)
@@ -143,7 +86,7 @@ def test_window_path_matches_direct_sum(interp, mode):
                + np.linalg.norm(v[..., None, :] - rx, axis=-1)) / CW / dt
     assert np.abs(two_way[:, :, 16:] - two_way[:, :, :-16]).max() < 30
     ref = direct_sum(data.astype(np.complex128), t0, dt, fc, tx, rx, bore, cos_tx, cos_rx,
-                     along, cross, depth, True, interp, mode, np.ones(rx.shape[0]))
+                     along, cross, depth, True, interp, mode, np.ones(rx.shape[0]), CW, CS)
     cond = Conditioned.from_baseband(data, SampleAxis(t0, dt, data.shape[1]), fc)
     kd = prepare(cond, interp, np.float32)
     re, im = np.zeros(ref.shape, np.float32), np.zeros(ref.shape, np.float32)
@@ -171,7 +114,8 @@ def test_partial_along_range_and_no_gating():
     assert not part[0][:2].any() and not part[0][5:].any()
     np.testing.assert_allclose(part[0][2:5], full[0][2:5], rtol=1e-12)
     ref = direct_sum(data.astype(np.complex128), 1e-3, 16e-6, 27.5e3, tx, rx, bore, 0.9, 0.6,
-                     along, cross, depth, False, "linear", "straight", np.ones(rx.shape[0]))
+                     along, cross, depth, False, "linear", "straight", np.ones(rx.shape[0]),
+                     CW, CW)
     np.testing.assert_allclose(full[0] + 1j * full[1], ref, atol=1e-6 * np.abs(ref).max())
 
 

@@ -1,4 +1,6 @@
-"""Array geometry against the seed paper's description of the SVSS array."""
+"""Array geometry against the seed paper's description of the SVSS array, the element
+positions written out from the documented layout and the rotation in closed form
+(tests/references.py)."""
 
 from __future__ import annotations
 
@@ -6,6 +8,9 @@ import numpy as np
 
 from svss_daq.frames import TrackLine, body_to_ned
 from svss_daq.geometry import array_geometry, section_positions
+from tests.references import body_to_ned_written_out, receivers_written_out
+
+LEVER_ARRAY = np.array([3.0, 0.0, 0.5])      # config/hardware.toml [lever_arms] array_m
 
 
 def test_eighty_channels_at_9_1_cm(hardware):
@@ -55,14 +60,49 @@ def test_six_projectors_forward_22_9_cm_apart(hardware):
     np.testing.assert_allclose(geo.boresight, [0, 0, 1])
 
 
+def test_elements_at_the_documented_positions(hardware):
+    geo = array_geometry(hardware.value)
+    np.testing.assert_allclose(geo.receivers, receivers_written_out() + LEVER_ARRAY,
+                               rtol=0, atol=1e-12)
+    # a few channels spelled out (array frame): the first module's aft-port corner, its
+    # starboard neighbour, the next row forward, the second module's first, the aft
+    # section's last (forward-starboard corner) and the forward section's first
+    for ch, pos in [(0, (-0.3185, -0.5005, 0.0)), (1, (-0.3185, -0.4095, 0.0)),
+                    (2, (-0.2275, -0.5005, 0.0)), (8, (-0.3185, -0.3185, 0.0)),
+                    (47, (-0.0455, 0.5005, 0.0)), (48, (0.0455, -0.3185, 0.0)),
+                    (79, (0.3185, 0.3185, 0.0))]:
+        np.testing.assert_allclose(geo.receivers[ch], np.array(pos) + LEVER_ARRAY, atol=1e-12)
+    ys = (-0.5725, -0.3435, -0.1145, 0.1145, 0.3435, 0.5725)
+    np.testing.assert_allclose(geo.projectors,
+                               np.array([(0.5185, y, 0.0) for y in ys]) + LEVER_ARRAY, atol=1e-12)
+
+
+def test_body_to_ned_is_the_closed_form_rotation():
+    rng = np.random.default_rng(4)
+    for roll, pitch, heading in rng.uniform(-np.pi, np.pi, (50, 3)) * [1, 0.5, 1]:
+        r = body_to_ned(roll, pitch, heading)
+        np.testing.assert_allclose(r, body_to_ned_written_out(roll, pitch, heading),
+                                   rtol=0, atol=1e-15)
+    # known vectors: heading east, pitched 90 degrees nose-up: forward points up and
+    # starboard still south; heading south, rolled 90 degrees starboard-down: starboard
+    # points down and the body's down points to port, which is east
+    r = body_to_ned(0.0, np.pi / 2, np.pi / 2)
+    np.testing.assert_allclose(r @ [1, 0, 0], [0, 0, -1], atol=1e-15)
+    np.testing.assert_allclose(r @ [0, 1, 0], [-1, 0, 0], atol=1e-15)
+    r = body_to_ned(np.pi / 2, 0.0, np.pi)
+    np.testing.assert_allclose(r @ [0, 1, 0], [0, 0, 1], atol=1e-15)
+    np.testing.assert_allclose(r @ [0, 0, 1], [0, 1, 0], atol=1e-15)
+
+
 def test_frames_round_trip_and_orientation():
     r = body_to_ned(0.0, 0.0, np.pi / 2)              # heading east
     np.testing.assert_allclose(r @ [1, 0, 0], [0, 1, 0], atol=1e-15)   # forward -> east
     np.testing.assert_allclose(r @ [0, 1, 0], [-1, 0, 0], atol=1e-15)  # starboard -> south
+    c10, s10 = np.cos(np.deg2rad(10)), np.sin(np.deg2rad(10))
     r = body_to_ned(0.0, np.deg2rad(10), 0.0)          # nose up: forward points up (z < 0)
-    assert (r @ [1, 0, 0])[2] < 0
+    np.testing.assert_allclose(r @ [1, 0, 0], [c10, 0, -s10], atol=1e-15)
     r = body_to_ned(np.deg2rad(10), 0.0, 0.0)          # starboard down
-    assert (r @ [0, 1, 0])[2] > 0
+    np.testing.assert_allclose(r @ [0, 1, 0], [0, c10, s10], atol=1e-15)
     line = TrackLine((10.0, -5.0), np.deg2rad(30), 3.0)
     p = np.random.default_rng(1).normal(size=(20, 3)) * 50
     np.testing.assert_allclose(line.tile_to_ned(line.ned_to_tile(p)), p, atol=1e-12)

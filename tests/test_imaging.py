@@ -18,21 +18,11 @@ from svss_daq.ping import NavSnapshot, Ping
 from svss_daq.scaling import counts_per_upa
 from svss_daq.waveform import make_waveform
 from svss_proc.imaging.imager import TileImager
+from tests.references import refracted_time
 
 CW, SAND = 1500.0, 1767.0
 ALTITUDE = 2.5          # body origin above the interface; the array is 0.5 m lower
 P0 = 1e10               # uPa at 1 m
-
-
-def one_way(p, q, cs):
-    """Travel time from element p (above the interface, z < 0) to point q (tile frame)."""
-    if q[2] <= 0 or cs == CW:
-        return np.linalg.norm(q - p) / CW
-    rho = np.hypot(*(q[:2] - p[:2]))
-    h, z = -p[2], q[2]
-    res = minimize_scalar(lambda x: np.hypot(x, h) / CW + np.hypot(rho - x, z) / cs,
-                          bounds=(0, rho), method="bounded", options={"xatol": 1e-10})
-    return res.fun
 
 
 def synth_pings(hw, target, cs, n_pings, first=0, start_along=0.0):
@@ -62,14 +52,14 @@ def synth_pings(hw, target, cs, n_pings, first=0, start_along=0.0):
         d1 = target - tx
         in_tx = d1[2] >= np.linalg.norm(d1) * cos_tx
         if in_tx:
-            t1 = one_way(tx, target, cs)
+            t1 = refracted_time(tx, target, CW, cs)
             r1 = np.linalg.norm(d1)
             for ch in range(rx.shape[0]):
                 d2 = target - rx[ch]
                 r2 = np.linalg.norm(d2)
                 if d2[2] < r2 * cos_rx:
                     continue
-                tau = t1 + one_way(rx[ch], target, cs)
+                tau = t1 + refracted_time(rx[ch], target, CW, cs)
                 a = P0 / (r1 * r2)
                 out[ch] = a * wf.real(t - tau)
                 if np.any(out[ch]):
@@ -216,7 +206,7 @@ def test_straight_rays_displace_buried_point_as_predicted(hardware, sand_pings):
     # (refracted) delays over the projector-receiver pairs, least squares, near vertical
     geo = array_geometry(hardware.value)
     tx = np.array([truth[0], 0.0, -2.0]) + [geo.projectors[:, 0].mean() - 3.0, 0, 0]
-    true_t = one_way(tx, truth, SAND)
+    true_t = refracted_time(tx, truth, CW, SAND)
     z_pred = minimize_scalar(
         lambda z: (np.linalg.norm(truth - tx + [0, 0, z - truth[2]]) / CW - true_t) ** 2,
         bounds=(0.0, truth[2]), method="bounded").x
