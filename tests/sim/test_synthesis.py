@@ -1,6 +1,10 @@
 """Echo synthesis: fractional-delay accumulation against an independent band-limited
 echo, the pulse as the digitiser sees it, the phase rotation, the beam tables, a point
-scatterer's exact echo (written out here) reproduced, and noise and quantisation."""
+scatterer's exact echo (written out here) reproduced, and noise and quantisation.
+
+The references place the array themselves, from the true pose, the documented array
+layout and the rotation in closed form (tests/references.py) and the track's line, so
+that a wrong placement in the simulator fails them."""
 
 from __future__ import annotations
 
@@ -13,15 +17,14 @@ import pytest
 from sim_device.acoustics import piston_directivity, piston_radius_for_half_angle
 from sim_device.beams import beam_table
 from sim_device.environment_source import EnvironmentSource
-from sim_device.scene import PointTarget, load_scene
-from sim_device.track import ping_pose, truth_line
+from sim_device.scene import MotionConfig, PointTarget, load_scene
+from sim_device.track import ping_pose
 from sim_device.synthesis import AA_PASS, AA_STOP, cis_cycles, digitised_pulse
 from svss_daq.config import config_path
-from svss_daq.frames import body_to_ned
-from svss_daq.geometry import array_geometry
 from svss_daq.scaling import counts_per_upa
 from svss_daq.waveform import make_waveform
 from svss_proc.conditioning import Conditioner
+from tests.references import body_to_ned_written_out, receivers_written_out
 
 
 @pytest.fixture(scope="module")
@@ -32,6 +35,31 @@ def demo():
 def one_point(scene, target):
     return dataclasses.replace(scene, points=(target,), noise=dataclasses.replace(
         scene.noise, electronic_rms_counts=0.0))
+
+
+def elements_written_out(hw, sc, i):
+    """Projector, receivers (n, 3) and boresight of ping ``i`` in the scene's tile frame
+    (along the track heading from the first ping's body origin, cross-track starboard,
+    depth below the nominal bottom), placed here: the true pose of ping ``i``, the body
+    rotation in closed form, the documented receiver layout, the configured projector
+    positions and lever arm."""
+    nav = ping_pose(sc.track, hw, i, sc.scene.seed)
+    rot = body_to_ned_written_out(nav.roll_rad, nav.pitch_rad, nav.heading_rad)
+    lever = np.asarray(hw.lever_arms.array_m, float)
+    order = hw.sequencer.projector_order
+    proj_body = np.asarray(hw.projectors.positions_m[order[i % len(order)]], float) + lever
+    rx_body = receivers_written_out() + lever
+    body_ned = np.array([nav.north_m, nav.east_m, nav.down_m])
+    h = math.radians(sc.track.heading_deg)
+    to_tile = np.array([[math.cos(h), math.sin(h), 0.0], [-math.sin(h), math.cos(h), 0.0],
+                        [0.0, 0.0, 1.0]])
+    origin = np.array([sc.track.start_ne_m[0], sc.track.start_ne_m[1],
+                       sc.track.body_down_m + sc.track.altitude_m])
+    tx = to_tile @ (body_ned + rot @ proj_body - origin)
+    rx = (body_ned + rx_body @ rot.T - origin) @ to_tile.T
+    bore = np.asarray(hw.beams.boresight, float)
+    bore = to_tile @ rot @ (bore / np.linalg.norm(bore))
+    return tx, rx, bore
 
 
 def band_limited_echo(wf, t, tau, fs, os=32):
@@ -55,19 +83,19 @@ def test_point_echo_matches_an_independent_band_limited_echo(hardware, demo):
     src = EnvironmentSource(hardware, sc)
     i = 10
     p = src.pressure(i)
-    g = src.frame(i)
+    tx, rx, _ = elements_written_out(hw, sc, i)
     wf = make_waveform(hw.waveform)
     dig = hw.digitiser
     fs = dig.sample_rate_hz
     t = dig.window_start_s - dig.group_delay_s + np.arange(dig.window_samples) / fs
     xt = np.array([4.0, 0.2, 0.5])
-    r1 = np.linalg.norm(xt - g.tx)
+    r1 = np.linalg.norm(xt - tx)
     p0 = 10 ** (hw.waveform.source_level_db / 20)
     checked = 0
     for ch in range(0, 80, 7):
         if not np.any(p[ch]):
             continue
-        r2 = np.linalg.norm(xt - g.rx[ch])
+        r2 = np.linalg.norm(xt - rx[ch])
         ref = p0 * 10 ** (-15 / 20) / (r1 * r2) * band_limited_echo(wf, t, (r1 + r2) / 1500, fs)
         err = np.sqrt(np.sum((p[ch] - ref) ** 2) / np.sum(ref ** 2))
         assert err < 2e-3, ch
@@ -78,16 +106,9 @@ def test_point_echo_matches_an_independent_band_limited_echo(hardware, demo):
 def exact_point_echo(hw, sc, i, target):
     """A point scatterer's echo with the exact (not band-limited) pulse, in a homogeneous
     lossless medium with hard beam cones: p0 10^(TS/20) / (r1 r2) s(t - (r1 + r2)/c),
-    its geometry written out here from the pose, the body-frame array and the line."""
-    nav = ping_pose(sc.track, hw, i, sc.scene.seed)
-    geo = array_geometry(hw)
-    rot = body_to_ned(nav.roll_rad, nav.pitch_rad, nav.heading_rad)
-    proj = hw.sequencer.projector_order[i % len(hw.sequencer.projector_order)]
-    tx = nav.ned + rot @ geo.projectors[proj]
-    rx = nav.ned + geo.receivers @ rot.T
-    bore = rot @ geo.boresight
-    xt = truth_line(sc.track).tile_to_ned(
-        np.array([target.along_m, target.cross_m, target.depth_m]))
+    in the tile frame with the array placed by :func:`elements_written_out`."""
+    tx, rx, bore = elements_written_out(hw, sc, i)
+    xt = np.array([target.along_m, target.cross_m, target.depth_m])
     r1 = np.linalg.norm(xt - tx)
     r2 = np.linalg.norm(xt - rx, axis=1)
     c = sc.medium.sound_speed_m_s
@@ -96,21 +117,33 @@ def exact_point_echo(hw, sc, i, target):
     dig = hw.digitiser
     t = dig.window_start_s - dig.group_delay_s + np.arange(dig.window_samples) / dig.sample_rate_hz
     out = np.zeros((r2.size, t.size))
-    if (xt - tx) @ bore < r1 * math.cos(geo.projector_half_angle):
+    if (xt - tx) @ bore < r1 * math.cos(math.radians(hw.beams.projector_half_angle_deg)):
         return out
-    seen = (xt - rx) @ bore >= r2 * math.cos(geo.receiver_half_angle)
+    seen = (xt - rx) @ bore >= r2 * math.cos(math.radians(hw.beams.receiver_half_angle_deg))
     for ch in np.flatnonzero(seen):
         out[ch] = (p0 * 10 ** (target.target_strength_db / 20) / (r1 * r2[ch])
                    * wf.real(t - (r1 + r2[ch]) / c))
     return out
 
 
-def test_point_echo_images_like_the_exact_echo(hardware, demo):
+# a few degrees of roll, pitch and yaw and some heave and sway, so that the rotation of
+# the array and its lever arm matter
+ROCKING = MotionConfig(heave_m=0.05, heave_period_s=3.0, sway_m=0.04, sway_period_s=5.0,
+                       roll_deg=4.0, roll_period_s=2.5, pitch_deg=3.0, pitch_period_s=3.5,
+                       yaw_deg=3.0, yaw_period_s=7.0)
+
+
+@pytest.mark.parametrize("motion", [None, ROCKING], ids=["level", "rocking"])
+def test_point_echo_images_like_the_exact_echo(hardware, demo, motion):
     # the matched-filter output (what the imager uses) is the exact echo's: the
     # digitiser's anti-alias filter only removes the pulse's out-of-band edges
     hw = hardware.value
     tgt = PointTarget(along_m=5.0, cross_m=-0.1, depth_m=0.3, target_strength_db=-20.0)
     sc = one_point(demo, tgt)
+    sc = dataclasses.replace(sc, track=dataclasses.replace(sc.track, motion=motion))
+    if motion is not None:
+        nav = ping_pose(sc.track, hw, 20, sc.scene.seed)
+        assert min(abs(nav.roll_rad), abs(nav.pitch_rad)) > math.radians(0.5)
     a = EnvironmentSource(hardware, sc).pressure(20)
     b = exact_point_echo(hw, sc, 20, tgt)
     cond = Conditioner(hw.digitiser, make_waveform(hw.waveform), 1)
