@@ -9,6 +9,8 @@ import math
 
 import numpy as np
 
+from svss_daq.decibels import power_to_db
+
 from .acoustics import Sediment, sigma_interface, sigma_volume
 from .environment import Environment
 from .multipath import image_depth, leg_image, leg_pairs
@@ -56,7 +58,7 @@ def choose_paths(*, order: int, m_max: int, tx_z: float, rx_z: float,
     depth = water_depth if water_depth is not None else 0.0
     c0 = env.water_sound_speed
     levels = {}
-    noise_db = 10 * math.log10(noise_power) if noise_power > 0 else -math.inf
+    noise_db = float(power_to_db(noise_power))
     for (a, b) in pairs:
         la, lb = leg_image(a), leg_image(b)
         h_t = -float(image_depth(a, tx_z, depth))
@@ -67,7 +69,7 @@ def choose_paths(*, order: int, m_max: int, tx_z: float, rx_z: float,
         area = math.pi * 0.5 * (h_t + h_r) * c0 * pulse_s
         ms = (0.5 * p0 ** 2 * (lobes * refl) ** 2 * (sigma * area + target_strength)
               / (h_t * h_r) ** 2)
-        level = 10.0 * math.log10(ms) if ms > 0 else -math.inf
+        level = float(power_to_db(ms))
         levels[(a, b)] = level
         keep = (a, b) == (0, 0) or noise_power <= 0 or level >= noise_db - drop_db
         allowed[a, b] = keep

@@ -126,8 +126,9 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
     paths = sorted(tiles_dir.glob("tile_*.h5"))
     if not paths:
         raise FileNotFoundError(f"{tiles_dir}: no tile_*.h5 files")
+    headers = [tiles.read_tile_header(p) for p in paths]
     if radius_m is None:
-        radius_m = _radius_from_tile(paths[0], tiles.read_tile_header(paths[0]))
+        radius_m = _radius_from_tile(paths[0], headers[0])
         if radius_m is None:
             raise ValueError(f"{paths[0]}: its processing configuration has no "
                              "products.detection.match_radius_m; give --radius")
@@ -137,8 +138,7 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
         np.array([t["scene_m"] for t in truth], dtype=np.float64).reshape(-1, 3))
     det_rows, det_ned = [], []
     covered = np.zeros(len(truth), dtype=bool)
-    for path in paths:
-        header = tiles.read_tile_header(path)
+    for path, header in zip(paths, headers):
         table, attrs = header["detections"], header["attrs"]
         line = _tile_line(attrs)
         axes = [header[d] for d in tiles.DIMS]

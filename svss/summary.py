@@ -19,12 +19,7 @@ from svss_proc import tiles
 
 def file_kind(path: str | Path) -> str:
     """``"tile"`` or ``"raw"`` from the file's ``svss_format`` attribute."""
-    try:
-        fmt = rawfile.svss_format(path)
-    except rawfile.RawFileError as exc:
-        if not Path(path).is_file():
-            raise FileNotFoundError(str(exc)) from None
-        raise ValueError(str(exc)) from None
+    fmt = rawfile.svss_format(path)
     if fmt == tiles.TILE_FORMAT:
         return "tile"
     if fmt == rawfile.FORMAT:
@@ -50,7 +45,7 @@ def _plain(v):
 
 def _db(x: float) -> float | None:
     """The level of an amplitude in dB, None where it has none (zero, not finite)."""
-    v = float(amplitude_to_db(x)) if math.isfinite(x) else math.nan
+    v = float(amplitude_to_db(x))
     return v if math.isfinite(v) else None
 
 

@@ -2,8 +2,10 @@
 
 Power-like quantities (scattering cross sections σ, intensities, spectral densities)
 use 10·log10; amplitude-like quantities (pressures, directivity gains, reflection
-coefficients) use 20·log10. Zero maps to −inf without a floating-point warning. The one definition of decibels in
-the project: the simulator, the products and the tool all use it.
+coefficients) use 20·log10. Zero maps to −inf without a floating-point warning.
+
+The one definition of decibels in the project: the simulator, the products and the
+``svss`` tool all use it (in the lowest package, which all the others import).
 """
 
 from __future__ import annotations

@@ -175,7 +175,7 @@ def _open_tile(path: Path) -> h5py.File:
     """Open a tile file for reading, checking its format and version."""
     try:
         f = h5py.File(path, "r")
-    except (OSError, FileNotFoundError) as exc:
+    except OSError as exc:
         raise ValueError(f"{path}: not a readable HDF5 file ({exc})") from None
     fmt = _text(f.attrs.get("svss_format", ""))
     if fmt != TILE_FORMAT:

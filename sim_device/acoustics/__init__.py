@@ -3,8 +3,9 @@
 Modules: :mod:`.sediments` (sediment table and loader), :mod:`.attenuation` (sediment and
 water attenuation, water sound speed), :mod:`.interface` (Rayleigh reflection,
 transmission, Snell, Eckart), :mod:`.backscatter` (APL-UW TR 9407 bottom backscatter),
-:mod:`.noise` (Knudsen ambient noise), :mod:`.directivity` (piston and cone gains),
-:mod:`svss_daq.decibels`. Models, sources and validity: ``docs/acoustics.md``.
+:mod:`.ambient_noise` (Knudsen ambient noise), :mod:`.directivity` (piston and cone
+gains); decibels: :mod:`svss_daq.decibels`. Models, sources and validity:
+``docs/acoustics.md``.
 """
 
 from .attenuation import (ainslie_mccolm_absorption, coppens_sound_speed,
@@ -14,7 +15,6 @@ from .attenuation import (ainslie_mccolm_absorption, coppens_sound_speed,
 from .backscatter import (BackscatterComponents, bottom_backscatter, kirchhoff_parameters,
                           sigma2_from_volume_strength, sigma_composite, sigma_interface,
                           sigma_kirchhoff, sigma_perturbation, sigma_total, sigma_volume)
-from svss_daq.decibels import amplitude_to_db, db_to_amplitude, db_to_power, power_to_db
 from .directivity import cone_gate, piston_directivity, piston_radius_for_half_angle
 from .interface import (band_limited_rms_roughness, coherent_reflection_coefficient,
                         critical_angle, eckart_factor, reflection_coefficient,
@@ -37,5 +37,4 @@ __all__ = [
     "ambient_noise_spectrum_level", "band_noise_level", "band_noise_rms_pressure",
     "white_noise_rms_per_sample",
     "piston_directivity", "piston_radius_for_half_angle", "cone_gate",
-    "power_to_db", "db_to_power", "amplitude_to_db", "db_to_amplitude",
 ]

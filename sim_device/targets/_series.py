@@ -11,6 +11,8 @@ from typing import Callable
 
 import numpy as np
 
+from svss_daq.decibels import amplitude_to_db
+
 from ._bessel import bessel_first, bessel_second
 
 log = logging.getLogger(__name__)
@@ -184,8 +186,7 @@ def as_frequency(freq) -> np.ndarray:
 
 def target_strength(amplitude) -> np.ndarray:
     """Target strength TS = 20 log10 |f| (dB re 1 m²) from a scattering amplitude f (m)."""
-    with np.errstate(divide="ignore"):
-        return 20.0 * np.log10(np.abs(amplitude))
+    return amplitude_to_db(amplitude)
 
 
 def modal_amplitudes(f: np.ndarray, a: float, fluid, material, spherical: bool,

@@ -27,6 +27,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from svss_daq.decibels import amplitude_to_db_floored
+
 #: lowest level reported, dB (what zeros map to)
 MIN_DB = -300.0
 
@@ -54,14 +56,8 @@ def normalise(mag: np.ndarray, background: np.ndarray, floor_db: float) -> np.nd
 def level_db(ratio: np.ndarray) -> np.ndarray:
     """``20 log10(ratio)`` (float32), at least :data:`MIN_DB` (no log of zero); NaN
     stays NaN."""
-    r = np.asarray(ratio, dtype=np.float32)
-    out = np.full(r.shape, MIN_DB, dtype=np.float32)
-    pos = r > 0
-    np.log10(r, out=out, where=pos)
-    np.multiply(out, 20.0, out=out, where=pos)
-    out[np.isnan(r)] = np.nan
-    np.maximum(out, MIN_DB, out=out)  # NaN propagates through maximum
-    return out
+    level = amplitude_to_db_floored(np.asarray(ratio, dtype=np.float32), MIN_DB)
+    return level.astype(np.float32, copy=False)  # NaN propagates through the floor
 
 
 def depth_gain_db(depth_m: np.ndarray, db_per_m: float, start_m: float) -> np.ndarray:
