@@ -1,6 +1,6 @@
 """Detections: planted targets in speckle are found at their positions with their levels;
-speckle alone gives the false-alarm rate the documentation states; merging, sidelobe
-suppression and scoring."""
+speckle alone gives the false-alarm rate the documentation states; merging and sidelobe
+suppression. Scoring against ground truth is the ``svss`` tool's (test_score.py)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from svss_daq.config import ProcessingConfig, config_path, load
-from svss.score import score
 from svss_proc.products.detect import detect
 from svss_proc.products.drc import level_db, normalise
 from svss_proc.products.background import median_exact
@@ -136,22 +135,3 @@ def test_no_detections_in_an_empty_or_missing_volume():
     assert len(_detect(z, z, z)) == 0
     n = np.full(SHAPE, np.nan, dtype=np.float32)
     assert len(_detect(n, n, n)) == 0
-
-
-def test_score_counts_hits_misses_false_alarms_and_duplicates():
-    truth = np.array([[0.0, 0.0, 0.5], [2.0, 0.1, 0.3], [4.0, -0.2, 0.7]])
-    dets = np.array([[0.05, 0.0, 0.5],     # hits truth 0
-                     [2.0, 0.12, 0.35],    # hits truth 1
-                     [2.1, 0.1, 0.3],      # near truth 1, already taken: duplicate
-                     [3.0, 0.0, 0.5]])     # near nothing: false alarm
-    s = score(dets, truth, radius_m=0.3)
-    assert sorted((t, d) for t, d, _ in s.pairs) == [(0, 0), (1, 1)]
-    assert s.missed == [2] and s.false_alarms == [3] and s.duplicates == [2]
-    assert s.summary() == {"truth": 3, "detections": 4, "hits": 2, "misses": 1,
-                           "false_alarms": 1, "duplicates": 1,
-                           "probability_of_detection": pytest.approx(2 / 3)}
-    # one detection between two targets detects only the nearer one
-    s = score(np.array([[1.0, 0.0, 0.0]]), np.array([[0.8, 0, 0], [1.25, 0, 0]]), 0.3)
-    assert [(t, d) for t, d, _ in s.pairs] == [(0, 0)] and s.missed == [1]
-    s = score(np.zeros((0, 3)), np.zeros((0, 3)), 0.3)
-    assert s.hits == 0 and s.summary()["probability_of_detection"] is None
