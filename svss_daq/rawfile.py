@@ -179,20 +179,27 @@ class RawRunWriter:
         self.close()
 
 
+def _open_for_reading(path: Path) -> tuple[h5py.File, bool]:
+    """Open an SVSS HDF5 file read-only: (file, closed cleanly). A writer that never
+    closed leaves the SWMR flag set; such a file is opened as a SWMR reader."""
+    if not path.is_file():
+        raise RawFileError(f"{path}: no such file")
+    try:
+        return h5py.File(path, "r"), True
+    except OSError:
+        try:
+            return h5py.File(path, "r", libver="latest", swmr=True), False
+        except OSError as exc:
+            raise RawFileError(f"{path}: not a readable HDF5 file ({exc})") from None
+
+
 def svss_format(path: str | Path) -> str | None:
     """The ``svss_format`` root attribute of an SVSS HDF5 file (a raw run or a tile),
     None when it has none; also reads files a killed writer left open."""
-    path = Path(path)
-    if not path.is_file():
-        raise RawFileError(f"{path}: no such file")
-    for kw in ({}, {"libver": "latest", "swmr": True}):
-        try:
-            with h5py.File(path, "r", **kw) as f:
-                fmt = f.attrs.get("svss_format")
-            return fmt.decode() if isinstance(fmt, bytes) else fmt
-        except OSError as exc:
-            err = exc
-    raise RawFileError(f"{path}: not an HDF5 file ({err})")
+    f, _ = _open_for_reading(Path(path))
+    with f:
+        fmt = f.attrs.get("svss_format")
+    return fmt.decode() if isinstance(fmt, bytes) else fmt
 
 
 class RawRunReader:
@@ -200,17 +207,8 @@ class RawRunReader:
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
-        if not self.path.exists():
-            raise RawFileError(f"{self.path}: no such file")
-        try:
-            self._f = h5py.File(self.path, "r")
-            self.clean = True
-        except OSError:
-            try:  # a writer that never closed leaves the SWMR flag: read as a SWMR reader
-                self._f = h5py.File(self.path, "r", libver="latest", swmr=True)
-            except OSError as exc:
-                raise RawFileError(f"{self.path}: not a readable HDF5 file ({exc})") from None
-            self.clean = False
+        self._f, self.clean = _open_for_reading(self.path)
+        if not self.clean:
             log.warning("%s was not closed by its writer; reading up to its last flush",
                         self.path)
         f = self._f
@@ -252,12 +250,13 @@ class RawRunReader:
 
     def ping_table(self) -> dict[str, np.ndarray]:
         """Per-ping records of every ping: ``ping_time`` (ns), ``ping_sequence``,
-        ``transmit_projector``, ``window_start_ns``."""
-        return dict(self._meta)
+        ``transmit_projector``, ``window_start_ns`` (copies)."""
+        return {k: v.copy() for k, v in self._meta.items()}
 
     def nav_table(self) -> dict[str, np.ndarray]:
-        """Navigation of every ping: ``time1`` (ns) and the :class:`NavSnapshot` fields."""
-        return dict(self._nav)
+        """Navigation of every ping: ``time1`` (ns) and the :class:`NavSnapshot` fields
+        (copies)."""
+        return {k: v.copy() for k, v in self._nav.items()}
 
     @property
     def provenance(self) -> dict:

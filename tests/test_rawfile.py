@@ -13,7 +13,8 @@ import h5py
 import numpy as np
 import pytest
 
-from svss_daq.rawfile import RawFileError, RawRunReader, RawRunWriter
+from svss_daq.rawfile import (FORMAT, RawFileError, RawRunReader, RawRunWriter,
+                              svss_format)
 from tests.test_messages import assert_same, make_ping
 
 
@@ -45,6 +46,55 @@ def test_round_trip(tmp_path, hardware):
         assert f["Sonar/Beam_group1/backscatter_r"].chunks == (1, 80, 1500)
         for g in ("Platform", "Platform/NMEA", "Environment", "Provenance", "Vendor_specific"):
             assert g in f
+
+
+def test_reader_tables_and_provenance(tmp_path, hardware):
+    """The whole-run tables a summary reads: per-ping records, navigation, shape and
+    provenance, equal to what the pings read one by one carry."""
+    path = tmp_path / "run.h5"
+    sent = [_ping_for(hardware, i) for i in range(7)]
+    with RawRunWriter(path, hardware) as w:
+        for p in sent:
+            w.append(p)
+    with RawRunReader(path) as r:
+        assert r.shape == sent[0].samples.shape == (80, 1500)
+        table = r.ping_table()
+        assert set(table) == {"ping_time", "ping_sequence", "transmit_projector",
+                              "window_start_ns"}
+        np.testing.assert_array_equal(table["ping_sequence"], [p.sequence for p in sent])
+        np.testing.assert_array_equal(table["ping_time"], [p.transmit_time_ns for p in sent])
+        np.testing.assert_array_equal(table["transmit_projector"], [p.projector for p in sent])
+        np.testing.assert_array_equal(table["window_start_ns"],
+                                      [p.window_start_ns for p in sent])
+        nav = r.nav_table()
+        np.testing.assert_array_equal(nav["time1"], [p.nav.time_ns for p in sent])
+        for name in ("north_m", "east_m", "heading_rad", "altitude_m", "quality"):
+            np.testing.assert_array_equal(nav[name], [getattr(p.nav, name) for p in sent])
+        # the tables are copies: changing one does not change what the reader returns
+        table["ping_sequence"][:] = -1
+        assert r.ping(0).sequence == sent[0].sequence
+        with h5py.File(path, "r") as f:
+            assert r.provenance == dict(f["Provenance"].attrs) and r.provenance
+
+
+def test_svss_format_names_the_kind_of_file(tmp_path, hardware):
+    run = tmp_path / "run.h5"
+    with RawRunWriter(run, hardware) as w:
+        w.append(_ping_for(hardware, 0))
+    assert svss_format(run) == FORMAT
+    other = tmp_path / "other.h5"
+    with h5py.File(other, "w") as f:
+        f.attrs["svss_format"] = np.bytes_(b"SVSS tile")
+    assert svss_format(other) == "SVSS tile"
+    bare = tmp_path / "bare.h5"
+    h5py.File(bare, "w").close()
+    assert svss_format(bare) is None
+    with pytest.raises(RawFileError, match="missing.h5: no such file"):
+        svss_format(tmp_path / "missing.h5")
+    junk = tmp_path / "junk.h5"
+    junk.write_bytes(b"not hdf5 at all" * 10)
+    with pytest.raises(RawFileError, match="junk.h5: not a readable HDF5 file"):
+        svss_format(junk)
 
 
 def test_writer_rejects_wrong_shape_and_config(tmp_path, hardware):
@@ -100,6 +150,7 @@ def test_sigkill_keeps_everything_up_to_last_flush(tmp_path, hardware):
     proc.send_signal(signal.SIGKILL)          # mid-run, no chance to close the file
     proc.wait(timeout=10)
     assert flushed >= 40, "writer did not get going"
+    assert svss_format(path) == FORMAT       # also a file its writer left open
     with RawRunReader(path) as r:
         assert not r.clean
         assert len(r) >= flushed              # nothing flushed is lost

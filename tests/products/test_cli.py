@@ -8,6 +8,7 @@ import math
 import subprocess
 import sys
 
+import h5py
 import numpy as np
 import pytest
 
@@ -190,3 +191,33 @@ def test_score_against_scene_truth(tmp_path, hardware, demo_processing):
     assert r["match_radius_m"] == 1.1
     assert (r["summary"]["hits"], r["summary"]["misses"], r["summary"]["false_alarms"]) == \
         (3, 0, 0)
+
+
+def test_score_names_the_tile_and_key_of_a_bad_stored_configuration(tmp_path, hardware,
+                                                                    demo_processing):
+    """The match radius comes from the tile's stored processing configuration, read by the
+    configuration loader: a bad value is refused naming the file, the dataset and the key;
+    a radius given on the command line is used without reading it."""
+    scene = tmp_path / "scene.toml"
+    scene.write_text(SCENE + "\n[[points]]\nalong_m = 1.0\ncross_m = 0.0\ndepth_m = 0.5\n"
+                     "target_strength_db = -20.0\n")
+    grid = tile_grid(demo_processing.value.tile, 0)
+    img = speckle(grid.shape, np.random.default_rng(34))
+    prods = compute_products(img, (grid.along, grid.cross, grid.depth), VOXEL,
+                             demo_processing.value.products)
+    out = tmp_path / "tiles"
+    out.mkdir()
+    path = write_tile(out / "tile_0000.h5", make_tile(grid, TrackLine((100.0, 200.0), HEADING,
+                                                                      3.0), img, range(5)),
+                      hardware, demo_processing, prods)
+    bad = demo_processing.text.replace("match_radius_m = 0.3", 'match_radius_m = "far"')
+    assert bad != demo_processing.text
+    with h5py.File(path, "a") as f:
+        del f["provenance/processing_config_toml"]
+        f["provenance/processing_config_toml"] = bad
+    res = svss("score", str(out), "--scene", str(scene), ok=False)
+    assert res.returncode == 2
+    assert ("tile_0000.h5:/provenance/processing_config_toml: key "
+            "'products.detection.match_radius_m'") in res.stderr and "--radius" in res.stderr
+    res = svss("score", str(out), "--scene", str(scene), "--radius", "0.5")
+    assert "Pd = " in res.stdout

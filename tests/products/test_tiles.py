@@ -3,6 +3,7 @@ detections round-trip, and save_tile writes the tile and its quicklook."""
 
 from __future__ import annotations
 
+import h5py
 import matplotlib.image
 import numpy as np
 import pytest
@@ -12,7 +13,8 @@ from svss_daq.config import ProcessingConfig, loaded_from_text
 from svss_daq.frames import TrackLine
 from svss_proc.imaging.grid import tile_grid
 from svss_proc.products.chain import compute_products, save_tile
-from svss_proc.tiles import DIMS, read_tile, write_tile
+from svss_proc.tiles import (DIMS, TILE_FORMAT, read_detections, read_tile,
+                             read_tile_header, write_tile)
 
 from . import VOXEL, make_tile, plant, rayleigh_median, speckle
 
@@ -93,6 +95,54 @@ def test_read_tile_round_trip(tile_file, planted, hardware, demo_processing):
     for target in targets:
         assert np.min(np.max(np.abs(found - target), axis=1)) <= 0.5 * VOXEL
 
+
+
+def test_tile_header_is_the_tile_without_its_volumes(tile_file, hardware, demo_processing):
+    path, tile, prods = tile_file
+    full, head = read_tile(path), read_tile_header(path)
+    for k in ("image", "magnitude", "background", "drc", "depth_gain_db", "mip_depth"):
+        assert k in full and k not in head, k
+    for k, v in head.items():
+        if k in ("attrs", "background_attrs"):
+            assert v.keys() == full[k].keys()
+            for name, value in v.items():
+                np.testing.assert_array_equal(value, full[k][name])
+        elif isinstance(v, np.ndarray):
+            np.testing.assert_array_equal(v, full[k])
+        else:
+            assert v == full[k], k
+    for name, values in zip(DIMS, (tile.grid.along, tile.grid.cross, tile.grid.depth)):
+        np.testing.assert_array_equal(head[name], values)
+    np.testing.assert_array_equal(head["ping_sequence"], np.arange(7, 40))
+    assert head["products"] == ["background", "drc", "mip_depth", "mip_cross", "mip_along",
+                                "detections"]
+    assert list(head["background_attrs"]["background_kernel_voxels"]) == [61, 11, 5]
+    assert head["processing_config_toml"] == demo_processing.text
+    assert head["hardware_config_toml"] == hardware.text
+    table, attrs = read_detections(path)
+    np.testing.assert_array_equal(table, prods.detections)
+    assert attrs["tile_index"] == 1 and attrs["svss_format"] == TILE_FORMAT
+
+
+def test_tile_readers_refuse_other_files_naming_them(tile_file, tmp_path):
+    path, _, _ = tile_file
+    junk = tmp_path / "junk.h5"
+    junk.write_bytes(b"not hdf5" * 10)
+    other = tmp_path / "other.h5"
+    with h5py.File(other, "w") as f:
+        f.attrs["svss_format"] = "something-else"
+    future = tmp_path / "future.h5"
+    future.write_bytes(path.read_bytes())
+    with h5py.File(future, "a") as f:
+        f.attrs["svss_format_version"] = 999
+    for read in (read_tile, read_tile_header, read_detections):
+        with pytest.raises(ValueError, match="junk.h5: not a readable HDF5 file"):
+            read(junk)
+        with pytest.raises(ValueError, match="other.h5: root attribute 'svss_format' is "
+                                             "'something-else'"):
+            read(other)
+        with pytest.raises(ValueError, match="future.h5: svss_format_version 999"):
+            read(future)
 
 def test_tile_without_products(planted, hardware, demo_processing, tmp_path):
     tile, _ = planted
