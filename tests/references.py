@@ -69,13 +69,16 @@ def sample(y, u, interp):
 
 
 def direct_sum(data, t0, dt, fc, tx, rx, bore, cos_tx, cos_rx, along, cross, depth, gating,
-               interp, mode, apod, c_water, c_sediment):
+               interp, mode, apod, c_water, c_sediment, count=False):
     """The backprojected image, float64, one voxel and element at a time: for each voxel
     inside both beam cones (with ``gating``), the sum over elements of ``apod`` times the
     baseband ``data`` (channels x samples, sample n at ``t0 + n dt``) at the two-way
     time, times exp(+j 2 pi fc tau). ``mode`` "straight" uses straight rays at
-    ``c_water``; any other mode the refracted least time (:func:`refracted_time`)."""
+    ``c_water``; any other mode the refracted least time (:func:`refracted_time`).
+    With ``count``, also the number of (voxel, element) terms summed (nonzero weight, in
+    the cones, taps inside the record)."""
     img = np.zeros((along.size, cross.size, depth.size), dtype=np.complex128)
+    n_terms = 0
 
     def one_way(p, v):
         if mode == "straight":
@@ -98,7 +101,8 @@ def direct_sum(data, t0, dt, fc, tx, rx, bore, cos_tx, cos_rx, along, cross, dep
                     s = sample(data[ch], (tau - t0) / dt, interp)
                     if s is not None:
                         img[i, j, k] += apod[ch] * s * np.exp(2j * np.pi * fc * tau)
-    return img
+                        n_terms += int(apod[ch] != 0)
+    return (img, n_terms) if count else img
 
 
 # ---------------------------------------------------------------------- geometry
