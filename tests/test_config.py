@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import re
+import tomllib
 from pathlib import Path
 
 import pytest
 
-from sim_device.scene import SceneConfig, load_scene
-from svss_daq.config import (ConfigError, DaqConfig, HardwareConfig, ProcessingConfig,
-                             config_dir, load, load_with_text)
+from sim_device.scene import load_scene
+from svss_daq.config import (ConfigError, DaqConfig, DevicesConfig, HardwareConfig,
+                             ProcessingConfig, config_dir, load, load_with_text)
 
 CONFIG = config_dir()
 
@@ -21,10 +22,16 @@ def test_shipped_files_validate():
     for name in ("processing.toml", "processing-demo.toml"):
         load(ProcessingConfig, CONFIG / name)
     load(DaqConfig, CONFIG / "daq.toml")
+    devices = load(DevicesConfig, CONFIG / "devices.toml")
+    assert devices.sequencer.baudrate == 115200 and devices.digitiser.port == 5600
     scenes = sorted((CONFIG / "scenes").glob("*.toml"))
-    assert scenes
+    assert len(scenes) >= 4
     for path in scenes:
-        assert isinstance(load_scene(path), SceneConfig)
+        sc = load_scene(path)
+        raw = tomllib.loads(path.read_text())        # the file's own values, read here
+        assert (sc.scene.name, sc.scene.seed, sc.track.n_pings, len(sc.points)) == (
+            raw["scene"]["name"], raw["scene"]["seed"], raw["track"]["n_pings"],
+            len(raw.get("points", []))), path.name
 
 
 def _edited(tmp_path: Path, name: str, old: str, new: str) -> Path:
