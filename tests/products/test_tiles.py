@@ -96,7 +96,6 @@ def test_read_tile_round_trip(tile_file, planted, hardware, demo_processing):
         assert np.min(np.max(np.abs(found - target), axis=1)) <= 0.5 * VOXEL
 
 
-
 def test_tile_header_is_the_tile_without_its_volumes(tile_file, hardware, demo_processing):
     path, tile, prods = tile_file
     full, head = read_tile(path), read_tile_header(path)
@@ -143,6 +142,7 @@ def test_tile_readers_refuse_other_files_naming_them(tile_file, tmp_path):
             read(other)
         with pytest.raises(ValueError, match="future.h5: svss_format_version 999"):
             read(future)
+
 
 def test_tile_without_products(planted, hardware, demo_processing, tmp_path):
     tile, _ = planted
