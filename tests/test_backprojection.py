@@ -49,8 +49,9 @@ def test_kernel_matches_direct_sum(interp, precision, mode):
     depth = np.linspace(-0.1, 0.9, 4)
     apod = rng.uniform(0.5, 1.5, rx.shape[0])
     cos_tx, cos_rx = math.cos(math.radians(25)), math.cos(math.radians(50))
-    ref = direct_sum(data.astype(np.complex128), t0, dt, fc, tx, rx, bore, cos_tx, cos_rx,
-                     along, cross, depth, True, interp, mode, apod, CW, CS)
+    ref, n_ref = direct_sum(data.astype(np.complex128), t0, dt, fc, tx, rx, bore, cos_tx,
+                            cos_rx, along, cross, depth, True, interp, mode, apod, CW, CS,
+                            count=True)
     ft = np.float32 if precision == "float32" else np.float64
     cond = Conditioned.from_baseband(data, SampleAxis(t0, dt, data.shape[1]), fc)
     kd = prepare(cond, interp, ft)
@@ -59,7 +60,7 @@ def test_kernel_matches_direct_sum(interp, precision, mode):
     n = run_ping(re, im, kd, tx, rx, along, cross, depth, 0, along.size, bore=bore,
                  cos_tx=cos_tx, cos_rx=cos_rx, gating=True, apod=apod, 
                  delays=DelayModel(mode, CW, CS, table))
-    assert n > 0
+    assert n == n_ref > 0                          # every (voxel, element) term summed
     assert np.count_nonzero(ref == 0) > 0          # the cones really exclude voxels
     err = np.abs(re + 1j * im - ref).max() / np.abs(ref).max()
     # float32: delays carry ~3e-5 of a sample at 250 samples (phase ~5e-5 rad); the table's bilinear look-up adds a small delay error
@@ -85,15 +86,18 @@ def test_window_path_matches_direct_sum(interp, mode):
     two_way = (np.linalg.norm(v - tx, axis=-1)[..., None]
                + np.linalg.norm(v[..., None, :] - rx, axis=-1)) / CW / dt
     assert np.abs(two_way[:, :, 16:] - two_way[:, :, :-16]).max() < 30
-    ref = direct_sum(data.astype(np.complex128), t0, dt, fc, tx, rx, bore, cos_tx, cos_rx,
-                     along, cross, depth, True, interp, mode, np.ones(rx.shape[0]), CW, CS)
+    ref, n_ref = direct_sum(data.astype(np.complex128), t0, dt, fc, tx, rx, bore, cos_tx,
+                            cos_rx, along, cross, depth, True, interp, mode,
+                            np.ones(rx.shape[0]), CW, CS, count=True)
     cond = Conditioned.from_baseband(data, SampleAxis(t0, dt, data.shape[1]), fc)
     kd = prepare(cond, interp, np.float32)
     re, im = np.zeros(ref.shape, np.float32), np.zeros(ref.shape, np.float32)
     table = build_table(2.0, 4.0, -0.2, 1.2, 0.005, CW, CS) if mode == "table" else None
-    run_ping(re, im, kd, tx, rx, along, cross, depth, 0, along.size, bore=bore, cos_tx=cos_tx,
-             cos_rx=cos_rx, gating=True, delays=DelayModel(mode, CW, CS, table))
+    n = run_ping(re, im, kd, tx, rx, along, cross, depth, 0, along.size, bore=bore,
+                 cos_tx=cos_tx, cos_rx=cos_rx, gating=True,
+                 delays=DelayModel(mode, CW, CS, table))
     assert np.count_nonzero(ref) > 0.5 * ref.size
+    assert n == n_ref
     err = np.abs(re + 1j * im - ref).max() / np.abs(ref).max()
     assert err < 1e-4 + (3e-3 if mode == "table" else 0), err
 
