@@ -2,7 +2,9 @@
 
 The geodetic conversion is checked against an ECEF computation written here from the
 WGS-84 definition (plain Python math, not the module's code); the track tests generate
-GPS antenna fixes, HDT headings and DVL samples from a known body-origin trajectory."""
+GPS antenna fixes, HDT headings and DVL samples from a known body-origin trajectory,
+with the body rotation written out in closed form (tests/references.py), not the
+module's, so that a wrong rotation does not cancel between the truth and the solution."""
 
 from __future__ import annotations
 
@@ -13,8 +15,8 @@ import pytest
 
 from svss_daq import navigation as nav
 from svss_daq.config import DevicesConfig, LeverArms, config_path, load
-from svss_daq.frames import body_to_ned
 from svss_daq.ping import NAV_BOTTOM_LOCK, NAV_DEAD_RECKONED, NAV_GPS_FIX
+from tests.references import body_to_ned_written_out
 
 ORIGIN = (44.0012, -87.9876, 150.0)   # a lake survey (lat, lon deg, ellipsoidal height m)
 T0 = 1_700_000_000_000_000_000
@@ -80,7 +82,7 @@ def test_altitude_from_janus_ranges():
     for angle in (20.0, 30.0):
         b = math.radians(angle)
         roll, pitch = math.radians(3), math.radians(-2)
-        rot = body_to_ned(roll, pitch, 0.0)
+        rot = body_to_ned_written_out(roll, pitch, 0.0)
         head_down = (rot @ np.array(LEVER.dvl_m))[2]
         u = nav.janus_beam_vectors(b) @ rot.T
         ranges = (2.0 - head_down) / u[:, 2]   # bottom 2 m below the body origin
@@ -114,7 +116,7 @@ def truth(t):
 
 def point_of(t, lever):
     p, r, q, h = truth(t)
-    rot = np.array([body_to_ned(a, b, c) for a, b, c in zip(r, q, h)])
+    rot = np.array([body_to_ned_written_out(a, b, c) for a, b, c in zip(r, q, h)])
     return p + rot @ np.asarray(lever)
 
 
@@ -143,7 +145,7 @@ def make_sensors(duration_s=120.0, gps_hz=5.0, dvl_hz=8.0, gps_sigma=0.3, outage
     beams = nav.janus_beam_vectors(math.radians(30))
     dvl = []
     for k, t in enumerate(td):
-        rot = body_to_ned(r[k], q[k], h[k])
+        rot = body_to_ned_written_out(r[k], q[k], h[k])
         vb = rot.T @ vq[k] + rng.normal(0, dvl_sigma, 3)
         rng_m = (BOTTOM_DOWN - head[k, 2]) / (beams @ rot.T)[:, 2]
         dvl.append(nav.DvlSample(T0 + int(round(t * 1e9)), tuple(vb), tuple(rng_m), r[k], q[k]))
