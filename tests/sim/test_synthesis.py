@@ -133,6 +133,21 @@ ROCKING = MotionConfig(heave_m=0.05, heave_period_s=3.0, sway_m=0.04, sway_perio
                        yaw_deg=3.0, yaw_period_s=7.0)
 
 
+def test_frame_places_the_array_as_written_out(hardware, demo):
+    # the placement every simulator test takes from EnvironmentSource.frame, checked
+    # directly (the other tests of the simulator's physics start from it)
+    hw = hardware.value
+    sc = dataclasses.replace(demo, track=dataclasses.replace(demo.track, motion=ROCKING))
+    src = EnvironmentSource(hardware, sc)
+    for i in (0, 7, 20, 45):
+        g = src.frame(i)
+        tx, rx, bore = elements_written_out(hw, sc, i)
+        np.testing.assert_allclose(g.tx, tx, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(g.rx, rx, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(g.bore, bore, rtol=0, atol=1e-12)
+        assert g.projector == hw.sequencer.projector_order[i % 6]
+
+
 @pytest.mark.parametrize("motion", [None, ROCKING], ids=["level", "rocking"])
 def test_point_echo_images_like_the_exact_echo(hardware, demo, motion):
     # the matched-filter output (what the imager uses) is the exact echo's: the
