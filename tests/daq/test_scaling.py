@@ -1,11 +1,13 @@
 """Digitiser scaling between pressure and ADC codes, against numbers worked out by hand
 from the hardware configuration (config/hardware.toml, [digitiser]):
 
-    sensitivity -195 dB re 1 V/uPa, gain 0 dB  ->  10^(-195/20) = 1.77828e-10 V/uPa
-    1 Pa = 1e6 uPa                               ->  1.77828e-4 V at the ADC
+    sensitivity -195 dB re 1 V/uPa, gain 0 dB  ->  10^(-195/20) = 1.7782794e-10 V/uPa
+    1 Pa = 1e6 uPa                               ->  1.7782794e-4 V at the ADC
     24 bits: largest code 2^23 - 1 = 8 388 607 at full scale 2.5 V
                                                  ->  3 355 442.8 counts/V
-    1 Pa                                         ->  1.77828e-4 * 3 355 442.8 = 596.69148 counts
+    1 Pa                                         ->  1.7782794e-4 * 3 355 442.8
+                                                     = 596.691484 counts
+(to 1e-8, so that 2^23 codes instead of 2^23 - 1, 1.2e-7 off, fails)
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ import pytest
 
 from svss_daq.scaling import counts_per_upa, full_scale_counts, quantise
 
-COUNTS_PER_PA = 596.69148     # worked out above
+COUNTS_PER_PA = 596.691484    # worked out above
 
 
 @pytest.fixture
@@ -31,7 +33,7 @@ def dig(hardware):
 
 def test_counts_per_upa_worked_out_by_hand(dig):
     assert full_scale_counts(dig) == 8_388_607
-    assert counts_per_upa(dig) * 1e6 == pytest.approx(COUNTS_PER_PA, rel=1e-6)
+    assert counts_per_upa(dig) * 1e6 == pytest.approx(COUNTS_PER_PA, rel=1e-8)
 
 
 def test_gain_and_bits_scale_as_the_hardware_does(dig):
