@@ -6,7 +6,10 @@ project against one of them can fail when the project is wrong.
 
 - :func:`refracted_time`: least one-way time across a flat water/sediment interface by
   brute-force Fermat minimisation (the imager's and the simulator's solvers are checked
-  against it).
+  against it); :func:`layered_time` the same through one to three flat layers given as
+  thicknesses; :func:`layered_path` between two points through any number of horizontal
+  boundaries, minimising over every crossing point (the simulator's layered rays and
+  target paths are checked against them).
 - :func:`direct_sum`: the backprojection sum voxel by voxel, element by element, in
   float64 (the CPU and GPU kernels are checked against it).
 - :func:`body_to_ned_written_out` and :func:`receivers_written_out`: the body-to-survey
@@ -19,7 +22,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.optimize import minimize_scalar
+from scipy.optimize import minimize, minimize_scalar
 
 # ---------------------------------------------------------------------- refraction
 
@@ -37,6 +40,64 @@ def refracted_time(p, q, c_water, c_sediment, xatol=1e-12):
     res = minimize_scalar(lambda x: np.hypot(x, h) / c_water + np.hypot(rho - x, z) / c_sediment,
                           bounds=(0, rho), method="bounded", options={"xatol": xatol})
     return float(res.fun)
+
+
+def layered_time(rho, h, c):
+    """Least travel time across flat layers of thicknesses ``h`` and speeds ``c`` (one to
+    three media) over the horizontal distance ``rho``, by direct minimisation over the
+    crossing points: two media by bisection on dT/dx to machine precision, three by
+    nested bounded minimisation (independent of the ray-parameter form)."""
+    h = np.asarray(h, float)
+    c = np.asarray(c, float)
+    if len(h) == 1:
+        return math.hypot(rho, h[0]) / c[0]
+    if len(h) == 2:
+        # the crossing x where dT/dx = 0 (monotone), by bisection to machine precision
+        f = lambda x: math.hypot(x, h[0]) / c[0] + math.hypot(rho - x, h[1]) / c[1]
+        if rho == 0.0:
+            return f(0.0)
+        d = lambda x: (x / (c[0] * math.hypot(x, h[0]))
+                       - (rho - x) / (c[1] * math.hypot(rho - x, h[1])))
+        lo, hi = 0.0, rho
+        for _ in range(200):
+            mid = 0.5 * (lo + hi)
+            if mid in (lo, hi):
+                break
+            lo, hi = (mid, hi) if d(mid) < 0 else (lo, mid)
+        return min(f(lo), f(hi))
+    # three media: nested minimisation
+    def inner(x1):
+        g = lambda x2: (math.hypot(x1, h[0]) / c[0] + math.hypot(x2 - x1, h[1]) / c[1]
+                        + math.hypot(rho - x2, h[2]) / c[2])
+        return minimize_scalar(g, bounds=(x1, rho), method="bounded",
+                               options={"xatol": 1e-12}).fun
+    return minimize_scalar(inner, bounds=(0.0, rho), method="bounded",
+                           options={"xatol": 1e-12}).fun
+
+
+def layered_path(e, t, speeds, depths, crossings=False):
+    """Least travel time from element ``e`` (above z = 0) to ``t`` through horizontal
+    boundaries at ``depths`` (first 0), minimising over every crossing point
+    (Nelder-Mead from the straight line, then polished by BFGS). With
+    ``crossings``, also the crossing points (n, 3)."""
+    n = len(depths)
+    z = [e[2]] + list(depths) + [t[2]]
+
+    def time(v):
+        pts = [np.array(e)] + [np.array([v[2 * i], v[2 * i + 1], depths[i]])
+                                for i in range(n)] + [np.array(t)]
+        return sum(np.linalg.norm(pts[i + 1] - pts[i]) / speeds[i] for i in range(n + 1))
+
+    frac = [(depths[i] - z[0]) / (z[-1] - z[0]) for i in range(n)]
+    x0 = np.concatenate([np.asarray(e[:2]) + f * (np.asarray(t[:2]) - np.asarray(e[:2]))
+                         for f in frac])
+    r = minimize(time, x0, method="Nelder-Mead",
+                 options={"xatol": 1e-11, "fatol": 1e-16, "maxiter": 40000,
+                          "maxfev": 80000})
+    r = minimize(time, r.x, method="BFGS", options={"gtol": 1e-14})
+    if crossings:
+        return r.fun, np.array([[r.x[2 * i], r.x[2 * i + 1], depths[i]] for i in range(n)])
+    return r.fun
 
 
 # ---------------------------------------------------------------------- backprojection

@@ -8,46 +8,15 @@ import math
 
 import numpy as np
 import pytest
-from scipy.optimize import minimize_scalar
 
 from sim_device.acoustics import reflection_coefficient
 from sim_device.layered_rays import (leg_extents, ray_tan, ray_terms, reflection,
                                    solve_leg, table_ray_tan, two_medium_table)
 from sim_device.synthesis import ray_amplitude_terms, two_medium_terms
+from tests.references import layered_time
 
 C_W = 1500.0
 SAND, SILT = 1767.0, 1476.0
-
-
-def fermat_time(rho, h, c):
-    """Least travel time through flat layers by direct minimisation over the crossing
-    points (independent of the ray-parameter form)."""
-    h = np.asarray(h, float)
-    c = np.asarray(c, float)
-    if len(h) == 1:
-        return math.hypot(rho, h[0]) / c[0]
-    if len(h) == 2:
-        # the crossing x where dT/dx = 0 (monotone), by bisection to machine precision
-        f = lambda x: math.hypot(x, h[0]) / c[0] + math.hypot(rho - x, h[1]) / c[1]
-        if rho == 0.0:
-            return f(0.0)
-        d = lambda x: (x / (c[0] * math.hypot(x, h[0]))
-                       - (rho - x) / (c[1] * math.hypot(rho - x, h[1])))
-        lo, hi = 0.0, rho
-        for _ in range(200):
-            mid = 0.5 * (lo + hi)
-            if mid in (lo, hi):
-                break
-            lo, hi = (mid, hi) if d(mid) < 0 else (lo, mid)
-        return min(f(lo), f(hi))
-    # three media: nested minimisation
-    def inner(x1):
-        g = lambda x2: (math.hypot(x1, h[0]) / c[0] + math.hypot(x2 - x1, h[1]) / c[1]
-                        + math.hypot(rho - x2, h[2]) / c[2])
-        return minimize_scalar(g, bounds=(x1, rho), method="bounded",
-                               options={"xatol": 1e-12}).fun
-    return minimize_scalar(inner, bounds=(0.0, rho), method="bounded",
-                           options={"xatol": 1e-12}).fun
 
 
 def solve(rho, h, c, src=0):
@@ -63,7 +32,7 @@ def solve(rho, h, c, src=0):
                                          (2.0, 2.0, 1e-9), (2.0, 1e-9, 1.0)])
 def test_travel_time_is_fermats_least_time(c1, rho, h0, h1):
     (p, tau, spread, cos0), t = solve(rho, [h0, h1], [C_W, c1])
-    assert tau == pytest.approx(fermat_time(rho, [h0, h1], [C_W, c1]), rel=1e-11, abs=1e-15)
+    assert tau == pytest.approx(layered_time(rho, [h0, h1], [C_W, c1]), rel=1e-11, abs=1e-15)
     # Snell: sin(phi_i)/c_i is the same in both media; t = tan(phi) of the faster one
     cmax = max(C_W, c1)
     tan = [r * t / math.sqrt(1 + t * t * (1 - r * r)) for r in (C_W / cmax, c1 / cmax)]
@@ -81,7 +50,7 @@ def test_three_media_and_deep_layer_extents():
     n = leg_extents(2.0, 1.6, 2, z_top, h)
     assert n == 3 and np.allclose(h, [2.0, 1.0, 0.6])
     (p, tau, *_), _ = solve(1.3, h, c)
-    assert tau == pytest.approx(fermat_time(1.3, h, c), rel=1e-9)
+    assert tau == pytest.approx(layered_time(1.3, h, c), rel=1e-9)
     # a point in the water: one straight leg whatever its side of the element
     assert leg_extents(2.0, -0.5, 0, z_top, h) == 1 and h[0] == 1.5
     assert leg_extents(2.0, -3.0, 0, z_top, h) == 1 and h[0] == 1.0
@@ -99,7 +68,7 @@ def test_fast_sediment_rays_reach_the_water_above_the_critical_angle():
         grazing = math.pi / 2 - math.asin(sin_w)
         assert grazing >= crit - 1e-12
         assert math.isfinite(tau) and math.isfinite(spread) and spread > 0
-        assert tau == pytest.approx(fermat_time(rho, [2.0, 1e-6], [C_W, SAND]), rel=1e-10)
+        assert tau == pytest.approx(layered_time(rho, [2.0, 1e-6], [C_W, SAND]), rel=1e-10)
 
 
 def test_zero_offset_and_vanishing_extents():
@@ -199,5 +168,5 @@ def test_solve_leg_wrapper():
     c = np.array([C_W, SAND])
     z_top = np.array([-np.inf, 0.0])
     out = solve_leg(1.0, 2.0, 1.0, 1, c, z_top)
-    assert out["time"] == pytest.approx(fermat_time(1.0, [2.0, 1.0], c), rel=1e-12)
+    assert out["time"] == pytest.approx(layered_time(1.0, [2.0, 1.0], c), rel=1e-12)
     assert 0 < out["water_angle"] < math.atan2(1.0, 2.0)      # bent towards the normal

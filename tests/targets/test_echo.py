@@ -10,7 +10,6 @@ import math
 
 import numpy as np
 import pytest
-from scipy.optimize import minimize
 
 from sim_device.acoustics import load_sediments, reflection_coefficient
 from sim_device.environment_source import EnvironmentSource
@@ -21,6 +20,7 @@ from svss_daq.config import ConfigError, config_path
 from svss_daq.scaling import counts_per_upa
 from svss_daq.waveform import make_waveform
 from svss_proc.conditioning import Conditioner
+from tests.references import layered_path
 from tests.sim.test_specular import gain  # piston beams with the seed scenes' 2 deg taper
 from tests.sim.test_specular import peak_time_and_level as peak
 
@@ -72,31 +72,6 @@ def pulse_power_spectrum(hw):
     return f[band], spec[band]
 
 
-def fermat_brute(e, t, speeds, depths, crossings=False):
-    """Least travel time from element e (above z = 0) to t through horizontal boundaries
-    at ``depths`` (first 0), minimising over every crossing point (Nelder-Mead from the
-    straight line, then polished); independent of the simulator's Brent solver. With
-    ``crossings``, also the crossing points (n, 3)."""
-    n = len(depths)
-    z = [e[2]] + list(depths) + [t[2]]
-
-    def time(v):
-        pts = [np.array(e)] + [np.array([v[2 * i], v[2 * i + 1], depths[i]])
-                                for i in range(n)] + [np.array(t)]
-        return sum(np.linalg.norm(pts[i + 1] - pts[i]) / speeds[i] for i in range(n + 1))
-
-    frac = [(depths[i] - z[0]) / (z[-1] - z[0]) for i in range(n)]
-    x0 = np.concatenate([np.asarray(e[:2]) + f * (np.asarray(t[:2]) - np.asarray(e[:2]))
-                         for f in frac])
-    r = minimize(time, x0, method="Nelder-Mead",
-                 options={"xatol": 1e-11, "fatol": 1e-16, "maxiter": 40000,
-                          "maxfev": 80000})
-    r = minimize(time, r.x, method="BFGS", options={"gtol": 1e-14})
-    if crossings:
-        return r.fun, np.array([[r.x[2 * i], r.x[2 * i + 1], depths[i]] for i in range(n)])
-    return r.fun
-
-
 # ---------------------------------------------------------------------------- paths
 
 
@@ -112,7 +87,7 @@ def test_refracted_leg_times_match_brute_force_fermat(hardware, sediment):
     tgt = np.array([0.3, -0.2, 0.7])
     legs = refracted_legs(elements, tgt, 1, media, upward=False)
     for e, tau in zip(elements, legs.time):
-        ref = fermat_brute(e, tgt, [media.c[0], media.c[1]], [0.0])
+        ref = layered_path(e, tgt, [media.c[0], media.c[1]], [0.0])
         assert tau == pytest.approx(ref, abs=1e-11)
     # Snell at the target: sin(phi_s) / c_s = sin(phi_w) / c_w
     sin_w = np.hypot(legs.look[:, 0], legs.look[:, 1])
@@ -134,7 +109,7 @@ def test_refracted_leg_through_two_layers_matches_brute_force(hardware):
     tgt = np.array([0.2, 0.1, 0.9])
     legs = refracted_legs(elements, tgt, 2, media, upward=False)
     for e, tau in zip(elements, legs.time):
-        ref = fermat_brute(e, tgt, list(media.c[:3]), [0.0, 0.4])
+        ref = layered_path(e, tgt, list(media.c[:3]), [0.0, 0.4])
         assert tau == pytest.approx(ref, abs=1e-11)
 
 
@@ -168,9 +143,9 @@ def test_buried_point_like_target_echo_at_fermat_time_and_level(hardware):
     alpha_per_m = sand.attenuation_db_per_m(f) / (20 * math.log10(math.e))    # Np/m
     h_t = -tx[2]
     near = np.argsort(np.hypot(*(g.rx[:, :2] - tx[:2]).T))[:4]
-    t1 = fermat_brute(tx, tgt, [C_W, c1], [0.0])
+    t1 = layered_path(tx, tgt, [C_W, c1], [0.0])
     for ch in near:
-        t2, cross = fermat_brute(g.rx[ch], tgt, [C_W, c1], [0.0], crossings=True)
+        t2, cross = layered_path(g.rx[ch], tgt, [C_W, c1], [0.0], crossings=True)
         tau = t1 + t2
         t_peak, level = peak(y.data[ch], y.t0_s, y.dt_s, tau, 1e-4)
         assert t_peak == pytest.approx(tau, abs=0.05 / FS), ch
@@ -396,7 +371,6 @@ def test_buried_target_echoes_image_at_the_target(hardware):
     from svss_proc.imaging.imager import TileImager
     from sim_device.track import truth_line
 
-    hw = hardware.value
     sc = sand_scene()
     a, depth = 0.01, 0.3
     along = EnvironmentSource(hardware, sc).frame(30).tx[0]
