@@ -176,3 +176,42 @@ def test_digitiser_garbage_resync_and_reconnect_after_restart():
     finally:
         cl.close()
         emu.close()
+
+
+# ------------------------------------------------------------------------ from devices.toml
+
+
+def test_drivers_from_the_devices_config_reach_the_devices(hardware):
+    """``from_config`` (how the acquisition side builds its drivers from
+    config/devices.toml) hands every link setting over: distinctive values, then a
+    command round trip with each emulator."""
+    import dataclasses
+
+    from svss_daq.config import DevicesConfig, config_path, load
+
+    devices = load(DevicesConfig, config_path("devices.toml"))
+    with SequencerEmulator() as emu:
+        cfg = dataclasses.replace(devices.sequencer, port=emu.port, baudrate=57600,
+                                  reply_timeout_s=0.37, retries=3)
+        drv = SequencerDriver.from_config(cfg).open(timeout_s=WAIT_S)
+        try:
+            assert (drv.port, drv.link.baudrate, drv.reply_timeout_s, drv.retries) == (
+                emu.port, 57600, 0.37, 3)
+            drv.configure(hardware.value)
+            assert emu.schedule == tuple(hardware.value.sequencer.projector_order)
+        finally:
+            drv.close()
+    with DigitiserEmulator(_samples, ping_interval_s=0.03) as emu:
+        cfg = dataclasses.replace(devices.digitiser, host="127.0.0.1", port=emu.port,
+                                  connect_timeout_s=1.1, reply_timeout_s=0.9,
+                                  reconnect_initial_s=0.07, reconnect_max_s=0.3,
+                                  ping_timeout_s=0.4, max_payload_bytes=1 << 20)
+        cl = DigitiserClient.from_config(cfg).open(wait_connected_s=WAIT_S)
+        try:
+            assert (cl.host, cl.port, cl.connect_timeout_s, cl.reply_timeout_s,
+                    cl.reconnect_initial_s, cl.reconnect_max_s, cl.ping_timeout_s) == (
+                "127.0.0.1", emu.port, 1.1, 0.9, 0.07, 0.3, 0.4)
+            assert cl.decoder.frames.max_payload == 1 << 20
+            assert cl.set_gain(12.3) == 12.5
+        finally:
+            cl.close()
