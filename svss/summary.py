@@ -238,7 +238,7 @@ def _format_raw(s: dict) -> str:
     hw, pg, t, nav = s["hardware"], s["pings"], s["time"], s["navigation"]
     lines = [f"{s['file']}: SVSS raw run (format version {s['format_version']})"
              + ("" if s["clean"] else " -- NOT closed by its writer, read to last flush"),
-             f"  run        " + (", ".join(f"{k} = {v}" for k, v in s["run_attrs"].items())
+             "  run        " + (", ".join(f"{k} = {v}" for k, v in s["run_attrs"].items())
                                  or "-"),
              f"  hardware   {hw['name']} (config {hw['config_id']}): {hw['channels']} "
              f"channels x {hw['samples_per_ping']} samples at {hw['sample_rate_hz']:g} Hz",
@@ -259,7 +259,7 @@ def _format_raw(s: dict) -> str:
         lines.append(f"  samples    first ping: rms {fp['rms_counts']:.1f} counts, peak "
                      f"{fp['peak_counts']} ({100 * fp['peak_fraction_of_full_scale']:.2f} % "
                      "of full scale)")
-    lines.append(f"  environment " + (", ".join(f"{k} = {v}" for k, v in
+    lines.append("  environment " + (", ".join(f"{k} = {v}" for k, v in
                                                 s["environment"].items()) or "-"))
     lines.append(f"  NMEA       {s['nmea_sentences']} sentence(s)")
     if "provenance" in s:

@@ -7,7 +7,6 @@ must be chosen before numba.cuda is imported), and on a real GPU where one is pr
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import subprocess
 import sys

@@ -18,6 +18,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
+from svss_daq.decibels import power_to_db
+
 __all__ = [
     "KNUDSEN_LEVEL_1KHZ",
     "KNUDSEN_SLOPE_DB_PER_DECADE",
@@ -97,7 +99,7 @@ def band_noise_power(f_low: ArrayLike, f_high: ArrayLike, sea_state: ArrayLike,
 def band_noise_level(f_low: ArrayLike, f_high: ArrayLike, sea_state: ArrayLike,
                      include_thermal: bool = False) -> np.ndarray:
     """Band noise level 10 log10(band power), dB re 1 µPa² (band in Hz)."""
-    return 10.0 * np.log10(band_noise_power(f_low, f_high, sea_state, include_thermal))
+    return power_to_db(band_noise_power(f_low, f_high, sea_state, include_thermal))
 
 
 def band_noise_rms_pressure(f_low: ArrayLike, f_high: ArrayLike, sea_state: ArrayLike,

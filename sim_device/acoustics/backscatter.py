@@ -42,6 +42,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.special import erfc, gamma as gamma_fn
 
+from svss_daq.decibels import power_to_db
+
 from .attenuation import sediment_attenuation_db_per_m
 from .interface import (check_grazing_angle, kappa, reflection_coefficient,
                         vertical_wavenumber_ratio)
@@ -369,8 +371,7 @@ def volume_strength_from_sigma2(sigma2: ArrayLike, frequency: ArrayLike,
                                 loss_parameter: ArrayLike) -> np.ndarray:
     """Volume scattering strength (dB re 1 m⁻¹) at a frequency for a given σ2."""
     alpha = sediment_attenuation_db_per_m(frequency, sediment_sound_speed, loss_parameter)
-    with np.errstate(divide="ignore"):
-        return 10.0 * np.log10(np.asarray(sigma2, dtype=float) * alpha)
+    return power_to_db(np.asarray(sigma2, dtype=float) * alpha)
 
 
 def sigma_total(theta: ArrayLike, frequency: ArrayLike, rho: ArrayLike, nu: ArrayLike,

@@ -25,6 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from svss_daq.decibels import amplitude_to_db
+
 from ._series import DEFAULT_TOL, as_frequency
 from .materials import ElasticMaterial, Fluid
 from .spheres import sphere_backscatter, sphere_scattering_amplitude
@@ -142,6 +144,6 @@ def sphere_bisector_error(freq, radius: float, fluid: Fluid,
     f_eq = equivalent_monostatic_frequency(f, beta, method)
     approx = sphere_backscatter(f_eq.ravel(), radius, fluid, material,
                                 tol=tol).reshape(f_eq.shape)
-    ts_err = 20.0 * np.log10(np.abs(approx) / np.abs(exact))
+    ts_err = amplitude_to_db(np.abs(approx) / np.abs(exact))
     rel = np.abs(approx - exact) / np.abs(exact)
     return ts_err, rel

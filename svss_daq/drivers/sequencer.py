@@ -67,8 +67,10 @@ class SequencerDriver:
     def __init__(self, port: str, *, baudrate: int = 115200, reply_timeout_s: float = 0.5,
                  retries: int = 2, on_ping: Optional[Callable[[proto.PingEvent], None]] = None,
                  ping_queue: Optional[queue_mod.Queue] = None, read_timeout_s: float = 0.02,
-                 reconnect_initial_s: float = 0.05, reconnect_max_s: float = 2.0) -> None:
+                 reconnect_initial_s: float = 0.05, reconnect_max_s: float = 2.0,
+                 open_timeout_s: float = 5.0) -> None:
         self.port = port
+        self.open_timeout_s = open_timeout_s
         self.reply_timeout_s = reply_timeout_s
         self.retries = retries
         self.on_ping = on_ping
@@ -87,12 +89,13 @@ class SequencerDriver:
     def from_config(cls, cfg, **kw: Any) -> "SequencerDriver":
         """From a :class:`~svss_daq.config.SequencerLinkConfig`."""
         return cls(cfg.port, baudrate=cfg.baudrate, reply_timeout_s=cfg.reply_timeout_s,
-                   retries=cfg.retries, **kw)
+                   retries=cfg.retries, open_timeout_s=cfg.open_timeout_s, **kw)
 
     # -- life cycle ------------------------------------------------------------------
 
-    def open(self, timeout_s: float = 5.0) -> "SequencerDriver":
-        self.link.start(wait_connected_s=timeout_s)
+    def open(self, timeout_s: Optional[float] = None) -> "SequencerDriver":
+        """Start the link; wait up to ``timeout_s`` (default ``open_timeout_s``) for the port."""
+        self.link.start(wait_connected_s=self.open_timeout_s if timeout_s is None else timeout_s)
         return self
 
     def close(self) -> None:

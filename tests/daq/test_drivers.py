@@ -192,11 +192,11 @@ def test_drivers_from_the_devices_config_reach_the_devices(hardware):
     devices = load(DevicesConfig, config_path("devices.toml"))
     with SequencerEmulator() as emu:
         cfg = dataclasses.replace(devices.sequencer, port=emu.port, baudrate=57600,
-                                  reply_timeout_s=0.37, retries=3)
-        drv = SequencerDriver.from_config(cfg).open(timeout_s=WAIT_S)
+                                  reply_timeout_s=0.37, retries=3, open_timeout_s=WAIT_S + 0.25)
+        drv = SequencerDriver.from_config(cfg).open()
         try:
-            assert (drv.port, drv.link.baudrate, drv.reply_timeout_s, drv.retries) == (
-                emu.port, 57600, 0.37, 3)
+            assert (drv.port, drv.link.baudrate, drv.reply_timeout_s, drv.retries,
+                    drv.open_timeout_s) == (emu.port, 57600, 0.37, 3, WAIT_S + 0.25)
             drv.configure(hardware.value)
             assert emu.schedule == tuple(hardware.value.sequencer.projector_order)
         finally:
