@@ -250,10 +250,37 @@ class ProductsConfig:
 
 
 @dataclass(frozen=True)
+class PingGateConfig:
+    max_speed_m_s: float = spec("largest platform speed between accepted pings, m/s; a "
+                                "ping further from the last accepted one is a jump",
+                                lo=0.01, hi=100)
+    jump_slack_m: float = spec("position noise allowed on top of the speed bound, m",
+                               lo=0.0, hi=1000)
+    max_roll_deg: float = spec("largest plausible roll, deg", lo=0.1, hi=89)
+    max_pitch_deg: float = spec("largest plausible pitch, deg", lo=0.1, hi=89)
+    height_m: tuple[float, float] = spec("plausible projector height above the interface "
+                                         "(min, max), m", length=2)
+    max_line_offset_m: float = spec("largest cross-track distance of the array from the "
+                                    "track line, m", lo=0.0, hi=1e5)
+    reanchor_pings: int = spec("consecutive mutually consistent pings that are taken as "
+                               "the new track after a jump", lo=2, hi=1000)
+
+
+@dataclass(frozen=True)
+class LimitsConfig:
+    max_open_tiles: int = spec("tiles a ping may reach / the imager holds open at once",
+                               lo=1, hi=64)
+    memory_gib: float = spec("memory the open tiles' image planes may take, GiB",
+                             lo=0.001, hi=4096)
+
+
+@dataclass(frozen=True)
 class ProcessingConfig:
     tile: TileConfig = spec("image tile geometry")
     conditioning: ConditioningConfig = spec("signal conditioning")
     imaging: ImagingConfig = spec("image formation")
+    ping_gate: PingGateConfig = spec("plausibility of each ping's pose before it is imaged")
+    limits: LimitsConfig = spec("bounds on the imager's memory")
     products: ProductsConfig | None = spec("image products (omitted: tiles carry the image "
                                            "only)")
 
@@ -264,7 +291,15 @@ class ProcessingConfig:
 @dataclass(frozen=True)
 class PublisherConfig:
     endpoint: str = spec("ZeroMQ endpoint the ping publisher binds")
-    send_hwm: int = spec("ZeroMQ send high-water mark, messages (0: unlimited)", lo=0, hi=10**7)
+    send_hwm: int = spec("ZeroMQ send high-water mark, messages queued per subscriber; "
+                         "beyond it pings to that subscriber are dropped and counted",
+                         lo=1, hi=10**6)
+
+
+@dataclass(frozen=True)
+class SubscriberConfig:
+    receive_hwm: int = spec("ZeroMQ receive high-water mark of a ping subscriber, messages",
+                            lo=1, hi=10**6)
 
 
 @dataclass(frozen=True)
@@ -276,6 +311,7 @@ class RecorderConfig:
 @dataclass(frozen=True)
 class DaqConfig:
     publisher: PublisherConfig = spec("ping publisher")
+    subscriber: SubscriberConfig = spec("ping subscriber (the tile worker)")
     recorder: RecorderConfig = spec("raw-run recorder")
 
 

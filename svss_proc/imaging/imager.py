@@ -82,8 +82,8 @@ class TileImager:
         self.apod = receive_apodisation(self.geometry.receivers, processing.imaging.apodisation)
         self._tables: dict[int, TravelTimeTable] = {}
         if processing.imaging.device == "cuda":
-            from . import gpu                   # numba-cuda only when asked for
-            self._run, self._zeros = gpu.run_ping_gpu, gpu.device_zeros
+            from . import gpu_kernel            # numba-cuda only when asked for
+            self._run, self._zeros = gpu_kernel.run_ping_gpu, gpu_kernel.device_zeros
         else:
             self._run, self._zeros = run_ping, np.zeros
         self.line: TrackLine | None = None
