@@ -60,10 +60,16 @@ class NavSnapshot:
         for f in dataclasses.fields(cls):
             v = d[f.name]
             want = int if f.type in ("int", int) else float
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or (
-                    want is int and not isinstance(v, int)):
+            ok = not isinstance(v, bool) and isinstance(v, want if want is int else (int, float))
+            if ok and want is int:
+                ok = -2**63 <= v < 2**63                  # fits the int64 of the raw file
+            elif ok and isinstance(v, int):
+                ok = abs(v) <= 2**1023                    # converts to a float
+            if not ok:
+                shown = repr(v) if len(repr(v)) <= 80 else repr(v)[:60] + "..."
                 raise ValueError(f"navigation snapshot: field '{f.name}' expected "
-                                 f"{want.__name__}, got {v!r}")
+                                 f"{want.__name__}{' (int64)' if want is int else ''}, "
+                                 f"got {shown}")
             out[f.name] = want(v)
         return cls(**out)
 

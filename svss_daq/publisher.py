@@ -1,4 +1,12 @@
-"""Ping publication over ZeroMQ (XPUB, so the publisher can see its subscribers)."""
+"""Ping publication over ZeroMQ (XPUB, so the publisher can see its subscribers).
+
+Publishing never blocks acquisition: the socket's queue per subscriber is bounded
+(``send_hwm``) and, with ``XPUB_NODROP``, a ping that does not fit is refused as a whole
+(``zmq.Again`` on a non-blocking send) and counted in :attr:`PingPublisher.dropped`.
+ZeroMQ refuses a message when *any* subscriber's queue is full, so with several
+subscribers one slow subscriber makes every subscriber miss the same pings (all see the
+same gaps); nobody blocks. See docs/formats.md.
+"""
 
 from __future__ import annotations
 
@@ -8,6 +16,7 @@ import time
 import zmq
 
 from . import messages
+from .endpoints import check_endpoint
 from .ping import Ping
 
 log = logging.getLogger(__name__)
@@ -15,20 +24,42 @@ log = logging.getLogger(__name__)
 
 class PingPublisher:
     """Binds ``endpoint`` (``tcp://127.0.0.1:*`` picks a free port) and publishes
-    :mod:`~svss_daq.messages`. ``send_hwm`` = 0 never drops pings for a slow subscriber."""
+    :mod:`~svss_daq.messages` with at most ``send_hwm`` (>= 1) messages queued per
+    subscriber.
 
-    def __init__(self, endpoint: str, send_hwm: int = 0, ctx: zmq.Context | None = None):
+    A ping that finds a subscriber's queue full is dropped, counted (:attr:`dropped`) and
+    logged (at most once per ``drop_log_interval_s``, with the sequence numbers); the
+    end-of-run marker is retried for up to ``end_timeout_s`` instead.
+    """
+
+    def __init__(self, endpoint: str, send_hwm: int, ctx: zmq.Context | None = None, *,
+                 end_timeout_s: float = 10.0, drop_log_interval_s: float = 5.0):
+        check_endpoint(endpoint, bind=True)
+        if isinstance(send_hwm, bool) or not isinstance(send_hwm, int) or send_hwm < 1:
+            raise ValueError(f"send_hwm: expected an integer >= 1 (messages), got "
+                             f"{send_hwm!r}")
         self.ctx = ctx or zmq.Context.instance()
         self.sock = self.ctx.socket(zmq.XPUB)
         self.sock.setsockopt(zmq.SNDHWM, send_hwm)
+        self.sock.setsockopt(zmq.XPUB_NODROP, 1)      # full queue: zmq.Again, not a silent drop
+        self.sock.setsockopt(zmq.XPUB_VERBOSER, 1)    # every (un)subscription, to count them
         try:
             self.sock.bind(endpoint)
         except zmq.ZMQError as exc:
             self.sock.close(linger=0)
             raise OSError(f"cannot bind ping publisher to {endpoint}: {exc}") from None
         self.endpoint = self.sock.getsockopt_string(zmq.LAST_ENDPOINT)
+        self.send_hwm = send_hwm
+        self.end_timeout_s = end_timeout_s
+        self.drop_log_interval_s = drop_log_interval_s
         self.subscriptions = 0
-        log.info("publishing pings on %s", self.endpoint)
+        self.published = 0          # pings handed to ZeroMQ
+        self.dropped = 0            # pings refused because a subscriber's queue was full
+        self._unreported = 0        # drops not logged yet, and their sequence range
+        self._unreported_seq = (0, 0)
+        self._last_drop_log = -float("inf")
+        self._closed = False
+        log.info("publishing pings on %s (send_hwm %d)", self.endpoint, send_hwm)
 
     def _drain_subscriptions(self, timeout_ms: int) -> None:
         if self.sock.poll(timeout_ms, zmq.POLLIN):
@@ -42,6 +73,7 @@ class PingPublisher:
                     log.info("subscriber joined (%r)", event[1:])
                 elif event[:1] == b"\x00":
                     self.subscriptions -= 1
+                    log.info("subscriber left (%r)", event[1:])
 
     def wait_for_subscribers(self, n: int = 1, timeout_s: float = 30.0) -> None:
         """Block until ``n`` subscriptions have arrived (ZeroMQ drops messages published
@@ -53,13 +85,65 @@ class PingPublisher:
                 raise TimeoutError(f"no subscriber on {self.endpoint} after {timeout_s:.0f} s")
             self._drain_subscriptions(int(min(left, 0.2) * 1000))
 
-    def publish(self, msg: Ping | messages.RunEnd) -> None:
+    def publish(self, msg: Ping | messages.RunEnd) -> bool:
+        """Queue ``msg`` without blocking; return False if it was dropped.
+
+        A ping is dropped when a subscriber's queue is full; an end-of-run marker is
+        retried for up to ``end_timeout_s`` first.
+        """
         self._drain_subscriptions(0)
-        messages.send(self.sock, msg)
+        if isinstance(msg, messages.RunEnd):
+            return self._publish_end(msg)
+        try:
+            messages.send(self.sock, msg, zmq.NOBLOCK)
+        except zmq.Again:
+            self._count_drop(msg.sequence)
+            return False
+        self.published += 1
+        return True
+
+    def _count_drop(self, sequence: int) -> None:
+        self.dropped += 1
+        first = sequence if self._unreported == 0 else self._unreported_seq[0]
+        self._unreported_seq = (first, sequence)
+        self._unreported += 1
+        if time.monotonic() - self._last_drop_log >= self.drop_log_interval_s:
+            self._report_drops()
+
+    def _report_drops(self) -> None:
+        if self._unreported:
+            first, last = self._unreported_seq
+            log.warning("ping queue full (send_hwm %d, a subscriber is too slow): dropped "
+                        "%d ping(s), sequence %d..%d; %d dropped in all", self.send_hwm,
+                        self._unreported, first, last, self.dropped)
+            self._unreported = 0
+            self._last_drop_log = time.monotonic()
+
+    def _publish_end(self, end: messages.RunEnd) -> bool:
+        self._report_drops()
+        deadline = time.monotonic() + self.end_timeout_s
+        while True:
+            try:
+                messages.send(self.sock, end, zmq.NOBLOCK)
+                return True
+            except zmq.Again:
+                if time.monotonic() >= deadline:
+                    log.error("end-of-run marker of run %r not sent: a subscriber's queue "
+                              "stayed full for %.1f s", end.run_id, self.end_timeout_s)
+                    return False
+            time.sleep(0.01)
+            self._drain_subscriptions(0)
 
     def close(self, linger_s: float = 10.0) -> None:
         """Close, giving queued messages up to ``linger_s`` to leave."""
+        if self._closed:
+            return
+        self._report_drops()
+        if self.dropped:
+            log.warning("publisher %s: %d ping(s) published, %d dropped", self.endpoint,
+                        self.published, self.dropped)
         self.sock.close(linger=int(linger_s * 1000))
+        self._closed = True
 
     def __enter__(self) -> "PingPublisher":
         return self

@@ -59,7 +59,7 @@ def test_round_trip_push_pull_zero_copy(ctx):
 
 
 def test_publisher_waits_for_subscriber_and_delivers_all(ctx):
-    pub = PingPublisher("tcp://127.0.0.1:*", 0, ctx=ctx)
+    pub = PingPublisher("tcp://127.0.0.1:*", 100, ctx=ctx)
     sub = ctx.socket(zmq.SUB)
     sub.connect(pub.endpoint)
     sub.setsockopt(zmq.SUBSCRIBE, b"svss.")
@@ -82,7 +82,7 @@ def test_publisher_waits_for_subscriber_and_delivers_all(ctx):
 
 
 def test_publisher_times_out_without_subscriber(ctx):
-    pub = PingPublisher("tcp://127.0.0.1:*", 0, ctx=ctx)
+    pub = PingPublisher("tcp://127.0.0.1:*", 100, ctx=ctx)
     with pytest.raises(TimeoutError, match="no subscriber"):
         pub.wait_for_subscribers(timeout_s=0.3)
     pub.close(0)
