@@ -268,9 +268,9 @@ class PingGateConfig:
 
 @dataclass(frozen=True)
 class LimitsConfig:
-    max_open_tiles: int = spec("tiles a ping may reach / the imager holds open at once",
-                               lo=1, hi=64)
-    memory_gib: float = spec("memory the open tiles' image planes may take, GiB",
+    memory_gib: float = spec("memory the imager's open tiles (image planes) and one "
+                             "tile's products may take, GiB; it bounds how many tiles are "
+                             "open at once and how many one ping may reach",
                              lo=0.001, hi=4096)
 
 

@@ -46,7 +46,7 @@ import numpy as np
 from .delays import _cpu as refraction_cpu
 from .kernel_args import (EXACT, LINEAR, NEAREST, SHIFT, STRAIGHT, TABLE, TAPS, DelayModel,
                           KernelArgs, KernelData, TapPlanes, TravelTimes, VoxelGeometry,
-                          kernel_args)
+                          check_call, kernel_args)
 from .kernel_math import build, cast_like
 from .window_gather import LANES, window_gather_1, window_gather_2, window_gather_4
 
@@ -351,6 +351,7 @@ def run_ping(img_re, img_im, kd: KernelData, tx, rx, along, cross, depth, ia0, i
     number of voxel-channel updates."""
     if kd.dtype != img_re.dtype:
         raise ValueError(f"kernel data is {kd.dtype}, the image planes are {img_re.dtype}")
+    check_call(img_re, img_im, along, cross, depth, ia0, ia1)
     args = kernel_args(kd, tx, rx, along, cross, depth, bore=bore, cos_tx=cos_tx,
                        cos_rx=cos_rx, apod=apod, delays=delays)
     kernel = kernel_for(kd.interp, delays.code, gating, kd.halvings)

@@ -15,7 +15,7 @@ import numpy as np
 from numba import cuda
 
 from .delays import build_refraction
-from .kernel_args import DelayModel, KernelData, kernel_args
+from .kernel_args import DelayModel, KernelData, check_call, kernel_args
 from .kernel_math import build
 
 _dev = cuda.jit(device=True)
@@ -74,6 +74,7 @@ def run_ping_gpu(img_re, img_im, kd: KernelData, tx, rx, along, cross, depth, ia
     pings."""
     if kd.dtype != img_re.dtype:
         raise ValueError(f"kernel data is {kd.dtype}, the image planes are {img_re.dtype}")
+    check_call(img_re, img_im, along, cross, depth, ia0, ia1)
     args = kernel_args(kd, tx, rx, along, cross, depth, bore=bore, cos_tx=cos_tx,
                        cos_rx=cos_rx, apod=apod, delays=delays)
     n = (ia1 - ia0) * cross.size * depth.size

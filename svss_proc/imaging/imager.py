@@ -16,14 +16,17 @@ from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
 from svss_daq.frames import TrackLine
 from svss_daq.geometry import array_geometry, place_array
 from svss_daq.ping import Ping
+from svss_daq.ping_gate import PingRejected
 from svss_daq.waveform import make_waveform
 
+from ..conditioning import Conditioner
+from ..preflight import preflight
+from ..tiles import Tile
 from .cpu_kernel import run_ping
 from .delays import TravelTimeTable, build_table
-from .kernel_args import DelayModel, prepare
-from ..conditioning import Conditioner
 from .grid import tile_grid, tile_index
-from ..tiles import Tile
+from .kernel_args import DelayModel, prepare
+from .pose_check import TrackGuard
 
 log = logging.getLogger(__name__)
 
@@ -70,10 +73,14 @@ class TileImager:
     """Streaming imager. Feed pings in time order with :meth:`add`; it returns the tiles
     that are complete. :meth:`finish` returns the rest."""
 
-    def __init__(self, hardware: Loaded[HardwareConfig], processing: ProcessingConfig):
+    def __init__(self, hardware: Loaded[HardwareConfig], processing: ProcessingConfig, *,
+                 source: str = "processing configuration"):
+        self.max_open_tiles = preflight(processing, source)
         self.hardware = hardware
         hw = hardware.value
         self.proc = processing
+        self.track = TrackGuard(processing.ping_gate)
+        self.late_pings = 0
         self.geometry = array_geometry(hw)
         cond = processing.conditioning
         self.conditioner = Conditioner(hw.digitiser, make_waveform(hw.waveform),
@@ -100,34 +107,54 @@ class TileImager:
         return self.active[k]
 
     def add(self, ping: Ping) -> list[Tile]:
-        """Image one ping into the tiles it reaches; return tiles now complete."""
+        """Image one ping into the tiles it reaches; return tiles now complete.
+
+        Raises :class:`~svss_daq.ping_gate.PingRejected`, changing nothing, for a ping
+        from another hardware configuration, an implausible pose
+        (:mod:`~svss_proc.imaging.pose_check`) or one that would reach more than
+        the tiles that fit in ``limits.memory_gib``. Pings are expected to have passed the
+        :class:`~svss_daq.ping_gate.PingGate`."""
         if ping.config_id and ping.config_id != self.hardware.id:
-            raise ValueError(f"ping {ping.sequence}: acquired with hardware config "
-                             f"{ping.config_id}, imager configured with {self.hardware.id}")
-        if self.line is None:
-            self.line = line_from_ping(ping, self.proc)
-            log.info("tile frame: origin N %.2f E %.2f m, heading %.1f deg, interface %.2f m",
-                     *self.line.origin_ne, math.degrees(self.line.heading),
-                     self.line.interface_down)
+            raise PingRejected(ping.sequence, f"acquired with hardware config "
+                               f"{ping.config_id}, imager configured with {self.hardware.id}")
+        line = self.line or line_from_ping(ping, self.proc)
         geo, tcfg = self.geometry, self.proc.tile
-        placed = place_array(geo, ping.nav, ping.projector, self.line)
+        placed = place_array(geo, ping.nav, ping.projector, line)
         tx, rx, bore = placed.tx, placed.rx, placed.bore
-        cond = self.conditioner.ping(ping)
+        fix = self.track.check(ping.sequence, ping.nav, tx)
         im = self.proc.imaging
         gating = im.beam_gating
         # which tiles can this ping reach?
         max_depth = tcfg.top_m + tcfg.depth_m
+        cond = None
         if gating:
             reach = along_reach(tx, bore, geo.projector_half_angle, max_depth)
         else:
+            cond = self.conditioner.ping(ping)
             reach = cond.axis.end_s * im.water_sound_speed_m_s / 2
         lo, hi = tx[0] - reach, tx[0] + reach
+        k_lo, k_hi = tile_index(tcfg, lo), tile_index(tcfg, hi)
+        limit = self.max_open_tiles
+        if k_hi - k_lo + 1 > limit:
+            raise PingRejected(ping.sequence, f"reaches {k_hi - k_lo + 1} tiles (along-track "
+                               f"{lo:.1f} to {hi:.1f} m), more than the {limit} that fit "
+                               "in limits.memory_gib")
+        if self.line is None:
+            self.line = line
+            log.info("tile frame: origin N %.2f E %.2f m, heading %.1f deg, interface %.2f m",
+                     *line.origin_ne, math.degrees(line.heading), line.interface_down)
+        self.track.commit(fix)
+        reached = [k for k in range(k_lo, k_hi + 1) if k not in self.done]
+        if not reached:
+            self.late_pings += 1
+            log.warning("ping %d reaches only tiles already written (%d..%d); not imaged",
+                        ping.sequence, k_lo, k_hi)
+        closed = self._make_room([k for k in reached if k not in self.active], reached)
+        cond = cond or self.conditioner.ping(ping)
         delays = DelayModel(im.delays, im.water_sound_speed_m_s, im.sediment_sound_speed_m_s,
                             self._table(tx, rx, reach) if im.delays == "table" else None)
         kd = None
-        for k in range(tile_index(tcfg, lo), tile_index(tcfg, hi) + 1):
-            if k in self.done:
-                continue
+        for k in reached:
             tile = self._tile(k)
             a = tile.grid.along
             v = tcfg.voxel_m
@@ -146,7 +173,21 @@ class TileImager:
         self.n_pings += 1
         # tiles wholly behind this ping's reach are complete (platform moves forward)
         finished = [k for k in self.active if (k + 1) * tcfg.length_m < lo]
-        return [self._close(k) for k in sorted(finished)]
+        return closed + [self._close(k) for k in sorted(finished)]
+
+    def _make_room(self, new: list[int], reached: list[int]) -> list[Tile]:
+        """Close open tiles this ping does not reach, farthest first, until the ``new``
+        ones fit within the tiles ``limits.memory_gib`` allows; return those closed."""
+        limit = self.max_open_tiles
+        closed = []
+        spare = sorted((k for k in self.active if k not in reached),
+                       key=lambda k: -min(abs(k - r) for r in reached))
+        while len(self.active) + len(new) > limit and spare:
+            k = spare.pop(0)
+            log.warning("closing tile %d early: %d tiles open, %d fit in limits.memory_gib",
+                        k, len(self.active) + len(new), limit)
+            closed.append(self._close(k))
+        return closed
 
     def _table(self, tx: np.ndarray, rx: np.ndarray, reach: float) -> TravelTimeTable:
         """Refraction table for this ping's mean element height (cached per mm)."""

@@ -144,15 +144,58 @@ def prepare(cond: Conditioned, interp: str, dtype) -> KernelData:
 _EMPTY_TABLE = np.zeros((2, 2))
 
 
+#: largest coordinate the kernels accept, m (float32 keeps 0.1 mm at 1 km)
+MAX_COORDINATE_M = 1e5
+
+
+def _finite(name: str, x, limit: float | None = None) -> None:
+    a = np.asarray(x, dtype=np.float64)
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"kernel input {name} is not finite")
+    if limit is not None and a.size and np.abs(a).max() > limit:
+        raise ValueError(f"kernel input {name} reaches {np.abs(a).max():.3g}, beyond "
+                         f"{limit:g}")
+
+
+def check_call(img_re, img_im, along, cross, depth, ia0: int, ia1: int) -> None:
+    """The image planes match the voxel axes and the along-track range lies inside them
+    (so that the kernels cannot write out of bounds); raise ValueError otherwise."""
+    shape = (len(along), len(cross), len(depth))
+    for name, img in (("real", img_re), ("imaginary", img_im)):
+        if tuple(img.shape) != shape:
+            raise ValueError(f"{name} image plane of shape {tuple(img.shape)}; the voxel "
+                             f"axes make {shape}")
+    if not 0 <= ia0 <= ia1 <= shape[0]:
+        raise ValueError(f"along-track range {ia0}..{ia1} outside 0..{shape[0]}")
+
+
 def kernel_args(kd: KernelData, tx, rx, along, cross, depth, *, bore, cos_tx: float,
                 cos_rx: float, apod, delays: DelayModel) -> KernelArgs:
     """The kernel's argument for one ping: geometry from the tile frame (float64) made
-    relative to the projector, then cast to the kernel precision."""
+    relative to the projector, then cast to the kernel precision. Refuses (ValueError)
+    whatever could make a kernel index outside its arrays: non-finite or huge geometry,
+    channel counts that disagree, a non-finite sample axis."""
     ft = kd.dtype.type
+    tx, rx = np.asarray(tx, dtype=np.float64), np.asarray(rx, dtype=np.float64)
+    if tx.shape != (3,) or rx.ndim != 2 or rx.shape[1] != 3:
+        raise ValueError(f"projector position of shape {tx.shape} and receivers of shape "
+                         f"{rx.shape}; expected (3,) and (channels, 3)")
     nch = rx.shape[0]
-    if kd.planes.re.shape[1] != nch:
-        raise ValueError(f"the ping has {kd.planes.re.shape[1]} channels, the array "
-                         f"geometry {nch}")
+    p = kd.planes
+    if p.re.ndim != 3 or p.re.shape != p.im.shape or p.re.shape[1] != nch \
+            or p.re.shape[2] < 4:
+        raise ValueError(f"tap planes of shape {p.re.shape} / {p.im.shape}; the array "
+                         f"geometry has {nch} channels (and a ping needs 4 samples or more)")
+    for name, x in (("projector position", tx), ("receiver positions", rx),
+                    ("along-track axis", along), ("cross-track axis", cross),
+                    ("depth axis", depth)):
+        _finite(name, x, MAX_COORDINATE_M)
+    _finite("boresight", bore, 1.0 + 1e-6)
+    _finite("sample axis", [p.t0, p.inv_dt, p.theta])
+    if not p.inv_dt > 0:
+        raise ValueError(f"kernel input sample rate {float(p.inv_dt)!r} is not positive")
+    if apod is not None and np.shape(apod) != (nch,):
+        raise ValueError(f"apodisation of shape {np.shape(apod)}; expected ({nch},)")
     geo = VoxelGeometry(
         np.ascontiguousarray(along - tx[0], dtype=ft),
         np.ascontiguousarray(cross - tx[1], dtype=ft),

@@ -1,0 +1,95 @@
+"""Is a ping's pose plausible on the survey line? Judged before a ping may open or close
+tiles, so that a navigation glitch cannot hijack the tile bookkeeping.
+
+Each ping's array is placed in the tile frame (:func:`svss_daq.geometry.place_array`);
+the checks are, in order: attitude (roll, pitch), the projector's height above the
+interface, its cross-track distance from the track line, and a jump from the last
+accepted ping further than the platform can have moved (``max_speed_m_s`` times the
+time between them, plus ``jump_slack_m``). A jump is refused; but when
+``reanchor_pings`` consecutive refused pings agree with one another, the platform has
+truly moved (a gap in the recording, a reacquired fix) and the track follows them.
+Limits come from ``[ping_gate]`` of the processing configuration.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+from svss_daq.config import PingGateConfig
+from svss_daq.ping import NavSnapshot
+from svss_daq.ping_gate import PingRejected
+
+log = logging.getLogger(__name__)
+
+
+def attitude_height_offset_problem(nav: NavSnapshot, tx_tile, cfg: PingGateConfig
+                                   ) -> str | None:
+    """Why a pose is implausible on its own (None when it is plausible): roll or pitch
+    beyond the limits, projector height above the interface (``-tx_tile[2]``, m) outside
+    ``cfg.height_m``, cross-track offset ``|tx_tile[1]|`` beyond ``max_line_offset_m``."""
+    for name, value, limit in (("roll", nav.roll_rad, cfg.max_roll_deg),
+                               ("pitch", nav.pitch_rad, cfg.max_pitch_deg)):
+        if abs(math.degrees(value)) > limit:
+            return f"{name} {math.degrees(value):.1f} deg beyond +-{limit:g} deg"
+    h = -float(tx_tile[2])
+    lo, hi = cfg.height_m
+    if not lo <= h <= hi:
+        return (f"projector height {h:.2f} m above the interface outside "
+                f"[{lo:g}, {hi:g}] m")
+    if abs(float(tx_tile[1])) > cfg.max_line_offset_m:
+        return (f"cross-track offset {float(tx_tile[1]):.1f} m from the track line beyond "
+                f"{cfg.max_line_offset_m:g} m")
+    return None
+
+
+@dataclass
+class _Fix:
+    time_ns: int
+    along: float
+    cross: float
+
+
+@dataclass
+class TrackGuard:
+    """Refuses implausible poses and jumps off the track; re-anchors after a true move."""
+    cfg: PingGateConfig
+    anchor: _Fix | None = None
+    candidates: list = field(default_factory=list)
+    reanchored: int = 0
+
+    def _reachable(self, a: _Fix, b: _Fix) -> tuple[bool, float, float]:
+        dt = abs(b.time_ns - a.time_ns) * 1e-9
+        dist = math.hypot(b.along - a.along, b.cross - a.cross)
+        allowed = self.cfg.max_speed_m_s * dt + self.cfg.jump_slack_m
+        return dist <= allowed, dist, allowed
+
+    def check(self, sequence: int, nav: NavSnapshot, tx_tile) -> _Fix:
+        """Raise :class:`~svss_daq.ping_gate.PingRejected` for an implausible pose (a
+        refused jump is remembered as a candidate for re-anchoring); otherwise return
+        the ping's fix, to be taken as the track's latest point by :meth:`commit` once
+        the ping is imaged."""
+        reason = attitude_height_offset_problem(nav, tx_tile, self.cfg)
+        if reason is not None:
+            raise PingRejected(sequence, reason)
+        fix = _Fix(int(nav.time_ns), float(tx_tile[0]), float(tx_tile[1]))
+        if self.anchor is not None:
+            ok, dist, allowed = self._reachable(self.anchor, fix)
+            if not ok:
+                if self.candidates and not self._reachable(self.candidates[-1], fix)[0]:
+                    self.candidates.clear()
+                self.candidates.append(fix)
+                if len(self.candidates) < self.cfg.reanchor_pings:
+                    raise PingRejected(sequence, f"position jump of {dist:.1f} m from the "
+                                       f"last accepted ping (at most {allowed:.1f} m)")
+                self.reanchored += 1
+                log.warning("ping %d: %d consecutive pings agree on a position %.1f m from "
+                            "the previous track; the track follows them", sequence,
+                            len(self.candidates), dist)
+        return fix
+
+    def commit(self, fix: _Fix) -> None:
+        """Take an accepted ping's fix as the track's latest point."""
+        self.candidates.clear()
+        self.anchor = fix

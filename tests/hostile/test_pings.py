@@ -1,0 +1,323 @@
+"""Hostile pings: the ping gate, the imager's pose checks, the kernels' bounds and the
+worker's survival. Bad pings travel over real ZeroMQ sockets between good ones from the
+simulator; the good pings must still be imaged exactly as without the bad ones."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zmq
+from hypothesis import given, settings, strategies as st
+
+from sim_device.environment_source import EnvironmentSource
+from sim_device.scene import load_scene
+from svss_daq import messages
+from svss_daq.config import (ConfigError, HardwareConfig, ProcessingConfig, config_path,
+                             load_with_text)
+from svss_daq.ping import Ping
+from svss_daq.ping_gate import PingGate, PingRejected
+from svss_daq.publisher import PingPublisher
+from svss_proc.imaging.pose_check import TrackGuard
+from svss_proc.tiles import read_tile
+from svss_proc.worker import MANIFEST, Worker, serve
+
+ROOT = Path(__file__).resolve().parents[2]
+N_PINGS = 30
+MAX_EXAMPLES = int(os.environ.get("SVSS_FUZZ_EXAMPLES", 200))
+
+
+@pytest.fixture(scope="module")
+def hw():
+    return load_with_text(HardwareConfig, config_path("hardware.toml"))
+
+
+@pytest.fixture(scope="module")
+def proc():
+    return load_with_text(ProcessingConfig, config_path("processing-demo.toml"))
+
+
+@pytest.fixture(scope="module")
+def pings(hw):
+    """The first pings of the demo scene (three point targets, 1 m/s, 10 pings/s)."""
+    scene = load_scene(config_path("scenes/demo.toml"))
+    return list(itertools.islice(iter(EnvironmentSource(hw, scene)), N_PINGS))
+
+
+def with_nav(ping: Ping, dt_ns: int = 1_000_000, **nav) -> Ping:
+    """A copy of ``ping`` transmitted ``dt_ns`` later, its navigation fields replaced."""
+    t = ping.transmit_time_ns + dt_ns
+    return dataclasses.replace(ping, transmit_time_ns=t,
+                               nav=dataclasses.replace(ping.nav, time_ns=t, **nav))
+
+
+def later(ping: Ping, dt_ns: int = 1_000_000, **fields) -> Ping:
+    return dataclasses.replace(with_nav(ping, dt_ns), **fields)
+
+
+# ---------------------------------------------------------------------------- the gate
+
+BAD = {  # name: (make a bad ping from a good one, words the reason must contain)
+    "81 channels": (lambda p, hw: later(p, samples=np.zeros((81, p.n_samples), np.int32)),
+                    "samples of shape"),
+    "1 x 1 samples": (lambda p, hw: later(p, samples=np.zeros((1, 1), np.int32)),
+                      "samples of shape"),
+    "float samples": (lambda p, hw: later(p, samples=p.samples.astype(np.float32)),
+                      "dtype"),
+    "codes beyond the ADC": (lambda p, hw: later(p, samples=p.samples * 0 + 2**24),
+                             "ADC range"),
+    "projector -1": (lambda p, hw: later(p, projector=-1), "projector -1 outside"),
+    "projector 99": (lambda p, hw: later(p, projector=99), "projector 99 outside"),
+    "sample rate 0": (lambda p, hw: later(p, sample_rate_hz=0.0), "sample rate 0.0"),
+    "NaN north": (lambda p, hw: with_nav(p, north_m=float("nan")), "north_m"),
+    "infinite depth": (lambda p, hw: with_nav(p, down_m=float("inf")), "down_m"),
+    "NaN roll": (lambda p, hw: with_nav(p, roll_rad=float("nan")), "roll_rad"),
+    "foreign config": (lambda p, hw: later(p, config_id="0123456789abcdef"),
+                       "hardware config"),
+    "negative window": (lambda p, hw: later(p, window_start_ns=-5), "window start"),
+    "nav time far off": (lambda p, hw: later(p, nav=dataclasses.replace(
+        p.nav, time_ns=p.transmit_time_ns + 10**12)), "navigation time"),
+    "back in time": (lambda p, hw: later(p, dt_ns=-10**9), "not after the previous"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BAD))
+def test_gate_refuses_each_bad_ping_with_its_reason_and_counts_it(name, pings, hw, caplog):
+    make, words = BAD[name]
+    gate = PingGate(hw)
+    assert gate.admit(pings[0])
+    bad = make(pings[0], hw)
+    with pytest.raises(PingRejected) as exc:
+        gate.check(bad)
+    assert words in exc.value.reason and exc.value.sequence == bad.sequence
+    assert not gate.admit(bad)
+    assert gate.n_refused == 1 and gate.admitted == 1
+    assert f"refused ping {bad.sequence}" in caplog.text
+    assert gate.admit(pings[1])           # the good ping after it passes
+
+
+def test_gate_admits_every_simulated_ping(pings, hw):
+    gate = PingGate(hw)
+    assert all(gate.admit(p) for p in pings) and gate.n_refused == 0
+
+
+nav_values = st.one_of(st.floats(allow_nan=True, allow_infinity=True),
+                       st.floats(-10, 10), st.integers(-2**63, 2**63 - 1))
+
+
+@settings(max_examples=MAX_EXAMPLES, deadline=None)
+@given(data=st.data())
+def test_fuzzed_pings_are_admitted_or_refused_never_crash(data, pings, hw, proc):
+    """Random shapes, dtypes, projectors, rates, times and navigation: the gate and the
+    imager's pose check either pass a ping or raise PingRejected."""
+    p = pings[3]
+    nch = data.draw(st.sampled_from([0, 1, 79, 80, 81, 200]))
+    ns = data.draw(st.sampled_from([1, 3, 1499, 1500, 1501]))
+    dtype = data.draw(st.sampled_from([np.int32, np.int64, np.float64, np.uint8]))
+    samples = np.zeros((nch, ns), dtype=dtype)
+    nav_fields = {f.name: data.draw(nav_values) for f in dataclasses.fields(p.nav)
+                  if f.name not in ("time_ns", "quality") and data.draw(st.booleans())}
+    bad = dataclasses.replace(
+        p, samples=samples if data.draw(st.booleans()) else p.samples,
+        projector=data.draw(st.integers(-3, 9)),
+        sample_rate_hz=data.draw(st.sampled_from([125e3, 0.0, -1.0, float("nan"), 1e300])),
+        window_start_ns=data.draw(st.integers(-10**12, 10**12)),
+        nav=dataclasses.replace(p.nav, **nav_fields))
+    gate = PingGate(hw)
+    guard = TrackGuard(proc.value.ping_gate)
+    try:
+        gate.check(bad)
+    except PingRejected as exc:
+        assert exc.reason
+        return
+    from svss_daq.geometry import array_geometry, place_array
+    from svss_proc.imaging.imager import line_from_ping
+    line = line_from_ping(p, proc.value)
+    placed = place_array(array_geometry(hw.value), bad.nav, bad.projector, line)
+    try:
+        guard.check(bad.sequence, bad.nav, placed.tx)
+    except PingRejected as exc:
+        assert exc.reason
+
+
+# ---------------------------------------------------------------------------- the track
+
+def test_track_guard_refuses_a_jump_and_follows_a_true_move(pings, proc):
+    cfg = proc.value.ping_gate
+    guard = TrackGuard(cfg)
+    nav = pings[0].nav
+
+    def at(i, along):
+        n = dataclasses.replace(nav, time_ns=nav.time_ns + i * 10**8)
+        return n, np.array([along, 0.0, -2.5])
+
+    guard.commit(guard.check(0, *at(0, 0.0)))
+    guard.commit(guard.check(1, *at(1, 0.1)))
+    with pytest.raises(PingRejected, match="position jump of 1000.0 m"):
+        guard.check(2, *at(2, 1000.1))                 # one glitch: refused
+    guard.commit(guard.check(3, *at(3, 0.3)))          # the good ping after it: taken
+    for i in range(4, 4 + cfg.reanchor_pings - 1):     # a true move: refused until ...
+        with pytest.raises(PingRejected):
+            guard.check(i, *at(i, 500 + 0.1 * i))
+    i = 4 + cfg.reanchor_pings - 1
+    guard.commit(guard.check(i, *at(i, 500 + 0.1 * i)))   # ... enough pings agree
+    assert guard.reanchored == 1 and guard.anchor.along == pytest.approx(500 + 0.1 * i)
+
+
+# ------------------------------------------------------------------- kernels and limits
+
+def test_kernels_refuse_what_would_index_out_of_bounds(pings, hw, proc):
+    from svss_daq.geometry import array_geometry
+    from svss_proc.conditioning import Conditioner
+    from svss_daq.waveform import make_waveform
+    from svss_proc.imaging.cpu_kernel import run_ping
+    from svss_proc.imaging.kernel_args import DelayModel, prepare
+    h = hw.value
+    cond = Conditioner(h.digitiser, make_waveform(h.waveform), 2, 1).ping(pings[0])
+    kd = prepare(cond, "linear", np.float32)
+    geo = array_geometry(h)
+    ax = np.linspace(-1, 1, 5)
+    img = np.zeros((5, 5, 5), np.float32)
+    tx, rx = np.array([0.0, 0.0, -2.5]), geo.receivers + [0, 0, -2.5]
+    kw = dict(bore=np.array([0.0, 0.0, 1.0]), cos_tx=0.5, cos_rx=0.5,
+              delays=DelayModel("straight", 1500.0, 1500.0))
+    assert run_ping(img, img.copy(), kd, tx, rx, ax, ax, ax + 1.5, 0, 5, **kw) > 0
+    cases = {"channels": dict(rx=np.vstack([rx, rx[:1]])),
+             "NaN projector": dict(tx=np.array([np.nan, 0.0, -2.5])),
+             "huge receiver": dict(rx=rx * 1e12),
+             "along range": dict(ia1=6),
+             "plane shape": dict(img=np.zeros((5, 5, 4), np.float32))}
+    for name, c in cases.items():
+        args = dict(img=img, tx=tx, rx=rx, ia1=5) | c
+        with pytest.raises(ValueError):
+            run_ping(args["img"], args["img"].copy(), kd, args["tx"], args["rx"], ax, ax,
+                     ax + 1.5, 0, args["ia1"], **kw)
+
+
+def test_preflight_refuses_tiles_beyond_memory_before_allocating(hw, proc):
+    tile = dataclasses.replace(proc.value.tile, length_m=15.0, width_m=2.0, depth_m=2.0,
+                               voxel_m=0.001)
+    p = dataclasses.replace(proc, value=dataclasses.replace(proc.value, tile=tile))
+    t = time.perf_counter()
+    with pytest.raises(ConfigError, match=r"processing-demo.toml.*tile.voxel_m = 0.001.*"
+                       r"limits.memory_gib"):
+        Worker(hw, p, "unused-folder")
+    assert time.perf_counter() - t < 5.0 and not Path("unused-folder").exists()
+
+
+def test_preflight_refuses_cuda_without_a_gpu(hw, proc):
+    from numba import cuda
+    if cuda.is_available():
+        pytest.skip("a CUDA GPU is present")
+    im = dataclasses.replace(proc.value.imaging, device="cuda")
+    p = dataclasses.replace(proc, value=dataclasses.replace(proc.value, imaging=im))
+    with pytest.raises(ConfigError, match=r"processing-demo.toml: imaging.device = 'cuda'"):
+        Worker(hw, p, "unused-folder")
+
+
+# ------------------------------------------------------------- the worker survives them
+
+def hostile_stream(pings, hw):
+    """The good pings with a bad one after each from the third on: each gate case and the pose
+    glitches (1 km off the line, pitched 1.55 rad, 20 m too high)."""
+    # (float samples are sent as int32 codes: a gate-only case)
+    bad = [make for name, (make, _) in BAD.items()
+           if name not in ("back in time", "float samples")]
+    bad += [lambda p, hw: with_nav(p, north_m=p.nav.north_m + 1000.0),
+            lambda p, hw: with_nav(p, pitch_rad=1.55),
+            lambda p, hw: with_nav(p, down_m=p.nav.down_m - 20.0),
+            lambda p, hw: later(p, dt_ns=-10**9)]
+    out, n_bad = [], 0
+    for i, p in enumerate(pings):
+        out.append(p)
+        if i >= 2 and bad:
+            out.append(bad.pop(0)(p, hw))
+            n_bad += 1
+    assert not bad, "stream too short for every case"
+    return out, n_bad
+
+
+def test_bad_pings_over_zeromq_are_refused_and_every_good_ping_is_imaged(
+        pings, hw, proc, tmp_path):
+    clean = Worker(hw, proc, tmp_path / "clean")
+    clean.run(pings)
+    stream, n_bad = hostile_stream(pings, hw)
+    out = tmp_path / "hostile"
+    result = {}
+    ctx = zmq.Context()
+    with PingPublisher("tcp://127.0.0.1:*", 1000, ctx=ctx) as pub:
+        t = threading.Thread(target=lambda: result.update(files=serve(
+            pub.endpoint, out, hw, proc, idle_timeout_s=60, receive_hwm=1000)))
+        t.start()
+        pub.wait_for_subscribers(timeout_s=30)
+        raw = pub.sock
+        raw.send_multipart([b"svss.ping", b"{not json"])       # garbage between pings
+        for p in stream:
+            pub.publish(p)
+        pub.publish(messages.RunEnd("hostile", len(stream)))
+        t.join(timeout=300)
+    ctx.term()
+    assert not t.is_alive()
+    manifest = json.loads((out / MANIFEST).read_text())
+    assert manifest["complete"] and manifest["pings"] == len(pings)
+    # every bad ping is refused by the gate or, if it cannot even be decoded, dropped as
+    # malformed (with the garbage message)
+    assert manifest["pings_refused"] + manifest["malformed_messages"] == n_bad + 1
+    assert manifest["pings_refused"] >= n_bad - 3
+    want = sorted(p.name for p in clean.written if p.suffix == ".h5")
+    got = sorted(p.name for p in result["files"] if p.suffix == ".h5")
+    assert got == want
+    for name in want:
+        a, b = read_tile(tmp_path / "clean" / name), read_tile(out / name)
+        np.testing.assert_array_equal(a["ping_sequence"], b["ping_sequence"])
+        np.testing.assert_array_equal(a["image"], b["image"])
+        assert len(a["detections"]) == len(b["detections"])
+
+
+def test_output_folder_of_an_earlier_run_is_refused_unless_forced(hw, proc, tmp_path):
+    (tmp_path / "tile_0003.h5").write_bytes(b"old")
+    with pytest.raises(FileExistsError, match=r"tile_0003.h5.*--force"):
+        Worker(hw, proc, tmp_path)
+    Worker(hw, proc, tmp_path, force=True)
+    assert not (tmp_path / "tile_0003.h5").exists()
+
+
+# ---------------------------------------------------------------------------- signals
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_idle_worker_stops_promptly_on_a_signal(sig, tmp_path):
+    with zmq.Context() as ctx:
+        s = ctx.socket(zmq.PUB)
+        port = s.bind_to_random_port("tcp://127.0.0.1")
+        proc = subprocess.Popen([sys.executable, "-m", "svss", "worker", "--connect",
+                                 f"tcp://127.0.0.1:{port}", "--out", str(tmp_path / "t")],
+                                cwd=ROOT, stderr=subprocess.PIPE, text=True)
+        try:
+            deadline = time.monotonic() + 120
+            for line in proc.stderr:
+                if "waiting for pings" in line or time.monotonic() > deadline:
+                    break
+            time.sleep(0.5)                           # idle in its poll loop
+            t = time.monotonic()
+            proc.send_signal(sig)
+            rc = proc.wait(timeout=20)
+            stopped_in = time.monotonic() - t
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+            s.close(linger=0)
+    assert rc == 130, proc.stderr.read()[-2000:]
+    assert stopped_in < 10
+    manifest = json.loads((tmp_path / "t" / MANIFEST).read_text())
+    assert manifest["complete"] is False and manifest["pings"] == 0
