@@ -16,7 +16,7 @@ from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
 from svss_daq.frames import TrackLine
 from svss_daq.geometry import array_geometry, place_array
 from svss_daq.ping import Ping
-from svss_daq.ping_gate import PingRejected
+from svss_daq.ping_gate import PingRejected, ping_problem
 from svss_daq.waveform import make_waveform
 
 from ..conditioning import Conditioner
@@ -110,13 +110,13 @@ class TileImager:
         """Image one ping into the tiles it reaches; return tiles now complete.
 
         Raises :class:`~svss_daq.ping_gate.PingRejected`, changing nothing, for a ping
-        from another hardware configuration, an implausible pose
+        the gate's :func:`~svss_daq.ping_gate.ping_problem` refuses, an implausible pose
         (:mod:`~svss_proc.imaging.pose_check`) or one that would reach more than
-        the tiles that fit in ``limits.memory_gib``. Pings are expected to have passed the
-        :class:`~svss_daq.ping_gate.PingGate`."""
-        if ping.config_id and ping.config_id != self.hardware.id:
-            raise PingRejected(ping.sequence, f"acquired with hardware config "
-                               f"{ping.config_id}, imager configured with {self.hardware.id}")
+        the tiles that fit in ``limits.memory_gib``. (A stream's
+        :class:`~svss_daq.ping_gate.PingGate` also keeps time order and counts.)"""
+        reason = ping_problem(ping, self.hardware)
+        if reason is not None:
+            raise PingRejected(getattr(ping, "sequence", "?"), reason)
         line = self.line or line_from_ping(ping, self.proc)
         geo, tcfg = self.geometry, self.proc.tile
         placed = place_array(geo, ping.nav, ping.projector, line)
