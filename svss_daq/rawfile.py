@@ -16,12 +16,24 @@ Every dataset is chunked by ping and appended ping by ping. The writer runs in H
 single-writer/multiple-reader mode, so the file on disk is consistent at every flush: a
 writer killed mid-run leaves a file readable up to its last flush (pings after it are
 lost, nothing before it). Flushes happen every ``flush_every_pings`` pings and at least
-every ``flush_interval_s`` seconds.
+every ``flush_interval_s`` seconds; after each successful flush the writer records the
+number of pings then on disk in ``/Sonar/Beam_group1/pings_flushed``, which a reader
+takes as an upper bound. A write or flush that fails (a full disk) stops the writer with
+a :class:`RawFileError`; what was flushed before stays readable.
+
+Files are untrusted: a reader checks the HDF5 superblock's end-of-file address against
+the file's size before opening it, bounds HDF5's metadata read retries, validates the
+layout (groups, datasets, shapes, dtypes, attributes) up front and turns every failure
+into a :class:`RawFileError` naming the file and the path.
 """
 
 from __future__ import annotations
 
+import ctypes
+import functools
 import logging
+import os
+import re
 import time
 from pathlib import Path
 
@@ -29,7 +41,7 @@ import h5py
 import numpy as np
 
 from . import __version__
-from .config import HardwareConfig, Loaded, loaded_from_text
+from .config import ConfigError, HardwareConfig, Loaded, loaded_from_text
 from .ping import NAV_FIELDS, NavSnapshot, Ping
 
 log = logging.getLogger(__name__)
@@ -38,6 +50,14 @@ FORMAT = "svss-raw"
 FORMAT_VERSION = 1
 BEAM = "Sonar/Beam_group1"
 NMEA_LEN = 96
+#: 1-element int64: pings known to be on disk (written after each successful flush)
+FLUSHED = f"{BEAM}/pings_flushed"
+#: metadata read attempts of a SWMR reader; HDF5 sleeps 2**k ns before attempt k, and
+#: its default of 100 makes a damaged file hang "forever"; 20 bounds it to ~1 ms
+SWMR_READ_ATTEMPTS = 20
+#: exceptions h5py raises on corrupt or unwritable files
+H5_ERRORS = (OSError, KeyError, ValueError, RuntimeError, TypeError, IndexError,
+             AttributeError, OverflowError)
 
 _PER_PING = {  # name: (dtype, description)
     "ping_time": ("<i8", "transmit time, ns since the Unix epoch (UTC)"),
@@ -48,7 +68,114 @@ _PER_PING = {  # name: (dtype, description)
 
 
 class RawFileError(ValueError):
-    """A raw-run file that cannot be read as such."""
+    """A raw-run file that cannot be read (or written) as such."""
+
+
+_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def hdf5_superblock(path: str | Path, error: type[Exception] = RawFileError) -> dict:
+    """The HDF5 superblock of ``path``: ``offset``, ``version``, ``flags`` (file
+    consistency flags: bit 0 open for writing, bit 2 SWMR writing), ``eof`` (the
+    absolute end-of-file address it records, None when undefined) and the file's
+    ``size``. Raises ``error`` naming the file when it has no superblock, or when it was
+    closed cleanly and is shorter than the address it records (a truncated file). A file
+    still flagged open for writing may be shorter: a writer that died in a failed write
+    leaves that; its reader checks that what it reads lies in the file."""
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as fh:
+            offset = 0
+            while True:       # the superblock is at 0, 512, 1024, 2048, ...
+                fh.seek(offset)
+                head = fh.read(64)
+                if head[:8] == _SIGNATURE:
+                    break
+                offset = 512 if offset == 0 else 2 * offset
+                if offset + 8 > size:
+                    raise error(f"{path}: not a readable HDF5 file (no HDF5 superblock signature in its "
+                                f"{size} bytes)")
+    except OSError as exc:
+        raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
+    version = head[8] if len(head) > 8 else -1
+    if version in (0, 1):           # addresses after fixed fields, flags 4 bytes
+        n_off = head[13]
+        flags = int.from_bytes(head[20:24], "little")
+        start = 24 if version == 0 else 28
+    elif version in (2, 3):
+        n_off = head[9]
+        flags = head[11]
+        start = 12
+    else:
+        raise error(f"{path}: HDF5 superblock at byte {offset} has version {version}; "
+                    "expected 0 to 3")
+    if n_off not in (2, 4, 8, 16) or len(head) < start + 3 * n_off:
+        raise error(f"{path}: HDF5 superblock at byte {offset} is damaged "
+                    f"(size of offsets {n_off})")
+    addr = [int.from_bytes(head[start + k * n_off: start + (k + 1) * n_off], "little")
+            for k in range(3)]
+    undefined = (1 << (8 * n_off)) - 1
+    base, eof = addr[0], addr[2]    # v0/v1: base, free space, eof; v2/v3: base, ext, eof
+    eof = None if eof == undefined else base + eof
+    if eof is not None and size < eof and not flags & 1:
+        raise error(f"{path}: truncated: {size} bytes on disk, its HDF5 superblock records "
+                    f"{eof} bytes")
+    return {"offset": offset, "version": version, "flags": flags, "eof": eof, "size": size}
+
+
+@functools.lru_cache(maxsize=1)
+def _set_read_attempts():
+    """``H5Pset_metadata_read_attempts`` of the HDF5 library h5py runs on (h5py does not
+    expose it), or None where it cannot be found."""
+    try:
+        h5py.h5p.create(h5py.h5p.FILE_ACCESS)       # make sure the library is loaded
+        with open("/proc/self/maps") as fh:
+            libs = sorted(set(re.findall(r"\S*/libhdf5[-.][^/\s]*\.so[^/\s]*", fh.read())))
+        for lib in libs:
+            fn = getattr(ctypes.CDLL(lib), "H5Pset_metadata_read_attempts", None)
+            if fn is not None:
+                fn.argtypes, fn.restype = [ctypes.c_int64, ctypes.c_uint], ctypes.c_int
+                return fn
+    except (OSError, ValueError):
+        pass
+    log.debug("H5Pset_metadata_read_attempts not found: SWMR reads retry HDF5's default")
+    return None
+
+
+def _open_swmr(path: Path) -> h5py.File:
+    """Open ``path`` as a SWMR reader with bounded metadata read attempts."""
+    fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
+    fapl.set_libver_bounds(h5py.h5f.LIBVER_LATEST, h5py.h5f.LIBVER_LATEST)
+    fapl.set_fclose_degree(h5py.h5f.CLOSE_STRONG)
+    setter = _set_read_attempts()
+    if setter is not None and setter(fapl.id, SWMR_READ_ATTEMPTS) < 0:
+        log.debug("H5Pset_metadata_read_attempts failed")
+    fid = h5py.h5f.open(os.fsencode(path), h5py.h5f.ACC_RDONLY | h5py.h5f.ACC_SWMR_READ,
+                        fapl=fapl)
+    return h5py.File(fid)
+
+
+def abandon(f: h5py.File) -> None:
+    """Close an HDF5 file after a failed write without writing anything more to it.
+
+    HDF5 retries the failed writes when the file (or a dataset) is closed, fails again,
+    and a later close of the half-closed dataset (at garbage collection or interpreter
+    exit) crashes the process (HDF5 2.0, H5D_close). Pointing the file's descriptor at
+    ``/dev/null`` first lets the close complete; the file on disk keeps what reached
+    it before the failure."""
+    try:
+        if not f.id.valid:
+            return
+        fd = f.id.get_vfd_handle()
+        null = os.open(os.devnull, os.O_RDWR)
+        try:
+            os.dup2(null, fd)
+        finally:
+            os.close(null)
+        f.close()
+    except H5_ERRORS as exc:
+        log.error("closing %s after a failed write: %s", f.filename, exc)
 
 
 def _appendable(group: h5py.Group, name: str, dtype, shape_tail=(), chunk=1024, doc=""):
@@ -63,19 +190,42 @@ class RawRunWriter:
     """Append pings (and raw NMEA sentences) to a new raw-run file.
 
     Use as a context manager. ``hardware`` is the loaded hardware configuration (its
-    text is stored for provenance and reprocessing).
+    text is stored for provenance and reprocessing). An existing file is refused unless
+    ``overwrite``. A write or flush that fails (a full disk) raises :class:`RawFileError`
+    naming the file, the ping and the cause, and stops the writer: the pings flushed
+    before (``n_flushed``) stay readable and nothing more is written.
     """
 
     def __init__(self, path: str | Path, hardware: Loaded[HardwareConfig], *,
                  flush_every_pings: int = 10, flush_interval_s: float = 1.0,
-                 environment: dict | None = None, run_attrs: dict | None = None):
+                 environment: dict | None = None, run_attrs: dict | None = None,
+                 overwrite: bool = False):
         self.path = Path(path)
         self.hardware = hardware
         self.flush_every = int(flush_every_pings)
         self.flush_interval = float(flush_interval_s)
         dig = hardware.value.digitiser
         self.n_channels, self.n_samples = dig.n_channels, dig.window_samples
-        self._f = h5py.File(self.path, "w", libver="latest")
+        self.n_pings = 0
+        self.n_flushed = 0
+        self.failed: str | None = None
+        if self.path.exists() and not overwrite:
+            raise RawFileError(f"{self.path}: already exists; not overwriting it (pass "
+                               "--force to replace it)")
+        try:
+            self._f = h5py.File(self.path, "w" if overwrite else "w-", libver="latest")
+        except H5_ERRORS as exc:
+            raise RawFileError(f"{self.path}: cannot create ({exc})") from None
+        try:
+            self._create(hardware, environment, run_attrs)
+        except H5_ERRORS as exc:
+            abandon(self._f)
+            raise RawFileError(f"{self.path}: writing the run's header failed ({exc}); "
+                               "no ping is on disk") from None
+        self._last_flush = time.monotonic()
+
+    def _create(self, hardware, environment, run_attrs) -> None:
+        dig = hardware.value.digitiser
         f = self._f
         f.attrs.update({"Conventions": "SONAR-netCDF4-like", "svss_format": FORMAT,
                         "svss_format_version": FORMAT_VERSION})
@@ -118,13 +268,31 @@ class RawRunWriter:
         vendor.create_dataset("hardware_config_toml", data=hardware.text)
         vendor.attrs["hardware_config_id"] = hardware.id
         vendor.attrs["hardware_config_source"] = hardware.source
+        # created before SWMR mode, which forbids new objects
+        self._flushed = beam.create_dataset("pings_flushed", data=np.zeros(1, "<i8"))
+        self._flushed.attrs["long_name"] = ("pings known to be on disk: written after each "
+                                            "successful flush; a reader reads no more")
+        f.flush()
         f.swmr_mode = True
-        self.n_pings = 0
-        self.n_flushed = 0
-        self._last_flush = time.monotonic()
+
+    def _check_usable(self) -> None:
+        if self.failed:
+            raise RawFileError(f"{self.path}: the writer stopped after an earlier failure "
+                               f"({self.failed}); {self.n_flushed} pings are on disk")
+
+    def _fail(self, what: str, exc: Exception) -> RawFileError:
+        """Stop the writer after a failed write: close the file without writing more."""
+        cause = " ".join(str(exc).split())
+        self.failed = f"{what} failed: {cause}"
+        abandon(self._f)
+        err = RawFileError(f"{self.path}: {what} failed ({cause}); the writer stopped, "
+                           f"{self.n_flushed} pings are safely on disk")
+        log.error("%s", err)
+        return err
 
     def append(self, ping: Ping) -> None:
         """Append one ping; flushes according to the policy."""
+        self._check_usable()
         if ping.samples.shape != (self.n_channels, self.n_samples):
             raise ValueError(f"{self.path}: ping {ping.sequence} has samples of shape "
                              f"{ping.samples.shape}; this run records "
@@ -133,19 +301,22 @@ class RawRunWriter:
             raise ValueError(f"{self.path}: ping {ping.sequence} was acquired with hardware "
                              f"config {ping.config_id}, this run records {self.hardware.id}")
         i = self.n_pings
-        # samples first, ping_time last: a reader takes the shortest dataset as the count
-        self._samples.resize(i + 1, axis=0)
-        self._samples[i] = ping.samples
-        nav = ping.nav
-        for name, ds in self._nav.items():
-            ds.resize(i + 1, axis=0)
-            ds[i] = nav.time_ns if name == "time1" else getattr(nav, name)
-        values = {"ping_sequence": ping.sequence, "transmit_projector": ping.projector,
-                  "window_start_ns": ping.window_start_ns,
-                  "ping_time": ping.transmit_time_ns}
-        for name, ds in self._per_ping.items():
-            ds.resize(i + 1, axis=0)
-            ds[i] = values[name]
+        try:
+            # samples first, ping_time last: a reader takes the shortest dataset as the count
+            self._samples.resize(i + 1, axis=0)
+            self._samples[i] = ping.samples
+            nav = ping.nav
+            for name, ds in self._nav.items():
+                ds.resize(i + 1, axis=0)
+                ds[i] = nav.time_ns if name == "time1" else getattr(nav, name)
+            values = {"ping_sequence": ping.sequence, "transmit_projector": ping.projector,
+                      "window_start_ns": ping.window_start_ns,
+                      "ping_time": ping.transmit_time_ns}
+            for name, ds in self._per_ping.items():
+                ds.resize(i + 1, axis=0)
+                ds[i] = values[name]
+        except H5_ERRORS as exc:
+            raise self._fail(f"writing ping {ping.sequence}", exc) from None
         self.n_pings += 1
         if (self.n_pings - self.n_flushed >= self.flush_every
                 or time.monotonic() - self._last_flush >= self.flush_interval):
@@ -153,24 +324,43 @@ class RawRunWriter:
 
     def append_nmea(self, time_ns: int, sentence: str) -> None:
         """Record one raw NMEA sentence (truncated to 96 bytes)."""
+        self._check_usable()
         raw = sentence.strip().encode("ascii", "replace")[:NMEA_LEN]
-        i = self._nmea_time.shape[0]
-        self._nmea_text.resize(i + 1, axis=0)
-        self._nmea_text[i] = raw
-        self._nmea_time.resize(i + 1, axis=0)
-        self._nmea_time[i] = time_ns
+        try:
+            i = self._nmea_time.shape[0]
+            self._nmea_text.resize(i + 1, axis=0)
+            self._nmea_text[i] = raw
+            self._nmea_time.resize(i + 1, axis=0)
+            self._nmea_time[i] = time_ns
+        except H5_ERRORS as exc:
+            raise self._fail(f"writing NMEA sentence {i}", exc) from None
 
     def flush(self) -> None:
-        """Make everything appended so far durable on disk."""
-        self._f.flush()
+        """Make everything appended so far durable on disk, then record the count of
+        pings on disk (``pings_flushed``)."""
+        self._check_usable()
+        try:
+            self._f.flush()
+            self._flushed[0] = self.n_pings
+            self._f.flush()
+        except H5_ERRORS as exc:
+            last = f"pings {self.n_flushed}..{self.n_pings - 1}" \
+                if self.n_pings > self.n_flushed else "the run's records"
+            raise self._fail(f"flushing {last}", exc) from None
         self.n_flushed = self.n_pings
         self._last_flush = time.monotonic()
 
     def close(self) -> None:
-        if self._f.id.valid:
-            self.flush()
+        """Flush and close the file (after a failure: only release it)."""
+        if self.failed or not self._f.id.valid:
+            abandon(self._f)
+            return
+        self.flush()
+        try:
             self._f.close()
-            log.info("closed %s: %d pings", self.path, self.n_pings)
+        except H5_ERRORS as exc:
+            raise self._fail("closing the file", exc) from None
+        log.info("closed %s: %d pings", self.path, self.n_pings)
 
     def __enter__(self) -> "RawRunWriter":
         return self
@@ -181,64 +371,211 @@ class RawRunWriter:
 
 def _open_for_reading(path: Path) -> tuple[h5py.File, bool]:
     """Open an SVSS HDF5 file read-only: (file, closed cleanly). A writer that never
-    closed leaves the SWMR flag set; such a file is opened as a SWMR reader."""
+    closed leaves its open-for-writing flag set; such a file is opened as a SWMR reader
+    (with bounded metadata read attempts). A file shorter than its superblock records
+    is refused before HDF5 sees it."""
     if not path.is_file():
         raise RawFileError(f"{path}: no such file")
+    sb = hdf5_superblock(path)
+    clean = not sb["flags"] & 1
     try:
-        return h5py.File(path, "r"), True
-    except OSError:
-        try:
-            return h5py.File(path, "r", libver="latest", swmr=True), False
-        except OSError as exc:
-            raise RawFileError(f"{path}: not a readable HDF5 file ({exc})") from None
+        return (h5py.File(path, "r") if clean else _open_swmr(path)), clean
+    except H5_ERRORS as exc:
+        raise RawFileError(f"{path}: not a readable HDF5 file ({_cause(exc)})") from None
+
+
+def _cause(exc: Exception) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _text(v) -> str | None:
+    if isinstance(v, bytes):
+        return v.decode("utf-8", "replace")
+    if isinstance(v, np.ndarray) and v.shape == ():
+        return _text(v[()])
+    return v if isinstance(v, str) else None
 
 
 def svss_format(path: str | Path) -> str | None:
     """The ``svss_format`` root attribute of an SVSS HDF5 file (a raw run or a tile),
-    None when it has none; also reads files a killed writer left open."""
+    None when it has none (or it is not a string); also reads files a killed writer left
+    open."""
     f, _ = _open_for_reading(Path(path))
-    with f:
-        fmt = f.attrs.get("svss_format")
-    return fmt.decode() if isinstance(fmt, bytes) else fmt
+    try:
+        with f:
+            return _text(f.attrs.get("svss_format"))
+    except H5_ERRORS as exc:
+        raise RawFileError(f"{path}: cannot read its root attributes ({_cause(exc)})") \
+            from None
+
+
+def format_version(value, path: Path, readable: tuple[int, ...],
+                   error: type[Exception] = RawFileError) -> int:
+    """The ``svss_format_version`` root attribute ``value`` checked: an integer scalar
+    in ``readable``; otherwise ``error`` naming the file."""
+    if isinstance(value, np.ndarray) and value.size == 1:
+        value = value.reshape(())[()]
+    if value is None:
+        raise error(f"{path}: root attribute 'svss_format_version' missing; expected one "
+                    f"of {list(readable)}")
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise error(f"{path}: root attribute 'svss_format_version' is {value!r}; expected "
+                    f"an integer, one of {list(readable)}")
+    if int(value) not in readable:
+        raise error(f"{path}: svss_format_version {int(value)}; this software reads "
+                    f"version(s) {list(readable)}")
+    return int(value)
+
+
+def dataset(f: h5py.Group, name: str, path: Path, ndim: int, kinds: str,
+            error: type[Exception] = RawFileError, what: str = "") -> h5py.Dataset:
+    """``f[name]`` checked to be a dataset of ``ndim`` dimensions whose dtype kind is in
+    ``kinds`` (numpy kind letters: ``i`` integer, ``f`` float, ``S`` bytes, ...);
+    otherwise ``error`` naming the file and the path."""
+    full = f"{f.name.rstrip('/')}/{name}"
+    obj = f.get(name)
+    if obj is None:
+        raise error(f"{path}: dataset '{full}' missing; expected {what or 'it'}")
+    if not isinstance(obj, h5py.Dataset):
+        raise error(f"{path}: '{full}' is a {type(obj).__name__}; expected a dataset")
+    if obj.ndim != ndim:
+        raise error(f"{path}: dataset '{full}' has shape {obj.shape}; expected {ndim} "
+                    "dimension(s)")
+    if obj.dtype.kind not in kinds:
+        raise error(f"{path}: dataset '{full}' has dtype {obj.dtype}; expected kind "
+                    f"{' or '.join(repr(k) for k in kinds)}")
+    return obj
+
+
+def group(f: h5py.Group, name: str, path: Path,
+          error: type[Exception] = RawFileError) -> h5py.Group:
+    """``f[name]`` checked to be a group; otherwise ``error`` naming the file and path."""
+    full = f"{f.name.rstrip('/')}/{name}"
+    obj = f.get(name)
+    if obj is None:
+        raise error(f"{path}: group '{full}' missing")
+    if not isinstance(obj, h5py.Group):
+        raise error(f"{path}: '{full}' is a {type(obj).__name__}; expected a group")
+    return obj
+
+
+_NAV = ["time1", *NAV_FIELDS[1:]]
+
+
+def _on_disk(ds: h5py.Dataset, n: int, size: int) -> int:
+    """How many leading entries (along axis 0, up to ``n``) of a chunked dataset have
+    their chunks written and wholly within a file of ``size`` bytes."""
+    if n == 0 or ds.chunks is None:
+        return n
+    step = ds.chunks[0]
+    zeros = (0,) * (ds.ndim - 1)
+    for k in range(0, n, step):
+        info = ds.id.get_chunk_info_by_coord((k, *zeros))
+        if info.byte_offset is None or info.byte_offset + info.size > size:
+            return k
+    return n
 
 
 class RawRunReader:
-    """Read a raw-run file, also one whose writer died (up to its last flush)."""
+    """Read a raw-run file, also one whose writer died (up to its last flush).
+
+    The layout is validated when the file is opened; any failure to read it (also
+    later, reading a ping) raises :class:`RawFileError` naming the file."""
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
         self._f, self.clean = _open_for_reading(self.path)
+        try:
+            self._validate()
+        except ConfigError as exc:
+            self._f.close()
+            raise RawFileError(str(exc)) from None
+        except RawFileError:
+            self._f.close()
+            raise
+        except H5_ERRORS as exc:
+            self._f.close()
+            raise RawFileError(f"{self.path}: cannot read the run ({_cause(exc)})") from None
         if not self.clean:
-            log.warning("%s was not closed by its writer; reading up to its last flush",
-                        self.path)
-        f = self._f
-        if f.attrs.get("svss_format") != FORMAT:
-            raise RawFileError(f"{self.path}: root attribute 'svss_format' is "
+            log.warning("%s was not closed by its writer; reading up to its last flush "
+                        "(%d pings)", self.path, self.n_pings)
+
+    def _validate(self) -> None:
+        f, path = self._f, self.path
+        fmt = _text(f.attrs.get("svss_format"))
+        if fmt != FORMAT:
+            raise RawFileError(f"{path}: root attribute 'svss_format' is "
                                f"{f.attrs.get('svss_format')!r}; expected {FORMAT!r}")
-        version = int(f.attrs.get("svss_format_version", -1))
-        if version != FORMAT_VERSION:
-            raise RawFileError(f"{self.path}: svss_format_version {version}; this software "
-                               f"reads version {FORMAT_VERSION}")
-        if BEAM not in f:
-            raise RawFileError(f"{self.path}: group '/{BEAM}' missing")
-        self.beam = f[BEAM]
-        self.sample_rate_hz = float(self.beam.attrs["sample_rate_hz"])
-        text = f["Vendor_specific/hardware_config_toml"][()]
-        text = text.decode() if isinstance(text, bytes) else str(text)
+        format_version(f.attrs.get("svss_format_version"), path, (FORMAT_VERSION,))
+        self.beam = group(f, BEAM, path)
+        rate = self.beam.attrs.get("sample_rate_hz")
+        try:
+            self.sample_rate_hz = float(np.asarray(rate).reshape(()))
+        except (TypeError, ValueError):
+            self.sample_rate_hz = float("nan")
+        if not (np.isfinite(self.sample_rate_hz) and self.sample_rate_hz > 0):
+            raise RawFileError(f"{path}: attribute '/{BEAM}' sample_rate_hz is {rate!r}; "
+                               "expected a positive number")
+        text_ds = dataset(f, "Vendor_specific/hardware_config_toml", path, 0, "SOU",
+                          what="the hardware configuration text")
+        text = _text(text_ds[()])
+        if text is None:
+            raise RawFileError(f"{path}: dataset '/Vendor_specific/hardware_config_toml' "
+                               "is not a string")
         self.hardware = loaded_from_text(HardwareConfig, text,
-                                         f"{self.path}:/Vendor_specific/hardware_config_toml")
-        lengths = [self.beam["backscatter_r"].shape[0]]
-        lengths += [self.beam[k].shape[0] for k in _PER_PING]
-        lengths += [f["Platform"][k].shape[0] for k in ["time1", *NAV_FIELDS[1:]]]
+                                         f"{path}:/Vendor_specific/hardware_config_toml")
+        dig = self.hardware.value.digitiser
+        samples = dataset(self.beam, "backscatter_r", path, 3, "i",
+                          what="int32 samples (ping x channel x sample)")
+        if samples.dtype != np.dtype("<i4"):
+            raise RawFileError(f"{path}: dataset '/{BEAM}/backscatter_r' has dtype "
+                               f"{samples.dtype}; expected int32 ADC codes")
+        if samples.shape[1:] != (dig.n_channels, dig.window_samples):
+            raise RawFileError(
+                f"{path}: dataset '/{BEAM}/backscatter_r' has shape {samples.shape}; the "
+                f"stored hardware configuration records {dig.n_channels} channels x "
+                f"{dig.window_samples} samples per ping")
+        lengths = [samples.shape[0]]
+        per_ping = {k: dataset(self.beam, k, path, 1, "iu") for k in _PER_PING}
+        lengths += [d.shape[0] for d in per_ping.values()]
+        plat = group(f, "Platform", path)
+        nav = {k: dataset(plat, k, path, 1, "iu" if k in ("time1", "quality") else "fiu")
+               for k in _NAV}
+        lengths += [d.shape[0] for d in nav.values()]
         self.n_pings = min(lengths)
         if max(lengths) != self.n_pings:
             log.warning("%s: per-ping datasets have lengths %s; reading the first %d pings",
-                        self.path, sorted(set(lengths)), self.n_pings)
-        self._meta = {k: self.beam[k][: self.n_pings] for k in _PER_PING}
-        plat = f["Platform"]
-        self._nav = {k: plat[k][: self.n_pings] for k in ["time1", *NAV_FIELDS[1:]]}
-        self.environment = dict(f["Environment"].attrs)
+                        path, sorted(set(lengths)), self.n_pings)
+        counted = "pings_flushed" in self.beam   # absent in files written before it
+        if counted:
+            flushed = dataset(self.beam, "pings_flushed", path, 1, "iu")
+            if flushed.shape != (1,) or flushed[0] < 0:
+                raise RawFileError(f"{path}: dataset '/{FLUSHED}' holds "
+                                   f"{flushed[()]!r}; expected one count >= 0")
+            if int(flushed[0]) < self.n_pings:
+                log.warning("%s: %d pings recorded, %d known flushed; reading %d", path,
+                            self.n_pings, int(flushed[0]), int(flushed[0]))
+                self.n_pings = int(flushed[0])
+        size = path.stat().st_size
+        on_disk = min(_on_disk(d, self.n_pings, size)
+                      for d in (samples, *per_ping.values(), *nav.values()))
+        if on_disk < self.n_pings:
+            if counted:
+                raise RawFileError(
+                    f"{path}: truncated or damaged: ping {on_disk} of the {self.n_pings} "
+                    f"recorded as flushed is not within its {size} bytes")
+            log.warning("%s: only the first %d of %d pings lie within the file's %d bytes; "
+                        "reading those", path, on_disk, self.n_pings, size)
+            self.n_pings = on_disk
+        nmea = group(plat, "NMEA", path)
+        self._nmea = (dataset(nmea, "time", path, 1, "iu"),
+                      dataset(nmea, "sentence", path, 1, "S"))
+        self.environment = dict(group(f, "Environment", path).attrs)
+        self._samples = samples
+        self._meta = {k: d[: self.n_pings] for k, d in per_ping.items()}
+        self._nav = {k: d[: self.n_pings] for k, d in nav.items()}
         self.attrs = dict(f.attrs)
+        self._provenance = dict(f["Provenance"].attrs) if "Provenance" in f else {}
 
     def __len__(self) -> int:
         return self.n_pings
@@ -246,7 +583,7 @@ class RawRunReader:
     @property
     def shape(self) -> tuple[int, int]:
         """(channels, samples per ping) of the recorded pings."""
-        return tuple(self.beam["backscatter_r"].shape[1:])
+        return tuple(self._samples.shape[1:])
 
     def ping_table(self) -> dict[str, np.ndarray]:
         """Per-ping records of every ping: ``ping_time`` (ns), ``ping_sequence``,
@@ -261,32 +598,45 @@ class RawRunReader:
     @property
     def provenance(self) -> dict:
         """The writer's provenance attributes (empty when the file has none)."""
-        return dict(self._f["Provenance"].attrs) if "Provenance" in self._f else {}
+        return dict(self._provenance)
 
     def nav(self, i: int) -> NavSnapshot:
         kw = {k: self._nav[k][i].item() for k in NAV_FIELDS[1:]}
-        return NavSnapshot(time_ns=int(self._nav["time1"][i]), **kw)
+        try:
+            return NavSnapshot(time_ns=int(self._nav["time1"][i]), **kw)
+        except (TypeError, ValueError) as exc:
+            raise RawFileError(f"{self.path}: navigation of ping {i} in '/Platform' is "
+                               f"invalid ({_cause(exc)})") from None
 
     def ping(self, i: int) -> Ping:
         if not 0 <= i < self.n_pings:
             raise IndexError(f"{self.path}: ping {i} out of range 0..{self.n_pings - 1}")
+        try:
+            samples = self._samples[i]
+        except H5_ERRORS as exc:
+            raise RawFileError(f"{self.path}: cannot read ping {i} of "
+                               f"'/{BEAM}/backscatter_r' ({_cause(exc)})") from None
         return Ping(sequence=int(self._meta["ping_sequence"][i]),
                     projector=int(self._meta["transmit_projector"][i]),
                     transmit_time_ns=int(self._meta["ping_time"][i]),
                     sample_rate_hz=self.sample_rate_hz,
                     window_start_ns=int(self._meta["window_start_ns"][i]),
-                    samples=self.beam["backscatter_r"][i], nav=self.nav(i),
-                    config_id=self.hardware.id)
+                    samples=samples, nav=self.nav(i), config_id=self.hardware.id)
 
     def __iter__(self):
         for i in range(self.n_pings):
             yield self.ping(i)
 
     def nmea(self) -> list[tuple[int, str]]:
-        g = self._f["Platform/NMEA"]
-        n = min(g["time"].shape[0], g["sentence"].shape[0])
-        return [(int(t), s.decode("ascii", "replace"))
-                for t, s in zip(g["time"][:n], g["sentence"][:n])]
+        """The raw NMEA sentences: (receive time ns, text)."""
+        times, text = self._nmea
+        try:
+            n = min(times.shape[0], text.shape[0])
+            return [(int(t), s.decode("ascii", "replace"))
+                    for t, s in zip(times[:n], text[:n])]
+        except H5_ERRORS as exc:
+            raise RawFileError(f"{self.path}: cannot read '/Platform/NMEA' "
+                               f"({_cause(exc)})") from None
 
     def close(self) -> None:
         self._f.close()
