@@ -13,6 +13,8 @@ tile's volume are listed but not scored.
 from __future__ import annotations
 
 import dataclasses
+import json
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +26,11 @@ from svss_daq.config import ConfigError, ProcessingConfig, loads
 from svss_daq.frames import TrackLine
 from svss_proc import tiles
 from svss_proc.products import detect
+
+log = logging.getLogger(__name__)
+
+#: the worker's list of the files it wrote (``svss_proc.worker.MANIFEST``)
+MANIFEST = "manifest.json"
 
 
 @dataclass
@@ -117,16 +124,56 @@ def _radius_from_tile(path: Path, header: dict) -> float | None:
     return float(proc.products.detection.match_radius_m)
 
 
+def tile_paths(tiles_dir: str | Path) -> list[Path]:
+    """The tiles of one run in ``tiles_dir``: those its ``manifest.json`` lists (tiles
+    in the folder it does not list, e.g. from an earlier run, are excluded with a
+    warning naming them); without a manifest every ``tile_*.h5`` (with a warning).
+    Temporary files of tiles being written are never included."""
+    tiles_dir = Path(tiles_dir)
+    found = sorted(p for p in tiles_dir.glob("tile_*.h5") if not tiles.is_temporary(p))
+    manifest = tiles_dir / MANIFEST
+    if not manifest.is_file():
+        if found:
+            log.warning("%s: no %s; scoring all %d tile_*.h5 files in the folder (they may "
+                        "come from more than one run)", tiles_dir, MANIFEST, len(found))
+        return found
+    try:
+        files = json.loads(manifest.read_text())["files"]
+        if not isinstance(files, list) or not all(isinstance(n, str) for n in files):
+            raise TypeError
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{manifest}: cannot read ({exc})") from None
+    except (ValueError, KeyError, TypeError):
+        raise ValueError(f"{manifest}: expected a JSON object whose 'files' is a list of "
+                         "file names") from None
+    listed = [tiles_dir / n for n in files
+              if n.endswith(".h5") and Path(n).name == n and not tiles.is_temporary(n)]
+    missing = [p.name for p in listed if not p.is_file()]
+    if missing:
+        raise FileNotFoundError(f"{manifest} lists {', '.join(missing)}, not in {tiles_dir}")
+    extra = [p.name for p in found if p not in listed]
+    if extra:
+        log.warning("%s: %s not listed in %s (another run's?): excluded", tiles_dir,
+                    ", ".join(extra), MANIFEST)
+    return listed
+
+
 def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
                 radius_m: float | None = None) -> dict:
-    """Score every ``tile_*.h5`` in ``tiles_dir`` against the scene's targets. The match
-    radius is ``radius_m`` or the ``products.detection.match_radius_m`` the tiles were
-    processed with. Returns a JSON-serialisable report."""
+    """Score the tiles of ``tiles_dir`` (:func:`tile_paths`) against the scene's
+    targets. The match radius is ``radius_m`` or the
+    ``products.detection.match_radius_m`` the tiles were processed with. A tile that
+    cannot be read, or has no detections (processed without products), is an error
+    naming it. Returns a JSON-serialisable report."""
     tiles_dir = Path(tiles_dir)
-    paths = sorted(tiles_dir.glob("tile_*.h5"))
+    paths = tile_paths(tiles_dir)
     if not paths:
         raise FileNotFoundError(f"{tiles_dir}: no tile_*.h5 files")
     headers = [tiles.read_tile_header(p) for p in paths]
+    for path, header in zip(paths, headers):
+        if "detections" not in header["products"]:
+            raise tiles.TileFileError(f"{path}: group '/detections' missing (processed "
+                                      "without [products]?); nothing to score")
     if radius_m is None:
         radius_m = _radius_from_tile(paths[0], headers[0])
         if radius_m is None:

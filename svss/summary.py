@@ -29,7 +29,11 @@ def file_kind(path: str | Path) -> str:
 
 
 def summarise(path: str | Path) -> dict:
-    """Summary of a tile or raw-run file."""
+    """Summary of a tile or raw-run file (not of a tile still being written: see
+    :func:`svss_proc.tiles.is_temporary`)."""
+    if tiles.is_temporary(path):
+        raise tiles.TileFileError(f"{path}: a temporary file of a tile being written (or "
+                                  "left by a failed write); not read")
     return summarise_tile(path) if file_kind(path) == "tile" else summarise_raw(path)
 
 
@@ -106,7 +110,14 @@ def summarise_tile(path: str | Path) -> dict:
                                                  "processing_config_id")},
     }
     if "products_timing_s" in attrs:
-        out["products_timing_s"] = json.loads(attrs["products_timing_s"])
+        try:
+            timing = json.loads(attrs["products_timing_s"])
+            out["products_timing_s"] = {str(k): float(v) for k, v in timing.items()}
+        except (TypeError, ValueError, AttributeError):
+            raise tiles.TileFileError(
+                f"{path}: root attribute 'products_timing_s' is "
+                f"{attrs['products_timing_s']!r}; expected a JSON object of seconds per "
+                "stage") from None
     return out
 
 

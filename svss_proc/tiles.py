@@ -2,12 +2,21 @@
 dimension scales, so ``xarray.open_dataset(path, engine="h5netcdf")`` opens them), the
 complex image, its magnitude, the image products (background, compressed volume,
 maximum intensity projections, detections) and provenance. See docs/formats.md.
+
+Files are written under a temporary name (:func:`temporary_path`) in the same folder and
+renamed into place only when complete, so a tile file with its final name is always
+whole. Files are untrusted when read: the readers check the format, the version and the
+layout (groups, datasets, shapes, dtypes, attributes) and raise :class:`TileFileError`
+naming the file and the path.
 """
 
 from __future__ import annotations
 
 import functools
 import json
+import logging
+import os
+import secrets
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,12 +28,16 @@ import numpy as np
 from svss_daq import __version__
 from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
 from svss_daq.frames import TrackLine
+from svss_daq.rawfile import (H5_ERRORS, RawFileError, abandon, dataset, format_version,
+                              group, hdf5_superblock)
 
 from .products import detect
 from .imaging.grid import TileGrid
 
 if TYPE_CHECKING:
     from .products.chain import Products
+
+log = logging.getLogger(__name__)
 
 TILE_FORMAT = "svss-tile"
 TILE_FORMAT_VERSION = 2
@@ -35,6 +48,29 @@ MIPS = {"mip_depth": (2, ("along", "cross")), "mip_cross": (1, ("along", "depth"
         "mip_along": (0, ("cross", "depth"))}
 DRC_SCALE = np.float32(1.0 / 255.0)
 _GZIP = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
+#: marks a file being written: ``.NAME.partial-XXXX.SUFFIX``; readers ignore such names
+PARTIAL = ".partial-"
+#: root attributes every tile has (and the scorer and the summary need)
+REQUIRED_ATTRS = ("tile_index", "line_origin_north_m", "line_origin_east_m",
+                  "line_heading_rad", "interface_down_m", "voxel_m")
+
+
+class TileFileError(ValueError):
+    """A tile file that cannot be read (or written) as such."""
+
+
+def temporary_path(path: str | Path) -> Path:
+    """A unique temporary name beside ``path`` (same folder, so that a rename is atomic;
+    same suffix, so that writers choosing a format by it still do):
+    ``.NAME.partial-XXXXXXXX.SUFFIX``."""
+    path = Path(path)
+    return path.with_name(f".{path.stem}{PARTIAL}{secrets.token_hex(4)}{path.suffix}")
+
+
+def is_temporary(path: str | Path) -> bool:
+    """Whether ``path`` is a file still being written (:func:`temporary_path`)."""
+    name = Path(path).name
+    return name.startswith(".") and PARTIAL in name
 
 
 @dataclass
@@ -76,53 +112,77 @@ def _attach(ds: h5py.Dataset, f: h5py.Group, dims: tuple[str, ...]) -> None:
 def write_tile(path: str | Path, tile: Tile, hardware: Loaded[HardwareConfig],
                processing: Loaded[ProcessingConfig],
                products: "Products | None" = None) -> Path:
-    """Write one tile (and its products, if given) to ``path`` (HDF5)."""
+    """Write one tile (and its products, if given) to ``path`` (HDF5): under a temporary
+    name first, renamed to ``path`` only when complete. On failure (a full disk) the
+    temporary file is removed and :class:`TileFileError` names the file and the cause."""
     path = Path(path)
-    g = tile.grid
-    with h5py.File(path, "w") as f:
-        f.attrs.update({
-            "svss_format": TILE_FORMAT, "svss_format_version": TILE_FORMAT_VERSION,
-            "Conventions": "CF-1.8",
-            "title": f"SVSS image {tile_name(g.index)}", "tile_index": g.index,
-            "line_origin_north_m": tile.line.origin_ne[0],
-            "line_origin_east_m": tile.line.origin_ne[1],
-            "line_heading_rad": tile.line.heading,
-            "interface_down_m": tile.line.interface_down,
-            "voxel_m": processing.value.tile.voxel_m,
-            "voxel_channel_updates": tile.updates,
-            "n_pings": len(tile.pings),
-            "software_name": "svss", "software_version": __version__,
-            "creation_time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-            "hardware_config_id": hardware.id, "processing_config_id": processing.id,
-            "has_products": products is not None,
-        })
-        axes = {"along": (g.along, "along-track distance from the line origin"),
-                "cross": (g.cross, "cross-track distance, starboard positive"),
-                "depth": (g.depth, "depth below the water-sediment interface")}
-        for name, (values, long_name) in axes.items():
-            ds = f.create_dataset(name, data=values)
-            ds.attrs.update({"units": "m", "long_name": long_name})
-            ds.make_scale(name)
-        pings = f.create_dataset("ping_sequence", data=np.asarray(tile.pings, dtype=np.int64))
-        pings.attrs["long_name"] = "sequence numbers of the pings that went into the tile"
-        pings.make_scale("ping_sequence")
-        image = f.create_dataset("image", data=tile.image, chunks=True, **_GZIP)
-        image.attrs.update({"long_name": "complex backprojected image (coherent sum of "
-                                         "matched-filter outputs)", "units": "uPa"})
-        mag = f.create_dataset("magnitude", data=np.abs(tile.image).astype(np.float32),
-                               chunks=True, **_GZIP)
-        mag.attrs.update({"long_name": "image magnitude", "units": "uPa"})
-        _attach(image, f, DIMS)
-        _attach(mag, f, DIMS)
-        if products is not None:
-            _write_products(f, products)
-        prov = f.create_group("provenance")
-        prov.create_dataset("hardware_config_toml", data=hardware.text)
-        prov.create_dataset("processing_config_toml", data=processing.text)
-        prov.attrs.update({"software_name": "svss", "software_version": __version__,
-                           "hardware_config_source": hardware.source,
-                           "processing_config_source": processing.source})
+    tmp = temporary_path(path)
+    f = None
+    try:
+        f = h5py.File(tmp, "w")
+        _write(f, tile, hardware, processing, products)
+        f.close()
+        os.replace(tmp, path)
+    except (*H5_ERRORS, RawFileError) as exc:
+        if f is not None:
+            abandon(f)
+        tmp.unlink(missing_ok=True)
+        cause = " ".join(str(exc).split())
+        raise TileFileError(f"{path}: writing tile {tile_name(tile.grid.index)} failed "
+                            f"({cause}); no file written") from None
+    except BaseException:
+        if f is not None:
+            abandon(f)
+        tmp.unlink(missing_ok=True)
+        raise
     return path
+
+
+def _write(f: h5py.File, tile: Tile, hardware: Loaded[HardwareConfig],
+           processing: Loaded[ProcessingConfig], products: "Products | None") -> None:
+    g = tile.grid
+    f.attrs.update({
+        "svss_format": TILE_FORMAT, "svss_format_version": TILE_FORMAT_VERSION,
+        "Conventions": "CF-1.8",
+        "title": f"SVSS image {tile_name(g.index)}", "tile_index": g.index,
+        "line_origin_north_m": tile.line.origin_ne[0],
+        "line_origin_east_m": tile.line.origin_ne[1],
+        "line_heading_rad": tile.line.heading,
+        "interface_down_m": tile.line.interface_down,
+        "voxel_m": processing.value.tile.voxel_m,
+        "voxel_channel_updates": tile.updates,
+        "n_pings": len(tile.pings),
+        "software_name": "svss", "software_version": __version__,
+        "creation_time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "hardware_config_id": hardware.id, "processing_config_id": processing.id,
+        "has_products": products is not None,
+    })
+    axes = {"along": (g.along, "along-track distance from the line origin"),
+            "cross": (g.cross, "cross-track distance, starboard positive"),
+            "depth": (g.depth, "depth below the water-sediment interface")}
+    for name, (values, long_name) in axes.items():
+        ds = f.create_dataset(name, data=values)
+        ds.attrs.update({"units": "m", "long_name": long_name})
+        ds.make_scale(name)
+    pings = f.create_dataset("ping_sequence", data=np.asarray(tile.pings, dtype=np.int64))
+    pings.attrs["long_name"] = "sequence numbers of the pings that went into the tile"
+    pings.make_scale("ping_sequence")
+    image = f.create_dataset("image", data=tile.image, chunks=True, **_GZIP)
+    image.attrs.update({"long_name": "complex backprojected image (coherent sum of "
+                                     "matched-filter outputs)", "units": "uPa"})
+    mag = f.create_dataset("magnitude", data=np.abs(tile.image).astype(np.float32),
+                           chunks=True, **_GZIP)
+    mag.attrs.update({"long_name": "image magnitude", "units": "uPa"})
+    _attach(image, f, DIMS)
+    _attach(mag, f, DIMS)
+    if products is not None:
+        _write_products(f, products)
+    prov = f.create_group("provenance")
+    prov.create_dataset("hardware_config_toml", data=hardware.text)
+    prov.create_dataset("processing_config_toml", data=processing.text)
+    prov.attrs.update({"software_name": "svss", "software_version": __version__,
+                       "hardware_config_source": hardware.source,
+                       "processing_config_source": processing.source})
 
 
 def _write_products(f: h5py.File, p: "Products") -> None:
@@ -168,80 +228,157 @@ def _write_products(f: h5py.File, p: "Products") -> None:
 
 
 def _text(v) -> str:
-    return v.decode() if isinstance(v, bytes) else str(v)
+    return v.decode(errors="replace") if isinstance(v, bytes) else str(v)
 
 
 def _open_tile(path: Path) -> h5py.File:
-    """Open a tile file for reading, checking its format and version."""
+    """Open a tile file for reading, checking that it is whole (its superblock), its
+    format and its version."""
+    if not path.is_file():
+        raise TileFileError(f"{path}: no such file")
+    sb = hdf5_superblock(path, TileFileError)
+    if sb["flags"] & 1:
+        raise TileFileError(f"{path}: not closed by its writer (a half-written tile)")
     try:
         f = h5py.File(path, "r")
-    except OSError as exc:
-        raise ValueError(f"{path}: not a readable HDF5 file ({exc})") from None
-    fmt = _text(f.attrs.get("svss_format", ""))
-    if fmt != TILE_FORMAT:
+    except H5_ERRORS as exc:
+        raise TileFileError(f"{path}: not a readable HDF5 file ({_cause(exc)})") from None
+    try:
+        fmt = f.attrs.get("svss_format")
+        if fmt is None or _text(fmt) != TILE_FORMAT:
+            raise TileFileError(f"{path}: root attribute 'svss_format' is "
+                                f"{None if fmt is None else _text(fmt)!r}; expected "
+                                f"{TILE_FORMAT!r}")
+        format_version(f.attrs.get("svss_format_version"), path, READABLE_VERSIONS,
+                       TileFileError)
+    except BaseException as exc:
         f.close()
-        raise ValueError(f"{path}: root attribute 'svss_format' is {fmt!r}; expected "
-                         f"{TILE_FORMAT!r}")
-    version = int(f.attrs.get("svss_format_version", -1))
-    if version not in READABLE_VERSIONS:
-        f.close()
-        raise ValueError(f"{path}: svss_format_version {version}; this software reads "
-                         f"versions {READABLE_VERSIONS}")
+        if isinstance(exc, H5_ERRORS) and not isinstance(exc, TileFileError):
+            raise TileFileError(f"{path}: cannot read its root attributes "
+                                f"({_cause(exc)})") from None
+        raise
     return f
 
 
-def _header(f: h5py.File) -> dict:
-    out = {k: f[k][()] for k in (*DIMS, "ping_sequence")}
-    out["attrs"] = dict(f.attrs)
-    out["detections"] = _read_detections(f)
+def _cause(exc: Exception) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _read(path: str | Path, body):
+    """Open the tile at ``path`` and return ``body(f, path)``; any failure to read it
+    becomes a :class:`TileFileError` naming the file."""
+    path = Path(path)
+    with _open_tile(path) as f:
+        try:
+            return body(f, path)
+        except TileFileError:
+            raise
+        except H5_ERRORS as exc:
+            raise TileFileError(f"{path}: cannot read the tile ({_cause(exc)})") from None
+
+
+def _volume(f: h5py.File, name: str, path: Path, shape: tuple[int, ...], kinds: str,
+            dims: tuple[str, ...] = DIMS) -> h5py.Dataset:
+    ds = dataset(f, name, path, len(shape), kinds, TileFileError,
+                 what=f"{' x '.join(dims)}")
+    if ds.shape != shape:
+        raise TileFileError(f"{path}: dataset '/{name}' has shape {ds.shape}; expected "
+                            f"{shape} ({' x '.join(dims)} of the tile's axes)")
+    return ds
+
+
+def _header(f: h5py.File, path: Path) -> dict:
+    out = {k: dataset(f, k, path, 1, "f", TileFileError, what="voxel centres, m")[()]
+           for k in DIMS}
+    out["ping_sequence"] = dataset(f, "ping_sequence", path, 1, "iu", TileFileError)[()]
+    attrs = dict(f.attrs)
+    for k in REQUIRED_ATTRS:
+        v = attrs.get(k)
+        if v is None:
+            raise TileFileError(f"{path}: root attribute '{k}' missing")
+        if np.ndim(v) != 0 or not isinstance(np.asarray(v).item(), (int, float)) \
+                or isinstance(np.asarray(v).item(), bool):
+            raise TileFileError(f"{path}: root attribute '{k}' is {v!r}; expected a number")
+    out["attrs"] = attrs
+    has_products = bool(np.asarray(attrs.get("has_products", False)).any())
+    if has_products and "detections" not in f:
+        raise TileFileError(f"{path}: group '/detections' missing; expected it in a tile "
+                            "with products (root attribute has_products is true)")
+    out["detections"] = _read_detections(f, path)
     out["products"] = [k for k in ("background", "drc", *MIPS, "detections") if k in f]
     if "background" in f:
         out["background_attrs"] = {k: v for k, v in f["background"].attrs.items()
                                    if k != "DIMENSION_LIST"}
     for k in ("hardware_config_toml", "processing_config_toml"):
         if f"provenance/{k}" in f:
-            out[k] = _text(f[f"provenance/{k}"][()])
+            out[k] = _text(dataset(f, f"provenance/{k}", path, 0, "SOU", TileFileError)[()])
     return out
 
 
 def read_tile_header(path: str | Path) -> dict:
     """Everything of a tile file but its volumes: the axes (``along``, ``cross``,
-    ``depth``), ``ping_sequence``, ``attrs``, ``detections``, the names of the
-    ``products`` it holds, ``background_attrs`` and the configuration texts."""
-    with _open_tile(Path(path)) as f:
-        return _header(f)
+    ``depth``), ``ping_sequence``, ``attrs``, ``detections`` (empty when the tile has
+    no ``/detections`` group: see ``products``), the names of the ``products`` it holds,
+    ``background_attrs`` and the configuration texts."""
+    return _read(path, _header)
+
+
+def _full(f: h5py.File, path: Path) -> dict:
+    out = _header(f, path)
+    shape = tuple(out[d].size for d in DIMS)
+    out["image"] = _volume(f, "image", path, shape, "cfV")[()]
+    if out["image"].dtype.kind == "V":      # an HDF5 compound (r, i) h5py did not map
+        raise TileFileError(f"{path}: dataset '/image' has dtype {out['image'].dtype}; "
+                            "expected complex64")
+    out["magnitude"] = (_volume(f, "magnitude", path, shape, "f")[()] if "magnitude" in f
+                        else np.abs(out["image"]))
+    if "background" in f:
+        out["background"] = _volume(f, "background", path, shape, "f")[()]
+    if "depth_gain_db" in f:
+        out["depth_gain_db"] = _volume(f, "depth_gain_db", path, shape[2:], "f",
+                                       ("depth",))[()]
+    for k, (axis, dims) in MIPS.items():
+        if k in f:
+            out[k] = _volume(f, k, path, tuple(n for i, n in enumerate(shape) if i != axis),
+                             "f", dims)[()]
+    if "drc" in f:
+        ds = _volume(f, "drc", path, shape, "u")
+        scale = ds.attrs.get("scale_factor")
+        if scale is None or np.ndim(scale) != 0:
+            raise TileFileError(f"{path}: attribute '/drc' scale_factor is {scale!r}; "
+                                "expected a number")
+        out["drc"] = ds[()].astype(np.float32) * np.float32(scale)
+    return out
 
 
 def read_tile(path: str | Path) -> dict:
     """Read a tile file into plain arrays: :func:`read_tile_header` plus image,
     magnitude and, when the file has them, background, drc (decoded to 0..1),
     depth_gain_db and the MIPs (``mip_depth``, ``mip_cross``, ``mip_along``)."""
-    with _open_tile(Path(path)) as f:
-        out = _header(f)
-        out["image"] = f["image"][()]
-        out["magnitude"] = (f["magnitude"][()] if "magnitude" in f
-                            else np.abs(out["image"]))
-        for k in ("background", "depth_gain_db", *MIPS):
-            if k in f:
-                out[k] = f[k][()]
-        if "drc" in f:
-            ds = f["drc"]
-            out["drc"] = ds[()].astype(np.float32) * np.float32(ds.attrs["scale_factor"])
-    return out
+    return _read(path, _full)
 
 
-def _read_detections(f: h5py.File) -> np.ndarray:
+def _read_detections(f: h5py.File, path: Path) -> np.ndarray:
     if "detections" not in f:
         return detect.empty()
-    g = f["detections"]
-    n = g["detection"].shape[0]
+    g = group(f, "detections", path, TileFileError)
+    n = dataset(g, "detection", path, 1, "iu", TileFileError,
+                what="contact numbers").shape[0]
     out = np.zeros(n, dtype=detect.DTYPE)
     for name in detect.DTYPE.names:
-        out[name] = g[name][()]
+        ds = dataset(g, name, path, 1, "iuf", TileFileError, what=f"{n} values")
+        if ds.shape != (n,):
+            raise TileFileError(f"{path}: dataset '/detections/{name}' has shape "
+                                f"{ds.shape}; expected ({n},) like '/detections/detection'")
+        out[name] = ds[()]
     return out
 
 
 def read_detections(path: str | Path) -> tuple[np.ndarray, dict]:
-    """The detection table of a tile file and the tile's root attributes."""
+    """The detection table of a tile file and the tile's root attributes. A tile
+    without a ``/detections`` group (processed without products) is an error."""
     h = read_tile_header(path)
+    if "detections" not in h["products"]:
+        raise TileFileError(f"{path}: group '/detections' missing (the tile was processed "
+                            "without [products]); it has no detections to read")
     return h["detections"], h["attrs"]

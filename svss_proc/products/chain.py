@@ -8,6 +8,7 @@ compression, maximum intensity projections and detections.
 from __future__ import annotations
 
 import logging
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,7 +21,7 @@ from . import drc as drc_mod
 from .background import kernel_voxels, median_background
 from .detect import detect
 from .quicklook import mip_png, products_png
-from ..tiles import MIPS, Tile, tile_name, write_tile
+from ..tiles import MIPS, Tile, TileFileError, temporary_path, tile_name, write_tile
 
 log = logging.getLogger(__name__)
 
@@ -112,7 +113,9 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
               processing: Loaded[ProcessingConfig]) -> list[Path]:
     """Compute the products (when the processing configuration has a ``[products]``
     table) and write ``tile_NNNN.h5`` and ``tile_NNNN_mip.png`` into ``out_dir``;
-    return the paths."""
+    return the paths. Both are written under temporary names and renamed into place
+    only when both are complete; on failure neither final name is created and
+    :class:`~svss_proc.tiles.TileFileError` names the file."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     name = tile_name(tile.grid.index)
@@ -122,18 +125,31 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
     ident = (f"line origin N {tile.line.origin_ne[0]:.2f} E {tile.line.origin_ne[1]:.2f} m,"
              f" heading {np.degrees(tile.line.heading):.1f} deg\nconfigs: hardware "
              f"{hardware.id}, processing {processing.id}")
-    if pcfg is None:
-        h5 = write_tile(out / f"{name}.h5", tile, hardware, processing)
-        png = mip_png(out / f"{name}_mip.png", tile.image, tile.grid, title)
-        log.info("wrote %s (%d pings, no products) and %s", h5, len(tile.pings), png.name)
-        return [h5, png]
+    h5, png = out / f"{name}.h5", out / f"{name}_mip.png"
     g = tile.grid
-    prods = compute_products(tile.image, (g.along, g.cross, g.depth), voxel, pcfg,
-                             keep_volumes=pcfg.store_volumes)
-    h5 = write_tile(out / f"{name}.h5", tile, hardware, processing, prods)
-    png = products_png(out / f"{name}_mip.png", prods.mips, prods.level, prods.gain_db,
-                       prods.detections, g, voxel, pcfg, title, ident)
-    log.info("wrote %s (%d pings, %d detections; background %s %dx%dx%d in %.2f s) and %s",
-             h5, len(tile.pings), len(prods.detections), prods.method,
-             *prods.kernel_voxels, prods.timings["background"], png.name)
+    prods = None
+    if pcfg is not None:
+        prods = compute_products(tile.image, (g.along, g.cross, g.depth), voxel, pcfg,
+                                 keep_volumes=pcfg.store_volumes)
+    tmp_png = temporary_path(png)
+    try:
+        try:
+            if prods is None:
+                mip_png(tmp_png, tile.image, tile.grid, title)
+            else:
+                products_png(tmp_png, prods.mips, prods.level, prods.gain_db,
+                             prods.detections, g, voxel, pcfg, title, ident)
+        except OSError as exc:
+            raise TileFileError(f"{png}: writing the quicklook failed "
+                                f"({exc.strerror or exc}); no file written") from None
+        write_tile(h5, tile, hardware, processing, prods)
+        os.replace(tmp_png, png)
+    finally:
+        tmp_png.unlink(missing_ok=True)
+    if prods is None:
+        log.info("wrote %s (%d pings, no products) and %s", h5, len(tile.pings), png.name)
+    else:
+        log.info("wrote %s (%d pings, %d detections; background %s %dx%dx%d in %.2f s) "
+                 "and %s", h5, len(tile.pings), len(prods.detections), prods.method,
+                 *prods.kernel_voxels, prods.timings["background"], png.name)
     return [h5, png]
