@@ -16,7 +16,7 @@ from svss_daq.subscriber import subscribe
 def ctx():
     c = zmq.Context()
     yield c
-    c.term()
+    c.destroy(linger=0)      # closes what a failed test left open
 
 
 BAD = [  # endpoint, text the error must contain (besides the endpoint)
