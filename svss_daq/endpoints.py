@@ -14,7 +14,8 @@ import re
 log = logging.getLogger(__name__)
 
 TRANSPORTS = ("tcp", "ipc", "inproc")
-_HOSTNAME = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)(\.(?!-)[A-Za-z0-9-]{1,63}(?<!-))*\.?")
+_LABEL = r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)"
+_HOSTNAME = re.compile(rf"{_LABEL}(\.{_LABEL})*\.?")
 _EXPECTED_TCP = ("tcp://HOST:PORT with HOST an IPv4 address, a bracketed IPv6 address, a "
                  "host name{star_host} and PORT an integer in 1..65535{star_port}")
 

@@ -156,8 +156,8 @@ def decode(frames: list) -> Ping | RunEnd:
         return RunEnd(_field(h, "run_id", str, "svss.end"),
                       _field(h, "n_pings", int, "svss.end", lo=0))
     if topic != TOPIC_PING:
-        raise MessageError(f"message topic {bytes(topic[:40])!r}; expected {TOPIC_PING!r} or "
-                           f"{TOPIC_END!r}")
+        raise MessageError(f"message topic {bytes(topic[:40])!r}; expected "
+                           f"{TOPIC_PING!r} or {TOPIC_END!r}")
     if len(frames) != 3:
         raise MessageError(f"svss.ping message has {len(frames)} frames; expected 3 "
                            "(topic, header, samples)")
@@ -172,12 +172,13 @@ def decode(frames: list) -> Ping | RunEnd:
         raise MessageError(f"svss.ping message: header field 'shape' is {_show(shape)}; "
                            "expected [n_channels, n_samples] of integers in "
                            f"1..{_MAX_SHAPE[0]} and 1..{_MAX_SHAPE[1]}")
-    fields = dict(
-        sequence=_field(h, "sequence", int, lo=0), projector=_field(h, "projector", int),
-        transmit_time_ns=_field(h, "transmit_time_ns", int),
-        sample_rate_hz=_field(h, "sample_rate_hz", float, positive=True),
-        window_start_ns=_field(h, "window_start_ns", int),
-        config_id=_field(h, "config_id", str))
+    fields = {
+        "sequence": _field(h, "sequence", int, lo=0),
+        "projector": _field(h, "projector", int),
+        "transmit_time_ns": _field(h, "transmit_time_ns", int),
+        "sample_rate_hz": _field(h, "sample_rate_hz", float, positive=True),
+        "window_start_ns": _field(h, "window_start_ns", int),
+        "config_id": _field(h, "config_id", str)}
     try:
         nav = NavSnapshot.from_dict(_field(h, "nav", dict))
     except ValueError as exc:

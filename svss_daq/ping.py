@@ -60,7 +60,8 @@ class NavSnapshot:
         for f in dataclasses.fields(cls):
             v = d[f.name]
             want = int if f.type in ("int", int) else float
-            ok = not isinstance(v, bool) and isinstance(v, want if want is int else (int, float))
+            ok = not isinstance(v, bool) and isinstance(
+                v, int if want is int else (int, float))
             if ok and want is int:
                 ok = -2**63 <= v < 2**63                  # fits the int64 of the raw file
             elif ok and isinstance(v, int):

@@ -41,8 +41,8 @@ class PingPublisher:
         self.ctx = ctx or zmq.Context.instance()
         self.sock = self.ctx.socket(zmq.XPUB)
         self.sock.setsockopt(zmq.SNDHWM, send_hwm)
-        self.sock.setsockopt(zmq.XPUB_NODROP, 1)      # full queue: zmq.Again, not a silent drop
-        self.sock.setsockopt(zmq.XPUB_VERBOSER, 1)    # every (un)subscription, to count them
+        self.sock.setsockopt(zmq.XPUB_NODROP, 1)    # full queue: zmq.Again, no silent drop
+        self.sock.setsockopt(zmq.XPUB_VERBOSER, 1)  # every (un)subscription, to count them
         try:
             self.sock.bind(endpoint)
         except zmq.ZMQError as exc:
@@ -82,7 +82,8 @@ class PingPublisher:
         while self.subscriptions < n:
             left = deadline - time.monotonic()
             if left <= 0:
-                raise TimeoutError(f"no subscriber on {self.endpoint} after {timeout_s:.0f} s")
+                raise TimeoutError(f"no subscriber on {self.endpoint} after "
+                                   f"{timeout_s:.0f} s")
             self._drain_subscriptions(int(min(left, 0.2) * 1000))
 
     def publish(self, msg: Ping | messages.RunEnd) -> bool:
@@ -145,7 +146,7 @@ class PingPublisher:
         self.sock.close(linger=int(linger_s * 1000))
         self._closed = True
 
-    def __enter__(self) -> "PingPublisher":
+    def __enter__(self) -> PingPublisher:
         return self
 
     def __exit__(self, *exc) -> None:

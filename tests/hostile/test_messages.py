@@ -12,7 +12,6 @@ import threading
 import time
 import tracemalloc
 
-import numpy as np
 import pytest
 import zmq
 from hypothesis import HealthCheck, event, given, settings
@@ -25,7 +24,7 @@ from svss_daq.publisher import PingPublisher
 from svss_daq.subscriber import subscribe
 from tests.test_messages import make_ping
 
-MAX_EXAMPLES = int(os.environ.get("SVSS_FUZZ_EXAMPLES", 200))
+MAX_EXAMPLES = int(os.environ.get("SVSS_FUZZ_EXAMPLES", "200"))
 
 
 @pytest.fixture
@@ -203,7 +202,7 @@ def _ping_frames(**changes) -> list[bytes]:
     ("projector", True, "'projector' expected int"),
     ("transmit_time_ns", "1", "'transmit_time_ns' expected int"),
     ("window_start_ns", -2**63 - 1, "'window_start_ns' expected int"),
-    ("sample_rate_hz", float("nan"), "'sample_rate_hz' expected float (a finite number > 0)"),
+    ("sample_rate_hz", float("nan"), "'sample_rate_hz' expected float (a finite number > 0"),
     ("sample_rate_hz", float("inf"), "'sample_rate_hz' expected float"),
     ("sample_rate_hz", 10**400, "'sample_rate_hz' expected float"),
     ("sample_rate_hz", 0, "'sample_rate_hz' expected float"),
@@ -226,14 +225,11 @@ def _ping_frames(**changes) -> list[bytes]:
     ("shape", [65536, 1], "'shape'"),
     ("shape", [1, 2**31], "'shape'"),
     ("shape", [10**30, 10**30], "'shape'"),
-    ("shape", [8, 8], "sample frame holds 256 bytes; header shape [8, 8] of int32 needs 256"
-     .replace("256;", "256 bytes;")),
+    ("shape", [4, 15], "sample frame holds 256 bytes; header shape [4, 15] of int32 needs "
+     "240"),
 ])
 def test_ping_with_bad_field_raises_naming_it(wire, field, value, text):
     frames = _ping_frames(**{field: value})
-    if field == "shape" and value == [8, 8]:
-        frames[2] = frames[2][:255]
-        text = "sample frame holds 255 bytes; header shape [8, 8] of int32 needs 256"
     with pytest.raises(MessageError) as exc:
         wire(frames)
     assert text in str(exc.value)
