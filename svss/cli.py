@@ -14,7 +14,9 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from svss_daq.config import (ConfigError, DaqConfig, HardwareConfig, ProcessingConfig,
@@ -49,7 +51,8 @@ def cmd_simulate(args) -> int:
     scene = load_scene(args.scene)
     daq = load(DaqConfig, config_path("daq.toml"))
     source = EnvironmentSource(hw, scene)
-    with RawRunWriter(args.out, hw, flush_every_pings=daq.recorder.flush_every_pings,
+    with RawRunWriter(args.out, hw, overwrite=args.force,
+                      flush_every_pings=daq.recorder.flush_every_pings,
                       flush_interval_s=daq.recorder.flush_interval_s,
                       environment={"sound_speed_indicative": water_sound_speed(scene)},
                       run_attrs={"scene_name": scene.scene.name}) as rec:
@@ -61,7 +64,7 @@ def cmd_simulate(args) -> int:
 def cmd_process(args) -> int:
     from svss_proc.worker import process_raw
 
-    files = process_raw(args.run, args.out, _processing(args))
+    files = process_raw(args.run, args.out, _processing(args), force=args.force)
     for p in files:
         print(p)
     return 0
@@ -70,8 +73,10 @@ def cmd_process(args) -> int:
 def cmd_worker(args) -> int:
     from svss_proc.worker import serve
 
+    daq = load(DaqConfig, config_path("daq.toml"))
     files = serve(args.connect, args.out, _hardware(args), _processing(args),
-                  idle_timeout_s=args.idle_timeout)
+                  idle_timeout_s=args.idle_timeout, receive_hwm=daq.subscriber.receive_hwm,
+                  force=args.force)
     for p in files:
         print(p)
     return 0
@@ -81,6 +86,7 @@ def cmd_replay(args) -> int:
     import time
 
     from svss_daq.acquisition import acquire
+    from svss_daq.ping_gate import PingGate
     from svss_daq.publisher import PingPublisher
     from svss_daq.rawfile import RawRunReader
 
@@ -89,7 +95,8 @@ def cmd_replay(args) -> int:
             PingPublisher(args.endpoint or daq.publisher.endpoint, daq.publisher.send_hwm) as pub:
         print(f"replaying {args.run} ({len(run)} pings) on {pub.endpoint}", flush=True)
         pub.wait_for_subscribers(timeout_s=args.wait)
-        pings = iter(run)
+        gate = PingGate(run.hardware, name=f"replay of {args.run}")
+        pings = (p for p in run if gate.admit(p))
         if args.realtime:
             def paced(pings=pings, t0=time.monotonic()):
                 first = None
@@ -108,7 +115,7 @@ def cmd_demo(args) -> int:
     from svss.demo import run_demo
 
     files = run_demo(Path(args.out), scene=args.scene, hardware=args.hardware,
-                     processing=args.processing)
+                     processing=args.processing, force=args.force)
     print("svss demo wrote:")
     for p in files:
         print(f"  {p}")
@@ -147,6 +154,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "the project's config/)")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
+    def force(sp, what):
+        sp.add_argument("--force", action="store_true", help=f"replace {what} (refused "
+                        "otherwise)")
+
     def common(sp, processing=True):
         sp.add_argument("--hardware", help="hardware TOML (default: config/hardware.toml)")
         if processing:
@@ -157,12 +168,14 @@ def build_parser() -> argparse.ArgumentParser:
                         "pings -> ZeroMQ -> worker process -> tiles and PNGs")
     sp.add_argument("--out", required=True, help="output folder")
     sp.add_argument("--scene", help="scene TOML (default: config/scenes/demo.toml)")
+    force(sp, "the demo's earlier outputs in --out")
     common(sp)
     sp.set_defaults(func=cmd_demo)
 
     sp = sub.add_parser("simulate", help="simulate a scene into a raw-run file")
     sp.add_argument("--scene", required=True, help="scene TOML")
     sp.add_argument("--out", required=True, help="raw-run HDF5 file to write")
+    force(sp, "an existing --out file")
     common(sp, processing=False)
     sp.set_defaults(func=cmd_simulate)
 
@@ -170,6 +183,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("run", help="raw-run HDF5 file")
     sp.add_argument("--out", required=True, help="output folder")
     sp.add_argument("--processing", help="processing TOML (default: config/processing.toml)")
+    force(sp, "tiles and manifest of an earlier run in --out")
     sp.set_defaults(func=cmd_process)
 
     sp = sub.add_parser("worker", help="image pings received over ZeroMQ")
@@ -177,6 +191,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--out", required=True, help="output folder")
     sp.add_argument("--idle-timeout", type=float, default=None,
                     help="finish after this many seconds without a message")
+    force(sp, "tiles and manifest of an earlier run in --out")
     common(sp)
     sp.set_defaults(func=cmd_worker)
 
@@ -205,13 +220,28 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _stop_on_sigterm() -> None:
+    """SIGTERM stops a command as SIGINT does (KeyboardInterrupt: files are flushed and
+    closed on the way out)."""
+    def handler(signum, frame):
+        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, handler)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     _setup_logging(-1 if args.quiet else args.verbose)
     if args.config_dir:
         os.environ[CONFIG_ENV] = str(Path(args.config_dir).resolve())
+    _stop_on_sigterm()
     try:
         return args.func(args)
-    except (ConfigError, FileNotFoundError, ValueError, TimeoutError, OSError) as exc:
+    except KeyboardInterrupt as exc:
+        log.warning("svss %s stopped by %s; what was done is flushed", args.command,
+                    exc.args[0] if exc.args else "SIGINT")
+        return 130
+    except (ConfigError, FileNotFoundError, FileExistsError, ValueError, TimeoutError,
+            OSError) as exc:
         log.error("%s", exc)
         return 2

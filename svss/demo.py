@@ -20,6 +20,7 @@ from svss_daq.acquisition import acquire
 from svss_daq.config import DaqConfig, HardwareConfig, config_path, load, load_with_text
 from svss_daq.publisher import PingPublisher
 from svss_daq.rawfile import RawRunWriter
+from svss_proc.worker import prepare_output_dir
 
 log = logging.getLogger(__name__)
 
@@ -28,8 +29,10 @@ DEMO_PROCESSING = "processing-demo.toml"
 
 
 def run_demo(out: Path, scene: str | None = None, hardware: str | None = None,
-             processing: str | None = None, worker_timeout_s: float = 600.0) -> list[Path]:
-    """Run the demo into ``out``; return every file written (raw run first)."""
+             processing: str | None = None, worker_timeout_s: float = 600.0,
+             force: bool = False) -> list[Path]:
+    """Run the demo into ``out``; return every file written (raw run first). An earlier
+    run's outputs there are refused unless ``force``."""
     out.mkdir(parents=True, exist_ok=True)
     hw_path = Path(hardware or config_path("hardware.toml")).resolve()
     proc_path = Path(processing or config_path(DEMO_PROCESSING)).resolve()
@@ -39,15 +42,21 @@ def run_demo(out: Path, scene: str | None = None, hardware: str | None = None,
     source = EnvironmentSource(hw, sc)
     raw = out / "run.h5"
     tiles = out / "tiles"
+    if raw.exists() and not force:
+        raise FileExistsError(f"{raw} exists (an earlier demo); pass --force to replace "
+                              "the demo's outputs")
+    prepare_output_dir(tiles, force)
     with PingPublisher("tcp://127.0.0.1:*", daq.publisher.send_hwm) as pub:
         cmd = [sys.executable, "-m", "svss", "worker", "--connect", pub.endpoint,
                "--out", str(tiles), "--hardware", str(hw_path), "--processing",
-               str(proc_path), "--idle-timeout", str(worker_timeout_s)]
+               str(proc_path), "--idle-timeout", str(worker_timeout_s)] + (
+                   ["--force"] if force else [])
         log.info("starting worker: %s", " ".join(cmd))
         worker = subprocess.Popen(cmd, stdout=subprocess.DEVNULL)
         try:
             pub.wait_for_subscribers(timeout_s=120.0)
-            with RawRunWriter(raw, hw, flush_every_pings=daq.recorder.flush_every_pings,
+            with RawRunWriter(raw, hw, overwrite=force,
+                              flush_every_pings=daq.recorder.flush_every_pings,
                               flush_interval_s=daq.recorder.flush_interval_s,
                               environment={"sound_speed_indicative":
                                            water_sound_speed(sc)},

@@ -17,6 +17,7 @@ from svss_daq.ping import Ping
 from svss_daq.ping_gate import PingGate, PingRejected
 from svss_daq.progress import Progress
 from svss_daq.rawfile import RawRunReader
+from svss_daq.endpoints import check_endpoint
 from svss_daq.subscriber import subscribe
 
 from .imaging.imager import TileImager
@@ -145,6 +146,7 @@ def serve(endpoint: str, out_dir: str | Path, hardware: Loaded[HardwareConfig],
     without a message); image them and write tiles. Returns the files written. SIGINT
     (KeyboardInterrupt, also while idle) writes the open tiles and the manifest, marked
     incomplete, and re-raises."""
+    check_endpoint(endpoint, bind=False)            # before anything is written
     worker = Worker(hardware, processing, out_dir, force=force)
     sock = subscribe(endpoint, receive_hwm)
     log.info("worker: waiting for pings from %s", endpoint)

@@ -320,3 +320,92 @@ def test_idle_worker_stops_promptly_on_a_signal(sig, tmp_path):
     assert stopped_in < 10
     manifest = json.loads((tmp_path / "t" / MANIFEST).read_text())
     assert manifest["complete"] is False and manifest["pings"] == 0
+
+
+def test_replay_publishes_only_what_the_gate_admits(pings, hw, tmp_path):
+    """A recorded run holding a ping with NaN navigation and one back in time: `svss
+    replay` refuses both (logged with their sequence) and publishes the good ones."""
+    from svss_daq.rawfile import RawRunWriter
+    run = tmp_path / "run.h5"
+    good = pings[:6]
+    bad = {2: with_nav(good[2], north_m=float("nan")),
+           4: later(good[4], dt_ns=-10**9)}
+    with RawRunWriter(run, hw) as rec:
+        for i, p in enumerate(good):
+            rec.append(p)
+            if i in bad:
+                rec.append(dataclasses.replace(bad[i], sequence=100 + i))
+    with zmq.Context() as ctx:
+        probe = ctx.socket(zmq.REP)
+        port = probe.bind_to_random_port("tcp://127.0.0.1")
+        probe.close(linger=0)
+        endpoint = f"tcp://127.0.0.1:{port}"
+        sub = ctx.socket(zmq.SUB)
+        sub.connect(endpoint)
+        sub.setsockopt(zmq.SUBSCRIBE, b"svss.")
+        proc = subprocess.Popen([sys.executable, "-m", "svss", "replay", str(run),
+                                 "--endpoint", endpoint, "--wait", "60"], cwd=ROOT,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        got, end = [], None
+        try:
+            while end is None and sub.poll(60_000):
+                msg = messages.recv(sub)
+                if isinstance(msg, messages.RunEnd):
+                    end = msg
+                else:
+                    got.append(msg.sequence)
+            rc = proc.wait(timeout=60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+            sub.close(linger=0)
+        err = proc.stderr.read()
+    assert rc == 0, err[-2000:]
+    assert got == [p.sequence for p in good] and end.n_pings == len(good)
+    assert "refused ping 102: navigation north_m" in err
+    assert "refused ping 104: transmit time" in err
+
+
+def _svss(*args, **kw):
+    return subprocess.run([sys.executable, "-m", "svss", *args], cwd=ROOT,
+                          capture_output=True, text=True, timeout=300, **kw)
+
+
+def test_simulate_stopped_by_sigterm_leaves_a_clean_readable_run(tmp_path):
+    from svss_daq.rawfile import RawRunReader
+    run = tmp_path / "run.h5"
+    proc = subprocess.Popen([sys.executable, "-m", "svss", "simulate", "--scene",
+                             str(config_path("scenes/demo.toml")), "--out", str(run)],
+                            cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        for line in proc.stderr:               # progress is logged as pings are recorded
+            if "acquisition:" in line or time.monotonic() > deadline:
+                break
+        proc.send_signal(signal.SIGTERM)
+        rc = proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert rc == 130
+    with RawRunReader(run) as r:
+        assert r.clean and 0 < len(r) < 90
+        last = r.ping(len(r) - 1)
+        assert np.abs(last.samples).max() > 0          # a real ping, not zeros
+    again = _svss("simulate", "--scene", str(config_path("scenes/demo.toml")), "--out",
+                  str(run))
+    assert again.returncode == 2 and str(run) in again.stderr and "--force" in again.stderr
+
+
+def test_cli_refuses_settings_that_cannot_work_before_work_starts(tmp_path):
+    cfg = Path(config_path("processing-demo.toml")).read_text()
+    bad = tmp_path / "fine.toml"
+    bad.write_text(cfg.replace("voxel_m = 0.02", "voxel_m = 0.001"))
+    res = _svss("worker", "--connect", "tcp://127.0.0.1:5999", "--out", str(tmp_path / "t"),
+                "--processing", str(bad), "--idle-timeout", "1")
+    assert res.returncode == 2 and "fine.toml" in res.stderr and "tile.voxel_m" in res.stderr
+    assert not (tmp_path / "t").exists()
+    res = _svss("worker", "--connect", "tcp://127.0.0.1:99999", "--out", str(tmp_path / "t"),
+                "--idle-timeout", "1")
+    assert res.returncode == 2 and "99999" in res.stderr
+    assert not (tmp_path / "t").exists()
