@@ -336,16 +336,14 @@ def test_replay_publishes_only_what_the_gate_admits(pings, hw, tmp_path):
             if i in bad:
                 rec.append(dataclasses.replace(bad[i], sequence=100 + i))
     with zmq.Context() as ctx:
-        probe = ctx.socket(zmq.REP)
-        port = probe.bind_to_random_port("tcp://127.0.0.1")
-        probe.close(linger=0)
-        endpoint = f"tcp://127.0.0.1:{port}"
-        sub = ctx.socket(zmq.SUB)
-        sub.connect(endpoint)
-        sub.setsockopt(zmq.SUBSCRIBE, b"svss.")
         proc = subprocess.Popen([sys.executable, "-m", "svss", "replay", str(run),
-                                 "--endpoint", endpoint, "--wait", "60"], cwd=ROOT,
-                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                                 "--endpoint", "tcp://127.0.0.1:*", "--wait", "60"],
+                                cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True)
+        line = proc.stdout.readline()                 # "replaying RUN (N pings) on ENDPOINT"
+        sub = ctx.socket(zmq.SUB)
+        sub.connect(line.split(" on ")[-1].strip())
+        sub.setsockopt(zmq.SUBSCRIBE, b"svss.")
         got, end = [], None
         try:
             while end is None and sub.poll(60_000):
