@@ -94,8 +94,8 @@ def hdf5_superblock(path: str | Path, error: type[Exception] = RawFileError) -> 
                     break
                 offset = 512 if offset == 0 else 2 * offset
                 if offset + 8 > size:
-                    raise error(f"{path}: not a readable HDF5 file (no HDF5 superblock signature in its "
-                                f"{size} bytes)")
+                    raise error(f"{path}: not a readable HDF5 file (no HDF5 superblock "
+                                f"signature in its {size} bytes)")
     except OSError as exc:
         raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
     version = head[8] if len(head) > 8 else -1
@@ -164,9 +164,11 @@ def abandon(f: h5py.File) -> None:
     exit) crashes the process (HDF5 2.0, H5D_close). Pointing the file's descriptor at
     ``/dev/null`` first lets the close complete; the file on disk keeps what reached
     it before the failure."""
+    name = "?"
     try:
         if not f.id.valid:
             return
+        name = f.filename
         fd = f.id.get_vfd_handle()
         null = os.open(os.devnull, os.O_RDWR)
         try:
@@ -175,7 +177,7 @@ def abandon(f: h5py.File) -> None:
             os.close(null)
         f.close()
     except H5_ERRORS as exc:
-        log.error("closing %s after a failed write: %s", f.filename, exc)
+        log.error("closing %s after a failed write: %s", name, _cause(exc))
 
 
 def _appendable(group: h5py.Group, name: str, dtype, shape_tail=(), chunk=1024, doc=""):
@@ -220,8 +222,9 @@ class RawRunWriter:
             self._create(hardware, environment, run_attrs)
         except H5_ERRORS as exc:
             abandon(self._f)
-            raise RawFileError(f"{self.path}: writing the run's header failed ({exc}); "
-                               "no ping is on disk") from None
+            self.path.unlink(missing_ok=True)       # nothing in it worth keeping
+            raise RawFileError(f"{self.path}: writing the run's header failed "
+                               f"({_cause(exc)}); no file written") from None
         self._last_flush = time.monotonic()
 
     def _create(self, hardware, environment, run_attrs) -> None:
@@ -265,7 +268,9 @@ class RawRunWriter:
                            "creation_time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ",
                                                               time.gmtime())})
         vendor = f.create_group("Vendor_specific")
-        vendor.create_dataset("hardware_config_toml", data=hardware.text)
+        # kept open until the flush below: closing a dataset whose (sieve-buffered) data
+        # cannot be written fails inside h5py's finaliser, where nobody sees it
+        self._text = vendor.create_dataset("hardware_config_toml", data=hardware.text)
         vendor.attrs["hardware_config_id"] = hardware.id
         vendor.attrs["hardware_config_source"] = hardware.source
         # created before SWMR mode, which forbids new objects
@@ -369,6 +374,52 @@ class RawRunWriter:
         self.close()
 
 
+#: seconds HDF5 may take reading a file's structure before the file is refused
+PROBE_TIMEOUT_S = 10.0
+_in_probe = False
+
+
+def probe(path: Path, read, error: type[Exception] = RawFileError,
+          timeout_s: float | None = None) -> None:
+    """Run ``read()`` (reading a file through HDF5) first in a forked child process and
+    raise ``error`` naming the file if it does not finish within ``timeout_s`` or
+    crashes the process. HDF5 loops forever on some damaged structures (a global heap
+    collection, for one) and crashes on others, inside C code that nothing in-process
+    can interrupt; the child takes the risk. What ``read`` raises is left to the
+    caller's own read, which follows. Skipped where ``os.fork`` is missing.
+    ``timeout_s`` defaults to :data:`PROBE_TIMEOUT_S`."""
+    global _in_probe
+    if _in_probe or not hasattr(os, "fork"):
+        return
+    timeout_s = PROBE_TIMEOUT_S if timeout_s is None else timeout_s
+    pid = os.fork()
+    if pid == 0:                                    # child: read, then leave at once
+        try:
+            _in_probe = True
+            logging.disable(logging.CRITICAL)
+            read()
+        except BaseException:                       # noqa: BLE001 - the parent reports
+            pass
+        finally:
+            os._exit(0)
+    deadline = time.monotonic() + timeout_s
+    pause = 0.0005
+    while True:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            break
+        if time.monotonic() > deadline:
+            os.kill(pid, 9)
+            os.waitpid(pid, 0)
+            raise error(f"{path}: HDF5 did not finish reading it within {timeout_s:g} s "
+                        "(a damaged file)")
+        time.sleep(pause)
+        pause = min(2 * pause, 0.02)
+    if os.WIFSIGNALED(status):
+        raise error(f"{path}: HDF5 crashed reading it (signal {os.WTERMSIG(status)}; a "
+                    "damaged file)")
+
+
 def _open_for_reading(path: Path) -> tuple[h5py.File, bool]:
     """Open an SVSS HDF5 file read-only: (file, closed cleanly). A writer that never
     closed leaves its open-for-writing flag set; such a file is opened as a SWMR reader
@@ -388,6 +439,15 @@ def _cause(exc: Exception) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 
 
+def shown(v) -> str:
+    """``repr`` of a value read from a file, without numpy's wrappers."""
+    if isinstance(v, np.ndarray):
+        v = v.tolist()
+    elif isinstance(v, np.generic):
+        v = v.item()
+    return repr(v)
+
+
 def _text(v) -> str | None:
     if isinstance(v, bytes):
         return v.decode("utf-8", "replace")
@@ -400,7 +460,13 @@ def svss_format(path: str | Path) -> str | None:
     """The ``svss_format`` root attribute of an SVSS HDF5 file (a raw run or a tile),
     None when it has none (or it is not a string); also reads files a killed writer left
     open."""
-    f, _ = _open_for_reading(Path(path))
+    path = Path(path)
+    probe(path, lambda: _format_of(path))
+    return _format_of(path)
+
+
+def _format_of(path: Path) -> str | None:
+    f, _ = _open_for_reading(path)
     try:
         with f:
             return _text(f.attrs.get("svss_format"))
@@ -419,7 +485,7 @@ def format_version(value, path: Path, readable: tuple[int, ...],
         raise error(f"{path}: root attribute 'svss_format_version' missing; expected one "
                     f"of {list(readable)}")
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise error(f"{path}: root attribute 'svss_format_version' is {value!r}; expected "
+        raise error(f"{path}: root attribute 'svss_format_version' is {shown(value)}; expected "
                     f"an integer, one of {list(readable)}")
     if int(value) not in readable:
         raise error(f"{path}: svss_format_version {int(value)}; this software reads "
@@ -476,6 +542,14 @@ def _on_disk(ds: h5py.Dataset, n: int, size: int) -> int:
     return n
 
 
+def _probe_run(path: Path) -> None:
+    """Read a run's structure, NMEA and first and last pings (in :func:`probe`)."""
+    with RawRunReader(path) as run:
+        run.nmea()
+        for i in {0, len(run) - 1} - {-1}:
+            run.ping(i)
+
+
 class RawRunReader:
     """Read a raw-run file, also one whose writer died (up to its last flush).
 
@@ -484,6 +558,7 @@ class RawRunReader:
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
+        probe(self.path, lambda: _probe_run(self.path))
         self._f, self.clean = _open_for_reading(self.path)
         try:
             self._validate()
@@ -505,7 +580,7 @@ class RawRunReader:
         fmt = _text(f.attrs.get("svss_format"))
         if fmt != FORMAT:
             raise RawFileError(f"{path}: root attribute 'svss_format' is "
-                               f"{f.attrs.get('svss_format')!r}; expected {FORMAT!r}")
+                               f"{shown(f.attrs.get('svss_format'))}; expected {FORMAT!r}")
         format_version(f.attrs.get("svss_format_version"), path, (FORMAT_VERSION,))
         self.beam = group(f, BEAM, path)
         rate = self.beam.attrs.get("sample_rate_hz")
@@ -514,7 +589,7 @@ class RawRunReader:
         except (TypeError, ValueError):
             self.sample_rate_hz = float("nan")
         if not (np.isfinite(self.sample_rate_hz) and self.sample_rate_hz > 0):
-            raise RawFileError(f"{path}: attribute '/{BEAM}' sample_rate_hz is {rate!r}; "
+            raise RawFileError(f"{path}: attribute '/{BEAM}' sample_rate_hz is {shown(rate)}; "
                                "expected a positive number")
         text_ds = dataset(f, "Vendor_specific/hardware_config_toml", path, 0, "SOU",
                           what="the hardware configuration text")
@@ -551,7 +626,7 @@ class RawRunReader:
             flushed = dataset(self.beam, "pings_flushed", path, 1, "iu")
             if flushed.shape != (1,) or flushed[0] < 0:
                 raise RawFileError(f"{path}: dataset '/{FLUSHED}' holds "
-                                   f"{flushed[()]!r}; expected one count >= 0")
+                                   f"{shown(flushed[()])}; expected one count >= 0")
             if int(flushed[0]) < self.n_pings:
                 log.warning("%s: %d pings recorded, %d known flushed; reading %d", path,
                             self.n_pings, int(flushed[0]), int(flushed[0]))

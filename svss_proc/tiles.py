@@ -29,7 +29,7 @@ from svss_daq import __version__
 from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
 from svss_daq.frames import TrackLine
 from svss_daq.rawfile import (H5_ERRORS, RawFileError, abandon, dataset, format_version,
-                              group, hdf5_superblock)
+                              group, hdf5_superblock, probe, shown)
 
 from .products import detect
 from .imaging.grid import TileGrid
@@ -118,14 +118,26 @@ def write_tile(path: str | Path, tile: Tile, hardware: Loaded[HardwareConfig],
     path = Path(path)
     tmp = temporary_path(path)
     f = None
+    # every dataset stays open until the file is flushed: a dataset closed with data it
+    # cannot write (a full disk) fails in h5py's finaliser, unseen, and HDF5 then crashes
+    # closing it again
+    kept: list[h5py.Dataset] = []
+
+    def keep(ds: h5py.Dataset) -> h5py.Dataset:
+        kept.append(ds)
+        return ds
+
     try:
         f = h5py.File(tmp, "w")
-        _write(f, tile, hardware, processing, products)
+        _write(f, tile, hardware, processing, products, keep)
+        f.flush()
+        kept.clear()
         f.close()
         os.replace(tmp, path)
     except (*H5_ERRORS, RawFileError) as exc:
         if f is not None:
             abandon(f)
+        kept.clear()
         tmp.unlink(missing_ok=True)
         cause = " ".join(str(exc).split())
         raise TileFileError(f"{path}: writing tile {tile_name(tile.grid.index)} failed "
@@ -133,13 +145,15 @@ def write_tile(path: str | Path, tile: Tile, hardware: Loaded[HardwareConfig],
     except BaseException:
         if f is not None:
             abandon(f)
+        kept.clear()
         tmp.unlink(missing_ok=True)
         raise
     return path
 
 
 def _write(f: h5py.File, tile: Tile, hardware: Loaded[HardwareConfig],
-           processing: Loaded[ProcessingConfig], products: "Products | None") -> None:
+           processing: Loaded[ProcessingConfig], products: "Products | None", keep) -> None:
+    """Write the tile into ``f``; every dataset created goes through ``keep``."""
     g = tile.grid
     f.attrs.update({
         "svss_format": TILE_FORMAT, "svss_format_version": TILE_FORMAT_VERSION,
@@ -161,67 +175,68 @@ def _write(f: h5py.File, tile: Tile, hardware: Loaded[HardwareConfig],
             "cross": (g.cross, "cross-track distance, starboard positive"),
             "depth": (g.depth, "depth below the water-sediment interface")}
     for name, (values, long_name) in axes.items():
-        ds = f.create_dataset(name, data=values)
+        ds = keep(f.create_dataset(name, data=values))
         ds.attrs.update({"units": "m", "long_name": long_name})
         ds.make_scale(name)
-    pings = f.create_dataset("ping_sequence", data=np.asarray(tile.pings, dtype=np.int64))
+    pings = keep(f.create_dataset("ping_sequence",
+                                  data=np.asarray(tile.pings, dtype=np.int64)))
     pings.attrs["long_name"] = "sequence numbers of the pings that went into the tile"
     pings.make_scale("ping_sequence")
-    image = f.create_dataset("image", data=tile.image, chunks=True, **_GZIP)
+    image = keep(f.create_dataset("image", data=tile.image, chunks=True, **_GZIP))
     image.attrs.update({"long_name": "complex backprojected image (coherent sum of "
                                      "matched-filter outputs)", "units": "uPa"})
-    mag = f.create_dataset("magnitude", data=np.abs(tile.image).astype(np.float32),
-                           chunks=True, **_GZIP)
+    mag = keep(f.create_dataset("magnitude", data=np.abs(tile.image).astype(np.float32),
+                                chunks=True, **_GZIP))
     mag.attrs.update({"long_name": "image magnitude", "units": "uPa"})
     _attach(image, f, DIMS)
     _attach(mag, f, DIMS)
     if products is not None:
-        _write_products(f, products)
+        _write_products(f, products, keep)
     prov = f.create_group("provenance")
-    prov.create_dataset("hardware_config_toml", data=hardware.text)
-    prov.create_dataset("processing_config_toml", data=processing.text)
+    keep(prov.create_dataset("hardware_config_toml", data=hardware.text))
+    keep(prov.create_dataset("processing_config_toml", data=processing.text))
     prov.attrs.update({"software_name": "svss", "software_version": __version__,
                        "hardware_config_source": hardware.source,
                        "processing_config_source": processing.source})
 
 
-def _write_products(f: h5py.File, p: "Products") -> None:
+def _write_products(f: h5py.File, p: "Products", keep) -> None:
     f.attrs["n_detections"] = len(p.detections)
     f.attrs["products_timing_s"] = json.dumps({k: round(v, 4) for k, v in p.timings.items()})
     common = {"background_method": p.method, "background_kernel_voxels": p.kernel_voxels,
               "background_kernel_m": p.kernel_m, "background_boundary": p.boundary,
               "background_max_error_db": p.max_error_db}
     if p.background is not None:
-        bg = f.create_dataset("background", data=p.background.astype(np.float32),
-                              chunks=True, **_GZIP)
+        bg = keep(f.create_dataset("background", data=p.background.astype(np.float32),
+                                   chunks=True, **_GZIP))
         bg.attrs.update({"long_name": "background: 3-D median of the magnitude",
                          "units": "uPa", "ignore_zeros": p.ignore_zeros,
                          "normalisation_floor_upa": p.floor_upa, **common})
         _attach(bg, f, DIMS)
     if p.drc is not None:
         q = np.round(np.clip(p.drc, 0.0, 1.0) * 255.0).astype(np.uint8)
-        drc = f.create_dataset("drc", data=q, chunks=True, **_GZIP)
+        drc = keep(f.create_dataset("drc", data=q, chunks=True, **_GZIP))
         drc.attrs.update({"long_name": "dynamic-range-compressed normalised level, 0..1",
                           "units": "1", "scale_factor": DRC_SCALE,
                           "add_offset": np.float32(0.0), **p.drc_attrs})
         _attach(drc, f, DIMS)
-    gain = f.create_dataset("depth_gain_db", data=p.gain_db.astype(np.float32))
+    gain = keep(f.create_dataset("depth_gain_db", data=p.gain_db.astype(np.float32)))
     gain.attrs.update({"long_name": "display gain added to the normalised level",
                        "units": "dB"})
     _attach(gain, f, ("depth",))
     for name, (axis, dims) in MIPS.items():
-        ds = f.create_dataset(name, data=p.mips[name].astype(np.float32), **_GZIP)
+        ds = keep(f.create_dataset(name, data=p.mips[name].astype(np.float32), **_GZIP))
         ds.attrs.update({"long_name": f"maximum intensity projection over {DIMS[axis]} "
                                       f"of the normalised level plus display gain",
                          "units": "dB re background", **common})
         _attach(ds, f, dims)
     grp = f.create_group("detections")
     n = len(p.detections)
-    idx = grp.create_dataset("detection", data=np.arange(n, dtype=np.int64))
+    idx = keep(grp.create_dataset("detection", data=np.arange(n, dtype=np.int64)))
     idx.attrs["long_name"] = "contact number, strongest first"
     idx.make_scale("detection")
     for name, _, units, long_name in detect.FIELDS:
-        ds = grp.create_dataset(name, data=p.detections[name])
+        ds = keep(grp.create_dataset(name, data=p.detections[name]))
         ds.attrs.update({"units": units, "long_name": long_name})
         ds.dims[0].attach_scale(idx)
     grp.attrs.update({k: v for k, v in p.detection_attrs.items()})
@@ -266,8 +281,15 @@ def _cause(exc: Exception) -> str:
 
 def _read(path: str | Path, body):
     """Open the tile at ``path`` and return ``body(f, path)``; any failure to read it
-    becomes a :class:`TileFileError` naming the file."""
+    becomes a :class:`TileFileError` naming the file. The read is tried first in a
+    child process (:func:`svss_daq.rawfile.probe`), so that a damaged file that would
+    hang or crash HDF5 is refused instead."""
     path = Path(path)
+    probe(path, lambda: _read_now(path, body), TileFileError)
+    return _read_now(path, body)
+
+
+def _read_now(path: Path, body):
     with _open_tile(path) as f:
         try:
             return body(f, path)
@@ -298,7 +320,8 @@ def _header(f: h5py.File, path: Path) -> dict:
             raise TileFileError(f"{path}: root attribute '{k}' missing")
         if np.ndim(v) != 0 or not isinstance(np.asarray(v).item(), (int, float)) \
                 or isinstance(np.asarray(v).item(), bool):
-            raise TileFileError(f"{path}: root attribute '{k}' is {v!r}; expected a number")
+            raise TileFileError(f"{path}: root attribute '{k}' is {shown(v)}; expected a "
+                                "number")
     out["attrs"] = attrs
     has_products = bool(np.asarray(attrs.get("has_products", False)).any())
     if has_products and "detections" not in f:
@@ -345,7 +368,7 @@ def _full(f: h5py.File, path: Path) -> dict:
         ds = _volume(f, "drc", path, shape, "u")
         scale = ds.attrs.get("scale_factor")
         if scale is None or np.ndim(scale) != 0:
-            raise TileFileError(f"{path}: attribute '/drc' scale_factor is {scale!r}; "
+            raise TileFileError(f"{path}: attribute '/drc' scale_factor is {shown(scale)}; "
                                 "expected a number")
         out["drc"] = ds[()].astype(np.float32) * np.float32(scale)
     return out
