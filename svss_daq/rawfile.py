@@ -33,7 +33,10 @@ import ctypes
 import functools
 import logging
 import os
+import pickle
 import re
+import select
+import signal
 import time
 from pathlib import Path
 
@@ -379,45 +382,66 @@ PROBE_TIMEOUT_S = 10.0
 _in_probe = False
 
 
-def probe(path: Path, read, error: type[Exception] = RawFileError,
-          timeout_s: float | None = None) -> None:
-    """Run ``read()`` (reading a file through HDF5) first in a forked child process and
-    raise ``error`` naming the file if it does not finish within ``timeout_s`` or
-    crashes the process. HDF5 loops forever on some damaged structures (a global heap
-    collection, for one) and crashes on others, inside C code that nothing in-process
-    can interrupt; the child takes the risk. What ``read`` raises is left to the
-    caller's own read, which follows. Skipped where ``os.fork`` is missing.
-    ``timeout_s`` defaults to :data:`PROBE_TIMEOUT_S`."""
+def in_child(path: Path, read, error: type[Exception] = RawFileError,
+             timeout_s: float | None = None):
+    """``read()`` (reading a file through HDF5) run in a forked child process: its
+    result (pickled back), or the exception it raised; ``error`` naming the file if it
+    does not finish within ``timeout_s`` (default :data:`PROBE_TIMEOUT_S`) or crashes
+    the process. HDF5 loops forever on some damaged structures (a global heap
+    collection with an empty free-space object, for one) and crashes on others, in C
+    code that nothing in-process can interrupt: the child takes the risk, and the
+    caller does not read those structures itself. Runs ``read()`` in-process where
+    ``os.fork`` is missing (or inside a child already)."""
     global _in_probe
     if _in_probe or not hasattr(os, "fork"):
-        return
+        return read()
     timeout_s = PROBE_TIMEOUT_S if timeout_s is None else timeout_s
+    rfd, wfd = os.pipe()
     pid = os.fork()
-    if pid == 0:                                    # child: read, then leave at once
+    if pid == 0:                                    # child: read, send, leave at once
         try:
+            os.close(rfd)
             _in_probe = True
             logging.disable(logging.CRITICAL)
-            read()
-        except BaseException:                       # noqa: BLE001 - the parent reports
-            pass
+            try:
+                out = (True, read())
+            except BaseException as exc:            # noqa: BLE001 - the parent raises it
+                out = (False, exc)
+            try:
+                data = pickle.dumps(out)
+            except Exception as exc:                # noqa: BLE001
+                data = pickle.dumps((False, error(f"{path}: what was read cannot be passed "
+                                                  f"on ({_cause(exc)})")))
+            view = memoryview(data)
+            while view:
+                view = view[os.write(wfd, view):]
         finally:
             os._exit(0)
-    deadline = time.monotonic() + timeout_s
-    pause = 0.0005
-    while True:
-        done, status = os.waitpid(pid, os.WNOHANG)
-        if done:
-            break
-        if time.monotonic() > deadline:
-            os.kill(pid, 9)
-            os.waitpid(pid, 0)
-            raise error(f"{path}: HDF5 did not finish reading it within {timeout_s:g} s "
-                        "(a damaged file)")
-        time.sleep(pause)
-        pause = min(2 * pause, 0.02)
-    if os.WIFSIGNALED(status):
-        raise error(f"{path}: HDF5 crashed reading it (signal {os.WTERMSIG(status)}; a "
-                    "damaged file)")
+    os.close(wfd)
+    chunks, deadline = [], time.monotonic() + timeout_s
+    try:
+        while True:
+            left = deadline - time.monotonic()
+            ready = select.select([rfd], [], [], max(left, 0))[0] if left > 0 else []
+            if not ready:
+                os.kill(pid, signal.SIGKILL)
+                os.waitpid(pid, 0)
+                raise error(f"{path}: HDF5 did not finish reading it within {timeout_s:g} s "
+                            "(a damaged file)")
+            chunk = os.read(rfd, 1 << 20)
+            if not chunk:
+                break
+            chunks.append(chunk)
+    finally:
+        os.close(rfd)
+    _, status = os.waitpid(pid, 0)
+    if os.WIFSIGNALED(status) or not chunks:
+        raise error(f"{path}: HDF5 crashed reading it (a damaged file; exit status "
+                    f"{status})")
+    ok, value = pickle.loads(b"".join(chunks))
+    if not ok:
+        raise value
+    return value
 
 
 def _open_for_reading(path: Path) -> tuple[h5py.File, bool]:
@@ -461,8 +485,7 @@ def svss_format(path: str | Path) -> str | None:
     None when it has none (or it is not a string); also reads files a killed writer left
     open."""
     path = Path(path)
-    probe(path, lambda: _format_of(path))
-    return _format_of(path)
+    return in_child(path, lambda: _format_of(path))
 
 
 def _format_of(path: Path) -> str | None:
@@ -542,23 +565,55 @@ def _on_disk(ds: h5py.Dataset, n: int, size: int) -> int:
     return n
 
 
-def _probe_run(path: Path) -> None:
-    """Read a run's structure, NMEA and first and last pings (in :func:`probe`)."""
-    with RawRunReader(path) as run:
-        run.nmea()
-        for i in {0, len(run) - 1} - {-1}:
-            run.ping(i)
+#: what a reader keeps of a run, read in a child process (:func:`in_child`)
+_STATE = ("clean", "sample_rate_hz", "hardware", "n_pings", "environment", "attrs",
+          "_provenance", "_meta", "_nav", "_nmea_list", "_shape")
+
+
+def _read_state(path: Path) -> dict:
+    """Open and validate a run, read everything but the samples (touching the first and
+    last pings' samples) and close it: the reader's state."""
+    run = RawRunReader.__new__(RawRunReader)
+    run.path = path
+    run._open_and_validate()
+    try:
+        try:
+            times, text = run._nmea
+            n = min(times.shape[0], text.shape[0])
+            run._nmea_list = [(int(t), s.decode("ascii", "replace"))
+                              for t, s in zip(times[:n], text[:n])]
+            run._shape = tuple(run._samples.shape[1:])
+            for i in {0, run.n_pings - 1} - {-1}:
+                run._samples[i]
+        except H5_ERRORS as exc:
+            raise RawFileError(f"{path}: cannot read the run ({_cause(exc)})") from None
+        return {k: getattr(run, k) for k in _STATE}
+    finally:
+        run._f.close()
 
 
 class RawRunReader:
     """Read a raw-run file, also one whose writer died (up to its last flush).
 
-    The layout is validated when the file is opened; any failure to read it (also
-    later, reading a ping) raises :class:`RawFileError` naming the file."""
+    The layout is validated when the file is opened, in a child process
+    (:func:`in_child`) that reads everything but the samples; this process then reads
+    only the samples, ping by ping. Any failure to read the file (also later, reading a
+    ping) raises :class:`RawFileError` naming the file."""
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
-        probe(self.path, lambda: _probe_run(self.path))
+        self.__dict__.update(in_child(self.path, lambda: _read_state(self.path)))
+        self._f, _ = _open_for_reading(self.path)
+        try:
+            self._samples = self._f[f"{BEAM}/backscatter_r"]
+        except H5_ERRORS as exc:
+            self._f.close()
+            raise RawFileError(f"{self.path}: cannot read the run ({_cause(exc)})") from None
+        if not self.clean:
+            log.warning("%s was not closed by its writer; reading up to its last flush "
+                        "(%d pings)", self.path, self.n_pings)
+
+    def _open_and_validate(self) -> None:
         self._f, self.clean = _open_for_reading(self.path)
         try:
             self._validate()
@@ -571,9 +626,6 @@ class RawRunReader:
         except H5_ERRORS as exc:
             self._f.close()
             raise RawFileError(f"{self.path}: cannot read the run ({_cause(exc)})") from None
-        if not self.clean:
-            log.warning("%s was not closed by its writer; reading up to its last flush "
-                        "(%d pings)", self.path, self.n_pings)
 
     def _validate(self) -> None:
         f, path = self._f, self.path
@@ -658,7 +710,7 @@ class RawRunReader:
     @property
     def shape(self) -> tuple[int, int]:
         """(channels, samples per ping) of the recorded pings."""
-        return tuple(self._samples.shape[1:])
+        return self._shape
 
     def ping_table(self) -> dict[str, np.ndarray]:
         """Per-ping records of every ping: ``ping_time`` (ns), ``ping_sequence``,
@@ -704,14 +756,7 @@ class RawRunReader:
 
     def nmea(self) -> list[tuple[int, str]]:
         """The raw NMEA sentences: (receive time ns, text)."""
-        times, text = self._nmea
-        try:
-            n = min(times.shape[0], text.shape[0])
-            return [(int(t), s.decode("ascii", "replace"))
-                    for t, s in zip(times[:n], text[:n])]
-        except H5_ERRORS as exc:
-            raise RawFileError(f"{self.path}: cannot read '/Platform/NMEA' "
-                               f"({_cause(exc)})") from None
+        return list(self._nmea_list)
 
     def close(self) -> None:
         self._f.close()

@@ -29,7 +29,7 @@ from svss_daq import __version__
 from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
 from svss_daq.frames import TrackLine
 from svss_daq.rawfile import (H5_ERRORS, RawFileError, abandon, dataset, format_version,
-                              group, hdf5_superblock, probe, shown)
+                              group, hdf5_superblock, in_child, shown)
 
 from .products import detect
 from .imaging.grid import TileGrid
@@ -281,12 +281,11 @@ def _cause(exc: Exception) -> str:
 
 def _read(path: str | Path, body):
     """Open the tile at ``path`` and return ``body(f, path)``; any failure to read it
-    becomes a :class:`TileFileError` naming the file. The read is tried first in a
-    child process (:func:`svss_daq.rawfile.probe`), so that a damaged file that would
-    hang or crash HDF5 is refused instead."""
+    becomes a :class:`TileFileError` naming the file. The read runs in a child process
+    (:func:`svss_daq.rawfile.in_child`), so that a damaged file that would hang or
+    crash HDF5 is refused instead."""
     path = Path(path)
-    probe(path, lambda: _read_now(path, body), TileFileError)
-    return _read_now(path, body)
+    return in_child(path, lambda: _read_now(path, body), TileFileError)
 
 
 def _read_now(path: Path, body):

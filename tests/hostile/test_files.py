@@ -28,6 +28,7 @@ from hypothesis import strategies as st
 
 from svss.score import score_tiles
 from svss.summary import summarise
+from svss_daq import rawfile
 from svss_daq.rawfile import RawFileError, RawRunReader, RawRunWriter
 from svss_proc.products.chain import save_tile
 from svss_proc.tiles import (
@@ -542,6 +543,12 @@ def fuzz_runs(tmp_path_factory, hardware):
     return out
 
 
+@pytest.fixture
+def quick_refusal(monkeypatch):
+    """A damaged file that keeps HDF5 busy is refused after 2 s (not 10) while fuzzing."""
+    monkeypatch.setattr(rawfile, "PROBE_TIMEOUT_S", 2.0)
+
+
 def _bounded(fn):
     """Run ``fn`` with a hang guard: a hang inside HDF5 (where Python cannot interrupt
     it) dumps the stacks and ends the test process instead of blocking the suite."""
@@ -557,7 +564,8 @@ def _bounded(fn):
 @pytest.mark.parametrize("kind", ["clean", "killed"])
 @fuzz_settings()
 @given(data=st.data())
-def test_fuzzed_raw_run_gives_data_or_raw_file_error(fuzz_runs, kind, tmp_path, data):
+def test_fuzzed_raw_run_gives_data_or_raw_file_error(fuzz_runs, kind, tmp_path,
+                                                       quick_refusal, data):
     template, offsets = fuzz_runs[kind]
     path = tmp_path / "fuzzed.h5"
     path.write_bytes(_mutate(template, data.draw, offsets))
@@ -589,7 +597,8 @@ def fuzz_tile(tile_path):
 
 @fuzz_settings()
 @given(data=st.data())
-def test_fuzzed_tile_gives_data_or_tile_file_error(fuzz_tile, tmp_path, data):
+def test_fuzzed_tile_gives_data_or_tile_file_error(fuzz_tile, tmp_path, quick_refusal,
+                                                    data):
     template, offsets = fuzz_tile
     path = tmp_path / "tile_0001.h5"
     path.write_bytes(_mutate(template, data.draw, offsets))
