@@ -30,6 +30,7 @@ into a :class:`RawFileError` naming the file and the path.
 from __future__ import annotations
 
 import ctypes
+import faulthandler
 import functools
 import logging
 import os
@@ -101,7 +102,10 @@ def hdf5_superblock(path: str | Path, error: type[Exception] = RawFileError) -> 
                                 f"signature in its {size} bytes)")
     except OSError as exc:
         raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
-    version = head[8] if len(head) > 8 else -1
+    if len(head) < 48:
+        raise error(f"{path}: truncated: {size} bytes, too short for the HDF5 superblock "
+                    f"at byte {offset}")
+    version = head[8]
     if version in (0, 1):           # addresses after fixed fields, flags 4 bytes
         n_off = head[13]
         flags = int.from_bytes(head[20:24], "little")
@@ -403,6 +407,7 @@ def in_child(path: Path, read, error: type[Exception] = RawFileError,
             os.close(rfd)
             _in_probe = True
             logging.disable(logging.CRITICAL)
+            faulthandler.disable()              # a crash here is reported by the parent
             try:
                 out = (True, read())
             except BaseException as exc:            # noqa: BLE001 - the parent raises it

@@ -124,6 +124,17 @@ def test_truncated_raw_run_is_refused_naming_the_file(runs, kind, fraction, tmp_
     assert "Traceback" not in res.stderr and elapsed < HANG_GUARD_S
 
 
+@pytest.mark.parametrize("size", [0, 7, 9, 47])
+def test_file_shorter_than_a_superblock_is_refused(runs, size, tmp_path):
+    """Found by fuzzing: a superblock cut short must not index past its end."""
+    path = tmp_path / "stub.h5"
+    path.write_bytes(runs["clean"].read_bytes()[:size])
+    with pytest.raises(RawFileError, match=re.escape(str(path))):
+        RawRunReader(path)
+    with pytest.raises(TileFileError, match=re.escape(str(path))):
+        read_tile(path)
+
+
 def test_killed_writer_reads_back_exactly_its_flushed_pings(tmp_path, hardware):
     """Pings appended after the last flush are never presented (the pings_flushed count
     bounds the reader), even where HDF5 already extended the datasets."""
