@@ -372,8 +372,12 @@ def _svss(*args, **kw):
 def test_simulate_stopped_by_sigterm_leaves_a_clean_readable_run(tmp_path):
     from svss_daq.rawfile import RawRunReader
     run = tmp_path / "run.h5"
+    scene = tmp_path / "long.toml"               # long enough never to finish first
+    text = Path(config_path("scenes/demo.toml")).read_text()
+    assert "n_pings = 90 " in text
+    scene.write_text(text.replace("n_pings = 90 ", "n_pings = 5000 "))
     proc = subprocess.Popen([sys.executable, "-m", "svss", "simulate", "--scene",
-                             str(config_path("scenes/demo.toml")), "--out", str(run)],
+                             str(scene), "--out", str(run)],
                             cwd=ROOT, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 120
@@ -387,7 +391,7 @@ def test_simulate_stopped_by_sigterm_leaves_a_clean_readable_run(tmp_path):
             proc.kill()
     assert rc == 130
     with RawRunReader(run) as r:
-        assert r.clean and 0 < len(r) < 90
+        assert r.clean and 0 < len(r) < 5000
         last = r.ping(len(r) - 1)
         assert np.abs(last.samples).max() > 0          # a real ping, not zeros
     again = _svss("simulate", "--scene", str(config_path("scenes/demo.toml")), "--out",
