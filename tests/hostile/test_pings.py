@@ -411,3 +411,26 @@ def test_cli_refuses_settings_that_cannot_work_before_work_starts(tmp_path):
                 "--idle-timeout", "1")
     assert res.returncode == 2 and "99999" in res.stderr
     assert not (tmp_path / "t").exists()
+
+
+def test_worker_interrupted_mid_run_writes_open_tiles_and_an_incomplete_manifest(
+        pings, hw, proc, tmp_path):
+    """SIGINT during `svss process` (KeyboardInterrupt out of the ping loop): the tiles
+    open at that moment are written with the pings they had, the manifest says the run
+    is incomplete, and the interrupt goes on to the command (exit 130)."""
+    def interrupted():
+        yield from pings[:12]
+        raise KeyboardInterrupt
+
+    w = Worker(hw, proc, tmp_path)
+    with pytest.raises(KeyboardInterrupt):
+        w.run(interrupted())
+    manifest = json.loads((tmp_path / MANIFEST).read_text())
+    assert manifest["complete"] is False and manifest["pings"] == 12
+    tiles = sorted(tmp_path.glob("tile_*.h5"))
+    assert tiles and [p.name for p in tiles] == sorted(
+        n for n in manifest["files"] if n.endswith(".h5"))
+    seen = set()
+    for p in tiles:
+        seen |= set(read_tile(p)["ping_sequence"].tolist())
+    assert seen == {p.sequence for p in pings[:12]}
