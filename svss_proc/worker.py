@@ -121,10 +121,15 @@ class Worker:
                 self.add(ping)
                 progress.update()
         except KeyboardInterrupt:
-            log.warning("stopped: writing %d open tile(s)", len(self.imager.active))
-            self.finish(complete=False)
+            self.stop()
             raise
         return self.finish()
+
+    def stop(self) -> list[Path]:
+        """Stopped early (a signal): write the open tiles and the manifest, marked
+        incomplete."""
+        log.warning("stopped: writing %d open tile(s)", len(self.imager.active))
+        return self.finish(complete=False)
 
 
 def process_raw(path: str | Path, out_dir: str | Path,
@@ -178,8 +183,7 @@ def serve(endpoint: str, out_dir: str | Path, hardware: Loaded[HardwareConfig],
             worker.add(msg)
             progress.update()
     except KeyboardInterrupt:
-        log.warning("stopped: writing %d open tile(s)", len(worker.imager.active))
-        worker.finish(complete=False)
+        worker.stop()
         raise
     finally:
         sock.close(linger=0)

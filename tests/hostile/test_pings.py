@@ -23,8 +23,7 @@ from hypothesis import given, settings, strategies as st
 from sim_device.environment_source import EnvironmentSource
 from sim_device.scene import load_scene
 from svss_daq import messages
-from svss_daq.config import (ConfigError, HardwareConfig, ProcessingConfig, config_path,
-                             load_with_text)
+from svss_daq.config import (ConfigError, config_path)
 from svss_daq.ping import Ping
 from svss_daq.ping_gate import PingGate, PingRejected
 from svss_daq.publisher import PingPublisher
@@ -38,13 +37,13 @@ MAX_EXAMPLES = int(os.environ.get("SVSS_FUZZ_EXAMPLES", 200))
 
 
 @pytest.fixture(scope="module")
-def hw():
-    return load_with_text(HardwareConfig, config_path("hardware.toml"))
+def hw(hardware):
+    return hardware
 
 
 @pytest.fixture(scope="module")
-def proc():
-    return load_with_text(ProcessingConfig, config_path("processing-demo.toml"))
+def proc(demo_processing):
+    return demo_processing
 
 
 @pytest.fixture(scope="module")
