@@ -58,14 +58,15 @@ def motion_at(track: TrackConfig, seed: int, t_s: float) -> dict[str, float]:
                 sway_rate=float(rate[1]))
 
 
-def ping_pose(track: TrackConfig, hw: HardwareConfig, i: int, seed: int = 0) -> NavSnapshot:
-    """True pose of ping ``i``: a straight track at constant speed, plus the scene's
-    platform motion if any (its phases drawn from ``seed``, the scene seed)."""
-    dt = hw.sequencer.ping_interval_s
+def pose_at(track: TrackConfig, t_s: float, seed: int = 0) -> NavSnapshot:
+    """True pose at ``t_s`` seconds after the track's start time: a straight track at
+    constant speed, plus the scene's platform motion if any (its phases drawn from
+    ``seed``, the scene seed). Defined for any time, between pings too (the simulated
+    navigation instruments sample it)."""
     h = np.deg2rad(track.heading_deg)
-    s = i * dt * track.speed_m_s
-    t_ns = parse_utc_ns(track.start_time_utc) + int(round(i * dt * 1e9))
-    mo = motion_at(track, seed, i * dt)
+    s = t_s * track.speed_m_s
+    t_ns = parse_utc_ns(track.start_time_utc) + int(round(t_s * 1e9))
+    mo = motion_at(track, seed, t_s)
     sway = mo["sway"]
     return NavSnapshot(
         time_ns=t_ns,
@@ -77,3 +78,9 @@ def ping_pose(track: TrackConfig, hw: HardwareConfig, i: int, seed: int = 0) -> 
         vel_down_m_s=mo["heave_rate"], roll_rad=mo["roll"], pitch_rad=mo["pitch"],
         heading_rad=float(h + mo["yaw"]), altitude_m=track.altitude_m - mo["heave"],
         quality=NAV_SIMULATED)
+
+
+def ping_pose(track: TrackConfig, hw: HardwareConfig, i: int, seed: int = 0) -> NavSnapshot:
+    """True pose of ping ``i`` (pings every ``sequencer.ping_interval_s`` from the
+    track's start time): :func:`pose_at` at its transmit time."""
+    return pose_at(track, i * hw.sequencer.ping_interval_s, seed)
