@@ -1,0 +1,117 @@
+"""Simulated Teledyne RDI DVL (Workhorse Navigator, bottom track): PD0 ensembles on a
+pseudo-terminal (:class:`~sim_device.devices.serial_device.SerialDevice`).
+
+Each ensemble samples the true pose at its ping time (the time in its variable leader)
+and is sent ``latency_s`` later. Contents:
+
+* heading, pitch, roll: the true attitude plus compass / tilt-sensor white noise;
+* bottom-track velocity: the head's velocity over ground (lever arm ``dvl_m``: central
+  difference of the head's true position, so rotation is included), in the body frame
+  plus white noise, sent as RDI does: the bottom's velocity relative to the instrument
+  (negated), in ship (X stbd, Y fwd, Z up) or earth coordinates (rotated with the
+  *reported* attitude, as the instrument does); the error velocity is noise;
+* ranges: slant range of each Janus beam (1 stbd, 2 port, 3 fwd, 4 aft, ``beam_angle_deg``
+  from vertical, rotated by the attitude) to a flat bottom at the track's depth
+  (``body_down_m + altitude_m``), plus noise; beyond ``max_range_m``: no bottom (0).
+  With fewer than three beams on the bottom the velocity is bad (-32768).
+
+Lost bottom lock (:meth:`DvlEmulator.lose_bottom_lock`): what the instrument then sends,
+bad velocities (-32768) and ranges 0 in every beam, ensembles still flowing.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from typing import Callable
+
+import numpy as np
+
+from svss_daq.drivers.pd0_encoder import Pd0Setup, encode_ensemble
+from svss_daq.frames import body_to_ned
+from svss_daq.navigation import janus_beam_vectors
+from svss_daq.ping import NavSnapshot
+from sim_device.devices.clock import SimClock
+from sim_device.devices.gps import antenna_ned
+from sim_device.devices.instruments_config import DvlSimConfig
+from sim_device.devices.serial_device import ScheduledSerialDevice
+
+__all__ = ["DvlEmulator"]
+
+logger = logging.getLogger(__name__)
+
+_DIFF_S = 0.05  # half-window of the central difference for the head velocity, s
+
+
+class DvlEmulator(ScheduledSerialDevice):
+    """The DVL at ``<directory>/<name>``. ``pose_fn(true_ns) -> NavSnapshot``: the true
+    pose (its ``down_m + altitude_m`` is the bottom's depth); ``lever_arms``:
+    :class:`svss_daq.config.LeverArms`."""
+
+    def __init__(self, cfg: DvlSimConfig, lever_arms, clock: SimClock,
+                 pose_fn: Callable[[int], NavSnapshot], directory, name: str = "dvl") -> None:
+        super().__init__(directory, name, clock, {"ensemble": (1.0 / cfg.rate_hz, cfg.latency_s)})
+        self.cfg = cfg
+        self.setup = Pd0Setup(frequency_hz=cfg.frequency_khz * 1e3,
+                              beam_angle_deg=cfg.beam_angle_deg,
+                              coordinate_system=cfg.coordinate_system,
+                              serial_number=cfg.serial_number)
+        self.setup.check()
+        self.lever_m = np.asarray(lever_arms.dvl_m, dtype=np.float64)
+        self.pose_fn = pose_fn
+        self.beams = janus_beam_vectors(math.radians(cfg.beam_angle_deg))
+        self._rng = np.random.default_rng(cfg.seed)
+        self._lost_until_ns = -1
+        self._llock = threading.Lock()
+        self.ensemble_number = 0  #: number of the last ensemble built (first is 1)
+        self.ensembles_without_lock = 0
+
+    def lose_bottom_lock(self, seconds: float) -> None:
+        """No bottom track (bad velocities, no ranges) for the next ``seconds`` of
+        simulated time (returns at once)."""
+        if not seconds >= 0:
+            raise ValueError(f"{self.name}: lose_bottom_lock seconds: expected >= 0, found "
+                             f"{seconds!r}")
+        with self._llock:
+            self._lost_until_ns = self.clock.true_ns() + int(seconds * 1e9)
+        self._fault("bottom lock lost", f"for {seconds:.3f} s (velocity -32768, range 0)")
+
+    def _emit(self, stream: str, t_true_ns: int, t_clock_ns: int) -> bytes:
+        c, rng = self.cfg, self._rng
+        self.ensemble_number += 1
+        pose = self.pose_fn(t_true_ns)
+        heading = pose.heading_rad + math.radians(c.heading_sigma_deg) * rng.normal()
+        pitch = pose.pitch_rad + math.radians(c.tilt_sigma_deg) * rng.normal()
+        roll = pose.roll_rad + math.radians(c.tilt_sigma_deg) * rng.normal()
+        with self._llock:
+            lost = t_true_ns < self._lost_until_ns
+        if lost:
+            self.ensembles_without_lock += 1
+            vel = [math.nan] * 4
+            ranges = [math.nan] * 4
+        else:
+            rot = body_to_ned(pose.roll_rad, pose.pitch_rad, pose.heading_rad)
+            head = antenna_ned(pose, self.lever_m)
+            dt = int(_DIFF_S * 1e9)
+            v_ned = (antenna_ned(self.pose_fn(t_true_ns + dt), self.lever_m)
+                     - antenna_ned(self.pose_fn(t_true_ns - dt), self.lever_m)) / (2 * _DIFF_S)
+            v_body = rot.T @ v_ned + rng.normal(0.0, c.velocity_sigma_m_s, 3)
+            height = pose.down_m + pose.altitude_m - head[2]  # head above the flat bottom
+            vert = (self.beams @ rot.T)[:, 2]
+            ranges = [height / v + c.range_sigma_m * rng.normal() if v > 0 else math.nan
+                      for v in vert]
+            ranges = [r if 0 < r <= c.max_range_m else math.nan for r in ranges]
+            err = float(rng.normal(0.0, c.velocity_sigma_m_s))
+            if sum(math.isfinite(r) for r in ranges) < 3:
+                vel = [math.nan] * 4
+            elif c.coordinate_system == "ship":
+                vel = [-v_body[1], -v_body[0], v_body[2], err]
+            else:  # earth: rotated with the attitude the instrument measured
+                ned = body_to_ned(roll, pitch, heading) @ v_body
+                vel = [-ned[1], -ned[0], ned[2], err]
+        return encode_ensemble(self.setup, ensemble_number=self.ensemble_number,
+                               time_ns=t_clock_ns, heading_rad=heading, pitch_rad=pitch,
+                               roll_rad=roll, bt_velocity_m_s=vel, bt_range_m=ranges,
+                               sound_speed_m_s=c.sound_speed_m_s, depth_m=c.transducer_depth_m,
+                               salinity_ppt=c.salinity_ppt, temperature_c=c.temperature_c)
