@@ -531,6 +531,18 @@ class DigitiserLinkConfig:
 
 
 @dataclass(frozen=True)
+class DvlLinkConfig:
+    port: str = spec("serial port of the DVL (PD0 ensembles; device path or symlink)")
+    baudrate: int = spec("serial baud rate, bit/s", lo=1200, hi=4_000_000)
+
+
+@dataclass(frozen=True)
+class GpsLinkConfig:
+    port: str = spec("serial port of the GPS receiver (NMEA 0183; device path or symlink)")
+    baudrate: int = spec("serial baud rate, bit/s", lo=1200, hi=4_000_000)
+
+
+@dataclass(frozen=True)
 class NavigationConfig:
     origin_latitude_deg: float | None = spec(
         "survey origin geodetic latitude, deg (omitted: the first GPS fix)", lo=-90, hi=90)
@@ -558,4 +570,6 @@ class NavigationConfig:
 class DevicesConfig:
     sequencer: SequencerLinkConfig = spec("transmit sequencer serial link")
     digitiser: DigitiserLinkConfig = spec("digitiser TCP link")
+    dvl: DvlLinkConfig | None = spec("DVL serial link (omitted: no DVL link)")
+    gps: GpsLinkConfig | None = spec("GPS serial link (omitted: no GPS link)")
     navigation: NavigationConfig = spec("navigation: survey origin, DVL geometry, fusion")
