@@ -7,6 +7,8 @@
     svss replay RUN.h5 [--endpoint E]
     svss inspect FILE [--json]
     svss score TILES_DIR --scene FILE [--radius M] [--out REPORT.json]
+    svss sim-device --scene FILE [--time-scale S] [--faults FILE] [--from-run RUN.h5]
+                    [--devices-out FILE] [--workers N] [--no-navigation]
 """
 
 from __future__ import annotations
@@ -145,6 +147,30 @@ def cmd_score(args) -> int:
     return 0
 
 
+def cmd_sim_device(args) -> int:
+    import time
+
+    from sim_device.device_process import SimDevice
+
+    dev = SimDevice(_hardware(args), args.scene, time_scale=args.time_scale,
+                    faults=args.faults, from_run=args.from_run, workers=args.workers,
+                    config=args.sim_config, navigation=not args.no_navigation)
+    try:
+        dev.start()
+        text = dev.devices_toml()
+        if args.devices_out:
+            tmp = Path(args.devices_out).with_suffix(".tmp")
+            tmp.write_text(text)
+            os.replace(tmp, args.devices_out)
+            log.info("devices configuration written to %s", args.devices_out)
+        sys.stdout.write(text)
+        sys.stdout.flush()
+        while True:  # until SIGINT / SIGTERM (KeyboardInterrupt)
+            time.sleep(0.5)
+    finally:
+        dev.close()
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="svss", description="Sediment Volume Search Sonar: "
                                 "acquisition, simulation and 3-D imaging.")
@@ -217,6 +243,24 @@ def build_parser() -> argparse.ArgumentParser:
                     "products.detection.match_radius_m of the tiles' processing)")
     sp.add_argument("--out", help="also write the report as JSON to this file")
     sp.set_defaults(func=cmd_score)
+
+    sp = sub.add_parser("sim-device", help="serve a simulated sonar (sequencer on a pty, "
+                        "digitiser on TCP) and navigation (DVL, GPS on ptys) for the "
+                        "acquisition drivers; prints their devices configuration")
+    sp.add_argument("--scene", required=True, help="scene TOML")
+    sp.add_argument("--time-scale", type=float, default=1.0,
+                    help="simulated seconds per host second (default 1: real time)")
+    sp.add_argument("--faults", help="faults TOML (docs/sim_device.md)")
+    sp.add_argument("--from-run", help="stream this raw run (svss simulate) instead of "
+                    "synthesising")
+    sp.add_argument("--devices-out", help="also write the devices configuration here")
+    sp.add_argument("--workers", type=int, default=None, help="synthesis worker processes "
+                    "(default: sim-device.toml sonar.workers; 0: chosen from the cost)")
+    sp.add_argument("--sim-config", help="simulated device TOML "
+                    "(default: config/sim-device.toml)")
+    sp.add_argument("--no-navigation", action="store_true", help="sonar only: no DVL, GPS")
+    common(sp, processing=False)
+    sp.set_defaults(func=cmd_sim_device)
     return p
 
 
