@@ -265,6 +265,11 @@ class SimDevice:
         if self.start_true_ns is None:
             self.start_true_ns = self.clock.true_ns()
         self._interval_ns = interval_ns
+        order = tuple(self.hw.value.sequencer.projector_order)
+        if self.sequencer.schedule != order:
+            log.warning("commanded schedule %s differs from the hardware configuration's "
+                        "%s: the echoes are synthesised for the latter", self.sequencer.schedule,
+                        order)
         self.source.start(k0, interval_ns)
         log.info("sequencer START at simulated t = track + %.3f s: first ping is track ping "
                  "%d, every %.6f s", (self.clock.true_ns() - self.clock.start_ns) * 1e-9,

@@ -9,8 +9,10 @@ Two time bases: without a clock, pings follow the host's monotonic clock from ST
 are stamped ``time.time_ns()`` (the drivers' tests). With a
 :class:`~sim_device.devices.clock.SimClock`, pings fall on the track's ping grid (true
 simulated time ``clock.start_ns + k * interval``, the first grid point at or after
-START), are stamped with the devices' clock at that instant (clock steps included), and
-``on_ping(event, k)`` hands the track index ``k`` to whoever makes the echoes.
+START), are stamped with the devices' clock at that instant (clock steps included), fire
+projector ``schedule[k % len(schedule)]`` (the cycle locked to the grid, so that ping
+``k``'s echoes are the scene's ping ``k``), and ``on_ping(event, k)`` hands the track
+index ``k`` to whoever makes the echoes.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from __future__ import annotations
 import errno
 import logging
 import os
+import re
 import select
 import threading
 import time
@@ -233,6 +236,16 @@ class SequencerEmulator:
             self.window = (cmd.start_ns, cmd.length_ns)
         return proto.Ack(cmd.mid, name)
 
+    @staticmethod
+    def _nak_for(error: str) -> proto.Nak:
+        """The NAK for a sentence the parser rejected (mid 0, command '?'): code 2 for an
+        unknown sentence type, else 1 (unreadable: checksum, framing, fields)."""
+        m = re.search(r"type: expected one of .*, found '([^']*)'", error)
+        if m:
+            name = re.sub(r"[^A-Za-z0-9_.-]", "_", m.group(1))[:16]
+            return proto.Nak(0, "?", E.UNKNOWN_COMMAND, f"unknown command {name}")
+        return proto.Nak(0, "?", E.BAD_CHECKSUM, "unreadable sentence")
+
     def _handle(self, msg: proto.Message) -> None:
         if not isinstance(msg, tuple(proto.COMMAND_TYPES.values())):
             self._send(proto.Nak(0, msg.TYPE, E.UNKNOWN_COMMAND, "not a host command"))
@@ -274,8 +287,8 @@ class SequencerEmulator:
         interval = self.interval_ns or 100_000_000
         if self.clock is None:
             ev = proto.PingEvent(seq, sched[seq % len(sched)], time.time_ns())
-        else:
-            ev = proto.PingEvent(seq, sched[seq % len(sched)],
+        else:  # the projector cycle is locked to the track grid, as the echoes are
+            ev = proto.PingEvent(seq, sched[self._next_k % len(sched)],
                                  device_time_ns(self.clock, self._next_ping_ns))
         self._send(ev)
         self.next_sequence += 1
@@ -321,7 +334,9 @@ class SequencerEmulator:
                 rejected = self.parser.stats.rejected
                 for msg in self.parser.feed(data):
                     self._handle(msg)
-                if self.parser.stats.rejected > rejected and not self.mute:
-                    self._send(proto.Nak(0, "?", E.BAD_CHECKSUM, "unreadable sentence"))
+                new = self.parser.stats.rejected - rejected
+                if new and not self.mute:
+                    for err in self.parser.stats.errors[-min(new, 8):]:
+                        self._send(self._nak_for(err))
             if self.state == "RUNNING" and self._ping_due_s() <= 0:
                 self._emit_ping()
