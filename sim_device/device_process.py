@@ -38,6 +38,7 @@ from svss_daq.config import (ConfigError, DevicesConfig, HardwareConfig, Loaded,
 
 from sim_device.devices.clock import SimClock
 from sim_device.devices.digitiser import DigitiserEmulator
+from sim_device.devices.instruments_config import DvlSimConfig, GpsSimConfig
 from sim_device.devices.sequencer import SequencerEmulator
 
 __all__ = ["SimDevice", "SimDeviceConfig", "SonarSimConfig", "load_sim_device_config",
@@ -64,8 +65,8 @@ class SonarSimConfig:
 class SimDeviceConfig:
     """``config/sim-device.toml``: the simulated device's instruments."""
     sonar: SonarSimConfig = spec("simulated sequencer and digitiser")
-    dvl: Any = spec("simulated DVL (DvlSimConfig)")
-    gps: Any = spec("simulated GPS (GpsSimConfig)")
+    dvl: DvlSimConfig = spec("simulated DVL")
+    gps: GpsSimConfig = spec("simulated GPS")
 
 
 def load_sim_device_config(path: str | os.PathLike | None = None) -> SimDeviceConfig:
@@ -302,9 +303,10 @@ class SimDevice:
             samples = self.source.get(k, wait_s)
             if samples is None:
                 self.late += 1
-                log.warning("ping %d (track ping %d) not ready %.3f s after its receive "
-                            "window closed: dropped (%d late so far)", event.sequence, k,
-                            interval * 1e-9, self.late)
+                if self.late <= 10 or self.late % 100 == 0:  # the first ten, then every 100th
+                    log.warning("ping %d (track ping %d) not ready %.3f s after its "
+                                "receive window closed: dropped (%d late so far)",
+                                event.sequence, k, interval * 1e-9, self.late)
                 continue
             first = event.transmit_time_ns + round(self.hw.value.digitiser.window_start_s * 1e9)
             if self.digitiser.trigger(event.sequence, event.transmit_time_ns, first, samples):

@@ -245,7 +245,14 @@ class PoolSynthesis(_AheadSource):
         return samples
 
     def close(self) -> None:
-        self._pool.shutdown(wait=True, cancel_futures=True)
+        """Stop at once: pending pings are cancelled and the workers terminated (a ping
+        of a costly scene may take seconds; nothing waits for it)."""
+        procs = list(getattr(self._pool, "_processes", {}).values())
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        for p in procs:
+            p.terminate()
+        for p in procs:
+            p.join(5.0)
 
 
 class RunFileSource(_AheadSource):

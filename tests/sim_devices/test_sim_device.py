@@ -191,3 +191,35 @@ def test_from_run_streams_a_presynthesised_run(sim_device_factory, hardware, tmp
             i = (events[p.ping_number].transmit_time_ns - t_track) // 100_000_000
             assert np.array_equal(p.samples, r.ping(i).samples)
     assert "streamed from the pre-synthesised run" in dev.logs()
+
+
+def test_worker_processes_give_the_same_samples_and_stop_promptly(sim_device_factory,
+                                                                   hardware):
+    """``--workers 2``: pings synthesised ahead in spawned processes, bit for bit the
+    in-process physics; SIGTERM ends the workers too."""
+    dev = sim_device_factory("--no-navigation", "--workers", "2", name="workers")
+    scene = load_scene(DEMO)
+    t_track = parse_utc_ns(scene.track.start_time_utc)
+    seq = SequencerDriver.from_config(dev.devices.sequencer).open()
+    dig = DigitiserClient.from_config(dev.devices.digitiser).open(wait_connected_s=WAIT_S)
+    try:
+        seq.configure(hardware.value)
+        seq.arm()
+        dig.start()
+        seq.start()
+        events = {e.sequence: e for e in (seq.ping_queue.get(timeout=WAIT_S) for _ in range(6))}
+        pings = [dig.ping_queue.get(timeout=WAIT_S) for _ in range(6)]
+        t0 = time.monotonic()
+        rc = dev.stop()
+        took = time.monotonic() - t0
+    finally:
+        dig.close()
+        seq.close()
+    src = EnvironmentSource(hardware, scene)
+    for p in pings:
+        assert isinstance(p, dg.CompletePing)
+        i = (events[p.ping_number].transmit_time_ns - t_track) // 100_000_000
+        assert np.array_equal(p.samples, src.ping(i).samples), i
+    logs = dev.logs()
+    assert "2 worker process(es)" in logs and "'late': 0" in logs, logs
+    assert rc == 130 and took < 3.0, (rc, took)
