@@ -141,14 +141,14 @@ class SimDevice:
         self.sonar = self.cfg.sonar
         self.clock = SimClock(parse_utc_ns(self.scene.track.start_time_utc), time_scale)
         self.time_scale = float(time_scale)
-        self._own_dir = run_dir is None
-        self.run_dir = Path(run_dir or tempfile.mkdtemp(prefix="svss-sim-device-"))
-        self.run_dir.mkdir(parents=True, exist_ok=True)
         self.faults_path = str(faults) if faults else None
         self._faults = None
         if faults:
             from sim_device.faults import load_faults
             self._faults = load_faults(faults)
+        self._own_dir = run_dir is None
+        self.run_dir = Path(run_dir or tempfile.mkdtemp(prefix="svss-sim-device-"))
+        self.run_dir.mkdir(parents=True, exist_ok=True)
         self.from_run = str(from_run) if from_run else None
         self.workers = self.sonar.workers if workers is None else int(workers)
         self.with_navigation = navigation
