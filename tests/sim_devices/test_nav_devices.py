@@ -281,10 +281,14 @@ def test_gps_outage_and_lost_bottom_lock_as_the_instruments_show_them(setup, tmp
         nav.add_pd0(e)
     t_out = nofix[len(nofix) // 2].time_ns
     t_lost = lost[len(lost) // 2].time_ns
-    q_out, q_lost = nav.poses([t_out, t_lost])
+    t_dr = nofix[0].time_ns + int(1.6e9)  # past gps_fix_max_age_s, within heading_max_age_s
+    q_out, q_lost, q_dr = nav.poses([t_out, t_lost, t_dr])
     assert q_out.quality & NAV_DEAD_RECKONED and not q_out.quality & NAV_GPS_FIX
-    assert q_out.quality & NAV_NO_HEADING  # a GNSS compass loses heading with the fix
+    # a GNSS compass loses heading with the fix; navigation has no DVL-compass fallback
+    # (docs/navigation.md), so mid-outage positions are not checked here
+    assert q_out.quality & NAV_NO_HEADING
     assert math.isnan(q_lost.altitude_m) and not q_lost.quality & NAV_BOTTOM_LOCK
     assert q_lost.quality & NAV_GPS_FIX
-    p = s["truth"](t_out)
-    assert math.hypot(q_out.north_m - p.north_m, q_out.east_m - p.east_m) < 1.0
+    assert q_dr.quality & NAV_DEAD_RECKONED and not q_dr.quality & NAV_NO_HEADING
+    p = s["truth"](t_dr)
+    assert math.hypot(q_dr.north_m - p.north_m, q_dr.east_m - p.east_m) < 3 * g.position_sigma_m
