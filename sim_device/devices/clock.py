@@ -64,6 +64,12 @@ class SimClock:
             return True
         return not stop.wait(delay)
 
+    @property
+    def offset_ns(self) -> int:
+        """Sum of the clock steps injected so far (devices' clock minus true time), ns."""
+        with self._lock:
+            return self._offset_ns
+
     def step(self, by_ns: int) -> None:
         """A clock step: every later :meth:`now_ns` is ``by_ns`` later (a fault)."""
         with self._lock:

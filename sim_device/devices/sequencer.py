@@ -42,7 +42,7 @@ def device_time_ns(clock, true_ns: int) -> int:
     SimClock exposes its step offset only through ``now_ns() - true_ns()``, which two
     calls cannot give exactly; read it under the clock's lock."""
     with clock._lock:
-        return int(true_ns) + clock._offset_ns
+        return int(true_ns) + clock.offset_ns
 
 
 class SequencerEmulator:
