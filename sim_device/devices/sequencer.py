@@ -37,12 +37,9 @@ E = proto.ErrorCode
 
 
 def device_time_ns(clock, true_ns: int) -> int:
-    """The devices' clock reading (steps included) at true simulated time ``true_ns``, ns.
-
-    SimClock exposes its step offset only through ``now_ns() - true_ns()``, which two
-    calls cannot give exactly; read it under the clock's lock."""
-    with clock._lock:
-        return int(true_ns) + clock.offset_ns
+    """The devices' clock reading (steps included) at true simulated time ``true_ns``,
+    ns (:attr:`SimClock.offset_ns`: the steps so far)."""
+    return int(true_ns) + clock.offset_ns
 
 
 class SequencerEmulator:

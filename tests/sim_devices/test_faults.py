@@ -16,7 +16,7 @@ from sim_device.scene import load_scene
 from sim_device.track import parse_utc_ns
 from svss_daq.config import ConfigError
 from svss_daq.drivers.digitiser import DigitiserClient
-from svss_daq.drivers.sequencer import SequencerDriver
+from svss_daq.drivers.sequencer import SequencerDriver, SequencerTimeout
 from svss_daq.protocols import digitiser as dg
 
 from .conftest import DEMO
@@ -156,7 +156,16 @@ def test_drivers_detect_report_and_survive_every_fault(sim_device_factory, hardw
                 items.append(dig.ping_queue.get(timeout=0.05))
             except queue.Empty:
                 continue
-        st = seq.status()  # the sequencer answers after garbage and its vanishing
+        # the sequencer answers after garbage and its vanishing (the link's reconnection
+        # backs off up to reconnect_max_s, so on a loaded machine give it time)
+        assert seq.link.wait_connected(15.0)
+        for attempt in range(5):
+            try:
+                st = seq.status()
+                break
+            except SequencerTimeout:
+                if attempt == 4:
+                    raise
         seq.stop()
         while not seq.ping_queue.empty():
             events.append(seq.ping_queue.get())
