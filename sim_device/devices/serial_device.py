@@ -13,6 +13,7 @@ with the simulated time of the device's clock and kept in :attr:`SerialDevice.fa
 
 from __future__ import annotations
 
+import abc
 import errno
 import logging
 import os
@@ -183,7 +184,7 @@ class SerialDevice:
         self._fault("return", f"port {self.port} back on {os.path.realpath(self.port)}")
 
 
-class ScheduledSerialDevice(SerialDevice):
+class ScheduledSerialDevice(SerialDevice, abc.ABC):
     """A :class:`SerialDevice` with a thread that emits periodic outputs on a
     :class:`SimClock`.
 
@@ -205,8 +206,10 @@ class ScheduledSerialDevice(SerialDevice):
         self._stop = threading.Event()
         self._thread: Optional[threading.Thread] = None
 
+    @abc.abstractmethod
     def _emit(self, stream: str, t_true_ns: int, t_clock_ns: int) -> bytes:
-        raise NotImplementedError
+        """The bytes of one output of ``stream`` measured at true time ``t_true_ns``,
+        stamped ``t_clock_ns`` on the devices' clock."""
 
     def start(self) -> "ScheduledSerialDevice":
         super().start()
