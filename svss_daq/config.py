@@ -313,6 +313,8 @@ class DaqConfig:
     publisher: PublisherConfig = spec("ping publisher")
     subscriber: SubscriberConfig = spec("ping subscriber (the tile worker)")
     recorder: RecorderConfig = spec("raw-run recorder")
+    security: _security.CurveConfig | None = spec("ZeroMQ CURVE keys of the endpoints "
+                                                  "(omitted: disabled; docs/security.md)")
 
 
 # ----------------------------------------------------------------------- the loader
@@ -502,6 +504,12 @@ def load_with_text(cls: type[T], path: str | os.PathLike) -> Loaded[T]:
 def loaded_from_text(cls: type[T], text: str, source: str) -> Loaded[T]:
     """Validate a configuration text carried in a file or message."""
     return Loaded(loads(cls, text, source), text, source)
+
+
+# The [security] table's schema (CurveConfig) lives in svss_daq.security, which imports
+# spec and ConfigError from here: imported as a module, after them, so that either module
+# may be imported first (DaqConfig's annotation is resolved only when a file is loaded).
+from svss_daq import security as _security  # noqa: E402
 
 
 # -------------------------------------------------------------------------- devices
