@@ -141,6 +141,10 @@ class TileConfig:
     top_m: float = spec("depth of the tile's first voxel layer below the interface "
                         "(negative: above), m", lo=-10, hi=10)
     voxel_m: float = spec("voxel edge, m", lo=1e-3, hi=1.0)
+    close_after_pings: int | None = spec(
+        "a tile is complete once this many consecutive pings' along-track reach has "
+        "stayed clear of it (works forward, reversing and stopped; omitted: 20; "
+        "docs/worker.md)", lo=1, hi=100000)
 
 
 @dataclass(frozen=True)
@@ -300,6 +304,21 @@ class PublisherConfig:
 class SubscriberConfig:
     receive_hwm: int = spec("ZeroMQ receive high-water mark of a ping subscriber, messages",
                             lo=1, hi=10**6)
+    gap_wait_s: float | None = spec("tile worker without a catch-up service: seconds a "
+                                    "sequence gap is waited for before it is skipped "
+                                    "(omitted: 2.0)", lo=0.0, hi=3600)
+    reorder_pings: int | None = spec("tile worker: pings held at most in its reorder "
+                                     "buffer (480 kB each; omitted: 200)", lo=1, hi=100000)
+
+
+@dataclass(frozen=True)
+class ServiceConfig:
+    endpoint: str = spec("ZeroMQ endpoint of the catch-up ping service (ROUTER) that "
+                         "serves recorded pings to the tile worker (docs/worker.md)")
+    request_timeout_s: float = spec("a catch-up client's wait for each reply, s",
+                                    lo=0.01, hi=3600)
+    max_pings_per_reply: int = spec("pings in one catch-up reply at most (480 kB each)",
+                                    lo=1, hi=10000)
 
 
 @dataclass(frozen=True)
@@ -313,6 +332,8 @@ class DaqConfig:
     publisher: PublisherConfig = spec("ping publisher")
     subscriber: SubscriberConfig = spec("ping subscriber (the tile worker)")
     recorder: RecorderConfig = spec("raw-run recorder")
+    service: ServiceConfig | None = spec("catch-up ping service for the tile worker "
+                                         "(omitted: none)")
     security: _security.CurveConfig | None = spec("ZeroMQ CURVE keys of the endpoints "
                                                   "(omitted: disabled; docs/security.md)")
 
