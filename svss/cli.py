@@ -9,6 +9,7 @@
     svss score TILES_DIR --scene FILE [--radius M] [--out REPORT.json]
     svss sim-device --scene FILE [--time-scale S] [--faults FILE] [--from-run RUN.h5]
                     [--devices-out FILE] [--workers N] [--no-navigation]
+    svss keys --out DIR [--name NAME] [--force]
 """
 
 from __future__ import annotations
@@ -171,6 +172,26 @@ def cmd_sim_device(args) -> int:
         dev.close()
 
 
+def cmd_keys(args) -> int:
+    from svss_daq.security import generate_keys
+
+    public, secret = generate_keys(args.out, args.name, overwrite=args.force)
+    print(f"wrote {public} (public key, mode 0644)")
+    print(f"wrote {secret} (secret key, mode 0600: never copy it off this machine)")
+    if args.name == "server":
+        print(f"on this server, in the [security] table of daq.toml:\n"
+              f"  server_secret_key = \"{secret.resolve()}\"\n"
+              f"  authorized_clients = \"FOLDER\"  (each client's NAME.key goes there)\n"
+              f"copy {public.name} to every client, and there set:\n"
+              f"  server_public_key = \"PATH/TO/{public.name}\"")
+    else:
+        print(f"on this client, in the [security] table of daq.toml:\n"
+              f"  client_secret_key = \"{secret.resolve()}\"\n"
+              f"copy {public.name} into the server's authorized_clients folder and "
+              f"restart the server")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="svss", description="Sediment Volume Search Sonar: "
                                 "acquisition, simulation and 3-D imaging.")
@@ -261,6 +282,15 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--no-navigation", action="store_true", help="sonar only: no DVL, GPS")
     common(sp, processing=False)
     sp.set_defaults(func=cmd_sim_device)
+
+    sp = sub.add_parser("keys", help="generate a ZeroMQ CURVE key pair for the server "
+                        "(--name server) or a client (docs/security.md)")
+    sp.add_argument("--out", required=True, help="folder to write NAME.key (public) and "
+                    "NAME.key_secret (secret, mode 0600) into")
+    sp.add_argument("--name", default="server", help="key pair name: 'server' (default) "
+                    "or a client's name")
+    force(sp, "an existing key pair of that name")
+    sp.set_defaults(func=cmd_keys)
     return p
 
 

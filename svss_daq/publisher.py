@@ -18,6 +18,7 @@ import zmq
 from . import messages
 from .endpoints import check_endpoint
 from .ping import Ping
+from .security import CurveConfig, secure_server
 
 log = logging.getLogger(__name__)
 
@@ -30,10 +31,15 @@ class PingPublisher:
     A ping that finds a subscriber's queue full is dropped, counted (:attr:`dropped`) and
     logged (at most once per ``drop_log_interval_s``, with the sequence numbers); the
     end-of-run marker is retried for up to ``end_timeout_s`` instead.
+
+    With ``curve`` enabled (the ``[security]`` table of daq.toml) the socket is a CURVE
+    server: only subscribers whose public keys are authorized receive anything
+    (:func:`~svss_daq.security.secure_server`, docs/security.md).
     """
 
     def __init__(self, endpoint: str, send_hwm: int, ctx: zmq.Context | None = None, *,
-                 end_timeout_s: float = 10.0, drop_log_interval_s: float = 5.0):
+                 end_timeout_s: float = 10.0, drop_log_interval_s: float = 5.0,
+                 curve: CurveConfig | None = None):
         check_endpoint(endpoint, bind=True)
         if isinstance(send_hwm, bool) or not isinstance(send_hwm, int) or send_hwm < 1:
             raise ValueError(f"send_hwm: expected an integer >= 1 (messages), got "
@@ -44,7 +50,11 @@ class PingPublisher:
         self.sock.setsockopt(zmq.XPUB_NODROP, 1)    # full queue: zmq.Again, no silent drop
         self.sock.setsockopt(zmq.XPUB_VERBOSER, 1)  # every (un)subscription, to count them
         try:
+            secure_server(self.sock, curve)
             self.sock.bind(endpoint)
+        except ValueError:
+            self.sock.close(linger=0)
+            raise
         except zmq.ZMQError as exc:
             self.sock.close(linger=0)
             raise OSError(f"cannot bind ping publisher to {endpoint}: {exc}") from None
@@ -59,7 +69,9 @@ class PingPublisher:
         self._unreported_seq = (0, 0)
         self._last_drop_log = -float("inf")
         self._closed = False
-        log.info("publishing pings on %s (send_hwm %d)", self.endpoint, send_hwm)
+        self.secured = bool(curve is not None and curve.enabled)
+        log.info("publishing pings on %s (send_hwm %d%s)", self.endpoint, send_hwm,
+                 ", CURVE" if self.secured else "")
 
     def _drain_subscriptions(self, timeout_ms: int) -> None:
         if self.sock.poll(timeout_ms, zmq.POLLIN):
