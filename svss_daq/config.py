@@ -593,6 +593,8 @@ class NavigationConfig:
                                     "course, s", lo=0.01, hi=600)
     course_min_speed_m_s: float = spec("RMC course is used as heading only above this "
                                        "speed, m/s", lo=0, hi=50)
+    gps_max_sigma_m: float = spec("fixes whose GST horizontal sigma (DRMS) exceeds this "
+                                  "are rejected, m (no GST: no limit)", lo=0.001, hi=1e4)
 
 
 @dataclass(frozen=True)

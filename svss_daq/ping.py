@@ -14,6 +14,7 @@ NAV_BOTTOM_LOCK = 4      # altitude from DVL bottom track
 NAV_SIMULATED = 8        # produced by the simulator (truth)
 NAV_HEADING_FROM_COURSE = 16   # heading is the GPS course over ground (no HDT in time)
 NAV_NO_HEADING = 32      # no heading at all (heading 0 used, lever arms unreliable)
+NAV_HEADING_FROM_COMPASS = 64  # heading is the DVL's magnetic compass (no HDT or course in time)
 
 
 @dataclass(frozen=True)

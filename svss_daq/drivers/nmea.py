@@ -1,7 +1,7 @@
 """NMEA 0183 GPS/heading sentences: typed records and an incremental line parser.
 
 Decoded sentence types (any two-character talker ID: GP, GN, GL, GA, BD, HE, HC,
-II, IN, ...): GGA, RMC, VTG, HDT, ZDA, GLL and ROT. Field splitting is done by
+II, IN, ...): GGA, RMC, VTG, HDT, ZDA, GLL, ROT and GST. Field splitting is done by
 ``pynmea2``; framing, the checksum policy and unit conversion are done here.
 
 Units: geodetic latitude/longitude in decimal **degrees** (WGS 84 as delivered,
@@ -52,6 +52,7 @@ __all__ = [
     "ZdaTime",
     "GllPosition",
     "RotRate",
+    "GstStatistics",
     "NmeaStreamStats",
     "NmeaStreamParser",
     "parse_sentence",
@@ -182,6 +183,22 @@ class RotRate(NmeaRecord):
 
     rate_rad_s: Optional[float]
     valid: bool
+
+
+@dataclass(frozen=True)
+class GstStatistics(_Timed):
+    """GST: GNSS pseudorange error statistics of the fix at ``time_of_day_ns`` (m):
+    RMS of the range inputs, 1-sigma of the error ellipse's semi-major and semi-minor
+    axes and of latitude, longitude and altitude; ``orientation_rad`` of the
+    semi-major axis from true north."""
+
+    rms_m: Optional[float]
+    sigma_major_m: Optional[float]
+    sigma_minor_m: Optional[float]
+    orientation_rad: Optional[float]
+    sigma_latitude_m: Optional[float]
+    sigma_longitude_m: Optional[float]
+    sigma_altitude_m: Optional[float]
 
 
 # -- field conversion ------------------------------------------------------------
@@ -417,7 +434,28 @@ def _rot(f: _Fields, ref) -> RotRate:
                    valid=f.raw("status").upper() == "A")
 
 
-_DECODERS: dict = {"GGA": _gga, "RMC": _rmc, "GLL": _gll, "ZDA": _zda, "VTG": _vtg, "HDT": _hdt, "ROT": _rot}
+def _gst(f: _Fields, ref) -> GstStatistics:
+    tod = f.time_of_day()
+    t_ns = _infer(tod, ref)
+
+    def sigma(name: str) -> Optional[float]:
+        v = f.float(name)
+        if v is not None and v < 0:
+            raise f.err(name, "a standard deviation >= 0 m", str(v))
+        return v
+
+    return GstStatistics(
+        *_talker(f), time_of_day_ns=tod, time_ns=t_ns, date_from_stream=t_ns is not None,
+        rms_m=sigma("rms"), sigma_major_m=sigma("std_dev_major"),
+        sigma_minor_m=sigma("std_dev_minor"), orientation_rad=f.angle("orientation"),
+        sigma_latitude_m=sigma("std_dev_latitude"),
+        sigma_longitude_m=sigma("std_dev_longitude"),
+        sigma_altitude_m=sigma("std_dev_altitude"),
+    )
+
+
+_DECODERS: dict = {"GGA": _gga, "RMC": _rmc, "GLL": _gll, "ZDA": _zda, "VTG": _vtg, "HDT": _hdt,
+                   "ROT": _rot, "GST": _gst}
 
 #: Sentence types this module decodes.
 SUPPORTED_TYPES = tuple(sorted(_DECODERS))

@@ -1,6 +1,6 @@
 """NMEA 0183 sentences: encoding, the mirror of :mod:`svss_daq.drivers.nmea`.
 
-GGA, RMC, VTG, HDT and ZDA formatted like a survey-grade receiver (Hemisphere style):
+GGA, RMC, VTG, HDT, ZDA and GST formatted like a survey-grade receiver (Hemisphere style):
 time ``hhmmss.ss``, latitude ``ddmm.mmmmmmm``, longitude ``dddmm.mmmmmmm`` (1e-7 minute,
 about 0.2 mm), altitude and geoid separation to 1 mm, speed to 0.001 kn, course and
 heading to 0.01 deg, each sentence ``$<talker><type>,...*hh\\r\\n`` with the XOR checksum.
@@ -18,7 +18,7 @@ from typing import Optional
 
 from svss_daq.drivers.nmea import KNOT_MPS, nmea_checksum
 
-__all__ = ["sentence", "gga", "rmc", "vtg", "hdt", "zda", "format_time", "format_latlon"]
+__all__ = ["sentence", "gga", "rmc", "vtg", "hdt", "zda", "gst", "format_time", "format_latlon"]
 
 _MINUTE_DIGITS = 7
 
@@ -122,3 +122,23 @@ def zda(talker: str, time_ns: int) -> bytes:
     dt, _ = _utc(time_ns)
     return sentence(f"{talker}ZDA,{format_time(time_ns)},{dt.day:02d},{dt.month:02d},"
                     f"{dt.year:04d},00,00")
+
+
+def gst(talker: str, time_ns: int, rms_m: Optional[float], sigma_major_m: Optional[float],
+        sigma_minor_m: Optional[float], orientation_rad: Optional[float],
+        sigma_latitude_m: Optional[float], sigma_longitude_m: Optional[float],
+        sigma_altitude_m: Optional[float]) -> bytes:
+    """GST: pseudorange error statistics of the fix at ``time_ns`` (sigmas in m, to 1 mm;
+    orientation of the semi-major axis in rad from true north; None: empty field)."""
+    def m(v: Optional[float], name: str) -> str:
+        if v is None:
+            return ""
+        if not (math.isfinite(v) and v >= 0):
+            raise ValueError(f"NMEA GST {name}: expected a finite sigma >= 0 m, found {v!r}")
+        return f"{v:.3f}"
+    return sentence(f"{talker}GST,{format_time(time_ns)},{m(rms_m, 'rms')},"
+                    f"{m(sigma_major_m, 'sigma_major')},{m(sigma_minor_m, 'sigma_minor')},"
+                    f"{_course_deg(orientation_rad, 'GST orientation')},"
+                    f"{m(sigma_latitude_m, 'sigma_latitude')},"
+                    f"{m(sigma_longitude_m, 'sigma_longitude')},"
+                    f"{m(sigma_altitude_m, 'sigma_altitude')}")

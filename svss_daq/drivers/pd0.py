@@ -8,8 +8,10 @@ Layout of one ensemble (all integers little-endian), after the Teledyne RDI
   (from the first header byte) to each data type;
 * data types, each starting with a uint16 ID: fixed leader ``0x0000``, variable
   leader ``0x0080``, velocity ``0x0100``, correlation ``0x0200``, echo intensity
-  ``0x0300``, percent good ``0x0400``, bottom track ``0x0600``; others are listed
-  by ID and skipped;
+  ``0x0300``, percent good ``0x0400``, bottom track ``0x0600``, and for five-beam
+  instruments (Sentinel V class) the vertical beam's velocity profile ``0x0A00`` and
+  range ``0x4100``; other IDs are listed in ``data_type_ids`` and skipped (those in
+  :data:`KNOWN_UNDECODED_IDS` are counted by the stream parser, without a warning);
 * a uint16 checksum: the sum of every byte of the ensemble modulo 65536.
 
 Decoded values are in SI units: m, m/s, s, Pa, radians (angles); temperature in
@@ -17,6 +19,18 @@ degrees Celsius. Times are int64 nanoseconds since the Unix epoch (UTC). Bad-val
 markers (velocity -32768) and "no bottom found" (bottom-track range 0) become NaN.
 Array fields are read-only numpy arrays. Raw counts (correlation, echo intensity,
 percent good) stay as uint8 arrays.
+
+:func:`decode_ensemble` decodes one ensemble from bytes and raises
+Between ensembles a Sentinel V may send vendor blocks that start ``0x7F 0x79`` with a
+uint16 byte count (block = count + 2 bytes, as dolfyn reads them): the stream parser
+skips them quietly and counts them (:class:`Pd0StreamStats`), logging one summary line
+on :meth:`Pd0StreamParser.flush`.
+
+System frequency: the fixed leader's configuration bits 0-2 give the Workhorse
+frequency class (75 kHz ... 2.4 MHz, ``frequency_class_hz``). A Sentinel V (CPU
+firmware 47.x or 66.x) sends the 300 kHz class code for its 307.2 kHz transducer, so
+``system_frequency_hz`` reports 307.2 kHz there; the five-beam layout is flagged by bit
+12 of the configuration word (dolfyn's ``beam5``) or a beam count of 5.
 
 :func:`decode_ensemble` decodes one ensemble from bytes and raises
 :class:`Pd0DecodeError` on anything malformed. :class:`Pd0StreamParser` is fed bytes
@@ -42,7 +56,10 @@ __all__ = [
     "FixedLeader",
     "VariableLeader",
     "BottomTrack",
+    "VerticalBeam",
     "Pd0Ensemble",
+    "KNOWN_UNDECODED_IDS",
+    "VENDOR_BLOCK_ID",
     "Pd0StreamStats",
     "Pd0StreamParser",
     "decode_ensemble",
@@ -64,6 +81,34 @@ ID_CORRELATION = 0x0200
 ID_ECHO_INTENSITY = 0x0300
 ID_PERCENT_GOOD = 0x0400
 ID_BOTTOM_TRACK = 0x0600
+ID_BEAM5_VELOCITY = 0x0A00
+ID_BEAM5_RANGE = 0x4100
+#: First two bytes of a Sentinel V vendor block sent between ensembles.
+VENDOR_BLOCK_ID = b"\x7f\x79"
+
+#: Data-type IDs of RDI instruments that are known (listed by dolfyn's reader) but not
+#: decoded here: skipped without a warning and counted by the stream parser.
+KNOWN_UNDECODED_IDS = {
+    0x0001: "2nd profile fixed leader", 0x0010: "surface layer fixed leader",
+    0x0081: "2nd profile variable leader", 0x0101: "2nd profile velocity",
+    0x0103: "waves first leader", 0x0110: "surface layer velocity",
+    0x0201: "2nd profile correlation", 0x0203: "waves data", 0x020C: "ambient sound profile",
+    0x0210: "surface layer correlation", 0x0301: "2nd profile amplitude",
+    0x0302: "beam 5 sum of squared velocities", 0x0303: "waves last leader",
+    0x0310: "surface layer amplitude", 0x0401: "2nd profile percent good",
+    0x0403: "waves HPR data", 0x0410: "surface layer percent good", 0x0500: "profile status",
+    0x0501: "2nd profile status", 0x0510: "surface layer status", 0x0701: "number of pings",
+    0x0702: "sum of squared velocities", 0x0703: "sum of velocities",
+    0x0B00: "beam 5 correlation", 0x0C00: "beam 5 amplitude", 0x0D00: "beam 5 percent good",
+    0x0BB8: "Ocean Surveyor fixed attitude", 0x0F01: "beam 5 leader", 0x2000: "VmDas navigation",
+    0x2013: "navigation parameters", 0x2022: "WinRiver II NMEA", 0x2100: "WinRiver DBT",
+    0x2101: "WinRiver GGA", 0x2102: "WinRiver VTG", 0x2103: "WinRiver GSA",
+    0x2104: "WinRiver HDT", 0x3000: "fixed attitude", 0x30D0: "variable attitude",
+    0x30D8: "variable attitude", 0x3200: "transformation matrix",
+    0x4400: "firmware status", 0x4401: "auto mode setup",
+    0x5803: "high-resolution bottom-track velocity", 0x5804: "bottom-track range",
+    0x5901: "ISM (IMU) data", 0x5902: "ping attitude", 0x7001: "ADC data",
+}
 
 _HEADER_FIXED_BYTES = 6
 _MIN_FIXED_LEADER = 42  # through the transmit lag distance (bytes 40-41)
@@ -73,6 +118,11 @@ _BT_RANGE_MSB_END = 81  # bytes 77-80: range MSBs, newer firmware only
 
 _DEG = math.pi / 180.0
 _SYSTEM_FREQUENCY_HZ = {0: 75e3, 1: 150e3, 2: 300e3, 3: 600e3, 4: 1200e3, 5: 2400e3}
+#: CPU firmware major versions of the Sentinel V class (dolfyn's model table).
+SENTINEL_V_FIRMWARE = (47, 66)
+#: Sentinel V true transducer frequency by configuration code, where it differs.
+_SENTINEL_V_FREQUENCY_HZ = {2: 307.2e3}
+_CFG_BEAM5 = 0x1000  # system configuration bit 12: a fifth (vertical) beam
 _BEAM_ANGLE_DEG = {0: 15.0, 1: 20.0, 2: 30.0}
 _COORDINATE_SYSTEMS = ("beam", "instrument", "ship", "earth")
 
@@ -135,6 +185,24 @@ class FixedLeader:
     power_level: Optional[int]
     serial_number: Optional[int]
     beam_angle_rad: Optional[float]
+    frequency_class_hz: Optional[float] = None  #: Workhorse table value of bits 0-2
+    vertical_beam: bool = False  #: a fifth, vertical beam (Sentinel V class)
+    sentinel_v: bool = False  #: firmware of the Sentinel V class
+
+    @property
+    def janus_beams(self) -> int:
+        """Slanted (Janus) beams: ``n_beams`` less the vertical beam."""
+        return self.n_beams - 1 if self.vertical_beam else self.n_beams
+
+    @property
+    def tilts_used(self) -> bool:
+        """EX bit 2: the instrument applied its tilts in the transformation."""
+        return bool(self.coord_transform & 0x04)
+
+    @property
+    def three_beam_allowed(self) -> bool:
+        """EX bit 1: 3-beam solutions allowed when one beam is bad."""
+        return bool(self.coord_transform & 0x02)
 
     @property
     def cell_distances_m(self) -> np.ndarray:
@@ -187,6 +255,16 @@ class BottomTrack:
     velocity_raw: np.ndarray  #: int16 raw velocity, mm/s (-32768 = bad)
 
 
+@dataclass(frozen=True)
+class VerticalBeam:
+    """Vertical (fifth) beam range, ID 0x4100 (Sentinel V class)."""
+
+    range_m: float  #: range to the bottom (or surface) along the vertical beam, NaN if 0
+    eval_amplitude: int  #: counts
+    rssi_amplitude: int  #: counts
+    status: int  #: raw status bits
+
+
 @dataclass(frozen=True, eq=False)
 class Pd0Ensemble:
     """One decoded PD0 ensemble. Profile arrays are shaped (n_cells, n_beams)."""
@@ -200,6 +278,8 @@ class Pd0Ensemble:
     bottom_track: Optional[BottomTrack]
     data_type_ids: tuple  #: every data-type ID present, in order
     n_bytes: int  #: ensemble length on the wire, checksum included
+    vertical_beam: Optional[VerticalBeam] = None  #: ID 0x4100, five-beam instruments
+    beam5_velocity_mps: Optional[np.ndarray] = None  #: (n_cells,) ID 0x0A00, NaN where bad
 
     @property
     def time_ns(self) -> Optional[int]:
@@ -338,16 +418,21 @@ def _decode_fixed(buf, p: int, length: int, base: int) -> FixedLeader:
         (serial,) = struct.unpack_from("<I", buf, p + 54)
     if length >= 59 and buf[p + 58] != 0:
         beam_angle_deg = float(buf[p + 58])
+    sentinel_v = fw_ver in SENTINEL_V_FIRMWARE
+    vertical = bool(cfg & _CFG_BEAM5) or n_beams == 5
+    total_beams = n_beams + 1 if (cfg & _CFG_BEAM5 and n_beams != 5) else n_beams
+    freq_class = _SYSTEM_FREQUENCY_HZ.get(freq_code)
+    freq = _SENTINEL_V_FREQUENCY_HZ.get(freq_code, freq_class) if sentinel_v else freq_class
     return FixedLeader(
         firmware_version=fw_ver,
         firmware_revision=fw_rev,
         system_config=cfg,
-        system_frequency_hz=_SYSTEM_FREQUENCY_HZ.get(freq_code),
+        system_frequency_hz=freq,
         beam_pattern="convex" if cfg & 0x8 else "concave",
         orientation="up" if cfg & 0x80 else "down",
         simulated=bool(sim),
         lag_length=lag,
-        n_beams=n_beams,
+        n_beams=total_beams,
         n_cells=n_cells,
         pings_per_ensemble=pings,
         cell_size_m=cell_cm * 0.01,
@@ -375,6 +460,9 @@ def _decode_fixed(buf, p: int, length: int, base: int) -> FixedLeader:
         power_level=power,
         serial_number=serial,
         beam_angle_rad=None if beam_angle_deg is None else beam_angle_deg * _DEG,
+        frequency_class_hz=freq_class,
+        vertical_beam=vertical,
+        sentinel_v=sentinel_v,
     )
 
 
@@ -435,17 +523,39 @@ def _decode_variable(buf, p: int, length: int, base: int) -> VariableLeader:
 
 
 def _profile(buf, p: int, length: int, base: int, name: str, dtype: str, fixed: FixedLeader) -> np.ndarray:
+    """A (n_cells, beams) profile; with a vertical beam, the Janus beams only when the
+    data type holds just those (the fifth beam then comes in its own data types)."""
     itemsize = np.dtype(dtype).itemsize
-    need = 2 + itemsize * fixed.n_cells * fixed.n_beams
+    n_beams = fixed.n_beams
+    if fixed.vertical_beam and length < 2 + itemsize * fixed.n_cells * n_beams:
+        n_beams = fixed.janus_beams
+    need = 2 + itemsize * fixed.n_cells * n_beams
     if length < need:
         raise Pd0DecodeError(
             base + p,
             f"{name} data length",
-            f">= {need} bytes for {fixed.n_cells} cells x {fixed.n_beams} beams",
+            f">= {need} bytes for {fixed.n_cells} cells x {n_beams} beams",
             f"{length} bytes",
         )
-    a = np.frombuffer(buf, dtype=dtype, count=fixed.n_cells * fixed.n_beams, offset=p + 2)
-    return a.reshape(fixed.n_cells, fixed.n_beams)
+    a = np.frombuffer(buf, dtype=dtype, count=fixed.n_cells * n_beams, offset=p + 2)
+    return a.reshape(fixed.n_cells, n_beams)
+
+
+def _decode_vertical_range(buf, p: int, length: int, base: int) -> VerticalBeam:
+    if length < 9:
+        raise Pd0DecodeError(base + p, "vertical beam range (0x4100) length", ">= 9 bytes", f"{length} bytes")
+    ev, rssi, rng_mm, status = struct.unpack_from("<BBIB", buf, p + 2)
+    return VerticalBeam(range_m=float("nan") if rng_mm == 0 else rng_mm * 0.001,
+                        eval_amplitude=ev, rssi_amplitude=rssi, status=status)
+
+
+def _decode_beam5_velocity(buf, p: int, length: int, base: int, fixed: FixedLeader) -> np.ndarray:
+    need = 2 + 2 * fixed.n_cells
+    if length < need:
+        raise Pd0DecodeError(base + p, "beam 5 velocity (0x0A00) length",
+                             f">= {need} bytes for {fixed.n_cells} cells", f"{length} bytes")
+    raw = np.frombuffer(buf, dtype="<i2", count=fixed.n_cells, offset=p + 2)
+    return _readonly(_velocity_si(raw))
 
 
 def _velocity_si(raw: np.ndarray) -> np.ndarray:
@@ -519,7 +629,7 @@ def decode_ensemble(
             )
     ends = list(offsets[1:]) + [n_bytes]
     ids = []
-    fixed = variable = velocity = corr = echo = pg = bt = None
+    fixed = variable = velocity = corr = echo = pg = bt = vbeam = v5 = None
     for off, nxt in zip(offsets, ends):
         p = start + off
         length = nxt - off
@@ -546,6 +656,12 @@ def decode_ensemble(
                     pg = arr
         elif type_id == ID_BOTTOM_TRACK:
             bt = _decode_bottom_track(buf, p, length, base_offset)
+        elif type_id == ID_BEAM5_RANGE:
+            vbeam = _decode_vertical_range(buf, p, length, base_offset)
+        elif type_id == ID_BEAM5_VELOCITY:
+            if fixed is None:
+                raise Pd0DecodeError(base_offset + p, f"data type 0x{type_id:04X}", "after the fixed leader", "before it")
+            v5 = _decode_beam5_velocity(buf, p, length, base_offset, fixed)
     assert fixed is not None and variable is not None  # guaranteed by _parse_header
     return Pd0Ensemble(
         fixed=fixed,
@@ -557,7 +673,14 @@ def decode_ensemble(
         bottom_track=bt,
         data_type_ids=tuple(ids),
         n_bytes=n_bytes + 2,
+        vertical_beam=vbeam,
+        beam5_velocity_mps=v5,
     )
+
+
+_DECODED_IDS = frozenset((ID_FIXED_LEADER, ID_VARIABLE_LEADER, ID_VELOCITY, ID_CORRELATION,
+                          ID_ECHO_INTENSITY, ID_PERCENT_GOOD, ID_BOTTOM_TRACK,
+                          ID_BEAM5_VELOCITY, ID_BEAM5_RANGE))
 
 
 @dataclass
@@ -572,6 +695,10 @@ class Pd0StreamStats:
     bad_checksums: int = 0
     decode_errors: int = 0  #: checksum right but contents inconsistent
     internal_errors: int = 0  #: decoder bugs caught to keep the stream alive (should stay 0)
+    vendor_blocks: int = 0  #: 0x7F79 blocks between ensembles, skipped quietly
+    vendor_block_bytes: int = 0  #: their bytes (not in bytes_discarded)
+    known_types_skipped: int = 0  #: data types of KNOWN_UNDECODED_IDS met in ensembles
+    unknown_types: int = 0  #: data types neither decoded nor in KNOWN_UNDECODED_IDS
 
 
 class Pd0StreamParser:
@@ -583,7 +710,10 @@ class Pd0StreamParser:
     cannot complete yet but a later header already yields a whole checksum-valid
     ensemble, the front candidate is taken to be garbage (so a false header cannot
     hold good data back). Each discarded stretch is counted and logged once
-    (warning) with its stream byte offset and reason.
+    (warning) with its stream byte offset and reason. Sentinel V vendor blocks
+    (``0x7F79`` + uint16 count, count + 2 bytes, followed by a header or closed by a
+    matching checksum, holding no valid ensemble) are skipped quietly and counted, as
+    are known but undecoded data types; :meth:`flush` logs one summary line of them.
 
     It never raises on any input, does work linear in the bytes fed, and keeps at
     most :data:`MAX_ENSEMBLE_BYTES` plus the last chunk between calls. Call
@@ -599,6 +729,7 @@ class Pd0StreamParser:
         self._discard_reasons: set = set()
         self._la_scanned = 0  # stream offset from which later headers are still unseen
         self._la_pending: list = []  # [stream offset, stream offset it needs to reach]
+        self._skipped_ids: set = set()  # known undecoded data-type IDs seen
         self.stats = Pd0StreamStats()
 
     @property
@@ -621,6 +752,13 @@ class Pd0StreamParser:
         """End of stream: return what can still be decoded and discard the rest."""
         out = self._run(final=True)
         self._drop_all("end of stream")
+        st = self.stats
+        if st.vendor_blocks or st.known_types_skipped:
+            logger.info("PD0 stream: skipped quietly %d vendor block(s) 0x7F79 (%d bytes) and "
+                        "%d known but undecoded data type(s)%s", st.vendor_blocks,
+                        st.vendor_block_bytes, st.known_types_skipped,
+                        " (IDs " + ", ".join(f"0x{i:04X}" for i in sorted(self._skipped_ids)) + ")"
+                        if self._skipped_ids else "")
         return out
 
     def reset(self) -> None:
@@ -731,14 +869,70 @@ class Pd0StreamParser:
         self._log_discard()
         out.append(ens)
         self.stats.ensembles += 1
+        for i in ens.data_type_ids:
+            if i in KNOWN_UNDECODED_IDS:
+                self.stats.known_types_skipped += 1
+                self._skipped_ids.add(i)
+            elif i not in _DECODED_IDS:
+                self.stats.unknown_types += 1
+
+    def _vendor_block(self, pos: int, end: int, final: bool):
+        """The 0x7F79 candidate at ``pos``: its size (bytes to skip), None (needs more
+        bytes) or False (not a vendor block)."""
+        buf = self._buf
+        if end - pos < 4:
+            return False if final else None
+        (count,) = struct.unpack_from("<H", buf, pos + 2)
+        if count < 4:
+            return False
+        size = count + 2
+        if end - pos < size:
+            return False if final else None
+        if self._lookahead(pos, pos + size) is not None:  # it would swallow an ensemble
+            return False
+        if struct.unpack_from("<H", buf, pos + count)[0] == ensemble_checksum(buf, pos, count):
+            return size
+        if end - pos < size + 2:
+            return (size if end - pos == size else False) if final else None
+        nxt = bytes(buf[pos + size:pos + size + 2])
+        return size if nxt in (HEADER_ID, VENDOR_BLOCK_ID) else False
 
     def _run(self, final: bool) -> list:
         buf = self._buf
         end = len(buf)
         pos = 0
         out: list = []
+        nxt_h = nxt_v = -2  # next header / vendor block (-1: none); kept while ahead of pos
         while pos < end:
-            i = buf.find(HEADER_ID, pos)
+            if nxt_h != -1 and nxt_h < pos:
+                nxt_h = buf.find(HEADER_ID, pos)
+            if nxt_v != -1 and nxt_v < pos:
+                nxt_v = buf.find(VENDOR_BLOCK_ID, pos)
+            i = nxt_h
+            v = nxt_v if nxt_v >= 0 and (i < 0 or nxt_v < i) else -1
+            if v >= 0:
+                if v > pos:
+                    self._discard(pos, v - pos, "no header")
+                    pos = v
+                size = self._vendor_block(pos, end, final)
+                if size:
+                    self._log_discard()
+                    self.stats.vendor_blocks += 1
+                    self.stats.vendor_block_bytes += size
+                    pos += size
+                    continue
+                if size is None:  # incomplete: is it garbage holding good data back?
+                    found = self._lookahead(pos, end)
+                    if found is None:
+                        break
+                    j, ens = found
+                    self._discard(pos, j - pos, "vendor block never completed")
+                    self._accept(out, ens)
+                    pos = j + ens.n_bytes
+                    continue
+                self._discard(pos, 1, "no header")
+                pos += 1
+                continue
             if i < 0:
                 keep = 1 if (buf[end - 1] == 0x7F and not final) else 0
                 self._discard(pos, end - pos - keep, "no header")

@@ -12,6 +12,14 @@ temperature 0.01 deg C. Bottom-track velocity is RDI's: the velocity of the *bot
 relative to the instrument, in the ensemble's coordinate system (beam 1-4 or X/Y/Z/error
 for ship, E/N/U/error for earth); NaN is sent as the bad value -32768. A NaN or
 non-positive range is sent as 0 ("no bottom").
+
+Beam coordinates (``coordinate_system="beam"``, EX bits 3-4 = 00): the four values are
+the beams' radial velocities, positive toward the transducer (RDI). The beam pattern
+(convex or concave, configuration bit 3) and heading alignment (EA) are written as set.
+The five-beam layout (Sentinel V class, ``vertical_beam``) sets configuration bit 12
+and adds the vertical beam's range (ID 0x4100: evaluation and RSSI amplitude, uint32
+range in mm, status); a Sentinel V (firmware 47.x or 66.x) sends its 307.2 kHz as the
+300 kHz class code.
 """
 
 from __future__ import annotations
@@ -20,10 +28,11 @@ import math
 import struct
 from dataclasses import dataclass
 from datetime import datetime, timezone
-from typing import Sequence
+from typing import Optional, Sequence
 
-from svss_daq.drivers.pd0 import (BAD_VELOCITY, ID_BOTTOM_TRACK, ID_FIXED_LEADER,
-                                  ID_VARIABLE_LEADER, ensemble_checksum)
+from svss_daq.drivers.pd0 import (BAD_VELOCITY, ID_BEAM5_RANGE, ID_BOTTOM_TRACK,
+                                  ID_FIXED_LEADER, ID_VARIABLE_LEADER, SENTINEL_V_FIRMWARE,
+                                  ensemble_checksum)
 
 __all__ = ["Pd0Setup", "encode_ensemble", "FIXED_LEADER_BYTES", "VARIABLE_LEADER_BYTES",
            "BOTTOM_TRACK_BYTES"]
@@ -50,10 +59,25 @@ class Pd0Setup:
     n_cells: int = 0  #: no water profile (WP0)
     cell_size_m: float = 1.0
     blank_m: float = 0.88
+    beam_pattern: str = "convex"  #: convex or concave (configuration bit 3)
+    vertical_beam: bool = False  #: five-beam layout (bit 12) with the 0x4100 range
+    heading_alignment_deg: float = 0.0  #: EA: beam 3 azimuth from the bow, deg
+
+    def frequency_code(self) -> int:
+        if self.firmware[0] in SENTINEL_V_FIRMWARE and self.frequency_hz == 307.2e3:
+            return 2
+        return _FREQ_CODE[self.frequency_hz]
 
     def check(self) -> None:
         """Raise ValueError naming the first field outside what PD0 can express."""
-        if self.frequency_hz not in _FREQ_CODE:
+        if self.beam_pattern not in ("convex", "concave"):
+            raise ValueError(f"PD0 setup beam_pattern: expected 'convex' or 'concave', "
+                             f"found {self.beam_pattern!r}")
+        if not -179.99 <= self.heading_alignment_deg <= 180.0:
+            raise ValueError(f"PD0 setup heading_alignment_deg: expected -179.99 .. 180, "
+                             f"found {self.heading_alignment_deg!r}")
+        if self.frequency_hz not in _FREQ_CODE and not (
+                self.firmware[0] in SENTINEL_V_FIRMWARE and self.frequency_hz == 307.2e3):
             raise ValueError(f"PD0 setup frequency_hz: expected one of "
                              f"{sorted(_FREQ_CODE)}, found {self.frequency_hz!r}")
         if self.beam_angle_deg not in _BEAM_CODE:
@@ -79,8 +103,10 @@ def _u(name: str, value: float, scale: float, lo: int, hi: int) -> int:
 
 
 def _fixed_leader(s: Pd0Setup) -> bytes:
-    cfg = (_FREQ_CODE[s.frequency_hz] | 0x08 | 0x40          # convex, transducer attached
-           | (_BEAM_CODE[s.beam_angle_deg] << 8) | 0x4000)   # down-looking 4-beam Janus
+    cfg = (s.frequency_code() | (0x08 if s.beam_pattern == "convex" else 0)
+           | 0x40                                            # transducer attached
+           | (_BEAM_CODE[s.beam_angle_deg] << 8) | 0x4000    # down-looking 4-beam Janus
+           | (0x1000 if s.vertical_beam else 0))             # fifth (vertical) beam
     ex = (_CS_CODE[s.coordinate_system] << 3) | 0x07          # tilts, 3-beam, bin mapping
     body = struct.pack(
         "<HBBHBBBBHHHBBBBHBBBBhhBBHHBBBBH",
@@ -88,7 +114,8 @@ def _fixed_leader(s: Pd0Setup) -> bytes:
         1, _u("cell_size_m", s.cell_size_m, 0.01, 1, 65535),
         _u("blank_m", s.blank_m, 0.01, 0, 65535), 1, 64, 5, 0,
         _u("bt_max_error_velocity_m_s", s.bt_max_error_velocity_m_s, 0.001, 0, 65535),
-        0, 0, 20, ex, 0, 0, 0x7D, 0x3D, 0, 0, 1, 5, 50, 0, 0)
+        0, 0, 20, ex, int(round(s.heading_alignment_deg * 100)), 0, 0x7D, 0x3D, 0, 0, 1, 5,
+        50, 0, 0)
     body += bytes(8)                                     # CPU board serial
     body += struct.pack("<HBB", 0, 255, 0)               # bandwidth, power, spare
     body += struct.pack("<IB", s.serial_number, int(s.beam_angle_deg))
@@ -163,22 +190,35 @@ def _bottom_track(s: Pd0Setup, velocity_m_s: Sequence[float], range_m: Sequence[
     return body
 
 
+def _vertical_range(range_m: Optional[float]) -> bytes:
+    mm = 0 if range_m is None or not (math.isfinite(range_m) and range_m > 0) else \
+        _u("vertical_range_m", range_m, 0.001, 1, 2**32 - 1)
+    return struct.pack("<HBBIB", ID_BEAM5_RANGE, 80 if mm else 0, 150 if mm else 30, mm, 0)
+
+
 def encode_ensemble(setup: Pd0Setup, *, ensemble_number: int, time_ns: int,
                     heading_rad: float, pitch_rad: float, roll_rad: float,
                     bt_velocity_m_s: Sequence[float], bt_range_m: Sequence[float],
                     sound_speed_m_s: float = 1500.0, depth_m: float = 0.0,
-                    salinity_ppt: float = 35.0, temperature_c: float = 10.0) -> bytes:
+                    salinity_ppt: float = 35.0, temperature_c: float = 10.0,
+                    vertical_range_m: Optional[float] = None,
+                    extra_blocks: Sequence[bytes] = ()) -> bytes:
     """One PD0 ensemble (header, fixed and variable leader, bottom track, checksum).
 
     ``time_ns``: ns since the Unix epoch UTC (sent to 10 ms); ``bt_velocity_m_s``: 4
     components, RDI's bottom velocity in ``setup.coordinate_system`` (NaN: bad);
-    ``bt_range_m``: slant range of beams 1-4, m (NaN: no bottom). Raises ValueError
-    naming a field that PD0 cannot carry."""
+    ``bt_range_m``: slant range of beams 1-4, m (NaN: no bottom); ``vertical_range_m``:
+    the vertical beam's range, m (five-beam setups; None or NaN: no bottom);
+    ``extra_blocks``: further data types (each starting with its uint16 ID), appended
+    as sent. Raises ValueError naming a field that PD0 cannot carry."""
     setup.check()
     parts = [_fixed_leader(setup),
              _variable_leader(ensemble_number, int(time_ns), heading_rad, pitch_rad, roll_rad,
                               sound_speed_m_s, depth_m, salinity_ppt, temperature_c),
              _bottom_track(setup, list(bt_velocity_m_s), list(bt_range_m))]
+    if setup.vertical_beam:
+        parts.append(_vertical_range(vertical_range_m))
+    parts += [bytes(b) for b in extra_blocks]
     header_len = 6 + 2 * len(parts)
     offsets, off = [], header_len
     for p in parts:
