@@ -252,7 +252,12 @@ class SimDevice:
         if self.dvl is not None:
             out["dvl"] = {"port": self.dvl.port}
         if self.gps is not None:
+            g = self.cfg.gps
             out["gps"] = {"port": self.gps.port}
+            # the site's survey origin: the scene's NED frame is the GPS emulator's
+            out["navigation"] = {"origin_latitude_deg": g.origin_latitude_deg,
+                                 "origin_longitude_deg": g.origin_longitude_deg,
+                                 "origin_height_m": g.origin_height_m}
         return out
 
     def devices_toml(self) -> str:

@@ -3,8 +3,8 @@
     svss demo --out DIR                  whole chain on the built-in scene
     svss simulate --scene FILE --out RUN.h5
     svss process RUN.h5 --out DIR
-    svss worker --connect ENDPOINT --out DIR
-    svss replay RUN.h5 [--endpoint E]
+    svss worker --connect ENDPOINT --out DIR [--service E] [--runs N]
+    svss replay RUN.h5 [RUN2.h5 ...] [--endpoint E] [--service E] [--realtime]
     svss inspect FILE [--json]
     svss score TILES_DIR --scene FILE [--radius M] [--out REPORT.json]
     svss sim-device --scene FILE [--time-scale S] [--faults FILE] [--from-run RUN.h5]
@@ -74,44 +74,128 @@ def cmd_process(args) -> int:
 
 
 def cmd_worker(args) -> int:
-    from svss_proc.worker import serve
+    from svss_proc.worker import GAP_WAIT_S, REORDER_PINGS, serve
 
     daq = load(DaqConfig, config_path("daq.toml"))
+    sub = daq.subscriber
+    timeout = daq.service.request_timeout_s if daq.service is not None else 10.0
+    gap_wait = args.gap_wait if args.gap_wait is not None else (
+        sub.gap_wait_s if sub.gap_wait_s is not None else GAP_WAIT_S)
     files = serve(args.connect, args.out, _hardware(args), _processing(args),
-                  idle_timeout_s=args.idle_timeout, receive_hwm=daq.subscriber.receive_hwm,
-                  force=args.force)
+                  idle_timeout_s=args.idle_timeout, receive_hwm=sub.receive_hwm,
+                  force=args.force, service=args.service, service_timeout_s=timeout,
+                  curve=daq.security, runs=args.runs, gap_wait_s=gap_wait,
+                  reorder_pings=sub.reorder_pings or REORDER_PINGS)
     for p in files:
         print(p)
     return 0
 
 
 def cmd_replay(args) -> int:
+    import contextlib
     import time
 
     from svss_daq.acquisition import acquire
     from svss_daq.ping_gate import PingGate
+    from svss_daq.ping_service import PingService, RawRunStore, ReplayStore
     from svss_daq.publisher import PingPublisher
     from svss_daq.rawfile import RawRunReader
 
     daq = load(DaqConfig, config_path("daq.toml"))
-    with RawRunReader(args.run) as run, \
-            PingPublisher(args.endpoint or daq.publisher.endpoint, daq.publisher.send_hwm) as pub:
-        print(f"replaying {args.run} ({len(run)} pings) on {pub.endpoint}", flush=True)
+    store = RawRunStore(args.run)
+    replay = ReplayStore(store)
+    service_endpoint = args.service
+    with contextlib.ExitStack() as stack:
+        stack.callback(store.close)
+        pub = stack.enter_context(PingPublisher(args.endpoint or daq.publisher.endpoint,
+                                                daq.publisher.send_hwm, curve=daq.security))
+        service = None
+        if service_endpoint:
+            service = stack.enter_context(PingService(
+                service_endpoint, replay, curve=daq.security,
+                max_pings_per_reply=daq.service.max_pings_per_reply if daq.service else 64))
+        n_total = sum(store.info(r, refresh=False).n_pings for r in store.run_ids())
+        print(f"replaying {', '.join(args.run)} ({n_total} pings) on {pub.endpoint}",
+              flush=True)
+        if service is not None:
+            print(f"catch-up service on {service.endpoint}", flush=True)
         pub.wait_for_subscribers(timeout_s=args.wait)
-        gate = PingGate(run.hardware, name=f"replay of {args.run}")
-        pings = (p for p in run if gate.admit(p))
-        if args.realtime:
-            def paced(pings=pings, t0=time.monotonic()):
+        t0, first = time.monotonic(), None
+        for run_id in store.run_ids():
+            replay.begin(run_id)
+            readers = [stack.enter_context(RawRunReader(p)) for p in store.paths(run_id)]
+            gate = PingGate(readers[0].hardware, name=f"replay of run {run_id}")
+            pings = (p for r in readers for p in r if gate.admit(p))
+            if args.realtime:
+                def paced(pings=pings):
+                    nonlocal first
+                    for p in pings:
+                        first = first if first is not None else p.transmit_time_ns
+                        delay = (p.transmit_time_ns - first) * 1e-9 - (time.monotonic() - t0)
+                        if delay > 0:
+                            time.sleep(delay)
+                        yield p
+                pings = paced()
+            acquire(pings, None, pub, run_id, total=sum(len(r) for r in readers))
+            replay.end(run_id)
+            if args.realtime:              # the next run starts after a line's turn
                 first = None
-                for p in pings:
-                    first = first if first is not None else p.transmit_time_ns
-                    delay = (p.transmit_time_ns - first) * 1e-9 - (time.monotonic() - t0)
-                    if delay > 0:
-                        time.sleep(delay)
-                    yield p
-            pings = paced()
-        acquire(pings, None, pub, Path(args.run).stem, total=len(run))
+                t0 = time.monotonic() + args.pause
+            time.sleep(args.pause if not args.realtime else 0)
+        if service is not None and args.linger:
+            log.info("serving the recording on %s for %.0f s more", service.endpoint,
+                     args.linger)
+            time.sleep(args.linger)
     return 0
+
+
+def cmd_acquire(args) -> int:
+    import json
+
+    from svss_daq.acquire_config import load_acquire
+    from svss_daq.daemon import AcquisitionDaemon
+
+    setup = load_acquire(args.config or config_path("acquire.toml"), devices=args.devices,
+                         out_dir=args.out)
+    endpoints = {}
+    if args.ephemeral_ports:
+        endpoints = {k: "tcp://127.0.0.1:*" for k in ("publisher", "service", "status")}
+    daemon = AcquisitionDaemon(setup, run_id=args.run_id, endpoints=endpoints)
+    try:
+        daemon.bind()
+        if args.endpoints_out:
+            tmp = Path(args.endpoints_out).with_suffix(".tmp")
+            tmp.write_text(json.dumps({"run_id": daemon.run_id, **daemon.endpoints}))
+            os.replace(tmp, args.endpoints_out)
+        print(json.dumps({"run_id": daemon.run_id, **daemon.endpoints}), flush=True)
+        daemon.start(wait_subscribers=args.wait_subscribers)
+        daemon.run(max_pings=args.pings, duration_s=args.duration)
+    except BaseException:
+        daemon.stop()
+        raise
+    for p in daemon.recorder.segments:
+        print(p)
+    if daemon.failure:
+        log.error("run %s failed: %s", daemon.run_id, daemon.failure)
+        return 3
+    return 0
+
+
+def cmd_status(args) -> int:
+    import json
+
+    from svss_daq.status import format_status, read_status
+
+    endpoint = args.connect
+    if endpoint is None:
+        from svss_daq.acquire_config import AcquireConfig
+        endpoint = load(AcquireConfig, args.config or config_path("acquire.toml")
+                        ).status.endpoint
+    while True:
+        s = read_status(endpoint, timeout_s=args.timeout)
+        print(json.dumps(s, indent=2) if args.json else format_status(s), flush=True)
+        if not args.follow:
+            return 0
 
 
 def cmd_demo(args) -> int:
@@ -219,6 +303,32 @@ def build_parser() -> argparse.ArgumentParser:
     common(sp)
     sp.set_defaults(func=cmd_demo)
 
+    sp = sub.add_parser("acquire", help="the acquisition daemon: drive the sonar and the "
+                        "navigation, record every ping, publish pings and status")
+    sp.add_argument("--config", default=None, help="acquisition TOML (default: "
+                    "config/acquire.toml)")
+    sp.add_argument("--devices", help="devices TOML replacing the one the acquisition "
+                    "TOML names (e.g. what svss sim-device printed)")
+    sp.add_argument("--out", help="raw-run folder replacing run.out_dir")
+    sp.add_argument("--run-id", help="run id (default: run.name and the UTC start time)")
+    sp.add_argument("--pings", type=int, default=None, help="stop after this many pings")
+    sp.add_argument("--duration", type=float, default=None, help="stop after this many "
+                    "seconds")
+    sp.add_argument("--ephemeral-ports", action="store_true", help="bind the publisher, "
+                    "catch-up service and status stream to free loopback ports")
+    sp.add_argument("--endpoints-out", help="write the bound endpoints (JSON) here")
+    sp.add_argument("--wait-subscribers", type=int, default=0, help="start pinging only "
+                    "when this many subscribers are on the ping stream")
+    sp.set_defaults(func=cmd_acquire)
+
+    sp = sub.add_parser("status", help="print the acquisition daemon's status")
+    sp.add_argument("--connect", help="status endpoint (default: acquire.toml's)")
+    sp.add_argument("--config", help="acquisition TOML naming the status endpoint")
+    sp.add_argument("--timeout", type=float, default=5.0, help="seconds to wait")
+    sp.add_argument("--follow", action="store_true", help="keep printing")
+    sp.add_argument("--json", action="store_true", help="print the status as JSON")
+    sp.set_defaults(func=cmd_status)
+
     sp = sub.add_parser("simulate", help="simulate a scene into a raw-run file")
     sp.add_argument("--scene", required=True, help="scene TOML")
     sp.add_argument("--out", required=True, help="raw-run HDF5 file to write")
@@ -238,13 +348,30 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--out", required=True, help="output folder")
     sp.add_argument("--idle-timeout", type=float, default=None,
                     help="finish after this many seconds without a message")
-    force(sp, "tiles and manifest of an earlier run in --out")
+    sp.add_argument("--service", help="catch-up service endpoint (svss acquire / svss "
+                    "replay): missed pings are fetched from the recording and a killed "
+                    "worker resumes (docs/worker.md)")
+    sp.add_argument("--runs", type=int, default=None,
+                    help="exit after this many runs have ended (default: stay up)")
+    sp.add_argument("--gap-wait", type=float, default=None,
+                    help="without --service: seconds to wait for a missing ping before "
+                    "skipping it (default: daq.toml subscriber.gap_wait_s)")
+    force(sp, "tiles, manifest and run folders of an earlier run in --out (without it, "
+          "a folder holding this worker's journal is resumed)")
     common(sp)
     sp.set_defaults(func=cmd_worker)
 
-    sp = sub.add_parser("replay", help="publish a recorded raw run as ping messages")
-    sp.add_argument("run", help="raw-run HDF5 file")
+    sp = sub.add_parser("replay", help="publish recorded raw runs as ping messages and "
+                        "serve them to catch-up clients")
+    sp.add_argument("run", nargs="+", help="raw-run HDF5 file(s) (a run's segment files "
+                    "together)")
     sp.add_argument("--endpoint", help="endpoint to bind (default: config/daq.toml)")
+    sp.add_argument("--service", help="also serve the recording to catch-up clients "
+                    "(svss worker --service) on this endpoint (daq.toml [service] "
+                    "endpoint is the usual one)")
+    sp.add_argument("--linger", type=float, default=0.0, help="keep serving the "
+                    "recording this many seconds after the last run")
+    sp.add_argument("--pause", type=float, default=0.0, help="seconds between runs")
     sp.add_argument("--realtime", action="store_true", help="pace pings at their recorded "
                     "transmit times")
     sp.add_argument("--wait", type=float, default=60.0,

@@ -10,7 +10,10 @@ Layout (see docs/formats.md)::
     /Platform/NMEA          time (int64 ns), sentence (raw NMEA text)
     /Environment            attrs: scene or measured environment
     /Provenance             attrs: software, creation time; hardware configuration text
-    /Vendor_specific        hardware configuration text and its id
+    /Vendor_specific        hardware configuration text and its id; ``events`` (time,
+                            kind, detail of every device fault and recovery the
+                            acquisition daemon saw); root attribute
+                            ``acquisition_summary`` (JSON counters, written at close)
 
 Every dataset is chunked by ping and appended ping by ping. The writer runs in HDF5's
 single-writer/multiple-reader mode, so the file on disk is consistent at every flush: a
@@ -54,6 +57,9 @@ FORMAT = "svss-raw"
 FORMAT_VERSION = 1
 BEAM = "Sonar/Beam_group1"
 NMEA_LEN = 96
+EVENT_KIND_LEN = 32
+EVENT_DETAIL_LEN = 200
+EVENTS = "Vendor_specific/events"
 #: 1-element int64: pings known to be on disk (written after each successful flush)
 FLUSHED = f"{BEAM}/pings_flushed"
 #: metadata read attempts of a SWMR reader; HDF5 sleeps 2**k ns before attempt k, and
@@ -280,6 +286,15 @@ class RawRunWriter:
         self._text = vendor.create_dataset("hardware_config_toml", data=hardware.text)
         vendor.attrs["hardware_config_id"] = hardware.id
         vendor.attrs["hardware_config_source"] = hardware.source
+        events = vendor.create_group("events")
+        events.attrs["long_name"] = ("device faults and recoveries seen while recording "
+                                     "(svss acquire)")
+        self._events = (_appendable(events, "time", "<i8", chunk=64,
+                                    doc="event time, ns since the Unix epoch (UTC)"),
+                        _appendable(events, "kind", f"S{EVENT_KIND_LEN}", chunk=64,
+                                    doc="event kind, e.g. digitiser.reconnect"),
+                        _appendable(events, "detail", f"S{EVENT_DETAIL_LEN}", chunk=64,
+                                    doc="what happened"))
         # created before SWMR mode, which forbids new objects
         self._flushed = beam.create_dataset("pings_flushed", data=np.zeros(1, "<i8"))
         self._flushed.attrs["long_name"] = ("pings known to be on disk: written after each "
@@ -347,6 +362,42 @@ class RawRunWriter:
         except H5_ERRORS as exc:
             raise self._fail(f"writing NMEA sentence {i}", exc) from None
 
+    def append_event(self, time_ns: int, kind: str, detail: str) -> None:
+        """Record one device event (kind up to 32, detail up to 200 bytes, truncated);
+        durable at the next flush."""
+        self._check_usable()
+        times, kinds, details = self._events
+        i = times.shape[0]
+        try:
+            for ds, v in ((kinds, kind.encode("ascii", "replace")[:EVENT_KIND_LEN]),
+                          (details, detail.encode("ascii", "replace")[:EVENT_DETAIL_LEN]),
+                          (times, int(time_ns))):
+                ds.resize(i + 1, axis=0)
+                ds[i] = v
+        except H5_ERRORS as exc:
+            raise self._fail(f"writing event {i} ({kind})", exc) from None
+
+    def read_ping(self, i: int) -> Ping:
+        """Ping ``i`` of this file as written so far (for a catch-up service in the
+        writing process)."""
+        if not 0 <= i < self.n_pings:
+            raise IndexError(f"{self.path}: ping {i} out of range 0..{self.n_pings - 1}")
+        self._check_usable()
+        try:
+            nav = {name: ds[i].item() for name, ds in self._nav.items()}
+            meta = {name: int(ds[i]) for name, ds in self._per_ping.items()}
+            samples = self._samples[i]
+        except H5_ERRORS as exc:
+            raise RawFileError(f"{self.path}: reading back ping {i} failed "
+                               f"({_cause(exc)})") from None
+        nav["time_ns"] = int(nav.pop("time1"))
+        nav["quality"] = int(nav["quality"])
+        return Ping(sequence=meta["ping_sequence"], projector=meta["transmit_projector"],
+                    transmit_time_ns=meta["ping_time"],
+                    sample_rate_hz=float(self.hardware.value.digitiser.sample_rate_hz),
+                    window_start_ns=meta["window_start_ns"], samples=samples,
+                    nav=NavSnapshot(**nav), config_id=self.hardware.id)
+
     def flush(self) -> None:
         """Make everything appended so far durable on disk, then record the count of
         pings on disk (``pings_flushed``)."""
@@ -379,6 +430,18 @@ class RawRunWriter:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def write_summary(path: str | Path, summary: dict) -> None:
+    """Store ``summary`` (JSON) as the root attribute ``acquisition_summary`` of a raw
+    run whose writer has closed it."""
+    import json
+    try:
+        with h5py.File(path, "a") as f:
+            f.attrs["acquisition_summary"] = json.dumps(summary, sort_keys=True)
+    except H5_ERRORS as exc:
+        raise RawFileError(f"{path}: writing the acquisition summary failed "
+                           f"({_cause(exc)})") from None
 
 
 #: seconds HDF5 may take reading a file's structure before the file is refused
@@ -572,7 +635,20 @@ def _on_disk(ds: h5py.Dataset, n: int, size: int) -> int:
 
 #: what a reader keeps of a run, read in a child process (:func:`in_child`)
 _STATE = ("clean", "sample_rate_hz", "hardware", "n_pings", "environment", "attrs",
-          "_provenance", "_meta", "_nav", "_nmea_list", "_shape")
+          "_provenance", "_meta", "_nav", "_nmea_list", "_shape", "_events")
+
+
+def _read_events(f: h5py.File, path: Path) -> list[tuple[int, str, str]]:
+    """The device events of a run (none in files written before they were kept)."""
+    if EVENTS not in f:
+        return []
+    g = group(f, EVENTS, path)
+    times = dataset(g, "time", path, 1, "iu")
+    kinds = dataset(g, "kind", path, 1, "S")
+    details = dataset(g, "detail", path, 1, "S")
+    n = min(times.shape[0], kinds.shape[0], details.shape[0])
+    return [(int(t), k.decode("ascii", "replace"), d.decode("ascii", "replace"))
+            for t, k, d in zip(times[:n], kinds[:n], details[:n])]
 
 
 def _read_state(path: Path) -> dict:
@@ -588,6 +664,7 @@ def _read_state(path: Path) -> dict:
             run._nmea_list = [(int(t), s.decode("ascii", "replace"))
                               for t, s in zip(times[:n], text[:n])]
             run._shape = tuple(run._samples.shape[1:])
+            run._events = _read_events(run._f, path)
             for i in {0, run.n_pings - 1} - {-1}:
                 run._samples[i]
         except H5_ERRORS as exc:
@@ -762,6 +839,28 @@ class RawRunReader:
     def nmea(self) -> list[tuple[int, str]]:
         """The raw NMEA sentences: (receive time ns, text)."""
         return list(self._nmea_list)
+
+    def events(self) -> list[tuple[int, str, str]]:
+        """The device events recorded with the run: (time ns, kind, detail)."""
+        return list(self._events)
+
+    @property
+    def summary(self) -> dict | None:
+        """The acquisition daemon's closing counters (None when the run has none, e.g.
+        a daemon killed before it closed the file)."""
+        import json
+        text = _text(self.attrs.get("acquisition_summary"))
+        if text is None:
+            return None
+        try:
+            out = json.loads(text)
+        except ValueError:
+            raise RawFileError(f"{self.path}: root attribute 'acquisition_summary' is not "
+                               "JSON") from None
+        if not isinstance(out, dict):
+            raise RawFileError(f"{self.path}: root attribute 'acquisition_summary' is not "
+                               "a JSON object")
+        return out
 
     def close(self) -> None:
         self._f.close()

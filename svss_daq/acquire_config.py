@@ -1,0 +1,111 @@
+"""``svss acquire --config FILE``: the schema of the acquisition daemon's configuration.
+
+The file names the hardware, devices and daq configurations it runs with (paths relative
+to its own folder) and holds the daemon's own settings: where runs are recorded and how
+their files rotate, the status stream, the disk-space floor and the pairing of the
+digitiser's pings with the sequencer's transmit records. See docs/acquisition.md.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from .config import (ConfigError, DaqConfig, DevicesConfig, HardwareConfig, Loaded, from_dict,
+                     load, load_with_text, read_toml, spec)
+
+
+@dataclass(frozen=True)
+class RunSection:
+    hardware: str = spec("hardware TOML (relative to this file's folder)")
+    devices: str = spec("devices TOML: links to the sequencer, digitiser, DVL and GPS")
+    daq: str = spec("daq TOML: publisher, catch-up service, recorder flushes")
+    out_dir: str = spec("folder of the raw-run files (relative to this file's folder)")
+    name: str = spec("run name; the run id is NAME-YYYYMMDDTHHMMSSZ (UTC start)")
+
+
+@dataclass(frozen=True)
+class RotationSection:
+    max_file_mib: float = spec("start a new segment file beyond this size, MiB", lo=1,
+                               hi=1e7)
+    max_file_s: float = spec("start a new segment file after this long, s", lo=1, hi=1e6)
+
+
+@dataclass(frozen=True)
+class StatusSection:
+    endpoint: str = spec("ZeroMQ endpoint the status stream (PUB, JSON) binds")
+    interval_s: float = spec("seconds between status messages", lo=0.05, hi=3600)
+    rate_window_s: float = spec("ping rate averaged over this window, s", lo=0.5, hi=3600)
+
+
+@dataclass(frozen=True)
+class DiskSection:
+    min_free_mib: float = spec("stop recording (cleanly) when free space falls below "
+                               "this, MiB", lo=0, hi=1e9)
+
+
+@dataclass(frozen=True)
+class PairingSection:
+    transmit_wait_s: float = spec("wait this long for the sequencer's transmit record of "
+                                  "a ping before assembling it from the digitiser's alone, s",
+                                  lo=0.0, hi=60)
+    start_timeout_s: float = spec("wait this long for the devices to connect at start, s",
+                                  lo=0.1, hi=600)
+    drain_s: float = spec("at stop, wait this long for pings still in flight, s", lo=0,
+                          hi=60)
+
+
+@dataclass(frozen=True)
+class NavigationSection:
+    history_s: float = spec("navigation samples kept for the solution, s", lo=5, hi=3600)
+
+
+@dataclass(frozen=True)
+class AcquireConfig:
+    run: RunSection = spec("what is run and where it is recorded")
+    rotation: RotationSection = spec("raw-run file rotation")
+    status: StatusSection = spec("status stream")
+    disk: DiskSection = spec("disk-space floor")
+    pairing: PairingSection = spec("digitiser/sequencer pairing and start/stop")
+    navigation: NavigationSection = spec("navigation solution of the daemon")
+
+
+@dataclass(frozen=True)
+class AcquireSetup:
+    """Everything ``svss acquire`` runs with, loaded and checked."""
+    path: Path
+    acquire: AcquireConfig
+    hardware: Loaded[HardwareConfig]
+    devices: DevicesConfig
+    daq: DaqConfig
+    out_dir: Path
+
+
+def load_acquire(path: str | os.PathLike, *, devices: str | os.PathLike | None = None,
+                 out_dir: str | os.PathLike | None = None) -> AcquireSetup:
+    """Read ``path`` and the configurations it names; ``devices`` / ``out_dir`` replace
+    the file's (e.g. the devices TOML printed by ``svss sim-device``). Errors name the
+    file and the key."""
+    path = Path(path)
+    cfg = from_dict(AcquireConfig, read_toml(path), str(path))
+    base = path.resolve().parent
+
+    def named(value: str | os.PathLike, key: str) -> Path:
+        p = Path(value)
+        p = p if p.is_absolute() else base / p
+        if not p.exists():
+            raise ConfigError(f"{path}: key '{key}' names {p}, which does not exist")
+        return p
+
+    hw = load_with_text(HardwareConfig, named(cfg.run.hardware, "run.hardware"))
+    dev_path = Path(devices) if devices else named(cfg.run.devices, "run.devices")
+    dev = load(DevicesConfig, dev_path)
+    daq = load(DaqConfig, named(cfg.run.daq, "run.daq"))
+    out = Path(out_dir) if out_dir else (
+        Path(cfg.run.out_dir) if Path(cfg.run.out_dir).is_absolute()
+        else base / cfg.run.out_dir)
+    if not cfg.run.name or not all(c.isalnum() or c in "-_." for c in cfg.run.name):
+        raise ConfigError(f"{path}: key 'run.name' is {cfg.run.name!r}; expected letters, "
+                          "digits, '-', '_' or '.'")
+    return AcquireSetup(path, cfg, hw, dev, daq, out)

@@ -1,0 +1,654 @@
+"""``svss acquire``: the boat-side acquisition daemon.
+
+It starts the drivers from the devices configuration (sequencer on its serial port,
+digitiser on TCP, DVL and GPS on their serial ports), commands the ping schedule, and
+for every ping the digitiser delivers:
+
+1. pairs it with the sequencer's transmit record of the same sequence (waiting up to
+   ``pairing.transmit_wait_s``; without one -- a vanished sequencer link -- the
+   digitiser's transmit time and the projector cycle's phase stand in, counted);
+2. poses it from the navigation solution at its transmit time (GPS, DVL dead reckoning,
+   flagged per ping);
+3. records it (:class:`~svss_daq.recorder.RunRecorder`: rotating SWMR raw-run files);
+4. publishes it on the best-effort ping stream (:class:`~svss_daq.publisher.PingPublisher`,
+   never blocking), after the recording, so that the catch-up service
+   (:class:`~svss_daq.ping_service.PingService`, the reliable path) can always serve
+   what a subscriber missed.
+
+Device faults are logged, counted, written to the raw file's ``events`` and shown in
+the status stream (:mod:`svss_daq.status`); none stops the run. Recording that cannot
+go on (disk full, below the free-space floor) stops the run cleanly with every flushed
+ping readable. SIGINT/SIGTERM (KeyboardInterrupt) stop the sequencer, drain the pings
+still in flight, flush and close everything and end the run (RunEnd on the stream).
+See docs/acquisition.md.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from . import messages
+from .acquire_config import AcquireSetup
+from .assembly import AssemblyError, PingAssembler
+from .drivers.digitiser import DigitiserClient
+from .drivers.nmea import NmeaStreamParser
+from .drivers.pd0 import Pd0StreamParser
+from .drivers.sequencer import SequencerDriver
+from .drivers.serial_link import SerialLink
+from .navigation import Navigator
+from .ping import (NAV_BOTTOM_LOCK, NAV_DEAD_RECKONED, NAV_GPS_FIX, NavSnapshot, Ping)
+from .protocols import digitiser as dg
+from .protocols.sequencer import PingEvent
+from .publisher import PingPublisher
+from .recorder import RecordingStopped, RunRecorder
+from .status import StatusPublisher
+
+log = logging.getLogger(__name__)
+
+NAN = float("nan")
+#: events kept for the status stream
+RECENT_EVENTS = 20
+
+
+def utc_now_ns() -> int:
+    return time.time_ns()
+
+
+def run_id_now(name: str) -> str:
+    return f"{name}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}"
+
+
+@dataclass
+class Counters:
+    """What the daemon counted (the status stream's ``counters``)."""
+    delivered: int = 0          # complete pings from the digitiser
+    incomplete: int = 0         # pings the digitiser closed with channels missing
+    never_delivered: int = 0    # ping numbers the digitiser skipped (no frame at all)
+    recorded: int = 0
+    published: int = 0
+    publish_dropped: int = 0    # refused by a full subscriber queue (best-effort stream)
+    transmit_missing: int = 0   # no sequencer record: assembled from the digitiser's
+    duplicates: int = 0         # a sequence delivered twice (the second is not recorded)
+    assembly_errors: int = 0
+    pose_errors: int = 0        # no navigation solution at all (pose left NaN)
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+@dataclass
+class NavTally:
+    mode: str = "none"
+    dead_reckoned: int = 0
+    no_gps_fix: int = 0
+    no_bottom_lock: int = 0
+    last_quality: int = 0
+    outage: bool = False
+    lock_lost: bool = False
+
+
+@dataclass
+class _Watch:
+    """Last seen value of a driver counter, to turn increases into events."""
+    values: dict = field(default_factory=dict)
+
+    def delta(self, key: str, value: int) -> int:
+        old = self.values.get(key, value)
+        self.values[key] = value
+        return value - old
+
+
+class _NmeaTap:
+    """The GPS link's parser: decodes with :class:`NmeaStreamParser` and keeps each raw
+    sentence (receive time, text) for the recording."""
+
+    def __init__(self, parser: NmeaStreamParser, keep: int = 10000):
+        self.parser = parser
+        self.stats = parser.stats
+        self.raw: collections.deque = collections.deque(maxlen=keep)
+        self._buf = bytearray()
+
+    def feed(self, data: bytes):
+        self._buf += data
+        *lines, rest = bytes(self._buf).split(b"\n")
+        self._buf = bytearray(rest[-512:])
+        now = utc_now_ns()
+        for line in lines:
+            text = line.strip(b"\r\x00 ")
+            if text.startswith((b"$", b"!")):
+                self.raw.append((now, text.decode("ascii", "replace")))
+        return self.parser.feed(data)
+
+
+class AcquisitionDaemon:
+    """One run of acquisition (a survey line) with the configuration ``setup``.
+
+    ``endpoints`` replaces the configured ones (keys ``publisher``, ``service``,
+    ``status``; ``tcp://127.0.0.1:*`` picks a free port); the bound ones are in
+    :attr:`endpoints` after :meth:`start`."""
+
+    def __init__(self, setup: AcquireSetup, *, run_id: str | None = None,
+                 endpoints: dict[str, str] | None = None, curve=None):
+        self.setup = setup
+        acq = setup.acquire
+        self.hardware = setup.hardware
+        self.run_id = run_id or run_id_now(acq.run.name)
+        self.assembler = PingAssembler(setup.hardware)
+        want = {"publisher": setup.daq.publisher.endpoint,
+                "status": acq.status.endpoint}
+        service_cfg = getattr(setup.daq, "service", None)
+        if service_cfg is not None:
+            want["service"] = service_cfg.endpoint
+        want.update(endpoints or {})
+        self._want_endpoints = want
+        self.endpoints: dict[str, str] = {}
+        self.curve = curve if curve is not None else getattr(setup.daq, "security", None)
+        self.counters = Counters()
+        self.nav_tally = NavTally()
+        self.events: collections.deque = collections.deque(maxlen=RECENT_EVENTS)
+        self.n_events = 0
+        self.event_counts: collections.Counter = collections.Counter()
+        self.state = "starting"
+        self.failure: str | None = None
+        self._watch = _Watch()
+        self._tx: dict[int, PingEvent] = {}
+        self._tx_lock = threading.Lock()
+        self._phase: int | None = None     # projector cycle: order index - sequence
+        self._nav_lock = threading.Lock()
+        self._times: collections.deque = collections.deque()
+        self._last_seq: int | None = None
+        self._seen: set[int] = set()
+        self._pending: collections.deque = collections.deque()   # (deadline, CompletePing)
+        self.recorder: RunRecorder | None = None
+        self.publisher: PingPublisher | None = None
+        self.status_pub: StatusPublisher | None = None
+        self.service = None
+        self.sequencer: SequencerDriver | None = None
+        self.digitiser: DigitiserClient | None = None
+        self.dvl_link: SerialLink | None = None
+        self.gps_link: SerialLink | None = None
+        self.navigator = Navigator(setup.devices.navigation, setup.hardware.value.lever_arms,
+                                   history_s=acq.navigation.history_s)
+        self._t_start = time.monotonic()
+        self._next_status = 0.0
+
+    # -- events --------------------------------------------------------------------------
+
+    def event(self, kind: str, detail: str, level: int = logging.WARNING) -> None:
+        """Log, count, keep for the status stream and record one device event."""
+        t = utc_now_ns()
+        self.n_events += 1
+        self.event_counts[kind] += 1
+        self.events.append((t, kind, detail))
+        log.log(level, "%s: %s", kind, detail)
+        if self.recorder is not None and not self.recorder.stopped:
+            try:
+                self.recorder.append_event(t, kind, detail)
+            except RecordingStopped:
+                pass
+
+    # -- start ---------------------------------------------------------------------------
+
+    def bind(self) -> dict[str, str]:
+        """Open the recording and bind the endpoints; return them (before any ping)."""
+        s, acq = self.setup, self.setup.acquire
+        daq = s.daq
+        if self.recorder is not None:
+            return self.endpoints
+        self.recorder = RunRecorder(
+            s.out_dir, self.run_id, s.hardware,
+            flush_every_pings=daq.recorder.flush_every_pings,
+            flush_interval_s=daq.recorder.flush_interval_s,
+            max_file_bytes=acq.rotation.max_file_mib * 2**20,
+            max_file_s=acq.rotation.max_file_s,
+            min_free_bytes=acq.disk.min_free_mib * 2**20,
+            run_attrs={"acquisition_config": str(s.path)})
+        self.publisher = PingPublisher(self._want_endpoints["publisher"],
+                                       daq.publisher.send_hwm, curve=self.curve)
+        self.endpoints["publisher"] = self.publisher.endpoint
+        self.status_pub = StatusPublisher(self._want_endpoints["status"], curve=self.curve)
+        self.endpoints["status"] = self.status_pub.endpoint
+        if "service" in self._want_endpoints:
+            self._start_service(self._want_endpoints["service"])
+        return dict(self.endpoints)
+
+    def start(self, wait_subscribers: int = 0) -> "AcquisitionDaemon":
+        """Bind (if not yet), open the devices and start pinging; with
+        ``wait_subscribers``, first wait (up to ``pairing.start_timeout_s``) for that many
+        subscribers to the ping stream."""
+        self.bind()
+        if wait_subscribers:
+            self.publisher.wait_for_subscribers(
+                wait_subscribers, self.setup.acquire.pairing.start_timeout_s)
+        self._open_devices()
+        self.state = "recording"
+        self._publish_status(force=True)
+        return self
+
+    def _start_service(self, endpoint: str) -> None:
+        from .ping_service import PingService
+        from .recorder import RecordingStore
+        store = RecordingStore(self.recorder)
+        cfg = self.setup.daq.service
+        self.service = PingService(endpoint, store, curve=self.curve,
+                                   max_pings_per_reply=cfg.max_pings_per_reply)
+        self.endpoints["service"] = self.service.endpoint
+
+    def _open_devices(self) -> None:
+        dev, hw = self.setup.devices, self.hardware.value
+        wait = self.setup.acquire.pairing.start_timeout_s
+        if dev.gps is not None:
+            self.gps_tap = _NmeaTap(NmeaStreamParser())
+            self.gps_link = SerialLink(dev.gps.port, self.gps_tap, baudrate=dev.gps.baudrate,
+                                       on_record=self._on_nmea, name="gps",
+                                       reconnect_max_s=1.0).start()
+        if dev.dvl is not None:
+            self.dvl_parser = Pd0StreamParser()
+            self.dvl_link = SerialLink(dev.dvl.port, self.dvl_parser,
+                                       baudrate=dev.dvl.baudrate, on_record=self._on_pd0,
+                                       name="dvl", reconnect_max_s=1.0).start()
+        if dev.gps is None and dev.dvl is None:
+            log.warning("no DVL or GPS link configured: pings are recorded without a pose")
+        self.sequencer = SequencerDriver.from_config(dev.sequencer, on_ping=self._on_transmit,
+                                                     reconnect_max_s=0.5)
+        self.sequencer.open(timeout_s=wait)
+        self.digitiser = DigitiserClient.from_config(dev.digitiser)
+        self.digitiser.open(wait_connected_s=wait)
+        # the first pings need a pose: wait for the navigation to have data
+        for name, link, have in (("GPS fix", dev.gps, lambda: self.navigator.fixes),
+                                 ("DVL ensemble", dev.dvl, lambda: self.navigator.dvl)):
+            if link is not None and not self._wait(have, wait):
+                log.warning("no %s within %.0f s: pinging without it", name, wait)
+        self.sequencer.configure(hw)
+        self.sequencer.arm()
+        self.digitiser.start()
+        self.sequencer.start()
+        log.info("run %s: pinging every %.3f s, schedule %s", self.run_id,
+                 hw.sequencer.ping_interval_s, list(hw.sequencer.projector_order))
+
+    @staticmethod
+    def _wait(pred, timeout_s: float) -> bool:
+        deadline = time.monotonic() + timeout_s
+        while not pred():
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.02)
+        return True
+
+    # -- reader-thread callbacks -----------------------------------------------------------
+
+    def _on_transmit(self, ev: PingEvent) -> None:
+        with self._tx_lock:
+            self._tx[ev.sequence] = ev
+
+    def _on_nmea(self, record) -> None:
+        with self._nav_lock:
+            self.navigator.add_nmea([record])
+
+    def _on_pd0(self, ensemble) -> None:
+        with self._nav_lock:
+            self.navigator.add_pd0(ensemble)
+
+    # -- the acquisition loop ------------------------------------------------------------
+
+    def run(self, max_pings: int | None = None, duration_s: float | None = None) -> int:
+        """Acquire until ``max_pings`` pings were delivered, ``duration_s`` passed, the
+        recording stopped or SIGINT/SIGTERM (KeyboardInterrupt, re-raised after
+        :meth:`stop`). Returns the number of pings recorded."""
+        deadline = None if duration_s is None else time.monotonic() + duration_s
+        try:
+            while self.recorder.stopped is None:
+                if max_pings is not None and self.counters.delivered >= max_pings:
+                    break
+                if deadline is not None and time.monotonic() >= deadline:
+                    break
+                self.step(0.05)
+        except KeyboardInterrupt:
+            self.stop()
+            raise
+        self.stop()
+        return self.counters.recorded
+
+    def step(self, timeout_s: float) -> None:
+        """Handle what the digitiser delivered within ``timeout_s``; watch the devices;
+        publish the status when due."""
+        try:
+            item = self.digitiser.ping_queue.get(timeout=timeout_s)
+        except queue.Empty:
+            item = None
+        while item is not None:
+            self._take(item)
+            try:
+                item = self.digitiser.ping_queue.get_nowait()
+            except queue.Empty:
+                item = None
+        self._assemble_due(final=False)
+        self._watch_devices()
+        self._publish_status()
+
+    def _take(self, item) -> None:
+        if isinstance(item, dg.IncompletePing):
+            if item.frames_received == 0:       # never sent: a gap in the ping numbers
+                self.counters.never_delivered += 1
+                return
+            self.counters.incomplete += 1
+            self.event("digitiser.incomplete_ping",
+                       f"ping {item.ping_number}: {item.frames_received} of "
+                       f"{item.frame_count} frames ({item.reason}); not recorded")
+            return
+        if not isinstance(item, dg.CompletePing):
+            return
+        self.counters.delivered += 1
+        wait = self.setup.acquire.pairing.transmit_wait_s
+        self._pending.append((time.monotonic() + wait, item))
+
+    def _assemble_due(self, final: bool) -> None:
+        """Assemble pending pings whose transmit record is there (or waited for long
+        enough), in delivery order."""
+        now = time.monotonic()
+        while self._pending:
+            deadline, data = self._pending[0]
+            with self._tx_lock:
+                ev = self._tx.pop(data.ping_number, None)
+            if ev is None and not final and now < deadline:
+                return
+            self._pending.popleft()
+            self._handle(data, ev)
+        with self._tx_lock:        # transmit records nobody will claim
+            if len(self._tx) > 1000:
+                for k in sorted(self._tx)[:-100]:
+                    del self._tx[k]
+
+    def _handle(self, data: dg.CompletePing, ev: PingEvent | None) -> None:
+        seq = data.ping_number
+        if seq in self._seen:
+            self.counters.duplicates += 1
+            self.event("digitiser.duplicate_ping", f"ping {seq} delivered again; the "
+                       "first one is kept")
+            return
+        order = self.assembler.projector_order
+        if ev is not None:
+            self._phase = (order.index(ev.projector) - seq) % len(order) \
+                if ev.projector in order else self._phase
+        else:
+            self.counters.transmit_missing += 1
+            self.event("sequencer.transmit_record_missing",
+                       f"ping {seq}: no PING record from the sequencer; transmit time from "
+                       "the digitiser, projector from the schedule's phase")
+        nav = self._pose(data.transmit_time_ns)
+        try:
+            if ev is not None:
+                ping = self.assembler.from_instrument(data, ev, nav)
+            else:
+                projector = order[(seq + (self._phase or 0)) % len(order)]
+                ping = self.assembler.build(seq, projector, data.transmit_time_ns,
+                                            data.first_sample_time_ns - data.transmit_time_ns,
+                                            data.samples, nav)
+        except AssemblyError as exc:
+            self.counters.assembly_errors += 1
+            self.event("assembly.error", str(exc), logging.ERROR)
+            return
+        self._seen.add(seq)
+        if len(self._seen) > 100000:
+            self._seen = set(sorted(self._seen)[-50000:])
+        if self._last_seq is not None and seq > self._last_seq + 1:
+            self.event("digitiser.pings_missing", f"{seq - self._last_seq - 1} ping(s) "
+                       f"before {seq} never delivered")
+        self._last_seq = seq if self._last_seq is None else max(seq, self._last_seq)
+        self._tally_nav(nav)
+        try:
+            self.recorder.append(ping)
+        except RecordingStopped as exc:
+            self.failure = str(exc)
+            self.state = "failed"
+            log.error("recording stopped: %s", exc)
+            return
+        self.counters.recorded += 1
+        self._times.append(time.monotonic())
+        if self.publisher.publish(ping):
+            self.counters.published += 1
+        else:
+            self.counters.publish_dropped += 1
+
+    def _pose(self, t_ns: int) -> NavSnapshot:
+        if self.setup.devices.gps is None and self.setup.devices.dvl is None:
+            return _unknown_pose(t_ns)
+        try:
+            with self._nav_lock:
+                return self.navigator.poses([t_ns])[0]
+        except (ValueError, IndexError) as exc:
+            self.counters.pose_errors += 1
+            if self.counters.pose_errors in (1, 10, 100) or self.counters.pose_errors % 1000 == 0:
+                self.event("navigation.no_solution", f"no pose at {t_ns} ({exc}); recorded "
+                           "without one")
+            return _unknown_pose(t_ns)
+
+    def _tally_nav(self, nav: NavSnapshot) -> None:
+        t, q = self.nav_tally, nav.quality
+        t.last_quality = q
+        gps, dr, lock = bool(q & NAV_GPS_FIX), bool(q & NAV_DEAD_RECKONED), bool(q & NAV_BOTTOM_LOCK)
+        t.mode = "gps" if gps else "dead_reckoning" if dr else "none"
+        if not gps:
+            t.no_gps_fix += 1
+        if dr:
+            t.dead_reckoned += 1
+        if not lock and self.setup.devices.dvl is not None:
+            t.no_bottom_lock += 1
+        if not gps and not t.outage and self.setup.devices.gps is not None:
+            t.outage = True
+            self.event("navigation.gps_outage", "no GPS fix at the ping's time: " + (
+                "dead reckoning on the DVL carries the pose" if dr else "no position"))
+        elif gps and t.outage:
+            t.outage = False
+            self.event("navigation.gps_back", "GPS fixes again", logging.INFO)
+        if self.setup.devices.dvl is not None:
+            if not lock and not t.lock_lost:
+                t.lock_lost = True
+                self.event("navigation.bottom_lock_lost", "no DVL bottom track: altitude "
+                           "unknown, no dead reckoning")
+            elif lock and t.lock_lost:
+                t.lock_lost = False
+                self.event("navigation.bottom_lock_back", "DVL bottom track again",
+                           logging.INFO)
+
+    # -- device watch ----------------------------------------------------------------------
+
+    def _watch_devices(self) -> None:
+        w = self._watch
+        dig = self.digitiser
+        if dig is not None:
+            if w.delta("dig.disconnects", dig.disconnects) > 0:
+                self.event("digitiser.disconnected", f"link to {dig.host}:{dig.port} lost "
+                           f"({dig.last_error}); reconnecting")
+            if w.delta("dig.connects", dig.connects) > 0 and dig.connects > 1:
+                self.event("digitiser.reconnected", f"{dig.host}:{dig.port} connected "
+                           "again; streaming restarted", logging.INFO)
+            st = dig.decoder.frames.stats
+            n = w.delta("dig.bad", st.bad_headers + st.corrupt_payloads)
+            if n > 0:
+                self.event("digitiser.garbage", f"{n} bad frame header(s) or corrupt "
+                           f"payload(s); {st.bytes_discarded} bytes discarded in all")
+        for name, link, parser in (("sequencer", self.sequencer and self.sequencer.link,
+                                    self.sequencer and self.sequencer.parser),
+                                   ("dvl", self.dvl_link, getattr(self, "dvl_parser", None)),
+                                   ("gps", self.gps_link, getattr(self, "gps_tap", None))):
+            if link is None:
+                continue
+            if w.delta(f"{name}.disconnects", link.stats.disconnects) > 0:
+                self.event(f"{name}.vanished", f"serial port {link.port} lost; reopening")
+            if w.delta(f"{name}.connects", link.stats.connects) > 0 and link.stats.connects > 1:
+                self.event(f"{name}.returned", f"serial port {link.port} open again",
+                           logging.INFO)
+            discarded = getattr(getattr(parser, "stats", None), "bytes_discarded", 0)
+            n = w.delta(f"{name}.discarded", discarded)
+            if n > 0:
+                self.event(f"{name}.garbage", f"{n} byte(s) of garbage skipped on "
+                           f"{link.port}")
+        if self.sequencer is not None:
+            n = w.delta("seq.missed", self.sequencer.missed_pings)
+            if n > 0:
+                self.event("sequencer.events_missing", f"{n} PING record(s) lost on the "
+                           "sequencer link")
+        if self.gps_link is not None and self.recorder and not self.recorder.stopped:
+            while self.gps_tap.raw:
+                t, text = self.gps_tap.raw.popleft()
+                try:
+                    self.recorder.append_nmea(t, text)
+                except RecordingStopped:
+                    break
+
+    # -- status --------------------------------------------------------------------------
+
+    def ping_rate(self) -> float:
+        window = self.setup.acquire.status.rate_window_s
+        now = time.monotonic()
+        while self._times and now - self._times[0] > window:
+            self._times.popleft()
+        if len(self._times) < 2:
+            return 0.0
+        return (len(self._times) - 1) / max(self._times[-1] - self._times[0], 1e-9)
+
+    def status(self) -> dict:
+        c = self.counters
+        c.publish_dropped = self.publisher.dropped if self.publisher else c.publish_dropped
+        rec = self.recorder
+        devices = {}
+        if self.sequencer is not None:
+            ls = self.sequencer.link.stats
+            devices["sequencer"] = {"connected": self.sequencer.link.connected,
+                                    "reopens": max(ls.connects - 1, 0),
+                                    "events_missing": self.sequencer.missed_pings,
+                                    "garbage_bytes": self.sequencer.parser.stats.bytes_discarded
+                                    if hasattr(self.sequencer.parser, "stats") else 0}
+        if self.digitiser is not None:
+            d = self.digitiser
+            devices["digitiser"] = {"connected": d.connected,
+                                    "reconnects": max(d.connects - 1, 0),
+                                    "bad_frames": d.decoder.frames.stats.bad_headers
+                                    + d.decoder.frames.stats.corrupt_payloads,
+                                    "garbage_bytes": d.decoder.frames.stats.bytes_discarded}
+        for name, link, parser in (("dvl", self.dvl_link, getattr(self, "dvl_parser", None)),
+                                   ("gps", self.gps_link, getattr(self, "gps_tap", None))):
+            if link is not None:
+                devices[name] = {"connected": link.connected,
+                                 "reopens": max(link.stats.connects - 1, 0),
+                                 "records": link.stats.records,
+                                 "garbage_bytes": parser.stats.bytes_discarded}
+        t = self.nav_tally
+        nav = {"mode": t.mode, "last_quality": t.last_quality,
+               "dead_reckoned": t.dead_reckoned, "no_gps_fix": t.no_gps_fix,
+               "no_bottom_lock": t.no_bottom_lock, "pose_errors": c.pose_errors}
+        quality = getattr(self.navigator, "quality", None)
+        if callable(quality):
+            try:
+                with self._nav_lock:
+                    nav["solution"] = quality(utc_now_ns())
+            except Exception as exc:             # status must never stop acquisition
+                log.debug("navigation quality: %s", exc)
+        return {
+            "time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "run_id": self.run_id, "state": self.state,
+            "uptime_s": round(time.monotonic() - self._t_start, 3),
+            "ping_rate_hz": round(self.ping_rate(), 3),
+            "counters": c.as_dict(), "endpoints": dict(self.endpoints),
+            "subscribers": self.publisher.subscriptions if self.publisher else 0,
+            "recorder": {"file": str(rec.writer.path) if rec and rec.writer else None,
+                         "segment": len(rec.segments) - 1 if rec else None,
+                         "recorded": rec.n_recorded if rec else 0,
+                         "flushed": rec.n_flushed if rec else 0,
+                         "free_mib": rec.free_bytes / 2**20 if rec else NAN,
+                         "stopped": rec.stopped if rec else None},
+            "devices": devices, "navigation": nav, "n_events": self.n_events,
+            "events": [list(e) for e in self.events],
+            "event_counts": dict(self.event_counts),
+            "failure": self.failure,
+        }
+
+    def _publish_status(self, force: bool = False) -> None:
+        now = time.monotonic()
+        if self.status_pub is None or (not force and now < self._next_status):
+            return
+        self._next_status = now + self.setup.acquire.status.interval_s
+        self.status_pub.publish(self.status())
+
+    # -- stop ----------------------------------------------------------------------------
+
+    def stop(self) -> None:
+        """Stop pinging, drain pings in flight, flush and close everything, end the
+        run. Safe to call twice."""
+        if self.state in ("stopped",):
+            return
+        failed = self.state == "failed"
+        self.state = "stopping"
+        for what, fn in (("sequencer stop", lambda: self.sequencer and self.sequencer.stop()),):
+            try:
+                fn()
+            except Exception as exc:             # a vanished device must not lose the run
+                self.event("sequencer.stop_failed", f"{what}: {exc}")
+        if not failed:
+            drain = time.monotonic() + self.setup.acquire.pairing.drain_s
+            while time.monotonic() < drain and not (self.recorder and self.recorder.stopped):
+                try:
+                    self._take(self.digitiser.ping_queue.get(timeout=0.05))
+                except queue.Empty:
+                    pass
+                except KeyboardInterrupt:
+                    break
+            self._assemble_due(final=True)
+        try:
+            if self.digitiser is not None:
+                self.digitiser.stop()
+        except Exception as exc:
+            self.event("digitiser.stop_failed", str(exc))
+        self._watch_devices()
+        summary = self.summary()
+        if self.recorder is not None:
+            self.recorder.close(summary)
+        self.state = "failed" if (failed or self.failure) else "stopped"
+        self._publish_status(force=True)
+        for obj in (self.digitiser, self.sequencer, self.dvl_link, self.gps_link):
+            if obj is None:
+                continue
+            try:
+                obj.close() if hasattr(obj, "close") else obj.stop()
+            except Exception as exc:
+                log.warning("closing %s: %s", obj, exc)
+        if self.publisher is not None:
+            self.publisher.publish(messages.RunEnd(self.run_id, self.counters.recorded))
+            self.counters.publish_dropped = self.publisher.dropped
+            self.publisher.close()
+        if self.service is not None:
+            self.service.close()
+        if self.status_pub is not None:
+            self.status_pub.close()
+        log.info("run %s: %d pings delivered, %d recorded in %d file(s), %d published, "
+                 "%d dropped on the stream, %d device event(s)", self.run_id,
+                 self.counters.delivered, self.counters.recorded,
+                 len(self.recorder.segments) if self.recorder else 0,
+                 self.counters.published, self.counters.publish_dropped, self.n_events)
+
+    def summary(self) -> dict:
+        return {"run_id": self.run_id, "counters": self.counters.as_dict(),
+                "navigation": {k: v for k, v in self.nav_tally.__dict__.items()
+                               if k not in ("outage", "lock_lost")},
+                "n_events": self.n_events, "events": dict(self.event_counts),
+                "failure": self.failure,
+                "segments": [p.name for p in self.recorder.segments] if self.recorder else []}
+
+
+def _unknown_pose(t_ns: int) -> NavSnapshot:
+    return NavSnapshot(t_ns, NAN, NAN, NAN, NAN, NAN, NAN, NAN, NAN, NAN, NAN)
+
+
+def segments_of(out_dir: Path, run_id: str) -> list[Path]:
+    """The raw-run files of ``run_id`` in ``out_dir``, in segment order."""
+    return sorted(Path(out_dir).glob(f"{run_id}_*.h5"))
+
+
+__all__ = ["AcquisitionDaemon", "Counters", "run_id_now", "segments_of"]

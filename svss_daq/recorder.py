@@ -1,0 +1,256 @@
+"""The acquisition daemon's recorder: one run in rotating raw-run segment files.
+
+Segment ``k`` of run ``R`` is ``<out_dir>/R_<kkk>.h5``, a complete raw-run file (root
+attributes ``run_id``, ``segment``) readable while written (SWMR). A new segment starts
+when the current one exceeds ``max_file_bytes`` or ``max_file_s``. Pings are appended in
+the order they are assembled; the recorder keeps the index sequence -> (segment, row)
+so that the catch-up service (:mod:`svss_daq.ping_service`) can read any recorded ping
+back while the run goes on. Free disk space is checked after every flush: below
+``min_free_bytes`` recording stops with :class:`RecordingStopped` (and a write that
+fails for a full disk stops it the same way), leaving every flushed ping readable.
+"""
+
+from __future__ import annotations
+
+import bisect
+import logging
+import shutil
+import threading
+import time
+from pathlib import Path
+
+from .config import HardwareConfig, Loaded
+from .ping import Ping
+from .rawfile import RawFileError, RawRunReader, RawRunWriter, write_summary
+
+log = logging.getLogger(__name__)
+
+
+class RecordingStopped(RuntimeError):
+    """Recording cannot go on (disk full or below the floor); the message says why."""
+
+
+def segment_path(out_dir: Path, run_id: str, segment: int) -> Path:
+    return out_dir / f"{run_id}_{segment:03d}.h5"
+
+
+class RunRecorder:
+    """Records run ``run_id`` into ``out_dir``; thread-safe (one lock)."""
+
+    def __init__(self, out_dir: str | Path, run_id: str, hardware: Loaded[HardwareConfig],
+                 *, flush_every_pings: int, flush_interval_s: float, max_file_bytes: float,
+                 max_file_s: float, min_free_bytes: float = 0.0,
+                 environment: dict | None = None, run_attrs: dict | None = None):
+        self.out_dir = Path(out_dir)
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        self.run_id, self.hardware = run_id, hardware
+        self.flush_every, self.flush_interval = flush_every_pings, flush_interval_s
+        self.max_bytes, self.max_s = max_file_bytes, max_file_s
+        self.min_free = min_free_bytes
+        self.environment, self.run_attrs = environment or {}, dict(run_attrs or {})
+        self.lock = threading.RLock()
+        self.segments: list[Path] = []
+        self._seg_first: list[int] = []          # index of each segment's first ping
+        self.sequences: list[int] = []           # every recorded sequence, in order
+        self._sorted = True                      # ... and ascending
+        self._where: dict[int, tuple[int, int]] = {}   # sequence -> (segment, row)
+        self._readers: dict[int, RawRunReader] = {}
+        self.writer: RawRunWriter | None = None
+        self.stopped: str | None = None
+        self.ended = False
+        self.free_bytes = self._free()
+        self._check_free()
+        self._open_segment()
+
+    # -- writing -----------------------------------------------------------------------
+
+    def _free(self) -> int:
+        return shutil.disk_usage(self.out_dir).free
+
+    def _check_free(self) -> None:
+        if self.free_bytes < self.min_free:
+            raise self._stop(f"{self.out_dir}: {self.free_bytes / 2**20:.0f} MiB free, below "
+                             f"the floor of {self.min_free / 2**20:.0f} MiB (disk."
+                             "min_free_mib)")
+
+    def _stop(self, why: str) -> RecordingStopped:
+        self.stopped = why
+        log.error("recording stopped: %s; %d pings of run %s are on disk", why,
+                  self.n_flushed, self.run_id)
+        return RecordingStopped(why)
+
+    def _open_segment(self) -> None:
+        k = len(self.segments)
+        path = segment_path(self.out_dir, self.run_id, k)
+        attrs = {**self.run_attrs, "run_id": self.run_id, "segment": k}
+        try:
+            self.writer = RawRunWriter(path, self.hardware,
+                                       flush_every_pings=self.flush_every,
+                                       flush_interval_s=self.flush_interval,
+                                       environment=self.environment, run_attrs=attrs)
+        except RawFileError as exc:
+            raise self._stop(str(exc)) from None
+        self.segments.append(path)
+        self._seg_first.append(len(self.sequences))
+        self._opened = time.monotonic()
+        log.info("recording run %s segment %d to %s", self.run_id, k, path)
+
+    def _rotate_if_due(self) -> None:
+        w = self.writer
+        if w.n_pings == 0:
+            return
+        size = w.path.stat().st_size
+        if size >= self.max_bytes or time.monotonic() - self._opened >= self.max_s:
+            self._close_segment()
+            self._open_segment()
+
+    def _close_segment(self) -> None:
+        w, self.writer = self.writer, None
+        try:
+            w.close()
+        except RawFileError as exc:
+            raise self._stop(str(exc)) from None
+
+    @property
+    def n_recorded(self) -> int:
+        return len(self.sequences)
+
+    @property
+    def n_flushed(self) -> int:
+        """Pings of the run known to be on disk."""
+        if self.writer is None:
+            return len(self.sequences) if not self.stopped else self._seg_first[-1] if \
+                self._seg_first else 0
+        return self._seg_first[-1] + self.writer.n_flushed
+
+    def append(self, ping: Ping) -> None:
+        """Record one ping (raises :class:`RecordingStopped` when recording cannot go
+        on; every flushed ping stays readable)."""
+        with self.lock:
+            if self.stopped:
+                raise RecordingStopped(self.stopped)
+            w = self.writer
+            flushed = w.n_flushed
+            try:
+                w.append(ping)
+            except RawFileError as exc:
+                raise self._stop(str(exc)) from None
+            seg = len(self.segments) - 1
+            if self.sequences and ping.sequence <= self.sequences[-1]:
+                self._sorted = False
+            self._where[ping.sequence] = (seg, w.n_pings - 1)
+            self.sequences.append(ping.sequence)
+            if w.n_flushed != flushed:          # a flush happened: check the disk
+                self.free_bytes = self._free()
+                self._check_free()
+                self._rotate_if_due()
+
+    def append_event(self, time_ns: int, kind: str, detail: str) -> None:
+        with self.lock:
+            if self.writer is not None and not self.stopped:
+                try:
+                    self.writer.append_event(time_ns, kind, detail)
+                except RawFileError as exc:
+                    raise self._stop(str(exc)) from None
+
+    def append_nmea(self, time_ns: int, sentence: str) -> None:
+        with self.lock:
+            if self.writer is not None and not self.stopped:
+                try:
+                    self.writer.append_nmea(time_ns, sentence)
+                except RawFileError as exc:
+                    raise self._stop(str(exc)) from None
+
+    def flush(self) -> None:
+        with self.lock:
+            if self.writer is not None and not self.stopped:
+                try:
+                    self.writer.flush()
+                except RawFileError as exc:
+                    raise self._stop(str(exc)) from None
+                self.free_bytes = self._free()
+
+    def close(self, summary: dict | None = None) -> None:
+        """Close the current segment; store ``summary`` in every segment of the run."""
+        with self.lock:
+            self.ended = True
+            if self.writer is not None:
+                w, self.writer = self.writer, None
+                try:
+                    w.close()
+                except RawFileError as exc:
+                    self._stop(str(exc))
+            for r in self._readers.values():
+                r.close()
+            self._readers.clear()
+            if summary is not None:
+                for path in self.segments:
+                    if path.exists():
+                        try:
+                            write_summary(path, summary)
+                        except RawFileError as exc:
+                            log.error("%s", exc)
+
+    # -- reading back (the catch-up service's store) -----------------------------------
+
+    def info(self) -> dict:
+        with self.lock:
+            seqs = self.sequences
+            return {"run_id": self.run_id, "first": min(seqs) if seqs else -1,
+                    "last": max(seqs) if seqs else -1, "n_pings": len(seqs),
+                    "ended": self.ended}
+
+    def recorded(self, first: int, last: int) -> list[int]:
+        """Recorded sequences within [first, last], ascending."""
+        with self.lock:
+            s = self.sequences if self._sorted else sorted(self._where)
+            return s[bisect.bisect_left(s, first):bisect.bisect_right(s, last)]
+
+    def read(self, sequence: int) -> Ping | None:
+        """The recorded ping ``sequence`` (None when it was never recorded)."""
+        with self.lock:
+            where = self._where.get(sequence)
+            if where is None:
+                return None
+            seg, row = where
+            if seg == len(self.segments) - 1 and self.writer is not None:
+                return self.writer.read_ping(row)
+            if seg not in self._readers:
+                self._readers[seg] = RawRunReader(self.segments[seg])
+            return self._readers[seg].ping(row)
+
+
+class RecordingStore:
+    """The catch-up service's view of a recording daemon: the run being recorded (read
+    back from :class:`RunRecorder`) and the runs recorded earlier in the same folder
+    (raw-run files, :class:`~svss_daq.ping_service.RawRunStore`)."""
+
+    def __init__(self, recorder: RunRecorder):
+        from .ping_service import RawRunStore
+        self.recorder = recorder
+        earlier = sorted(p for p in recorder.out_dir.glob("*.h5")
+                         if p not in recorder.segments and not p.name.startswith(
+                             recorder.run_id + "_"))
+        self.earlier = None
+        if earlier:
+            try:
+                self.earlier = RawRunStore(earlier)
+            except Exception as exc:          # a damaged old file must not stop a run
+                log.warning("catch-up: earlier runs in %s not served (%s)",
+                            recorder.out_dir, exc)
+
+    def runs(self) -> list:
+        from .ping_service import RunInfo
+        out = list(self.earlier.runs()) if self.earlier else []
+        out.append(RunInfo(**self.recorder.info()))
+        return out
+
+    def sequences(self, run_id: str, first: int, last: int) -> list[int]:
+        if run_id == self.recorder.run_id:
+            return self.recorder.recorded(first, last)
+        return self.earlier.sequences(run_id, first, last) if self.earlier else []
+
+    def read(self, run_id: str, sequence: int) -> Ping | None:
+        if run_id == self.recorder.run_id:
+            return self.recorder.read(sequence)
+        return self.earlier.read(run_id, sequence) if self.earlier else None
