@@ -1,0 +1,628 @@
+"""The catch-up ping service: recorded pings served by sequence number, so that a tile
+worker that lost pings on the best-effort stream (:mod:`.publisher`) gets every one.
+
+Recording happens before publishing, so when ping m is published every ping < m that
+will ever exist is already recorded: the recording answers definitively whether a
+sequence exists. (A recording on disk answers for what is flushed; the service says so,
+``pending``, for sequences past its last flushed ping of a run still being recorded.)
+
+Protocol (docs/worker.md): a ROUTER socket (:class:`PingService`) answers JSON requests,
+never pickle, from DEALER clients (:class:`PingFetcher`):
+
+- ``{"schema": "svss.fetch", "version": 1, "run_id": R, "first": a, "last": b}``: every
+  recorded ping of run R in [a, b], each a message framed exactly like the ping stream
+  (:func:`svss_daq.messages.encode_ping`), then one single-frame JSON
+  ``{"schema": "svss.fetched", "version": 1, "run_id", "first", "last", "found": n,
+  "missing": [[a0, b0], ...], "next": s or null, "pending": bool}``. ``missing`` lists the
+  ranges of sequences definitively absent (never recorded), up to the reply's end; a
+  reply holds at most ``max_pings_per_reply`` pings and ``next`` says where to continue
+  (null: [a, b] is answered); ``pending`` says ``next`` is past the run's last recorded
+  ping and the run is still being recorded (ask again later).
+- ``{"schema": "svss.runs", "version": 1}``: ``{"schema": "svss.runs", "version": 1,
+  "runs": [RunInfo as an object, ...]}``, oldest first.
+- anything else: ``{"schema": "svss.error", "version": 1, "error": "..."}``, counted in
+  :attr:`PingService.errors`; the serving thread never stops on a request.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Iterable, Protocol
+
+import numpy as np
+import zmq
+
+from . import messages
+from .endpoints import check_endpoint
+from .ping import Ping
+from .rawfile import RawFileError, RawRunReader
+
+log = logging.getLogger(__name__)
+
+VERSION = 1
+#: pings in one reply when the service is not told otherwise
+MAX_PINGS_PER_REPLY = 64
+_MAX_REQUEST_BYTES = 4096
+_MAX_SPAN = 10**9            # sequences one fetch may ask about
+_INT = (0, 2**63 - 1)
+
+
+@dataclass(frozen=True)
+class RunInfo:
+    """A recorded run: its id, the first and last sequence numbers recorded so far, how
+    many pings, and whether the run has ended (no more pings will be recorded)."""
+    run_id: str
+    first: int
+    last: int
+    n_pings: int
+    ended: bool
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> RunInfo:
+        if not isinstance(d, dict):
+            raise ValueError(f"run: expected a JSON object, got {type(d).__name__}")
+        try:
+            info = cls(d["run_id"], d["first"], d["last"], d["n_pings"], d["ended"])
+        except KeyError as exc:
+            raise ValueError(f"run: field {exc.args[0]!r} missing") from None
+        if not (isinstance(info.run_id, str) and isinstance(info.ended, bool)
+                and all(type(v) is int for v in (info.first, info.last, info.n_pings))):
+            raise ValueError(f"run: mistyped fields in {str(d)[:200]}")
+        return info
+
+
+class PingStore(Protocol):
+    """Where a :class:`PingService` finds recorded pings."""
+
+    def runs(self) -> list[RunInfo]:
+        """The runs recorded so far, oldest first."""
+
+    def sequences(self, run_id: str, first: int, last: int) -> list[int]:
+        """The recorded sequences of ``run_id`` within [first, last], ascending
+        (KeyError for an unknown run)."""
+
+    def read(self, run_id: str, sequence: int) -> Ping | None:
+        """The recorded ping, or None when it was never recorded."""
+
+
+# --------------------------------------------------------------------------- stores
+
+
+@dataclass
+class _Segment:
+    path: Path
+    run_id: str
+    segment: int
+    reader: RawRunReader
+    mtime_ns: int
+    index: dict[int, int]           # sequence -> ping index in this file
+
+    @property
+    def clean(self) -> bool:
+        return bool(self.reader.clean)
+
+
+def _attr_text(v) -> str | None:
+    if isinstance(v, bytes):
+        v = v.decode("utf-8", "replace")
+    if isinstance(v, np.ndarray) and v.shape == ():
+        v = v.item()
+        if isinstance(v, bytes):
+            v = v.decode("utf-8", "replace")
+    return v if isinstance(v, str) and v else None
+
+
+class RawRunStore:
+    """Recorded raw-run files (:class:`~svss_daq.rawfile.RawRunReader`) as a
+    :class:`PingStore`.
+
+    A run's id is the file's root attribute ``run_id`` and its segment number the root
+    attribute ``segment`` (the acquisition daemon writes both; when absent the id is the
+    file's stem and the segment 0); a run may span several segment files. A run has ended
+    when all its segment files were closed by their writer (and, when any segment carries
+    the root attribute ``run_ended``, one of them says true). A file still being written
+    is read again, when asked about sequences past what was read, once it has changed on
+    disk. An unreadable file raises :class:`~svss_daq.rawfile.RawFileError` here."""
+
+    def __init__(self, paths: Iterable[str | Path]):
+        self._lock = threading.RLock()
+        self._segments: list[_Segment] = []
+        for p in paths:
+            self._segments.append(self._open(Path(p)))
+        if not self._segments:
+            raise ValueError("RawRunStore: no raw-run files given")
+        order = {}
+        for s in self._segments:          # runs in the order of their first file given
+            order.setdefault(s.run_id, len(order))
+        self._segments.sort(key=lambda s: (order[s.run_id], s.segment))
+
+    @staticmethod
+    def _open(path: Path, reader: RawRunReader | None = None) -> _Segment:
+        mtime = path.stat().st_mtime_ns
+        r = reader or RawRunReader(path)
+        run_id = _attr_text(r.attrs.get("run_id")) or path.stem
+        seg = r.attrs.get("segment", 0)
+        try:
+            seg = int(np.asarray(seg).reshape(()))
+        except (TypeError, ValueError):
+            raise RawFileError(f"{path}: root attribute 'segment' is {seg!r}; expected an "
+                               "integer") from None
+        seqs = r.ping_table()["ping_sequence"]
+        return _Segment(path, run_id, seg, r, mtime,
+                        {int(s): i for i, s in enumerate(seqs)})
+
+    def _refresh(self, run_id: str) -> None:
+        """Read again the segments of ``run_id`` still being written that changed."""
+        for k, s in enumerate(self._segments):
+            if s.run_id != run_id or s.clean:
+                continue
+            try:
+                mtime = s.path.stat().st_mtime_ns
+            except OSError:
+                continue
+            if mtime == s.mtime_ns:
+                continue
+            try:
+                new = self._open(s.path)
+            except (RawFileError, OSError) as exc:
+                log.warning("%s: could not read it again (%s); serving what was read", s.path,
+                            exc)
+                continue
+            s.reader.close()
+            self._segments[k] = new
+
+    def _of(self, run_id: str) -> list[_Segment]:
+        segs = [s for s in self._segments if s.run_id == run_id]
+        if not segs:
+            raise KeyError(run_id)
+        return segs
+
+    def run_ids(self) -> list[str]:
+        out: list[str] = []
+        for s in self._segments:
+            if s.run_id not in out:
+                out.append(s.run_id)
+        return out
+
+    def paths(self, run_id: str) -> list[Path]:
+        return [s.path for s in self._of(run_id)]
+
+    def info(self, run_id: str, refresh: bool = True) -> RunInfo:
+        with self._lock:
+            if refresh:
+                self._refresh(run_id)
+            segs = self._of(run_id)
+            seqs = [q for s in segs for q in s.index]
+            flags = [bool(np.asarray(s.reader.attrs["run_ended"]).reshape(()))
+                     for s in segs if "run_ended" in s.reader.attrs]
+            ended = all(s.clean for s in segs) and (not flags or any(flags))
+            return RunInfo(run_id, min(seqs) if seqs else 0, max(seqs) if seqs else -1,
+                           len(seqs), ended)
+
+    def runs(self) -> list[RunInfo]:
+        return [self.info(r) for r in self.run_ids()]
+
+    def sequences(self, run_id: str, first: int, last: int) -> list[int]:
+        with self._lock:
+            segs = self._of(run_id)
+            if any(last > max(s.index, default=-1) for s in segs if not s.clean):
+                self._refresh(run_id)
+                segs = self._of(run_id)
+            return sorted({q for s in segs for q in s.index if first <= q <= last})
+
+    def read(self, run_id: str, sequence: int) -> Ping | None:
+        with self._lock:
+            for s in self._of(run_id):
+                i = s.index.get(sequence)
+                if i is not None:
+                    return s.reader.ping(i)
+        return None
+
+    def close(self) -> None:
+        with self._lock:
+            for s in self._segments:
+                s.reader.close()
+
+    def __enter__(self) -> RawRunStore:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class ReplayStore:
+    """A :class:`RawRunStore` presented as a replay publishes it, like an acquisition
+    daemon's recording: a run is listed once :meth:`begin` is called (before its first
+    ping is published) and has ended once :meth:`end` is (after its end marker)."""
+
+    def __init__(self, store: RawRunStore):
+        self.store = store
+        self._begun: list[str] = []
+        self._ended: set[str] = set()
+        self._lock = threading.Lock()
+
+    def begin(self, run_id: str) -> None:
+        with self._lock:
+            if run_id not in self._begun:
+                self._begun.append(run_id)
+
+    def end(self, run_id: str) -> None:
+        with self._lock:
+            self._ended.add(run_id)
+
+    def _visible(self, run_id: str) -> None:
+        with self._lock:
+            if run_id not in self._begun:
+                raise KeyError(run_id)
+
+    def runs(self) -> list[RunInfo]:
+        with self._lock:
+            begun, ended = list(self._begun), set(self._ended)
+        out = []
+        for r in begun:
+            i = self.store.info(r)
+            out.append(RunInfo(i.run_id, i.first, i.last, i.n_pings, r in ended))
+        return out
+
+    def sequences(self, run_id: str, first: int, last: int) -> list[int]:
+        self._visible(run_id)
+        return self.store.sequences(run_id, first, last)
+
+    def read(self, run_id: str, sequence: int) -> Ping | None:
+        self._visible(run_id)
+        return self.store.read(run_id, sequence)
+
+
+# --------------------------------------------------------------------------- service
+
+
+def _absent(first: int, last: int, present: list[int]) -> list[list[int]]:
+    """Ranges of [first, last] not in ``present`` (ascending, within [first, last])."""
+    out, at = [], first
+    for q in present:
+        if q > at:
+            out.append([at, q - 1])
+        at = q + 1
+    if at <= last:
+        out.append([at, last])
+    return out
+
+
+class RequestError(ValueError):
+    """A request the service cannot answer."""
+
+
+def _int_field(req: dict, name: str) -> int:
+    v = req.get(name)
+    if type(v) is not int or not _INT[0] <= v <= _INT[1]:
+        raise RequestError(f"field '{name}' expected an integer in 0..2**63-1, got "
+                           f"{messages._show(v)}")
+    return v
+
+
+class PingService:
+    """Serves a :class:`PingStore` on ``endpoint`` (a ROUTER socket bound now, checked by
+    :func:`~svss_daq.endpoints.check_endpoint`; ``tcp://127.0.0.1:*`` picks a free port,
+    :attr:`endpoint` says which) from a thread, until :meth:`close`. ``curve``: a
+    :class:`~svss_daq.security.CurveConfig` (None or disabled: plain). Malformed
+    requests are answered with ``svss.error``, logged and counted (:attr:`errors`)."""
+
+    def __init__(self, endpoint: str, store: PingStore, *, curve=None,
+                 max_pings_per_reply: int = MAX_PINGS_PER_REPLY,
+                 ctx: zmq.Context | None = None, send_timeout_s: float = 10.0):
+        check_endpoint(endpoint, bind=True)
+        if type(max_pings_per_reply) is not int or max_pings_per_reply < 1:
+            raise ValueError(f"max_pings_per_reply: expected an integer >= 1, got "
+                             f"{max_pings_per_reply!r}")
+        self.store = store
+        self.max_pings = max_pings_per_reply
+        self.ctx = ctx or zmq.Context.instance()
+        self.sock = self.ctx.socket(zmq.ROUTER)
+        try:
+            from .security import secure_server
+            secure_server(self.sock, curve)
+            self.sock.setsockopt(zmq.ROUTER_MANDATORY, 1)   # never drop a reply silently
+            self.sock.setsockopt(zmq.SNDTIMEO, int(send_timeout_s * 1000))
+            self.sock.setsockopt(zmq.LINGER, 0)
+            self.sock.bind(endpoint)
+        except zmq.ZMQError as exc:
+            self.sock.close(linger=0)
+            raise OSError(f"cannot bind the catch-up service to {endpoint}: {exc}") from None
+        except BaseException:
+            self.sock.close(linger=0)
+            raise
+        self.endpoint = self.sock.getsockopt_string(zmq.LAST_ENDPOINT)
+        self.requests = 0
+        self.errors = 0
+        self.pings_served = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._serve, name="ping-service", daemon=True)
+        self._thread.start()
+        log.info("catch-up service on %s (at most %d pings per reply)", self.endpoint,
+                 self.max_pings)
+
+    def _serve(self) -> None:
+        try:
+            while not self._stop.is_set():
+                if not self.sock.poll(100):
+                    continue
+                try:
+                    frames = self.sock.recv_multipart(zmq.NOBLOCK)
+                except zmq.Again:
+                    continue
+                try:
+                    self._handle(frames[0], frames[1:])
+                except zmq.ZMQError as exc:
+                    log.warning("catch-up service: reply not sent (%s)", exc)
+                except Exception:                     # never lose the service
+                    self.errors += 1
+                    log.exception("catch-up service: request failed")
+                    self._reply(frames[0], {"schema": "svss.error", "version": VERSION,
+                                            "error": "internal error (logged)"}, quiet=True)
+        finally:
+            self.sock.close(linger=0)
+
+    def _reply(self, ident: bytes, body: dict, quiet: bool = False) -> None:
+        try:
+            self.sock.send_multipart([ident, json.dumps(body).encode()])
+        except zmq.ZMQError:
+            if not quiet:
+                raise
+
+    def _error(self, ident: bytes, msg: str) -> None:
+        self.errors += 1
+        log.warning("catch-up service: refused a request: %s", msg)
+        self._reply(ident, {"schema": "svss.error", "version": VERSION, "error": msg},
+                    quiet=True)
+
+    def _handle(self, ident: bytes, body: list) -> None:
+        self.requests += 1
+        if len(body) != 1:
+            return self._error(ident, f"request has {len(body)} frames; expected one JSON "
+                               "frame")
+        raw = body[0]
+        if len(raw) > _MAX_REQUEST_BYTES:
+            return self._error(ident, f"request of {len(raw)} bytes; expected at most "
+                               f"{_MAX_REQUEST_BYTES}")
+        try:
+            req = json.loads(raw.decode())
+        except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+            return self._error(ident, f"request is not UTF-8 JSON ({type(exc).__name__})")
+        if not isinstance(req, dict):
+            return self._error(ident, f"request must be a JSON object, got "
+                               f"{type(req).__name__}")
+        schema = req.get("schema")
+        version = req.get("version", VERSION)
+        if not (type(version) is int and version == VERSION):
+            return self._error(ident, f"field 'version' is {messages._show(version)}; this "
+                               f"service speaks version {VERSION}")
+        try:
+            if schema == "svss.runs":
+                runs = self.store.runs()
+                return self._reply(ident, {"schema": "svss.runs", "version": VERSION,
+                                           "runs": [r.to_dict() for r in runs]})
+            if schema == "svss.fetch":
+                return self._fetch(ident, req)
+        except RequestError as exc:
+            return self._error(ident, str(exc))
+        return self._error(ident, f"field 'schema' is {messages._show(schema)}; expected "
+                           "'svss.fetch' or 'svss.runs'")
+
+    def _fetch(self, ident: bytes, req: dict) -> None:
+        run_id = req.get("run_id")
+        if not isinstance(run_id, str):
+            raise RequestError(f"field 'run_id' expected a string, got "
+                               f"{messages._show(run_id)}")
+        first, last = _int_field(req, "first"), _int_field(req, "last")
+        if last < first or last - first > _MAX_SPAN:
+            raise RequestError(f"fields 'first' {first} and 'last' {last}: expected first <= "
+                               f"last and at most {_MAX_SPAN} sequences")
+        info = {r.run_id: r for r in self.store.runs()}.get(run_id)
+        if info is None:
+            raise RequestError(f"unknown run {messages._show(run_id)}")
+        present = self.store.sequences(run_id, first, last)
+        pending = False
+        if len(present) > self.max_pings:
+            nxt = present[self.max_pings]
+            upto = nxt - 1
+            present = present[:self.max_pings]
+        elif not info.ended and last > info.last:
+            nxt = max(first, info.last + 1)
+            upto = nxt - 1
+            pending = True
+        else:
+            nxt, upto = None, last
+        sent = []
+        for q in present:
+            ping = self.store.read(run_id, q)
+            if ping is None:                 # vanished between the two calls: say missing
+                continue
+            self.sock.send_multipart([ident, *messages.encode_ping(ping)], copy=False)
+            sent.append(q)
+        found = len(sent)
+        missing = _absent(first, upto, sent) if upto >= first else []
+        self.pings_served += found
+        self._reply(ident, {"schema": "svss.fetched", "version": VERSION, "run_id": run_id,
+                            "first": first, "last": last, "found": found,
+                            "missing": missing, "next": nxt, "pending": pending})
+
+    def close(self) -> None:
+        """Stop the serving thread and close the socket."""
+        self._stop.set()
+        self._thread.join(timeout=10)
+        if self.requests:
+            log.info("catch-up service %s: %d request(s), %d ping(s) served, %d refused",
+                     self.endpoint, self.requests, self.pings_served, self.errors)
+
+    def __enter__(self) -> PingService:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+# --------------------------------------------------------------------------- client
+
+
+@dataclass
+class Fetched:
+    """One reply: the pings (ascending), the ranges definitively missing, where to
+    continue (None: the request is answered) and whether ``next`` waits on a run still
+    being recorded."""
+    pings: list[Ping]
+    missing: list[int]
+    next: int | None
+    pending: bool
+
+
+class ServiceError(RuntimeError):
+    """The catch-up service refused a request or answered something unreadable."""
+
+
+class PingFetcher:
+    """A DEALER client of a :class:`PingService` at ``endpoint``. Every wait for a
+    reply message is at most ``timeout_s``; a timeout raises TimeoutError naming the
+    endpoint (the socket is then replaced, so a late reply cannot be taken for the next
+    one's)."""
+
+    def __init__(self, endpoint: str, *, curve=None, timeout_s: float = 10.0,
+                 ctx: zmq.Context | None = None):
+        check_endpoint(endpoint, bind=False)
+        self.endpoint = endpoint
+        self.curve = curve
+        self.timeout_s = float(timeout_s)
+        self.ctx = ctx or zmq.Context.instance()
+        self.sock: zmq.Socket | None = None
+        self.requests = 0
+        self._connect()
+
+    def _connect(self) -> None:
+        sock = self.ctx.socket(zmq.DEALER)
+        try:
+            from .security import secure_client
+            secure_client(sock, self.curve)
+            sock.setsockopt(zmq.LINGER, 0)
+            sock.connect(self.endpoint)
+        except zmq.ZMQError as exc:
+            sock.close(linger=0)
+            raise OSError(f"cannot connect to the catch-up service {self.endpoint}: "
+                          f"{exc}") from None
+        except BaseException:
+            sock.close(linger=0)
+            raise
+        self.sock = sock
+
+    def _recv(self) -> list:
+        if not self.sock.poll(int(self.timeout_s * 1000)):
+            self.sock.close(linger=0)
+            self._connect()
+            raise TimeoutError(f"catch-up service {self.endpoint}: no reply within "
+                               f"{self.timeout_s:g} s")
+        return self.sock.recv_multipart(copy=False)
+
+    def _request(self, req: dict) -> tuple[list[Ping], dict]:
+        self.requests += 1
+        self.sock.send(json.dumps({**req, "version": VERSION}).encode())
+        pings = []
+        while True:
+            frames = self._recv()
+            if len(frames) == 1:
+                try:
+                    reply = json.loads(frames[0].bytes.decode())
+                except (UnicodeDecodeError, ValueError) as exc:
+                    raise ServiceError(f"catch-up service {self.endpoint}: unreadable reply "
+                                       f"({exc})") from None
+                if not isinstance(reply, dict):
+                    raise ServiceError(f"catch-up service {self.endpoint}: reply is not a "
+                                       "JSON object")
+                if reply.get("schema") == "svss.error":
+                    raise ServiceError(f"catch-up service {self.endpoint}: "
+                                       f"{reply.get('error')}")
+                return pings, reply
+            try:
+                msg = messages.decode(frames)
+            except messages.MessageError as exc:
+                raise ServiceError(f"catch-up service {self.endpoint}: {exc}") from None
+            if not isinstance(msg, Ping):
+                raise ServiceError(f"catch-up service {self.endpoint}: unexpected "
+                                   f"{type(msg).__name__} in a reply")
+            pings.append(msg)
+
+    def runs(self) -> list[RunInfo]:
+        """The runs the service knows, oldest first."""
+        _, reply = self._request({"schema": "svss.runs"})
+        if reply.get("schema") != "svss.runs" or not isinstance(reply.get("runs"), list):
+            raise ServiceError(f"catch-up service {self.endpoint}: expected svss.runs, got "
+                               f"{str(reply)[:200]}")
+        try:
+            return [RunInfo.from_dict(r) for r in reply["runs"]]
+        except ValueError as exc:
+            raise ServiceError(f"catch-up service {self.endpoint}: {exc}") from None
+
+    def fetch_once(self, run_id: str, first: int, last: int) -> Fetched:
+        """One request: at most the service's ``max_pings_per_reply`` pings of [first,
+        last]."""
+        pings, reply = self._request({"schema": "svss.fetch", "run_id": run_id,
+                                      "first": int(first), "last": int(last)})
+        if reply.get("schema") != "svss.fetched" or reply.get("found") != len(pings):
+            raise ServiceError(f"catch-up service {self.endpoint}: reply to fetch "
+                               f"{run_id} {first}..{last} announced "
+                               f"{reply.get('found')!r} pings, {len(pings)} arrived")
+        missing = []
+        try:
+            for a, b in reply["missing"]:
+                if not (type(a) is int and type(b) is int and first <= a <= b <= last):
+                    raise ValueError
+                missing.extend(range(a, b + 1))
+            nxt = reply["next"]
+            if nxt is not None and not (type(nxt) is int and first <= nxt <= last + 1):
+                raise ValueError
+        except (KeyError, TypeError, ValueError):
+            raise ServiceError(f"catch-up service {self.endpoint}: malformed reply "
+                               f"{str(reply)[:200]}") from None
+        return Fetched(pings, missing, nxt, bool(reply.get("pending")))
+
+    def fetch(self, run_id: str, first: int, last: int) -> tuple[list[Ping], list[int]]:
+        """Every recorded ping of ``run_id`` in [first, last] (over as many capped replies
+        as it takes) and the sequences definitively missing. Sequences in neither are
+        not recorded yet (a run still being recorded)."""
+        pings: list[Ping] = []
+        missing: list[int] = []
+        while first <= last:
+            got = self.fetch_once(run_id, first, last)
+            pings += got.pings
+            missing += got.missing
+            if got.next is None or got.pending or got.next <= first:
+                break
+            first = got.next
+        return pings, missing
+
+    def close(self) -> None:
+        if self.sock is not None:
+            self.sock.close(linger=0)
+            self.sock = None
+
+    def __enter__(self) -> PingFetcher:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def wait_for_service(fetcher: PingFetcher, timeout_s: float) -> list[RunInfo]:
+    """``fetcher.runs()``, retried until ``timeout_s`` has passed (a service starting)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            return fetcher.runs()
+        except TimeoutError:
+            if time.monotonic() >= deadline:
+                raise
