@@ -1,11 +1,29 @@
-"""The processing worker: subscribes to pings over ZeroMQ (or reads a raw run), images
-them into tiles and writes the tile files as tiles complete."""
+"""The processing worker: pings in (a raw run, or the ZeroMQ stream with catch-up from
+the recording), tile files out. See docs/worker.md.
+
+- :class:`Worker` images one run's pings, fed in sequence order, into one folder: tiles
+  are written atomically (the .h5 rename is the commit point) and, for a run with an id,
+  a journal (``worker_state.json``) records the tile frame, the written tiles and the
+  resume point after each tile, so that a killed worker resumes with no missing and no
+  duplicated tile.
+- :func:`process_raw`: ``svss process RUN.h5 --out DIR`` (tiles directly in DIR).
+- :class:`StreamWorker` and :func:`serve`: ``svss worker``. Pings from the best-effort
+  stream go through a reorder buffer keyed by sequence; gaps are fetched from the
+  catch-up service (:mod:`svss_daq.ping_service`) or, without one, skipped after a
+  bounded wait; each run's tiles go to ``OUT/RUN_ID/``; the worker stays up across runs.
+"""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
+import math
 import os
+import re
+import shutil
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
 
@@ -13,85 +31,269 @@ import zmq
 
 from svss_daq import messages
 from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
+from svss_daq.endpoints import check_endpoint
+from svss_daq.frames import TrackLine
 from svss_daq.ping import Ping
 from svss_daq.ping_gate import PingGate, PingRejected
+from svss_daq.ping_service import PingFetcher, RunInfo, ServiceError
 from svss_daq.progress import Progress
 from svss_daq.rawfile import RawRunReader
-from svss_daq.endpoints import check_endpoint
 from svss_daq.subscriber import subscribe
 
 from .imaging.imager import TileImager
+from .preflight import preflight
 from .products.chain import save_tile
+from .tiles import is_temporary, tile_name
 
 log = logging.getLogger(__name__)
 
 MANIFEST = "manifest.json"
+JOURNAL = "worker_state.json"
+JOURNAL_SCHEMA = "svss.worker_state"
+JOURNAL_VERSION = 1
 #: names of files a worker writes into its output folder (besides the manifest)
 OUTPUT_PREFIXES = ("tile_", ".tile_")
+_TILE_FILE = re.compile(r"tile_(-?\d+)\.h5")
+#: defaults of daq.toml's [subscriber] gap_wait_s and reorder_pings
+GAP_WAIT_S = 2.0
+REORDER_PINGS = 200
 
 
-def prepare_output_dir(out: Path, force: bool = False) -> None:
-    """Make ``out``; refuse one that holds tiles or a manifest of an earlier run unless
-    ``force``, which removes them (outputs of two runs are never mixed)."""
+def _atomic_json(path: Path, obj: dict) -> None:
+    tmp = path.with_name(path.name + ".partial")
+    with open(tmp, "w") as f:
+        f.write(json.dumps(obj, indent=2))
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def _stale(p: Path) -> bool:
+    return p.is_file() and (is_temporary(p) or p.name.endswith(".partial"))
+
+
+def remove_temporaries(folder: Path) -> int:
+    """Remove the temporary files a killed writer left in ``folder``; how many."""
+    n = 0
+    for p in folder.iterdir():
+        if _stale(p):
+            p.unlink(missing_ok=True)
+            n += 1
+    if n:
+        log.warning("%s: removed %d temporary file(s) left by an interrupted writer", folder, n)
+    return n
+
+
+def _worker_folder(d: Path) -> bool:
+    return d.is_dir() and ((d / MANIFEST).is_file() or (d / JOURNAL).is_file())
+
+
+def prepare_output_dir(out: Path, force: bool = False, *, resume: bool = False) -> None:
+    """Make ``out`` and remove stale temporary files in it (and in its run folders).
+    Refuse a folder that holds tiles, a manifest or run folders of an earlier run unless
+    ``force``, which removes them (outputs of two runs are never mixed), or ``resume``
+    and it holds this worker's journal (``worker_state.json``, in it or in a run
+    folder): then it is resumed."""
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    remove_temporaries(out)
+    runs = sorted(d for d in out.iterdir() if _worker_folder(d))
+    for d in runs:
+        remove_temporaries(d)
     old = sorted(p for p in out.iterdir()
-                 if p.is_file() and (p.name == MANIFEST or p.name.startswith(OUTPUT_PREFIXES)))
-    if not old:
+                 if p.is_file() and (p.name in (MANIFEST, JOURNAL)
+                                     or p.name.startswith(OUTPUT_PREFIXES)))
+    if not old and not runs:
+        return
+    if resume and not force and ((out / JOURNAL).is_file()
+                                 or any((d / JOURNAL).is_file() for d in runs)):
+        log.info("%s: resuming (worker journal found)", out)
         return
     if not force:
-        raise FileExistsError(f"{out}: holds {len(old)} file(s) of an earlier run (e.g. "
-                              f"{old[0].name}); choose an empty folder or pass --force to "
-                              "replace them")
+        first = (old or runs)[0]
+        raise FileExistsError(f"{out}: holds {len(old) + len(runs)} file(s) or run "
+                              f"folder(s) of an earlier run (e.g. {first.name}); choose an "
+                              "empty folder or pass --force to replace them")
     for p in old:
         p.unlink()
-    log.warning("%s: removed %d file(s) of an earlier run (--force)", out, len(old))
+    for d in runs:
+        shutil.rmtree(d)
+    log.warning("%s: removed %d file(s) and %d run folder(s) of an earlier run (--force)",
+                out, len(old), len(runs))
+
+
+def tile_files(folder: Path) -> dict[int, Path]:
+    """The finished tiles in ``folder`` by index (temporary files are never finished)."""
+    out = {}
+    for p in folder.glob("tile_*.h5"):
+        m = _TILE_FILE.fullmatch(p.name)
+        if m:
+            out[int(m.group(1))] = p
+    return out
+
+
+def read_journal(folder: Path) -> dict | None:
+    """The worker journal of a run folder (None when there is none); ValueError naming
+    the file when it is not one."""
+    path = Path(folder) / JOURNAL
+    if not path.is_file():
+        return None
+    try:
+        j = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise ValueError(f"{path}: not a worker journal ({exc})") from None
+    if not isinstance(j, dict) or j.get("schema") != JOURNAL_SCHEMA \
+            or j.get("version") != JOURNAL_VERSION:
+        raise ValueError(f"{path}: not a worker journal (schema {JOURNAL_SCHEMA!r} version "
+                         f"{JOURNAL_VERSION} expected)")
+    return j
+
+
+_SAFE_RUN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
+
+
+def run_folder_name(run_id: str) -> str:
+    """A folder name for a run id from the wire: the id itself when it is a plain name
+    (letters, digits, ``._-``, not starting with a dot, at most 100 characters),
+    otherwise a cleaned form with a hash of the id."""
+    if _SAFE_RUN.fullmatch(run_id):
+        return run_id
+    clean = re.sub(r"[^A-Za-z0-9._-]", "_", run_id)[:60].lstrip("._-") or "run"
+    return f"{clean}-{hashlib.sha256(run_id.encode()).hexdigest()[:8]}"
 
 
 class Worker:
-    """Images a stream of pings into tile files in ``out_dir``.
+    """Images one run's pings, fed in sequence order, into tile files in ``out_dir``.
 
     Every ping passes the :class:`~svss_daq.ping_gate.PingGate` and the imager's pose
     checks first; a refused ping is logged, counted (``manifest.json``'s ``refused``) and
     skipped, and the run goes on. ``force`` replaces an earlier run's outputs in
-    ``out_dir`` (otherwise refused)."""
+    ``out_dir`` (otherwise refused).
+
+    With a ``run_id`` the worker keeps a journal (``worker_state.json``, written
+    atomically when the tile frame is set and after each tile): the tile frame, the
+    written tiles and the resume point (the first sequence of the earliest still-open
+    tile). ``resume``: continue from the journal in ``out_dir``; the tile files present
+    are the truth for what is done, tiles written only because the worker was stopped
+    are redone; feed the pings again from :attr:`resume_sequence`."""
 
     def __init__(self, hardware: Loaded[HardwareConfig], processing: Loaded[ProcessingConfig],
-                 out_dir: str | Path, *, force: bool = False):
+                 out_dir: str | Path, *, force: bool = False, run_id: str | None = None,
+                 resume: bool = False):
         self.hardware, self.processing = hardware, processing
         self.out = Path(out_dir)
+        self.run_id = run_id
         self.imager = TileImager(hardware, processing.value, source=processing.source)
-        prepare_output_dir(self.out, force)
+        prepare_output_dir(self.out, force, resume=resume)
         self.gate = PingGate(hardware, name="worker")
         self.written: list[Path] = []
         self.last_sequence: int | None = None
         self.gaps = 0
         self.imaging_errors = 0
         self.malformed_messages = 0
+        self.resume_sequence: int | None = None
+        self.resumed = 0
+        self._journal_line = False
+        if resume:
+            self._resume()
 
+    # ------------------------------------------------------------------ journal
+    def _resume(self) -> None:
+        j = read_journal(self.out)
+        if j is None:
+            return
+        path = self.out / JOURNAL
+        if j.get("processing_config_id") != self.processing.id:
+            raise ValueError(f"{path}: written with processing configuration "
+                             f"{j.get('processing_config_id')}, not {self.processing.id} "
+                             f"({self.processing.source}); resume with the same "
+                             "configuration or pass --force")
+        try:
+            line = j.get("line")
+            if line is not None:
+                self.imager.line = TrackLine(tuple(float(v) for v in line["origin_ne"]),
+                                             float(line["heading"]),
+                                             float(line["interface_down"]))
+                self._journal_line = True
+            redo = {int(k) for k in j.get("stopped_open", [])}
+            self.resume_sequence = j.get("resume_sequence")
+            if self.resume_sequence is not None:
+                self.resume_sequence = int(self.resume_sequence)
+            self.resumed = int(j.get("resumed", 0)) + 1
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{path}: malformed journal ({exc})") from None
+        files = tile_files(self.out)
+        for k in sorted(redo & set(files)):
+            # written only because the worker was stopped: imaged again from the resume
+            # point
+            files.pop(k).unlink()
+            self.out.joinpath(f"{tile_name(k)}_mip.png").unlink(missing_ok=True)
+        self.imager.done |= set(files)
+        self.written = [p for k in sorted(files) for p in
+                        (files[k], files[k].with_name(f"{tile_name(k)}_mip.png"))]
+        log.info("%s: resuming run %s from ping %s (%d tile(s) done%s)", self.out,
+                 self.run_id, self.resume_sequence, len(files),
+                 f", {len(redo)} redone" if redo else "")
+
+    def _write_journal(self, complete: bool = False, stopped_open: Iterable[int] = ()
+                       ) -> None:
+        if self.run_id is None:
+            return
+        line = self.imager.line
+        resume = self.imager.resume_sequence()
+        if resume is None:
+            resume = (self.last_sequence + 1 if self.last_sequence is not None
+                      else self.resume_sequence)
+        _atomic_json(self.out / JOURNAL, {
+            "schema": JOURNAL_SCHEMA, "version": JOURNAL_VERSION, "run_id": self.run_id,
+            "complete": complete,
+            "line": None if line is None else {
+                "origin_ne": list(line.origin_ne), "heading": line.heading,
+                "interface_down": line.interface_down},
+            "written": sorted(self.imager.done - set(stopped_open)),
+            "stopped_open": sorted(stopped_open),
+            "resume_sequence": resume, "last_sequence": self.last_sequence,
+            "resumed": self.resumed,
+            "hardware_config_id": self.hardware.id,
+            "processing_config_id": self.processing.id,
+            "updated_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})
+
+    # ------------------------------------------------------------------ imaging
     def add(self, ping: Ping) -> bool:
         """Gate and image one ping, writing the tiles it completes; False when refused."""
-        if not self.gate.admit(ping):
-            return False
-        try:
-            tiles = self.imager.add(ping)
-        except PingRejected as exc:
-            self.gate.refuse(exc)
-            return False
-        except Exception:                    # a defect must not lose the open tiles
-            self.imaging_errors += 1
-            log.exception("ping %d: imaging failed; ping skipped", ping.sequence)
-            return False
-        if self.last_sequence is not None and ping.sequence != self.last_sequence + 1:
-            self.gaps += 1
-            log.warning("ping sequence jumps from %d to %d: %d ping(s) missing",
-                        self.last_sequence, ping.sequence, ping.sequence - self.last_sequence - 1)
-        self.last_sequence = ping.sequence
+        tiles = []
+        ok = False
+        if self.gate.admit(ping):
+            try:
+                tiles = self.imager.add(ping)
+                ok = True
+            except PingRejected as exc:
+                self.gate.refuse(exc)
+            except Exception:                    # a defect must not lose the open tiles
+                self.imaging_errors += 1
+                log.exception("ping %d: imaging failed; ping skipped", ping.sequence)
+        seq = getattr(ping, "sequence", None)
+        if ok:
+            if self.last_sequence is not None and seq != self.last_sequence + 1:
+                self.gaps += 1
+                log.warning("ping sequence jumps from %d to %d: %d ping(s) missing",
+                            self.last_sequence, seq, seq - self.last_sequence - 1)
+        if type(seq) is int and (self.last_sequence is None or seq > self.last_sequence):
+            self.last_sequence = seq
         for tile in tiles:
             self.written += save_tile(tile, self.out, self.hardware, self.processing)
-        return True
+        if tiles or (self.imager.line is not None and not self._journal_line):
+            self._journal_line = True
+            self._write_journal()
+        return ok
 
     def finish(self, complete: bool = True) -> list[Path]:
-        """Write every open tile and the manifest; ``complete`` False when stopped early."""
+        """Write every open tile and the manifest; ``complete`` False when stopped early
+        (the journal then says the open tiles were written only because of the stop, and
+        a resume redoes them)."""
+        open_tiles = sorted(self.imager.active)
+        if not complete:
+            self._write_journal(stopped_open=open_tiles)    # intent first
         for tile in self.imager.finish():
             self.written += save_tile(tile, self.out, self.hardware, self.processing)
         refused = dict(self.gate.refused)
@@ -99,18 +301,20 @@ class Worker:
             log.warning("%d ping(s) refused %s, %d failed in imaging, %d reached only "
                         "tiles already written", self.gate.n_refused, refused,
                         self.imaging_errors, self.imager.late_pings)
-        manifest = self.out / MANIFEST
-        tmp = manifest.with_name(manifest.name + ".partial")
-        tmp.write_text(json.dumps({
-            "complete": complete, "pings": self.imager.n_pings,
-            "pings_refused": self.gate.n_refused, "refused": refused,
+        self._write_journal(complete=complete, stopped_open=() if complete else open_tiles)
+        _atomic_json(self.out / MANIFEST, self.summary(complete))
+        return self.written
+
+    def summary(self, complete: bool) -> dict:
+        return {
+            "complete": complete, "run_id": self.run_id, "pings": self.imager.n_pings,
+            "pings_refused": self.gate.n_refused, "refused": dict(self.gate.refused),
             "imaging_errors": self.imaging_errors, "late_pings": self.imager.late_pings,
             "malformed_messages": self.malformed_messages,
             "track_reanchored": self.imager.track.reanchored,
             "sequence_gaps": self.gaps, "voxel_channel_updates": self.imager.updates,
-            "files": [p.name for p in self.written]}, indent=2))
-        os.replace(tmp, manifest)
-        return self.written
+            "resumed": self.resumed,
+            "files": sorted({p.name for p in self.written})}
 
     def run(self, pings: Iterable[Ping], total: int | None = None) -> list[Path]:
         """Image every ping of ``pings``; on SIGINT (KeyboardInterrupt) write the open
@@ -134,10 +338,341 @@ class Worker:
 
 def process_raw(path: str | Path, out_dir: str | Path,
                 processing: Loaded[ProcessingConfig], *, force: bool = False) -> list[Path]:
-    """Image a recorded raw run with the hardware configuration it was recorded with."""
+    """Image a recorded raw run with the hardware configuration it was recorded with,
+    into ``out_dir`` directly (the same tiles as the worker's ``OUT/RUN_ID/``)."""
     with RawRunReader(path) as run:
         worker = Worker(run.hardware, processing, out_dir, force=force)
         return worker.run(iter(run), total=len(run))
+
+
+# --------------------------------------------------------------------------- stream
+
+
+@dataclass
+class _Run:
+    """A run the stream worker is imaging: its folder's worker, the next sequence to
+    feed and the reorder buffer."""
+    run_id: str | None                  # None: not known yet (no service, before RunEnd)
+    worker: Worker | None               # None: a run already finished here (ignored)
+    next_seq: int | None
+    buffer: dict[int, Ping] = field(default_factory=dict)
+    gap_since: float | None = None
+    retry_at: float = 0.0
+
+
+class StreamWorker:
+    """Feeds pings from the stream, run by run, to a :class:`Worker` per run folder,
+    strictly in sequence order.
+
+    ``fetcher``: the catch-up service's client (None: no service; gaps are skipped after
+    ``gap_wait_s``). With a service the worker learns each run's id and first sequence
+    from the service (the run being recorded), images every recorded ping from the run's
+    first one (or from the journal's resume point), and fetches every gap."""
+
+    def __init__(self, out: str | Path, hardware: Loaded[HardwareConfig],
+                 processing: Loaded[ProcessingConfig], *, fetcher: PingFetcher | None = None,
+                 gap_wait_s: float = GAP_WAIT_S, reorder_pings: int = REORDER_PINGS,
+                 force: bool = False):
+        preflight(processing.value, processing.source)     # before anything is written
+        self.out = Path(out)
+        self.hardware, self.processing = hardware, processing
+        self.fetcher = fetcher
+        self.gap_wait_s, self.reorder_pings = gap_wait_s, reorder_pings
+        prepare_output_dir(self.out, force, resume=True)
+        self.run: _Run | None = None
+        self.finished: dict[str, dict] = {}        # run folder -> summary (this session)
+        self.runs_ended = 0
+        self.malformed_messages = 0
+        self.duplicates = 0
+        self.skipped = 0                 # sequences skipped after a gap wait
+        self.missing = 0                 # sequences the recording does not hold
+        self.fetched = 0
+        self.overflow = 0
+        self.fetch_errors = 0
+        self.fetch_time_s = 0.0
+
+    # ------------------------------------------------------------------ runs
+    def _folder(self, run_id: str) -> Path:
+        return self.out / run_folder_name(run_id)
+
+    def _done_here(self, run_id: str) -> bool:
+        d = self._folder(run_id)
+        try:
+            j = read_journal(d)
+        except ValueError:
+            return False
+        if j is not None:
+            return bool(j.get("complete"))
+        try:
+            return bool(json.loads((d / MANIFEST).read_text()).get("complete"))
+        except (OSError, ValueError, AttributeError):
+            return False
+
+    def _open(self, run_id: str, first: int | None) -> _Run:
+        """Start (or resume) imaging run ``run_id`` known to the service."""
+        if self._done_here(run_id):
+            log.info("run %s: already imaged in %s; its pings are ignored", run_id,
+                     self._folder(run_id))
+            return _Run(run_id, None, None)
+        folder = self._folder(run_id)
+        worker = Worker(self.hardware, self.processing, folder, run_id=run_id, resume=True)
+        start = worker.resume_sequence if worker.resume_sequence is not None else first
+        log.info("run %s: imaging into %s from ping %s", run_id, folder, start)
+        return _Run(run_id, worker, start)
+
+    def _runs(self) -> list[RunInfo] | None:
+        try:
+            return self.fetcher.runs()
+        except (TimeoutError, ServiceError, OSError) as exc:
+            self.fetch_errors += 1
+            log.error("%s", exc)
+            return None
+
+    def _attribute(self, seq: int) -> _Run:
+        """The run a stream ping with sequence ``seq`` belongs to, when none is open."""
+        if self.fetcher is not None:
+            runs = self._runs() or []
+            live = [r for r in runs if not r.ended and r.first <= seq]
+            known = [r for r in runs if r.first <= seq <= r.last]
+            pick = (live or known or [None])[-1]
+            if pick is not None:
+                return self._open(pick.run_id, pick.first)
+            log.warning("ping %d: no run of the catch-up service holds it; imaging it as "
+                        "a run without an id until its end marker", seq)
+        stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+        folder = self.out / f"unnamed-{stamp}-{seq}"
+        log.info("a run begins at ping %d: imaging into %s until its end marker names it",
+                 seq, folder)
+        return _Run(None, Worker(self.hardware, self.processing, folder), seq)
+
+    def resume_unfinished(self) -> None:
+        """At start: finish (or continue) the runs whose journal says incomplete."""
+        pending = []
+        for d in sorted(p for p in self.out.iterdir() if p.is_dir()):
+            try:
+                j = read_journal(d)
+            except ValueError as exc:
+                log.error("%s", exc)
+                continue
+            if j is not None and not j.get("complete") and isinstance(j.get("run_id"), str):
+                pending.append(j["run_id"])
+        if not pending:
+            return
+        if self.fetcher is None:
+            log.warning("run(s) %s unfinished in %s: restart with --service to finish "
+                        "them", ", ".join(pending), self.out)
+            return
+        runs = {r.run_id: r for r in (self._runs() or [])}
+        for run_id in pending:
+            info = runs.get(run_id)
+            if info is None:
+                log.warning("run %s unfinished in %s, unknown to the catch-up service: "
+                            "left as it is", run_id, self.out)
+                continue
+            if info.ended:
+                self._catch_up_whole(info)
+            elif self.run is None:
+                self.run = self._open(run_id, info.first)
+
+    def _catch_up_whole(self, info: RunInfo) -> None:
+        """Image an ended run from the recording (from its resume point) and finish it."""
+        r = self._open(info.run_id, info.first)
+        if r.worker is None:
+            return
+        prev, self.run = self.run, r
+        try:
+            self._catch_up(r, r.next_seq, info.last)
+            self._finish_run(r, complete=True)
+        finally:
+            self.run = prev
+
+    # ------------------------------------------------------------------ pings
+    def on_ping(self, ping: Ping) -> None:
+        seq = ping.sequence
+        if self.run is None:
+            self.run = self._attribute(seq)
+        r = self.run
+        if r.worker is None:                      # a run finished here earlier
+            return
+        if seq < r.next_seq or seq in r.buffer:
+            self.duplicates += 1
+            log.debug("ping %d: duplicate or already imaged; dropped", seq)
+            return
+        if len(r.buffer) >= self.reorder_pings:
+            if self.fetcher is not None and seq > max(r.buffer):
+                self.overflow += 1                # fetched from the recording later
+                return
+            self._skip_gap(r, "the reorder buffer is full")
+        r.buffer[seq] = ping
+        self.drain()
+
+    def _feed(self, r: _Run, ping: Ping) -> None:
+        r.buffer.pop(ping.sequence, None)
+        r.next_seq = ping.sequence + 1
+        r.gap_since = None
+        r.worker.add(ping)
+
+    def _skip_gap(self, r: _Run, why: str) -> None:
+        nxt = min(r.buffer)
+        n = nxt - r.next_seq
+        self.skipped += n
+        log.warning("run %s: ping(s) %d..%d skipped (%s)", r.run_id or "(unnamed)",
+                    r.next_seq, nxt - 1, why)
+        r.next_seq = nxt
+        r.gap_since = None
+
+    def drain(self, final: bool = False) -> None:
+        """Feed the buffered pings that are next in sequence; fill or skip gaps."""
+        r = self.run
+        if r is None or r.worker is None:
+            return
+        while True:
+            while r.next_seq in r.buffer:
+                self._feed(r, r.buffer[r.next_seq])
+            if not r.buffer:
+                return
+            now = time.monotonic()
+            if r.gap_since is None:
+                r.gap_since = now
+            if self.fetcher is not None and r.run_id is not None and now >= r.retry_at:
+                before = r.next_seq
+                self._catch_up(r, r.next_seq, min(r.buffer) - 1)
+                if r.next_seq > before:
+                    continue
+                r.retry_at = now + 0.25
+            waited = now - r.gap_since
+            if final or waited >= self.gap_wait_s and (
+                    self.fetcher is None or r.run_id is None or self.fetch_errors):
+                self._skip_gap(r, "end of run" if final else
+                               f"not received within {self.gap_wait_s:g} s")
+                continue
+            return
+
+    def _catch_up(self, r: _Run, first: int, last: int) -> None:
+        """Fetch [first, last] of run ``r`` from the recording and feed it in order
+        (with what the buffer holds); sequences the recording lacks are skipped and
+        counted. Stops early at what is not recorded yet, or on a service error."""
+        if first is None or last < first:
+            return
+        t0 = time.perf_counter()
+        n = 0
+        try:
+            while r.next_seq <= last:
+                got = self.fetcher.fetch_once(r.run_id, r.next_seq, last)
+                by_seq = {p.sequence: p for p in got.pings}
+                missing = set(got.missing)
+                upto = last if got.next is None else got.next - 1
+                while r.next_seq <= upto:
+                    q = r.next_seq
+                    p = by_seq.get(q)
+                    p = r.buffer.get(q) if p is None else p
+                    if p is not None:
+                        n += q in by_seq
+                        self._feed(r, p)
+                    elif q in missing:
+                        self.missing += 1
+                        log.warning("run %s: ping %d is not in the recording; skipped",
+                                    r.run_id, q)
+                        r.next_seq = q + 1
+                    else:                     # neither: should not happen; ask again
+                        break
+                if got.next is None or got.pending or r.next_seq < (got.next or 0):
+                    break
+        except (TimeoutError, ServiceError, OSError) as exc:
+            self.fetch_errors += 1
+            log.error("run %s: catch-up of %d..%d failed: %s", r.run_id, first, last, exc)
+        finally:
+            self.fetched += n
+            self.fetch_time_s += time.perf_counter() - t0
+            if n:
+                log.info("run %s: %d ping(s) fetched from the recording (%d..%d)",
+                         r.run_id, n, first, r.next_seq - 1)
+
+    def on_end(self, end: messages.RunEnd) -> None:
+        """A run's end marker: fetch what is left of it, finish its tiles."""
+        self.runs_ended += 1
+        r = self.run
+        if r is not None and r.run_id is None:          # named by its end marker
+            self.drain(final=True)
+            folder = self._folder(end.run_id)
+            if folder.exists():
+                log.error("run %s: %s exists already; its tiles stay in %s", end.run_id,
+                          folder, r.worker.out)
+            else:
+                r.worker.out.rename(folder)
+                r.worker.written = [folder / p.name for p in r.worker.written]
+                r.worker.out = folder
+            r.worker.run_id = end.run_id
+            self._finish_run(r, complete=True)
+            self.run = None
+            return
+        if r is not None and r.run_id == end.run_id:
+            if r.worker is not None:
+                if self.fetcher is not None:
+                    info = {i.run_id: i for i in (self._runs() or [])}.get(end.run_id)
+                    last = info.last if info is not None else max(r.buffer, default=-1)
+                    self._catch_up(r, r.next_seq, last)
+                self.drain(final=True)
+                self._finish_run(r, complete=True)
+            self.run = None
+            return
+        if r is not None:
+            log.warning("end marker of run %s while imaging run %s", end.run_id, r.run_id)
+        if self.fetcher is not None and not self._done_here(end.run_id):
+            info = {i.run_id: i for i in (self._runs() or [])}.get(end.run_id)
+            if info is not None:
+                log.info("run %s ended; imaging what this worker missed of it from the "
+                         "recording", end.run_id)
+                self._catch_up_whole(info)
+                return
+        log.info("end of run %s (%d pings)", end.run_id, end.n_pings)
+
+    def tick(self) -> None:
+        """Between messages: retry or skip gaps whose time has come."""
+        self.drain()
+
+    def _finish_run(self, r: _Run, complete: bool) -> None:
+        files = r.worker.finish(complete=complete)
+        summary = r.worker.summary(complete)
+        self.finished[r.worker.out.name] = summary
+        log.info("run %s: %d tile(s) in %s (%s)", r.run_id, sum(p.suffix == ".h5"
+                 for p in files), r.worker.out, "complete" if complete else "incomplete")
+        self.write_manifest(complete=True)
+
+    def stop(self) -> None:
+        """Stopped by a signal: write the open run's tiles (journal: redone on resume)
+        and the manifest, marked incomplete."""
+        r = self.run
+        if r is not None and r.worker is not None:
+            log.warning("stopped: writing %d open tile(s)", len(r.worker.imager.active))
+            self._finish_run(r, complete=False)
+        self.write_manifest(complete=False)
+
+    def write_manifest(self, complete: bool) -> None:
+        """``OUT/manifest.json``: this session's runs, their counts and files."""
+        runs = self.finished
+        tot = {k: sum(s[k] for s in runs.values()) for k in (
+            "pings", "pings_refused", "imaging_errors", "late_pings", "sequence_gaps",
+            "voxel_channel_updates")}
+        refused: dict[str, int] = {}
+        for s in runs.values():
+            for k, v in s["refused"].items():
+                refused[k] = refused.get(k, 0) + v
+        _atomic_json(self.out / MANIFEST, {
+            "complete": complete, **tot, "refused": refused,
+            "malformed_messages": self.malformed_messages,
+            "duplicate_pings": self.duplicates, "skipped_pings": self.skipped,
+            "missing_in_recording": self.missing, "fetched_pings": self.fetched,
+            "fetch_errors": self.fetch_errors, "dropped_reorder_full": self.overflow,
+            "runs": {name: {"run_id": s["run_id"], "complete": s["complete"],
+                            "pings": s["pings"],
+                            "tiles": sum(f.endswith(".h5") for f in s["files"])}
+                     for name, s in runs.items()},
+            "files": [f"{name}/{f}" for name, s in runs.items() for f in s["files"]]})
+
+    def files(self) -> list[Path]:
+        return [self.out / name / f for name, s in self.finished.items()
+                for f in s["files"]]
 
 
 #: longest wait in one poll, s (signals are handled between polls)
@@ -146,45 +681,73 @@ POLL_SLICE_S = 0.2
 
 def serve(endpoint: str, out_dir: str | Path, hardware: Loaded[HardwareConfig],
           processing: Loaded[ProcessingConfig], idle_timeout_s: float | None = None, *,
-          receive_hwm: int = 500, force: bool = False) -> list[Path]:
-    """Receive pings from ``endpoint`` until an end-of-run message (or ``idle_timeout_s``
-    without a message); image them and write tiles. Returns the files written. SIGINT
+          receive_hwm: int = 500, force: bool = False, service: str | None = None,
+          service_timeout_s: float = 10.0, curve=None, runs: int | None = None,
+          gap_wait_s: float = GAP_WAIT_S, reorder_pings: int = REORDER_PINGS
+          ) -> list[Path]:
+    """Receive pings from ``endpoint`` and image them run by run into ``out_dir/RUN_ID/``
+    until ``runs`` end-of-run messages (None: no limit) or ``idle_timeout_s`` without a
+    message. ``service``: the catch-up service's endpoint (gaps are fetched from the
+    recording; a journal lets a killed worker resume). Returns the files written. SIGINT
     (KeyboardInterrupt, also while idle) writes the open tiles and the manifest, marked
     incomplete, and re-raises."""
     check_endpoint(endpoint, bind=False)            # before anything is written
-    worker = Worker(hardware, processing, out_dir, force=force)
-    sock = subscribe(endpoint, receive_hwm)
-    log.info("worker: waiting for pings from %s", endpoint)
+    if service is not None:
+        check_endpoint(service, bind=False)
+    preflight(processing.value, processing.source)
+    fetcher = (PingFetcher(service, curve=curve, timeout_s=service_timeout_s)
+               if service is not None else None)
+    sock = None
+    try:
+        sw = StreamWorker(out_dir, hardware, processing, fetcher=fetcher, force=force,
+                          gap_wait_s=gap_wait_s, reorder_pings=reorder_pings)
+        sock = subscribe(endpoint, receive_hwm, curve=curve)
+        log.info("worker: waiting for pings from %s%s", endpoint,
+                 f" (catch-up service {service})" if service else "")
+        try:
+            sw.resume_unfinished()
+            _loop(sw, sock, endpoint, idle_timeout_s, runs)
+        except KeyboardInterrupt:
+            sw.stop()
+            raise
+        sw.write_manifest(complete=True)
+        return sw.files()
+    finally:
+        if sock is not None:
+            sock.close(linger=0)
+        if fetcher is not None:
+            fetcher.close()
+
+
+def _loop(sw: StreamWorker, sock: zmq.Socket, endpoint: str, idle_timeout_s: float | None,
+          runs: int | None) -> None:
     progress = Progress("imaging", None, log)
     poller = zmq.Poller()
     poller.register(sock, zmq.POLLIN)
-    try:
-        idle = 0.0
-        while True:
-            if not poller.poll(int(POLL_SLICE_S * 1000)):
-                idle += POLL_SLICE_S
-                if idle_timeout_s is not None and idle >= idle_timeout_s:
-                    log.warning("no message from %s for %.1f s: finishing", endpoint,
-                                idle_timeout_s)
-                    break
-                continue
-            idle = 0.0
-            try:
-                msg = messages.recv(sock)
-            except messages.MessageError as exc:
-                worker.malformed_messages += 1
-                log.error("dropped a malformed message: %s", exc)
-                continue
-            if isinstance(msg, messages.RunEnd):
-                received = worker.gate.admitted + worker.gate.n_refused
-                log.info("end of run %s after %d pings (%d received)", msg.run_id,
-                         msg.n_pings, received)
+    idle = 0.0
+    while runs is None or sw.runs_ended < runs:
+        if not poller.poll(int(POLL_SLICE_S * 1000)):
+            idle += POLL_SLICE_S
+            sw.tick()
+            if idle_timeout_s is not None and idle >= idle_timeout_s:
+                log.warning("no message from %s for %.1f s: finishing", endpoint,
+                            idle_timeout_s)
+                if sw.run is not None and sw.run.worker is not None:
+                    sw.drain(final=True)
+                    sw._finish_run(sw.run, complete=sw.run.run_id is None)
+                    sw.run = None
                 break
-            worker.add(msg)
-            progress.update()
-    except KeyboardInterrupt:
-        worker.stop()
-        raise
-    finally:
-        sock.close(linger=0)
-    return worker.finish()
+            continue
+        idle = 0.0
+        try:
+            msg = messages.recv(sock)
+        except messages.MessageError as exc:
+            sw.malformed_messages += 1
+            log.error("dropped a malformed message: %s", exc)
+            continue
+        if isinstance(msg, messages.RunEnd):
+            log.info("end of run %s after %d pings", msg.run_id, msg.n_pings)
+            sw.on_end(msg)
+            continue
+        sw.on_ping(msg)
+        progress.update()

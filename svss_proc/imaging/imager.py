@@ -1,5 +1,11 @@
 """Tile imager: conditions pings, backprojects them into every tile they reach, and
-hands back tiles once the platform has moved past them.
+hands back tiles once the pings' reach has stayed clear of them for a while.
+
+Tile completion (docs/worker.md): a tile is complete when ``tile.close_after_pings``
+consecutive pings (default :data:`CLOSE_AFTER_PINGS`) have not reached it, whichever
+way the platform moves (forward, reversing, turning away); a stopped platform keeps the
+tiles it reaches open. :meth:`TileImager.finish` closes the rest at run end, and the
+memory bound (``limits.memory_gib``) closes the farthest tile early.
 
 The imager knows only the hardware configuration, the processing configuration and the
 pings; never the truth of a scene.
@@ -29,6 +35,10 @@ from .kernel_args import DelayModel, prepare
 from .pose_check import TrackGuard
 
 log = logging.getLogger(__name__)
+
+#: consecutive pings that must stay clear of a tile before it is complete, when the
+#: processing configuration's ``tile.close_after_pings`` is omitted
+CLOSE_AFTER_PINGS = 20
 
 
 def receive_apodisation(receivers_body: np.ndarray, kind: str) -> np.ndarray | None:
@@ -95,12 +105,25 @@ class TileImager:
             self._run, self._zeros = run_ping, np.zeros
         self.line: TrackLine | None = None
         self.active: dict[int, Tile] = {}
+        hold = processing.tile.close_after_pings
+        self.close_after = CLOSE_AFTER_PINGS if hold is None else hold
+        #: per open tile: consecutive pings since one last reached it
+        self.clear: dict[int, int] = {}
+        #: per open tile: the sequence of the ping that opened it
+        self.opened_by: dict[int, int] = {}
         self.done: set[int] = set()
         self.n_pings = 0
         self.updates = 0
 
-    def _tile(self, k: int) -> Tile:
+    def resume_sequence(self) -> int | None:
+        """The first sequence of the earliest still-open tile (None: no tile open):
+        imaging again from there rebuilds every open tile exactly."""
+        return min(self.opened_by.values()) if self.opened_by else None
+
+    def _tile(self, k: int, sequence: int) -> Tile:
         if k not in self.active:
+            self.opened_by[k] = sequence
+            self.clear[k] = 0
             grid = tile_grid(self.proc.tile, k)
             self.active[k] = Tile(grid, self.line, self._zeros(grid.shape, dtype=self.dtype),
                                   self._zeros(grid.shape, dtype=self.dtype))
@@ -155,7 +178,7 @@ class TileImager:
                             self._table(tx, rx, reach) if im.delays == "table" else None)
         kd = None
         for k in reached:
-            tile = self._tile(k)
+            tile = self._tile(k, ping.sequence)
             a = tile.grid.along
             v = tcfg.voxel_m
             ia0 = int(np.clip(np.floor((lo - a[0]) / v), 0, a.size))
@@ -171,8 +194,16 @@ class TileImager:
             tile.updates += int(n)
             self.updates += int(n)
         self.n_pings += 1
-        # tiles wholly behind this ping's reach are complete (platform moves forward)
-        finished = [k for k in self.active if (k + 1) * tcfg.length_m < lo]
+        # a tile is complete once close_after consecutive pings have stayed clear of it
+        # (in either direction); one this ping reaches stays open
+        finished = []
+        for k in self.active:
+            if k_lo <= k <= k_hi:
+                self.clear[k] = 0
+            else:
+                self.clear[k] += 1
+                if self.clear[k] >= self.close_after:
+                    finished.append(k)
         return closed + [self._close(k) for k in sorted(finished)]
 
     def _make_room(self, new: list[int], reached: list[int]) -> list[Tile]:
@@ -205,6 +236,8 @@ class TileImager:
 
     def _close(self, k: int) -> Tile:
         self.done.add(k)
+        self.clear.pop(k, None)
+        self.opened_by.pop(k, None)
         return self.active.pop(k).to_host()
 
     def finish(self) -> list[Tile]:

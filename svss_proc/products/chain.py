@@ -114,7 +114,8 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
     """Compute the products (when the processing configuration has a ``[products]``
     table) and write ``tile_NNNN.h5`` and ``tile_NNNN_mip.png`` into ``out_dir``;
     return the paths. Both are written under temporary names and renamed into place
-    only when both are complete; on failure neither final name is created and
+    only when both are complete, the .h5 last (the commit point); on failure no final
+    .h5 is created and
     :class:`~svss_proc.tiles.TileFileError` names the file."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -142,8 +143,15 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
         except OSError as exc:
             raise TileFileError(f"{png}: writing the quicklook failed "
                                 f"({exc.strerror or exc}); no file written") from None
-        write_tile(h5, tile, hardware, processing, prods)
+        # the tile's .h5 rename is the commit point: the quicklook goes into place
+        # first, so a tile_NNNN.h5 always has its PNG, and a PNG without its .h5 (a crash
+        # in between) belongs to a tile that is redone (docs/worker.md)
         os.replace(tmp_png, png)
+        try:
+            write_tile(h5, tile, hardware, processing, prods)
+        except BaseException:
+            png.unlink(missing_ok=True)
+            raise
     finally:
         tmp_png.unlink(missing_ok=True)
     if prods is None:
