@@ -381,7 +381,7 @@ class StreamWorker:
         prepare_output_dir(self.out, force, resume=True)
         self.run: _Run | None = None
         self.finished: dict[str, dict] = {}        # run folder -> summary (this session)
-        self.runs_ended = 0
+        self.ended: set[str] = set()     # runs ended (end marker or caught up whole)
         self.malformed_messages = 0
         self.duplicates = 0
         self.skipped = 0                 # sequences skipped after a gap wait
@@ -588,9 +588,13 @@ class StreamWorker:
                 log.info("run %s: %d ping(s) fetched from the recording (%d..%d)",
                          r.run_id, n, first, r.next_seq - 1)
 
+    @property
+    def runs_ended(self) -> int:
+        return len(self.ended)
+
     def on_end(self, end: messages.RunEnd) -> None:
         """A run's end marker: fetch what is left of it, finish its tiles."""
-        self.runs_ended += 1
+        self.ended.add(end.run_id)
         r = self.run
         if r is not None and r.run_id is None:          # named by its end marker
             self.drain(final=True)
@@ -633,6 +637,8 @@ class StreamWorker:
 
     def _finish_run(self, r: _Run, complete: bool) -> None:
         files = r.worker.finish(complete=complete)
+        if complete and r.run_id is not None:
+            self.ended.add(r.run_id)
         summary = r.worker.summary(complete)
         self.finished[r.worker.out.name] = summary
         log.info("run %s: %d tile(s) in %s (%s)", r.run_id, sum(p.suffix == ".h5"
