@@ -49,7 +49,7 @@ def run_demo(out: Path, scene: str | None = None, hardware: str | None = None,
     with PingPublisher("tcp://127.0.0.1:*", daq.publisher.send_hwm) as pub:
         cmd = [sys.executable, "-m", "svss", "worker", "--connect", pub.endpoint,
                "--out", str(tiles), "--hardware", str(hw_path), "--processing",
-               str(proc_path), "--idle-timeout", str(worker_timeout_s)] + (
+               str(proc_path), "--idle-timeout", str(worker_timeout_s), "--runs", "1"] + (
                    ["--force"] if force else [])
         log.info("starting worker: %s", " ".join(cmd))
         worker = subprocess.Popen(cmd, stdout=subprocess.DEVNULL)

@@ -19,6 +19,9 @@ from svss_proc.tiles import read_tile
 
 pytestmark = pytest.mark.slow
 
+#: the worker writes each run's tiles into a folder named by the run id (the scene name)
+RUN = "demo-points"
+
 
 def svss(*args, cwd=None):
     res = subprocess.run([sys.executable, "-m", "svss", *args], capture_output=True,
@@ -60,7 +63,7 @@ def test_targets_at_true_positions(demo):
     tiles = {}
     for pt in scene.points:
         k = int(np.floor(pt.along_m / tile_cfg.length_m))
-        t = tiles.setdefault(k, read_tile(out / "tiles" / f"tile_{k:04d}.h5"))
+        t = tiles.setdefault(k, read_tile(out / "tiles" / RUN / f"tile_{k:04d}.h5"))
         mag = np.abs(t["image"])
         box = [np.flatnonzero(np.abs(ax - x) <= 0.1)
                for ax, x in zip((t["along"], t["cross"], t["depth"]),
@@ -85,7 +88,7 @@ def test_process_recorded_run_gives_the_same_tiles(demo, tmp_path):
     out, _ = demo
     svss("process", str(out / "run.h5"), "--out", str(tmp_path),
          "--processing", str(config_path("processing-demo.toml")))
-    live = sorted((out / "tiles").glob("tile_*.h5"))
+    live = sorted((out / "tiles" / RUN).glob("tile_*.h5"))
     again = sorted(tmp_path.glob("tile_*.h5"))
     assert [p.name for p in live] == [p.name for p in again]
     for a, b in zip(live, again):
