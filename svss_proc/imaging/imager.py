@@ -172,7 +172,8 @@ class TileImager:
             self.late_pings += 1
             log.warning("ping %d reaches only tiles already written (%d..%d); not imaged",
                         ping.sequence, k_lo, k_hi)
-        closed = self._make_room([k for k in reached if k not in self.active], reached)
+        closed = (self._make_room([k for k in reached if k not in self.active], reached)
+                  if reached else [])
         cond = cond or self.conditioner.ping(ping)
         delays = DelayModel(im.delays, im.water_sound_speed_m_s, im.sediment_sound_speed_m_s,
                             self._table(tx, rx, reach) if im.delays == "table" else None)
