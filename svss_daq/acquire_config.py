@@ -12,8 +12,18 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from .config import (ConfigError, DaqConfig, DevicesConfig, HardwareConfig, Loaded, from_dict,
-                     load, load_with_text, read_toml, spec)
+from .config import (
+    ConfigError,
+    DaqConfig,
+    DevicesConfig,
+    HardwareConfig,
+    Loaded,
+    from_dict,
+    load,
+    load_with_text,
+    read_toml,
+    spec,
+)
 
 
 @dataclass(frozen=True)
@@ -59,6 +69,9 @@ class PairingSection:
 @dataclass(frozen=True)
 class NavigationSection:
     history_s: float = spec("navigation samples kept for the solution, s", lo=5, hi=3600)
+    wait_s: float = spec("wait this long for DVL and GPS data at or after a ping's "
+                         "transmit time before posing it (a GPS outage or lost DVL "
+                         "ends the wait), s", lo=0.0, hi=60)
 
 
 @dataclass(frozen=True)

@@ -37,12 +37,12 @@ from . import messages
 from .acquire_config import AcquireSetup
 from .assembly import AssemblyError, PingAssembler
 from .drivers.digitiser import DigitiserClient
-from .drivers.nmea import NmeaStreamParser
+from .drivers.nmea import HdtHeading, NmeaStreamParser
 from .drivers.pd0 import Pd0StreamParser
 from .drivers.sequencer import SequencerDriver
 from .drivers.serial_link import SerialLink
 from .navigation import Navigator
-from .ping import (NAV_BOTTOM_LOCK, NAV_DEAD_RECKONED, NAV_GPS_FIX, NavSnapshot, Ping)
+from .ping import NAV_BOTTOM_LOCK, NAV_DEAD_RECKONED, NAV_GPS_FIX, NavSnapshot
 from .protocols import digitiser as dg
 from .protocols.sequencer import PingEvent
 from .publisher import PingPublisher
@@ -161,6 +161,8 @@ class AcquisitionDaemon:
         self._tx_lock = threading.Lock()
         self._phase: int | None = None     # projector cycle: order index - sequence
         self._nav_lock = threading.Lock()
+        self._nmea_batch: list = []
+        self._nmea_t: int | None = None
         self._times: collections.deque = collections.deque()
         self._last_seq: int | None = None
         self._seen: set[int] = set()
@@ -218,7 +220,7 @@ class AcquisitionDaemon:
             self._start_service(self._want_endpoints["service"])
         return dict(self.endpoints)
 
-    def start(self, wait_subscribers: int = 0) -> "AcquisitionDaemon":
+    def start(self, wait_subscribers: int = 0) -> AcquisitionDaemon:
         """Bind (if not yet), open the devices and start pinging; with
         ``wait_subscribers``, first wait (up to ``pairing.start_timeout_s``) for that many
         subscribers to the ping stream."""
@@ -288,8 +290,27 @@ class AcquisitionDaemon:
             self._tx[ev.sequence] = ev
 
     def _on_nmea(self, record) -> None:
+        """Collect one epoch's sentences (GGA, RMC, GST, HDT, ...) and hand them to the
+        navigation together: GST is matched to its fix within a batch, and HDT (which
+        has no time of its own) takes the epoch's time."""
+        t = getattr(record, "time_ns", None)
         with self._nav_lock:
-            self.navigator.add_nmea([record])
+            if t is not None:
+                if self._nmea_batch and t != self._nmea_t:
+                    self._flush_nmea()
+                self._nmea_t = t
+                self._nmea_batch.append(record)
+            elif isinstance(record, HdtHeading):
+                if self._nmea_t is not None:
+                    self._nmea_batch.append((self._nmea_t, record))
+            else:
+                self._nmea_batch.append(record)
+
+    def _flush_nmea(self) -> None:
+        """(Holding the navigation lock.)"""
+        if self._nmea_batch:
+            batch, self._nmea_batch = self._nmea_batch, []
+            self.navigator.add_nmea(batch)
 
     def _on_pd0(self, ensemble) -> None:
         with self._nav_lock:
@@ -345,19 +366,25 @@ class AcquisitionDaemon:
         if not isinstance(item, dg.CompletePing):
             return
         self.counters.delivered += 1
-        wait = self.setup.acquire.pairing.transmit_wait_s
-        self._pending.append((time.monotonic() + wait, item))
+        self._pending.append((time.monotonic(), item))
 
     def _assemble_due(self, final: bool) -> None:
         """Assemble pending pings whose transmit record is there (or waited for long
         enough), in delivery order."""
         now = time.monotonic()
+        pairing = self.setup.acquire.pairing
+        nav_wait = self.setup.acquire.navigation.wait_s
         while self._pending:
-            deadline, data = self._pending[0]
+            arrived, data = self._pending[0]
+            with self._tx_lock:
+                have_tx = data.ping_number in self._tx
+            if not final:
+                if not have_tx and now < arrived + pairing.transmit_wait_s:
+                    return
+                if now < arrived + nav_wait and not self._nav_caught_up(data.transmit_time_ns):
+                    return
             with self._tx_lock:
                 ev = self._tx.pop(data.ping_number, None)
-            if ev is None and not final and now < deadline:
-                return
             self._pending.popleft()
             self._handle(data, ev)
         with self._tx_lock:        # transmit records nobody will claim
@@ -416,11 +443,23 @@ class AcquisitionDaemon:
         else:
             self.counters.publish_dropped += 1
 
+    def _nav_caught_up(self, t_ns: int) -> bool:
+        """Whether every navigation link has data at or after ``t_ns`` (a pose between
+        samples, not extrapolated past the last one)."""
+        nav, dev = self.navigator, self.setup.devices
+        with self._nav_lock:
+            if dev.dvl is not None and not (nav.dvl and nav.dvl[-1].time_ns >= t_ns):
+                return False
+            if dev.gps is not None and not (self._nmea_t is not None and self._nmea_t >= t_ns):
+                return False
+        return True
+
     def _pose(self, t_ns: int) -> NavSnapshot:
         if self.setup.devices.gps is None and self.setup.devices.dvl is None:
             return _unknown_pose(t_ns)
         try:
             with self._nav_lock:
+                self._flush_nmea()
                 return self.navigator.poses([t_ns])[0]
         except (ValueError, IndexError) as exc:
             self.counters.pose_errors += 1
@@ -470,10 +509,12 @@ class AcquisitionDaemon:
                 self.event("digitiser.reconnected", f"{dig.host}:{dig.port} connected "
                            "again; streaming restarted", logging.INFO)
             st = dig.decoder.frames.stats
-            n = w.delta("dig.bad", st.bad_headers + st.corrupt_payloads)
-            if n > 0:
-                self.event("digitiser.garbage", f"{n} bad frame header(s) or corrupt "
-                           f"payload(s); {st.bytes_discarded} bytes discarded in all")
+            bad = w.delta("dig.bad", st.bad_headers + st.corrupt_payloads)
+            junk = w.delta("dig.discarded", st.bytes_discarded)
+            if bad > 0 or junk > 0:
+                self.event("digitiser.garbage", f"{junk} byte(s) discarded, {bad} bad frame "
+                           f"header(s) or corrupt payload(s); {st.bytes_discarded} bytes "
+                           "discarded in all")
         for name, link, parser in (("sequencer", self.sequencer and self.sequencer.link,
                                     self.sequencer and self.sequencer.parser),
                                    ("dvl", self.dvl_link, getattr(self, "dvl_parser", None)),

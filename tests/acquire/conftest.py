@@ -33,7 +33,7 @@ def acquire_toml(tmp: Path, **sections) -> Path:
                    "rate_window_s": 5.0},
         "disk": {"min_free_mib": 0.0},
         "pairing": {"transmit_wait_s": 0.3, "start_timeout_s": 20.0, "drain_s": 1.0},
-        "navigation": {"history_s": 60.0}}
+        "navigation": {"history_s": 60.0, "wait_s": 0.5}}
     for k, v in sections.items():
         tables[k].update(v)
     lines = []

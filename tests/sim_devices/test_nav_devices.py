@@ -29,7 +29,8 @@ from svss_daq.drivers.serial_link import SerialLink
 from svss_daq.frames import body_to_ned
 from svss_daq.navigation import (Navigator, dvl_sample_from_pd0, geodetic_to_ned,
                                  janus_beam_vectors)
-from svss_daq.ping import NAV_BOTTOM_LOCK, NAV_DEAD_RECKONED, NAV_GPS_FIX, NAV_NO_HEADING
+from svss_daq.ping import (NAV_BOTTOM_LOCK, NAV_DEAD_RECKONED, NAV_GPS_FIX,
+                           NAV_HEADING_FROM_COMPASS, NAV_NO_HEADING)
 
 TIME_SCALE = 5.0
 DEG = math.pi / 180
@@ -284,9 +285,8 @@ def test_gps_outage_and_lost_bottom_lock_as_the_instruments_show_them(setup, tmp
     t_dr = nofix[0].time_ns + int(1.6e9)  # past gps_fix_max_age_s, within heading_max_age_s
     q_out, q_lost, q_dr = nav.poses([t_out, t_lost, t_dr])
     assert q_out.quality & NAV_DEAD_RECKONED and not q_out.quality & NAV_GPS_FIX
-    # a GNSS compass loses heading with the fix; navigation has no DVL-compass fallback
-    # (docs/navigation.md), so mid-outage positions are not checked here
-    assert q_out.quality & NAV_NO_HEADING
+    # a GNSS compass loses heading with the fix: the DVL's compass carries it
+    assert q_out.quality & NAV_HEADING_FROM_COMPASS and not q_out.quality & NAV_NO_HEADING
     assert math.isnan(q_lost.altitude_m) and not q_lost.quality & NAV_BOTTOM_LOCK
     assert q_lost.quality & NAV_GPS_FIX
     assert q_dr.quality & NAV_DEAD_RECKONED and not q_dr.quality & NAV_NO_HEADING
