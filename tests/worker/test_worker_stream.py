@@ -1,0 +1,195 @@
+"""The tile worker on the reliable path: real processes, real loopback sockets, real
+files. Its tiles must equal `svss process`'s of the same raw run, voxel for voxel, when
+the stream drops pings (fetched from the recording), when the worker is SIGKILLed mid-run
+and restarted, and across two runs."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import zmq
+
+from svss_daq import messages
+from svss_daq.config import HardwareConfig, config_path, load_with_text
+from svss_daq.ping_service import PingService, RawRunStore, ReplayStore
+from svss_daq.publisher import PingPublisher
+from svss_daq.rawfile import RawRunReader
+from svss_proc.worker import JOURNAL, MANIFEST, serve
+
+from .conftest import assert_same_tiles, svss
+
+DROPPED = {0, 1, 5, 6, 7, 20} | set(range(44, 52)) | {89}
+
+
+@pytest.fixture(scope="module")
+def hw():
+    return load_with_text(HardwareConfig, config_path("hardware.toml"))
+
+
+def _serve_in_thread(result, *args, **kw):
+    def target():
+        try:
+            result["files"] = serve(*args, **kw)
+        except BaseException as exc:          # reported by the test
+            result["error"] = exc
+    t = threading.Thread(target=target)
+    t.start()
+    return t
+
+
+def test_dropped_pings_are_fetched_from_the_recording(raw_run, processed, hw, small_proc,
+                                                      tmp_path):
+    out = tmp_path / "w"
+    result = {}
+    ctx = zmq.Context()
+    with RawRunStore([raw_run]) as store, \
+            PingService("tcp://127.0.0.1:*", ReplayStore(store), ctx=ctx) as svc, \
+            PingPublisher("tcp://127.0.0.1:*", 1000, ctx=ctx) as pub, \
+            RawRunReader(raw_run) as run:
+        t = _serve_in_thread(result, pub.endpoint, out, hw, small_proc, 60,
+                             receive_hwm=1000, service=svc.endpoint, runs=1,
+                             gap_wait_s=600.0)
+        pub.wait_for_subscribers(timeout_s=60)
+        svc.store.begin("line1")
+        for p in run:
+            if p.sequence not in DROPPED:
+                pub.publish(p)
+            if p.sequence == 30:
+                pub.publish(p)                       # a duplicate
+        svc.store.end("line1")
+        pub.publish(messages.RunEnd("line1", len(run)))
+        t.join(timeout=300)
+    ctx.term()
+    assert not t.is_alive() and "error" not in result, result.get("error")
+    assert_same_tiles(processed, out / "line1")
+    m = json.loads((out / MANIFEST).read_text())
+    assert m["complete"] and m["fetched_pings"] == len(DROPPED)
+    assert m["duplicate_pings"] == 1 and m["skipped_pings"] == 0
+    assert m["missing_in_recording"] == 0 and m["pings"] == 90
+    assert m["files"] and all(f.startswith("line1/") for f in m["files"])
+    j = json.loads((out / "line1" / JOURNAL).read_text())
+    assert j["complete"] and j["run_id"] == "line1"
+
+
+def test_without_a_service_gaps_are_skipped_after_a_bounded_wait(raw_run, hw, small_proc,
+                                                                 tmp_path):
+    out = tmp_path / "w"
+    result = {}
+    ctx = zmq.Context()
+    with PingPublisher("tcp://127.0.0.1:*", 1000, ctx=ctx) as pub, \
+            RawRunReader(raw_run) as run:
+        t = _serve_in_thread(result, pub.endpoint, out, hw, small_proc, 60,
+                             receive_hwm=1000, runs=1, gap_wait_s=0.3)
+        pub.wait_for_subscribers(timeout_s=60)
+        for p in run:
+            if p.sequence not in {5, 6, 7, 40}:
+                pub.publish(p)
+            if p.sequence == 50:
+                time.sleep(1.0)                   # the gap at 40 waits, then is skipped
+        pub.publish(messages.RunEnd("line1", len(run)))
+        t.join(timeout=300)
+    ctx.term()
+    assert not t.is_alive() and "error" not in result, result.get("error")
+    m = json.loads((out / MANIFEST).read_text())
+    assert m["skipped_pings"] == 4 and m["pings"] == 86 and m["complete"]
+    # the folder is named by the run's end marker
+    assert json.loads((out / "line1" / MANIFEST).read_text())["run_id"] == "line1"
+    assert json.loads((out / "line1" / JOURNAL).read_text())["complete"]
+
+
+def _wait_for(pred, timeout_s, what):
+    deadline = time.monotonic() + timeout_s
+    while not pred():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.05)
+
+
+def _replay(*runs, realtime=True, linger=120):
+    proc = svss("replay", *map(str, runs), "--endpoint", "tcp://127.0.0.1:*", "--service",
+                "tcp://127.0.0.1:*", "--linger", str(linger), "--wait", "120",
+                *(["--realtime"] if realtime else []))
+    pub = proc.stdout.readline().split(" on ")[-1].strip()
+    service = proc.stdout.readline().split(" on ")[-1].strip()
+    assert pub.startswith("tcp://") and service.startswith("tcp://"), (pub, service)
+    return proc, pub, service
+
+
+def _stop(proc):
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=30)
+        except Exception:
+            proc.kill()
+            proc.wait()
+
+
+def test_sigkilled_worker_resumes_with_every_tile_once(raw_run, processed, small_proc_path,
+                                                       tmp_path):
+    out = tmp_path / "w"
+    replay, pub, service = _replay(raw_run)
+    worker_args = ("worker", "--connect", pub, "--service", service, "--out", str(out),
+                   "--processing", str(small_proc_path), "--runs", "1",
+                   "--idle-timeout", "120")
+    try:
+        w1 = svss(*worker_args)
+        try:
+            _wait_for(lambda: any((out / "line1").glob("tile_*.h5")), 120,
+                      "the first tile")
+            w1.send_signal(signal.SIGKILL)
+            w1.wait(timeout=30)
+        finally:
+            if w1.poll() is None:
+                w1.kill()
+        assert w1.returncode == -signal.SIGKILL
+        first = sorted(p.name for p in (out / "line1").glob("tile_*.h5"))
+        journal = json.loads((out / "line1" / JOURNAL).read_text())
+        assert not journal["complete"] and journal["written"]
+        # debris of a killed writer: a temporary tile file
+        (out / "line1" / ".tile_0007.partial-deadbeef.h5").write_bytes(b"half")
+        w2 = svss(*worker_args)
+        try:
+            rc = w2.wait(timeout=240)
+        finally:
+            if w2.poll() is None:
+                w2.kill()
+        err = w2.stderr.read()
+        assert rc == 0, err[-3000:]
+        assert "resuming run line1" in err
+    finally:
+        _stop(replay)
+    assert_same_tiles(processed, out / "line1")
+    assert set(first) <= {p.name for p in (out / "line1").glob("tile_*.h5")}
+    m = json.loads((out / "line1" / MANIFEST).read_text())
+    assert m["complete"] and m["resumed"] == 1
+    assert sorted(f for f in m["files"] if f.endswith(".h5")) == \
+        sorted(p.name for p in processed.glob("tile_*.h5"))
+    assert json.loads((out / "line1" / JOURNAL).read_text())["complete"]
+
+
+def test_worker_stays_up_across_two_runs(raw_run, processed, hw, small_proc, tmp_path):
+    second = tmp_path / "line2.h5"
+    shutil.copyfile(raw_run, second)
+    out = tmp_path / "w"
+    replay, pub, service = _replay(raw_run, second, realtime=False)
+    result = {}
+    try:
+        t = _serve_in_thread(result, pub, out, hw, small_proc, 120, receive_hwm=1000,
+                             service=service, runs=2)
+        t.join(timeout=300)
+    finally:
+        _stop(replay)
+    assert not t.is_alive() and "error" not in result, result.get("error")
+    for run in ("line1", "line2"):
+        assert_same_tiles(processed, out / run)
+    m = json.loads((out / MANIFEST).read_text())
+    assert m["complete"] and set(m["runs"]) == {"line1", "line2"}
+    assert m["pings"] == 180 and all(r["complete"] for r in m["runs"].values())
