@@ -235,12 +235,12 @@ class Worker:
                  self.run_id, self.resume_sequence, len(files),
                  f", {len(redo)} redone" if redo else "")
 
-    def _write_journal(self, complete: bool = False, stopped_open: Iterable[int] = ()
-                       ) -> None:
+    def _write_journal(self, complete: bool = False, stopped_open: Iterable[int] = (),
+                       resume: int | None = None) -> None:
         if self.run_id is None:
             return
         line = self.imager.line
-        resume = self.imager.resume_sequence()
+        resume = resume if resume is not None else self.imager.resume_sequence()
         if resume is None:
             resume = (self.last_sequence + 1 if self.last_sequence is not None
                       else self.resume_sequence)
@@ -292,6 +292,7 @@ class Worker:
         (the journal then says the open tiles were written only because of the stop, and
         a resume redoes them)."""
         open_tiles = sorted(self.imager.active)
+        resume = self.imager.resume_sequence()
         if not complete:
             self._write_journal(stopped_open=open_tiles)    # intent first
         for tile in self.imager.finish():
@@ -301,7 +302,8 @@ class Worker:
             log.warning("%d ping(s) refused %s, %d failed in imaging, %d reached only "
                         "tiles already written", self.gate.n_refused, refused,
                         self.imaging_errors, self.imager.late_pings)
-        self._write_journal(complete=complete, stopped_open=() if complete else open_tiles)
+        self._write_journal(complete=complete, stopped_open=() if complete else open_tiles,
+                            resume=resume)
         _atomic_json(self.out / MANIFEST, self.summary(complete))
         return self.written
 

@@ -132,8 +132,12 @@ def _stop(proc):
             proc.wait()
 
 
-def test_sigkilled_worker_resumes_with_every_tile_once(raw_run, processed, small_proc_path,
-                                                       tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
+def test_stopped_worker_resumes_with_every_tile_once(sig, raw_run, processed,
+                                                     small_proc_path, tmp_path):
+    """SIGKILL: the tiles written stay, the open ones are imaged again from the resume
+    point. SIGTERM: the open tiles are written (marked in the journal as written only
+    because of the stop) and redone on resume."""
     out = tmp_path / "w"
     replay, pub, service = _replay(raw_run)
     worker_args = ("worker", "--connect", pub, "--service", service, "--out", str(out),
@@ -144,15 +148,17 @@ def test_sigkilled_worker_resumes_with_every_tile_once(raw_run, processed, small
         try:
             _wait_for(lambda: any((out / "line1").glob("tile_*.h5")), 120,
                       "the first tile")
-            w1.send_signal(signal.SIGKILL)
+            w1.send_signal(sig)
             w1.wait(timeout=30)
         finally:
             if w1.poll() is None:
                 w1.kill()
-        assert w1.returncode == -signal.SIGKILL
-        first = sorted(p.name for p in (out / "line1").glob("tile_*.h5"))
+        assert w1.returncode == (-signal.SIGKILL if sig == signal.SIGKILL else 130)
         journal = json.loads((out / "line1" / JOURNAL).read_text())
         assert not journal["complete"] and journal["written"]
+        first = [f"tile_{k:04d}.h5" for k in journal["written"]]
+        if sig == signal.SIGTERM:
+            assert json.loads((out / MANIFEST).read_text())["complete"] is False
         # debris of a killed writer: a temporary tile file
         (out / "line1" / ".tile_0007.partial-deadbeef.h5").write_bytes(b"half")
         w2 = svss(*worker_args)
