@@ -372,6 +372,7 @@ class AcquisitionDaemon:
         """Assemble pending pings whose transmit record is there (or waited for long
         enough), in delivery order."""
         now = time.monotonic()
+        ready: list = []
         pairing = self.setup.acquire.pairing
         nav_wait = self.setup.acquire.navigation.wait_s
         while self._pending:
@@ -380,19 +381,30 @@ class AcquisitionDaemon:
                 have_tx = data.ping_number in self._tx
             if not final:
                 if not have_tx and now < arrived + pairing.transmit_wait_s:
-                    return
+                    break
                 if now < arrived + nav_wait and not self._nav_caught_up(data.transmit_time_ns):
-                    return
+                    break
             with self._tx_lock:
                 ev = self._tx.pop(data.ping_number, None)
             self._pending.popleft()
-            self._handle(data, ev)
+            ready.append((data, ev))
+        self._handle_all(ready)
         with self._tx_lock:        # transmit records nobody will claim
             if len(self._tx) > 1000:
                 for k in sorted(self._tx)[:-100]:
                     del self._tx[k]
 
-    def _handle(self, data: dg.CompletePing, ev: PingEvent | None) -> None:
+    def _handle_all(self, ready: list) -> None:
+        """Pose the pings of ``ready`` ((CompletePing, PingEvent or None) pairs) in one
+        navigation solution, then assemble, record and publish each."""
+        if not ready:
+            return
+        navs = self._poses([d.transmit_time_ns for d, _ in ready])
+        for (data, ev), nav in zip(ready, navs):
+            self._handle(data, ev, nav)
+
+    def _handle(self, data: dg.CompletePing, ev: PingEvent | None,
+                nav: NavSnapshot | None = None) -> None:
         seq = data.ping_number
         if seq in self._seen:
             self.counters.duplicates += 1
@@ -408,7 +420,7 @@ class AcquisitionDaemon:
             self.event("sequencer.transmit_record_missing",
                        f"ping {seq}: no PING record from the sequencer; transmit time from "
                        "the digitiser, projector from the schedule's phase")
-        nav = self._pose(data.transmit_time_ns)
+        nav = nav if nav is not None else self._poses([data.transmit_time_ns])[0]
         try:
             if ev is not None:
                 ping = self.assembler.from_instrument(data, ev, nav)
@@ -454,19 +466,21 @@ class AcquisitionDaemon:
                 return False
         return True
 
-    def _pose(self, t_ns: int) -> NavSnapshot:
+    def _poses(self, times_ns: list[int]) -> list[NavSnapshot]:
         if self.setup.devices.gps is None and self.setup.devices.dvl is None:
-            return _unknown_pose(t_ns)
+            return [_unknown_pose(t) for t in times_ns]
         try:
             with self._nav_lock:
                 self._flush_nmea()
-                return self.navigator.poses([t_ns])[0]
+                return self.navigator.poses(times_ns)
         except (ValueError, IndexError) as exc:
-            self.counters.pose_errors += 1
-            if self.counters.pose_errors in (1, 10, 100) or self.counters.pose_errors % 1000 == 0:
-                self.event("navigation.no_solution", f"no pose at {t_ns} ({exc}); recorded "
-                           "without one")
-            return _unknown_pose(t_ns)
+            before = self.counters.pose_errors
+            self.counters.pose_errors += len(times_ns)
+            if before == 0 or before // 100 != self.counters.pose_errors // 100:
+                self.event("navigation.no_solution", f"no pose for {len(times_ns)} "
+                           f"ping(s) ({exc}); recorded without one; "
+                           f"{self.counters.pose_errors} in all")
+            return [_unknown_pose(t) for t in times_ns]
 
     def _tally_nav(self, nav: NavSnapshot) -> None:
         t, q = self.nav_tally, nav.quality
@@ -632,7 +646,7 @@ class AcquisitionDaemon:
                 fn()
             except Exception as exc:             # a vanished device must not lose the run
                 self.event("sequencer.stop_failed", f"{what}: {exc}")
-        if not failed:
+        if not failed and self.digitiser is not None:
             drain = time.monotonic() + self.setup.acquire.pairing.drain_s
             while time.monotonic() < drain and not (self.recorder and self.recorder.stopped):
                 try:
