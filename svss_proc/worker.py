@@ -54,6 +54,8 @@ JOURNAL_VERSION = 1
 #: names of files a worker writes into its output folder (besides the manifest)
 OUTPUT_PREFIXES = ("tile_", ".tile_")
 _TILE_FILE = re.compile(r"tile_(-?\d+)\.h5")
+#: at a run's end, how long pings the recording has not flushed yet are waited for, s
+END_WAIT_S = 10.0
 #: defaults of daq.toml's [subscriber] gap_wait_s and reorder_pings
 GAP_WAIT_S = 2.0
 REORDER_PINGS = 200
@@ -360,6 +362,7 @@ class _Run:
     buffer: dict[int, Ping] = field(default_factory=dict)
     gap_since: float | None = None
     retry_at: float = 0.0
+    service_failed: bool = False        # the last catch-up of this run failed
 
 
 class StreamWorker:
@@ -544,7 +547,7 @@ class StreamWorker:
                 r.retry_at = now + 0.25
             waited = now - r.gap_since
             if final or waited >= self.gap_wait_s and (
-                    self.fetcher is None or r.run_id is None or self.fetch_errors):
+                    self.fetcher is None or r.run_id is None or r.service_failed):
                 self._skip_gap(r, "end of run" if final else
                                f"not received within {self.gap_wait_s:g} s")
                 continue
@@ -558,6 +561,7 @@ class StreamWorker:
             return
         t0 = time.perf_counter()
         n = 0
+        r.service_failed = False
         try:
             while r.next_seq <= last:
                 got = self.fetcher.fetch_once(r.run_id, r.next_seq, last)
@@ -582,6 +586,7 @@ class StreamWorker:
                     break
         except (TimeoutError, ServiceError, OSError) as exc:
             self.fetch_errors += 1
+            r.service_failed = True
             log.error("run %s: catch-up of %d..%d failed: %s", r.run_id, first, last, exc)
         finally:
             self.fetched += n
@@ -617,7 +622,12 @@ class StreamWorker:
                 if self.fetcher is not None:
                     info = {i.run_id: i for i in (self._runs() or [])}.get(end.run_id)
                     last = info.last if info is not None else max(r.buffer, default=-1)
+                    deadline = time.monotonic() + END_WAIT_S
                     self._catch_up(r, r.next_seq, last)
+                    while (r.next_seq <= last and not r.service_failed
+                           and time.monotonic() < deadline):      # not flushed yet
+                        time.sleep(POLL_SLICE_S)
+                        self._catch_up(r, r.next_seq, last)
                 self.drain(final=True)
                 self._finish_run(r, complete=True)
             self.run = None
