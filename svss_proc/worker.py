@@ -86,6 +86,15 @@ def remove_temporaries(folder: Path) -> int:
     return n
 
 
+def _stream_manifest(path: Path) -> bool:
+    """Whether ``path`` is the manifest of a stream worker's output folder."""
+    try:
+        m = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+    return isinstance(m, dict) and isinstance(m.get("runs"), dict)
+
+
 def _worker_folder(d: Path) -> bool:
     return d.is_dir() and ((d / MANIFEST).is_file() or (d / JOURNAL).is_file())
 
@@ -108,7 +117,8 @@ def prepare_output_dir(out: Path, force: bool = False, *, resume: bool = False) 
     if not old and not runs:
         return
     if resume and not force and ((out / JOURNAL).is_file()
-                                 or any((d / JOURNAL).is_file() for d in runs)):
+                                 or any((d / JOURNAL).is_file() for d in runs)
+                                 or _stream_manifest(out / MANIFEST)):
         log.info("%s: resuming (worker journal found)", out)
         return
     if not force:
