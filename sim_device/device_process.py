@@ -129,7 +129,8 @@ class SimDevice:
                  from_run: str | os.PathLike | None = None,
                  run_dir: str | os.PathLike | None = None,
                  config: SimDeviceConfig | str | os.PathLike | None = None,
-                 workers: Optional[int] = None, navigation: bool = True) -> None:
+                 workers: Optional[int] = None, navigation: bool = True,
+                 lead_s: float = 0.0) -> None:
         from sim_device.scene import load_scene
         from sim_device.track import parse_utc_ns
 
@@ -139,7 +140,8 @@ class SimDevice:
         self.cfg = config if isinstance(config, SimDeviceConfig) else \
             load_sim_device_config(config)
         self.sonar = self.cfg.sonar
-        self.clock = SimClock(parse_utc_ns(self.scene.track.start_time_utc), time_scale)
+        self.clock = SimClock(parse_utc_ns(self.scene.track.start_time_utc), time_scale,
+                              lead_s)
         self.time_scale = float(time_scale)
         self.faults_path = str(faults) if faults else None
         self._faults = None

@@ -239,7 +239,8 @@ def cmd_sim_device(args) -> int:
 
     dev = SimDevice(_hardware(args), args.scene, time_scale=args.time_scale,
                     faults=args.faults, from_run=args.from_run, workers=args.workers,
-                    config=args.sim_config, navigation=not args.no_navigation)
+                    config=args.sim_config, navigation=not args.no_navigation,
+                    lead_s=args.lead)
     try:
         dev.start()
         text = dev.devices_toml()
@@ -295,8 +296,9 @@ def build_parser() -> argparse.ArgumentParser:
             sp.add_argument("--processing", help="processing TOML "
                             "(default: config/processing.toml)")
 
-    sp = sub.add_parser("demo", help="run the whole chain on the built-in scene: simulated "
-                        "pings -> ZeroMQ -> worker process -> tiles and PNGs")
+    sp = sub.add_parser("demo", help="run the whole chain on the built-in scene, in "
+                        "separate processes: sim-device -> acquire -> ZeroMQ -> worker -> "
+                        "tiles and PNGs")
     sp.add_argument("--out", required=True, help="output folder")
     sp.add_argument("--scene", help="scene TOML (default: config/scenes/demo.toml)")
     force(sp, "the demo's earlier outputs in --out")
@@ -407,6 +409,10 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--sim-config", help="simulated device TOML "
                     "(default: config/sim-device.toml)")
     sp.add_argument("--no-navigation", action="store_true", help="sonar only: no DVL, GPS")
+    sp.add_argument("--lead", type=float, default=0.0, help="start the simulated clock "
+                    "this many seconds before the track's start: the instruments run "
+                    "meanwhile and a sequencer started within the lead pings from the "
+                    "track's first ping")
     common(sp, processing=False)
     sp.set_defaults(func=cmd_sim_device)
 

@@ -1,75 +1,148 @@
-"""The demo: the whole chain on a built-in scene.
+"""The demo: the whole boat-side chain on a built-in scene, in separate processes.
 
-The simulated device synthesises pings; the acquisition loop records them to
-``run.h5`` and publishes them over ZeroMQ; a worker in another process subscribes,
-images them and writes tiles and quicklooks.
+``svss sim-device`` serves the simulated sonar and navigation on their real protocols;
+``svss acquire`` drives them, records every ping (``runs/``) and publishes it; ``svss
+worker`` subscribes (catching up from the recording if it misses a ping), images the
+pings and writes tiles and quicklooks (``tiles/<run id>/``). Each process logs to
+``logs/``; the worker's progress is shown.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import re
+import shutil
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
-from sim_device.environment import water_sound_speed
-from sim_device.environment_source import EnvironmentSource
 from sim_device.scene import load_scene
-from svss_daq.acquisition import acquire
-from svss_daq.config import DaqConfig, HardwareConfig, config_path, load, load_with_text
-from svss_daq.publisher import PingPublisher
-from svss_daq.rawfile import RawRunWriter
-from svss_proc.worker import prepare_output_dir
+from svss_daq.config import config_path
+from svss_proc.worker import prepare_output_dir, run_folder_name
 
 log = logging.getLogger(__name__)
 
 DEMO_SCENE = "scenes/demo.toml"
 DEMO_PROCESSING = "processing-demo.toml"
+DEMO_RUN = "demo"
+#: simulated seconds the device's clock runs before the track starts: the daemon and the
+#: worker start meanwhile, and the sequencer's first ping is then the track's first
+DEMO_LEAD_S = 20.0
+STARTUP_S = 120.0
+
+
+def _svss(*args: str) -> list[str]:
+    return [sys.executable, "-m", "svss", *args]
+
+
+def _wait_for_file(path: Path, proc: subprocess.Popen, what: str, log_path: Path,
+                   timeout_s: float = STARTUP_S) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not path.exists():
+        if proc.poll() is not None or time.monotonic() > deadline:
+            tail = log_path.read_text(errors="replace")[-2000:] if log_path.exists() else ""
+            raise RuntimeError(f"{what} did not start (exit code {proc.poll()}); its log "
+                               f"{log_path} ends:\n{tail}")
+        time.sleep(0.05)
+
+
+def _stop(proc: subprocess.Popen | None, timeout_s: float = 20.0) -> None:
+    if proc is None or proc.poll() is not None:
+        return
+    proc.send_signal(signal.SIGTERM)
+    try:
+        proc.wait(timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+def _acquire_toml(out: Path, hw: Path) -> Path:
+    path = out / "acquire.toml"
+    text = config_path("acquire.toml").read_text()
+    base = config_path("acquire.toml").parent
+    for key in ("devices", "daq"):
+        text = re.sub(rf'^{key} = "[^"]*"', f'{key} = "{(base / f"{key}.toml").as_posix()}"',
+                      text, count=1, flags=re.M)
+    text = re.sub(r'^hardware = "[^"]*"', f'hardware = "{hw.as_posix()}"', text, count=1,
+                  flags=re.M)
+    text = re.sub(r'^out_dir = "[^"]*"', f'out_dir = "{(out / "runs").as_posix()}"', text,
+                  count=1, flags=re.M)
+    text = re.sub(r'^name = "[^"]*"', f'name = "{DEMO_RUN}"', text, count=1, flags=re.M)
+    path.write_text(text)
+    return path
 
 
 def run_demo(out: Path, scene: str | None = None, hardware: str | None = None,
              processing: str | None = None, worker_timeout_s: float = 600.0,
-             force: bool = False) -> list[Path]:
-    """Run the demo into ``out``; return every file written (raw run first). An earlier
-    run's outputs there are refused unless ``force``."""
+             force: bool = False, lead_s: float = DEMO_LEAD_S) -> list[Path]:
+    """Run the demo into ``out``; return every file written (raw runs first). An earlier
+    demo's outputs there are refused unless ``force``."""
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     hw_path = Path(hardware or config_path("hardware.toml")).resolve()
     proc_path = Path(processing or config_path(DEMO_PROCESSING)).resolve()
-    hw = load_with_text(HardwareConfig, hw_path)
-    sc = load_scene(scene or config_path(DEMO_SCENE))
-    daq = load(DaqConfig, config_path("daq.toml"))
-    source = EnvironmentSource(hw, sc)
-    raw = out / "run.h5"
-    tiles = out / "tiles"
-    if raw.exists() and not force:
-        raise FileExistsError(f"{raw} exists (an earlier demo); pass --force to replace "
+    scene_path = Path(scene or config_path(DEMO_SCENE)).resolve()
+    n_pings = load_scene(scene_path).track.n_pings
+    runs, tiles, logs = out / "runs", out / "tiles", out / "logs"
+    old = sorted(runs.glob(f"{DEMO_RUN}_*.h5")) if runs.exists() else []
+    if old and not force:
+        raise FileExistsError(f"{old[0]} exists (an earlier demo); pass --force to replace "
                               "the demo's outputs")
+    for p in old:
+        p.unlink()
+    if force and (tiles / run_folder_name(DEMO_RUN)).exists():
+        shutil.rmtree(tiles / run_folder_name(DEMO_RUN))
     prepare_output_dir(tiles, force)
-    with PingPublisher("tcp://127.0.0.1:*", daq.publisher.send_hwm) as pub:
-        cmd = [sys.executable, "-m", "svss", "worker", "--connect", pub.endpoint,
-               "--out", str(tiles), "--hardware", str(hw_path), "--processing",
-               str(proc_path), "--idle-timeout", str(worker_timeout_s), "--runs", "1"] + (
-                   ["--force"] if force else [])
-        log.info("starting worker: %s", " ".join(cmd))
-        worker = subprocess.Popen(cmd, stdout=subprocess.DEVNULL)
-        try:
-            pub.wait_for_subscribers(timeout_s=120.0)
-            with RawRunWriter(raw, hw, overwrite=force,
-                              flush_every_pings=daq.recorder.flush_every_pings,
-                              flush_interval_s=daq.recorder.flush_interval_s,
-                              environment={"sound_speed_indicative":
-                                           water_sound_speed(sc)},
-                              run_attrs={"scene_name": sc.scene.name}) as rec:
-                acquire(iter(source), rec, pub, sc.scene.name, total=source.n_pings)
-            log.info("all %d pings recorded and published; waiting for the worker",
-                     source.n_pings)
-            rc = worker.wait(timeout=worker_timeout_s)
-        finally:
-            if worker.poll() is None:
-                worker.kill()
-                worker.wait()
-    if rc != 0:
-        raise RuntimeError(f"the worker process failed with exit code {rc}")
-    manifest = json.loads((tiles / "manifest.json").read_text())
-    return [raw] + [tiles / name for name in manifest["files"]]
+    logs.mkdir(exist_ok=True)
+    devices, endpoints = out / "devices.toml", out / "endpoints.json"
+    for p in (devices, endpoints):
+        p.unlink(missing_ok=True)
+    procs: dict[str, subprocess.Popen] = {}
+    try:
+        with open(logs / "sim-device.log", "wb") as err:
+            procs["sim-device"] = subprocess.Popen(
+                _svss("sim-device", "--scene", str(scene_path), "--hardware", str(hw_path),
+                      "--devices-out", str(devices), "--lead", str(lead_s)),
+                stdout=subprocess.DEVNULL, stderr=err)
+        _wait_for_file(devices, procs["sim-device"], "svss sim-device",
+                       logs / "sim-device.log")
+        log.info("simulated device up (logs/sim-device.log); starting the acquisition")
+        with open(logs / "acquire.log", "wb") as err:
+            procs["acquire"] = subprocess.Popen(
+                _svss("acquire", "--config", str(_acquire_toml(out, hw_path)), "--devices",
+                      str(devices), "--out", str(runs), "--run-id", DEMO_RUN, "--pings",
+                      str(n_pings), "--ephemeral-ports", "--endpoints-out", str(endpoints),
+                      "--wait-subscribers", "1"),
+                stdout=subprocess.DEVNULL, stderr=err)
+        _wait_for_file(endpoints, procs["acquire"], "svss acquire", logs / "acquire.log")
+        ep = json.loads(endpoints.read_text())
+        log.info("acquisition bound %s; starting the worker", ep)
+        procs["worker"] = subprocess.Popen(
+            _svss("worker", "--connect", ep["publisher"], "--service", ep["service"],
+                  "--out", str(tiles), "--hardware", str(hw_path), "--processing",
+                  str(proc_path), "--runs", "1", "--idle-timeout", str(worker_timeout_s))
+            + (["--force"] if force else []), stdout=subprocess.DEVNULL)
+        rc = procs["acquire"].wait(timeout=STARTUP_S + lead_s + 10 * n_pings)
+        if rc != 0:
+            raise RuntimeError(f"svss acquire failed with exit code {rc}; see "
+                               f"{logs / 'acquire.log'}")
+        log.info("all %d pings recorded and published; waiting for the worker", n_pings)
+        rc = procs["worker"].wait(timeout=worker_timeout_s)
+        if rc != 0:
+            raise RuntimeError(f"the worker process failed with exit code {rc}")
+    finally:
+        for name in ("worker", "acquire", "sim-device"):
+            _stop(procs.get(name))
+    first = re.search(r"first ping is track ping (\d+)",
+                      (logs / "sim-device.log").read_text(errors="replace"))
+    if first and int(first.group(1)) != 0:
+        log.warning("the acquisition started %s pings into the scene's track (it took "
+                    "longer than the %.0f s lead to start): the first targets may be "
+                    "missing", first.group(1), lead_s)
+    folder = tiles / run_folder_name(DEMO_RUN)
+    manifest = json.loads((folder / "manifest.json").read_text())
+    return sorted(runs.glob(f"{DEMO_RUN}_*.h5")) + [folder / n for n in manifest["files"]]

@@ -159,7 +159,10 @@ class ConditioningConfig:
 class ImagingConfig:
     water_sound_speed_m_s: float = spec("water sound speed for imaging delays, m/s",
                                         lo=1000, hi=2500)
-    interface: str = spec("interface depth source", choices=("navigation", "fixed"))
+    interface: str = spec("interface depth source: the first ping's body depth plus "
+                          "altitude (navigation), that and each ping's own altitude for its "
+                          "height (altitude), or interface_down_m (fixed)",
+                          choices=("navigation", "altitude", "fixed"))
     interface_down_m: float = spec("interface depth in the survey frame when fixed, m",
                                    lo=-1e4, hi=1e4)
     track_line: str = spec("tile frame: from the first ping's pose or given",

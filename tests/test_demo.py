@@ -1,6 +1,7 @@
-"""End to end: `svss demo` (simulated pings -> ZeroMQ -> worker process -> tiles) puts the
-built-in scene's point targets at their true positions, and `svss process` on the
-recorded run gives the same tiles."""
+"""End to end: `svss demo` (sim-device -> acquire -> ZeroMQ -> worker, separate processes,
+the real drivers and the navigation from the simulated DVL and GPS) puts the built-in
+scene's point targets where they are, and `svss process` on the recorded run gives the
+same tiles."""
 
 from __future__ import annotations
 
@@ -19,8 +20,13 @@ from svss_proc.tiles import read_tile
 
 pytestmark = pytest.mark.slow
 
-#: the worker writes each run's tiles into a folder named by the run id (the scene name)
-RUN = "demo-points"
+#: the worker writes each run's tiles into a folder named by the run id
+RUN = "demo"
+#: where the targets may be found: a voxel in depth (each ping at its DVL altitude); the
+#: navigation's horizontal error along and across (GPS 0.3 m smoothed over 5 s with DVL
+#: dead reckoning, and the tile frame taken from the first ping's measured pose)
+TOL_DEPTH_M = 0.03
+TOL_HORIZONTAL_M = 0.15
 
 
 def svss(*args, cwd=None):
@@ -40,7 +46,8 @@ def demo(tmp_path_factory):
 def test_demo_writes_run_tiles_and_pngs(demo):
     out, stdout = demo
     listed = [Path(line.strip()) for line in stdout.splitlines() if line.startswith("  ")]
-    assert out / "run.h5" in listed
+    raw = out / "runs" / f"{RUN}_000.h5"
+    assert raw in listed
     tiles = [p for p in listed if p.suffix == ".h5" and p.name.startswith("tile_")]
     pngs = [p for p in listed if p.suffix == ".png"]
     assert len(tiles) >= 2 and len(pngs) == len(tiles)
@@ -51,28 +58,30 @@ def test_demo_writes_run_tiles_and_pngs(demo):
         img = matplotlib.image.imread(p)
         assert img.ndim == 3 and img.std() > 0.01
     scene = load_scene(config_path("scenes/demo.toml"))
-    with RawRunReader(out / "run.h5") as run:
+    with RawRunReader(raw) as run:
         assert run.clean and len(run) == scene.track.n_pings
+        assert run.summary["counters"]["recorded"] == len(run)
+        seq = run.ping_table()["ping_sequence"]
+    assert seq.tolist() == list(range(len(seq)))
 
 
 def test_targets_at_true_positions(demo):
     out, _ = demo
     scene = load_scene(config_path("scenes/demo.toml"))
     tile_cfg = load(ProcessingConfig, config_path("processing-demo.toml")).tile
-    v = tile_cfg.voxel_m
     tiles = {}
     for pt in scene.points:
         k = int(np.floor(pt.along_m / tile_cfg.length_m))
         t = tiles.setdefault(k, read_tile(out / "tiles" / RUN / f"tile_{k:04d}.h5"))
         mag = np.abs(t["image"])
-        box = [np.flatnonzero(np.abs(ax - x) <= 0.1)
+        box = [np.flatnonzero(np.abs(ax - x) <= 0.3)
                for ax, x in zip((t["along"], t["cross"], t["depth"]),
                                 (pt.along_m, pt.cross_m, pt.depth_m))]
         sub = mag[np.ix_(*box)]
         i, j, m = np.unravel_index(sub.argmax(), sub.shape)
         peak = np.array([t["along"][box[0][i]], t["cross"][box[1][j]], t["depth"][box[2][m]]])
         err = np.abs(peak - [pt.along_m, pt.cross_m, pt.depth_m])
-        assert np.all(err <= v + 1e-9), (pt, peak)
+        assert np.all(err <= [TOL_HORIZONTAL_M, TOL_HORIZONTAL_M, TOL_DEPTH_M]), (pt, peak)
         # a real peak: well above the tile's median level
         assert 20 * np.log10(sub.max() / np.median(mag[mag > 0])) > 25
     # and the brightest voxel of each tile is one of the targets
@@ -81,12 +90,14 @@ def test_targets_at_true_positions(demo):
         mag = np.abs(t["image"])
         i, j, m = np.unravel_index(mag.argmax(), mag.shape)
         peak = np.array([t["along"][i], t["cross"][j], t["depth"][m]])
-        assert np.min(np.max(np.abs(truth - peak), axis=1)) <= v + 1e-9
+        near = np.all(np.abs(truth - peak) <= [TOL_HORIZONTAL_M, TOL_HORIZONTAL_M,
+                                                TOL_DEPTH_M], axis=1)
+        assert near.any(), (k, peak)
 
 
 def test_process_recorded_run_gives_the_same_tiles(demo, tmp_path):
     out, _ = demo
-    svss("process", str(out / "run.h5"), "--out", str(tmp_path),
+    svss("process", str(out / "runs" / f"{RUN}_000.h5"), "--out", str(tmp_path),
          "--processing", str(config_path("processing-demo.toml")))
     live = sorted((out / "tiles" / RUN).glob("tile_*.h5"))
     again = sorted(tmp_path.glob("tile_*.h5"))

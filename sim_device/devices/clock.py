@@ -19,27 +19,33 @@ log = logging.getLogger(__name__)
 class SimClock:
     """Simulated time in int64 ns since the Unix epoch.
 
-    ``start_ns``: the simulated time at :meth:`start`; ``time_scale``: simulated seconds
-    per host second (> 0)."""
+    ``start_ns``: the track's start (the ping grid's origin); ``time_scale``: simulated
+    seconds per host second (> 0); ``lead_s``: the clock reads ``start_ns - lead_s`` at
+    :meth:`start`, so that the instruments run (and a sequencer started meanwhile waits
+    for the grid's first point) before the track begins."""
 
-    def __init__(self, start_ns: int, time_scale: float = 1.0) -> None:
+    def __init__(self, start_ns: int, time_scale: float = 1.0, lead_s: float = 0.0) -> None:
         if not time_scale > 0:
             raise ValueError(f"time scale {time_scale!r}: expected a number > 0")
+        if not lead_s >= 0:
+            raise ValueError(f"lead {lead_s!r} s: expected a number >= 0")
         self.start_ns = int(start_ns)
+        self.lead_ns = int(round(lead_s * 1e9))
         self.time_scale = float(time_scale)
         self._t0 = time.monotonic_ns()
         self._offset_ns = 0
         self._lock = threading.Lock()
 
     def start(self) -> "SimClock":
-        """(Re)start: simulated time is ``start_ns`` now."""
+        """(Re)start: simulated time is ``start_ns - lead`` now."""
         with self._lock:
             self._t0 = time.monotonic_ns()
         return self
 
     def true_ns(self) -> int:
         """True simulated time (what the platform's motion follows), ns."""
-        return self.start_ns + int((time.monotonic_ns() - self._t0) * self.time_scale)
+        return self.start_ns - self.lead_ns + int((time.monotonic_ns() - self._t0)
+                                                  * self.time_scale)
 
     def now_ns(self) -> int:
         """The devices' clock: true time plus every step injected so far, ns."""

@@ -13,6 +13,7 @@ pings; never the truth of a scene.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 
@@ -79,6 +80,20 @@ def line_from_ping(ping: Ping, proc: ProcessingConfig) -> TrackLine:
     return TrackLine(origin, heading, interface)
 
 
+def ping_frame(frame: TrackLine, nav, proc: ProcessingConfig) -> TrackLine:
+    """The frame one ping is placed in: the tile frame, except that with
+    ``imaging.interface = "altitude"`` the interface lies at this ping's measured
+    altitude below the body (DVL bottom track), so that the array's height above the
+    seabed is the DVL's rather than the GPS height's (decimetres of noise). Without an
+    altitude (lost bottom lock) the tile frame's interface is used."""
+    if proc.imaging.interface != "altitude":
+        return frame
+    interface = nav.down_m + nav.altitude_m
+    if not math.isfinite(interface):
+        return frame
+    return dataclasses.replace(frame, interface_down=interface)
+
+
 class TileImager:
     """Streaming imager. Feed pings in time order with :meth:`add`; it returns the tiles
     that are complete. :meth:`finish` returns the rest."""
@@ -142,7 +157,8 @@ class TileImager:
             raise PingRejected(getattr(ping, "sequence", "?"), reason)
         line = self.line or line_from_ping(ping, self.proc)
         geo, tcfg = self.geometry, self.proc.tile
-        placed = place_array(geo, ping.nav, ping.projector, line)
+        placed = place_array(geo, ping.nav, ping.projector,
+                             ping_frame(line, ping.nav, self.proc))
         tx, rx, bore = placed.tx, placed.rx, placed.bore
         fix = self.track.check(ping.sequence, ping.nav, tx)
         im = self.proc.imaging
