@@ -1,6 +1,8 @@
 """``svss``: the SVSS command-line tool.
 
     svss demo --out DIR                  whole chain on the built-in scene
+    svss acquire [--config FILE] [--devices FILE] [--pings N | --duration S]
+    svss status [--connect ENDPOINT] [--json] [--follow]
     svss simulate --scene FILE --out RUN.h5
     svss process RUN.h5 --out DIR
     svss worker --connect ENDPOINT --out DIR [--service E] [--runs N]
@@ -8,7 +10,7 @@
     svss inspect FILE [--json]
     svss score TILES_DIR --scene FILE [--radius M] [--out REPORT.json]
     svss sim-device --scene FILE [--time-scale S] [--faults FILE] [--from-run RUN.h5]
-                    [--devices-out FILE] [--workers N] [--no-navigation]
+                    [--devices-out FILE] [--workers N] [--no-navigation] [--lead S]
     svss keys --out DIR [--name NAME] [--force]
 """
 
@@ -191,8 +193,9 @@ def cmd_status(args) -> int:
         from svss_daq.acquire_config import AcquireConfig
         endpoint = load(AcquireConfig, args.config or config_path("acquire.toml")
                         ).status.endpoint
+    curve = load(DaqConfig, config_path("daq.toml")).security
     while True:
-        s = read_status(endpoint, timeout_s=args.timeout)
+        s = read_status(endpoint, timeout_s=args.timeout, curve=curve)
         print(json.dumps(s, indent=2) if args.json else format_status(s), flush=True)
         if not args.follow:
             return 0
