@@ -126,14 +126,16 @@ def run_demo(out: Path, scene: str | None = None, hardware: str | None = None,
                   "--out", str(tiles), "--hardware", str(hw_path), "--processing",
                   str(proc_path), "--runs", "1", "--idle-timeout", str(worker_timeout_s))
             + (["--force"] if force else []), stdout=subprocess.DEVNULL)
-        rc = procs["acquire"].wait(timeout=STARTUP_S + lead_s + 10 * n_pings)
-        if rc != 0:
-            raise RuntimeError(f"svss acquire failed with exit code {rc}; see "
-                               f"{logs / 'acquire.log'}")
-        log.info("all %d pings recorded and published; waiting for the worker", n_pings)
-        rc = procs["worker"].wait(timeout=worker_timeout_s)
+        rc = procs["worker"].wait(timeout=STARTUP_S + lead_s + worker_timeout_s)
         if rc != 0:
             raise RuntimeError(f"the worker process failed with exit code {rc}")
+        # the run is over (the worker saw its end); the daemon may still be keeping its
+        # catch-up service up for late workers: stop it
+        _stop(procs["acquire"])
+        rc = procs["acquire"].returncode
+        if rc not in (0, 130):                  # 130: stopped while closing, all flushed
+            raise RuntimeError(f"svss acquire failed with exit code {rc}; see "
+                               f"{logs / 'acquire.log'}")
     finally:
         for name in ("worker", "acquire", "sim-device"):
             _stop(procs.get(name))

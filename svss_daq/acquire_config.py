@@ -67,6 +67,15 @@ class PairingSection:
 
 
 @dataclass(frozen=True)
+class CatchUpSection:
+    linger_s: float = spec("after the run ends, keep the catch-up service up while "
+                           "workers still fetch from it, until none has asked for this "
+                           "long, s (0: close with the run)", lo=0, hi=3600)
+    max_linger_s: float = spec("... but no longer than this after the run's end, s",
+                               lo=0, hi=86400)
+
+
+@dataclass(frozen=True)
 class NavigationSection:
     history_s: float = spec("navigation samples kept for the solution, s", lo=5, hi=3600)
     wait_s: float = spec("wait this long for DVL and GPS data at or after a ping's "
@@ -82,6 +91,7 @@ class AcquireConfig:
     disk: DiskSection = spec("disk-space floor")
     pairing: PairingSection = spec("digitiser/sequencer pairing and start/stop")
     navigation: NavigationSection = spec("navigation solution of the daemon")
+    catch_up: CatchUpSection = spec("the catch-up service after the run")
 
 
 @dataclass(frozen=True)

@@ -178,6 +178,8 @@ class AcquisitionDaemon:
         self.navigator = Navigator(setup.devices.navigation, setup.hardware.value.lever_arms,
                                    history_s=acq.navigation.history_s)
         self._t_start = time.monotonic()
+        self._requests_seen = 0
+        self._last_request = -float("inf")     # monotonic time of the last catch-up request
         self._next_status = 0.0
 
     # -- events --------------------------------------------------------------------------
@@ -351,7 +353,13 @@ class AcquisitionDaemon:
                 item = None
         self._assemble_due(final=False)
         self._watch_devices()
+        self._note_requests()
         self._publish_status()
+
+    def _note_requests(self) -> None:
+        if self.service is not None and self.service.requests != self._requests_seen:
+            self._requests_seen = self.service.requests
+            self._last_request = time.monotonic()
 
     def _take(self, item) -> None:
         if isinstance(item, dg.IncompletePing):
@@ -679,6 +687,7 @@ class AcquisitionDaemon:
             self.counters.publish_dropped = self.publisher.dropped
             self.publisher.close()
         if self.service is not None:
+            self._linger()
             self.service.close()
         if self.status_pub is not None:
             self.status_pub.close()
@@ -687,6 +696,28 @@ class AcquisitionDaemon:
                  self.counters.delivered, self.counters.recorded,
                  len(self.recorder.segments) if self.recorder else 0,
                  self.counters.published, self.counters.publish_dropped, self.n_events)
+
+    def _linger(self) -> None:
+        """Keep the catch-up service up after the run while workers still fetch from it
+        (``catch_up.linger_s`` without a request ends it; SIGINT/SIGTERM too)."""
+        cfg = self.setup.acquire.catch_up
+        if cfg.linger_s <= 0:
+            return
+        self._note_requests()
+        end = time.monotonic() + cfg.max_linger_s
+        seen, quiet_since = self.service.requests, self._last_request
+        logged = False
+        try:
+            while time.monotonic() < min(end, quiet_since + cfg.linger_s):
+                time.sleep(0.1)
+                if self.service.requests != seen:
+                    seen, quiet_since = self.service.requests, time.monotonic()
+                    if not logged:
+                        log.info("run %s ended; serving catch-up requests until none "
+                                 "comes for %.0f s", self.run_id, cfg.linger_s)
+                        logged = True
+        except KeyboardInterrupt:
+            pass
 
     def summary(self) -> dict:
         return {"run_id": self.run_id, "counters": self.counters.as_dict(),

@@ -665,7 +665,7 @@ def _read_state(path: Path) -> dict:
                               for t, s in zip(times[:n], text[:n])]
             run._shape = tuple(run._samples.shape[1:])
             run._events = _read_events(run._f, path)
-            for i in {0, run.n_pings - 1} - {-1}:
+            for i in ({0, run.n_pings - 1} if run.n_pings else ()):
                 run._samples[i]
         except H5_ERRORS as exc:
             raise RawFileError(f"{path}: cannot read the run ({_cause(exc)})") from None

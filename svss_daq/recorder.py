@@ -56,6 +56,7 @@ class RunRecorder:
         self._where: dict[int, tuple[int, int]] = {}   # sequence -> (segment, row)
         self._readers: dict[int, RawRunReader] = {}
         self.writer: RawRunWriter | None = None
+        self._held: list = []
         self.stopped: str | None = None
         self.ended = False
         self.free_bytes = self._free()
@@ -93,16 +94,25 @@ class RunRecorder:
         self.segments.append(path)
         self._seg_first.append(len(self.sequences))
         self._opened = time.monotonic()
+        self._base_bytes = path.stat().st_size
+        held, self._held = self._held, []
+        for method, args in held:               # events and NMEA between two segments
+            self._side(method, *args)
+        dig = self.hardware.value.digitiser
+        self._ping_bytes = 4 * dig.n_channels * dig.window_samples + 256
         log.info("recording run %s segment %d to %s", self.run_id, k, path)
 
     def _rotate_if_due(self) -> None:
+        """A new segment once the next ping would take this one past ``max_file_bytes``
+        (size estimated from what was appended: the file grows at flushes) or it is
+        older than ``max_file_s``."""
         w = self.writer
         if w.n_pings == 0:
             return
-        size = w.path.stat().st_size
-        if size >= self.max_bytes or time.monotonic() - self._opened >= self.max_s:
-            self._close_segment()
-            self._open_segment()
+        size = self._base_bytes + w.n_pings * self._ping_bytes
+        if size + self._ping_bytes > self.max_bytes or \
+                time.monotonic() - self._opened >= self.max_s:
+            self._close_segment()               # the next one opens with the next ping
 
     def _close_segment(self) -> None:
         w, self.writer = self.writer, None
@@ -118,7 +128,7 @@ class RunRecorder:
     @property
     def n_flushed(self) -> int:
         """Pings of the run known to be on disk."""
-        if self.writer is None:
+        if self.writer is None:                 # between segments, or closed
             return len(self.sequences) if not self.stopped else self._seg_first[-1] if \
                 self._seg_first else 0
         return self._seg_first[-1] + self.writer.n_flushed
@@ -129,6 +139,8 @@ class RunRecorder:
         with self.lock:
             if self.stopped:
                 raise RecordingStopped(self.stopped)
+            if self.writer is None:
+                self._open_segment()
             w = self.writer
             flushed = w.n_flushed
             try:
@@ -143,23 +155,30 @@ class RunRecorder:
             if w.n_flushed != flushed:          # a flush happened: check the disk
                 self.free_bytes = self._free()
                 self._check_free()
-                self._rotate_if_due()
+                # the file's real overhead (metadata, chunk indexes) so far
+                self._base_bytes = max(self._base_bytes, w.path.stat().st_size
+                                       - w.n_flushed * self._ping_bytes)
+            self._rotate_if_due()
 
     def append_event(self, time_ns: int, kind: str, detail: str) -> None:
-        with self.lock:
-            if self.writer is not None and not self.stopped:
-                try:
-                    self.writer.append_event(time_ns, kind, detail)
-                except RawFileError as exc:
-                    raise self._stop(str(exc)) from None
+        """Record a device event (held for the next segment between two)."""
+        self._side("append_event", time_ns, kind, detail)
 
     def append_nmea(self, time_ns: int, sentence: str) -> None:
+        """Record a raw NMEA sentence (held for the next segment between two)."""
+        self._side("append_nmea", time_ns, sentence)
+
+    def _side(self, method: str, *args) -> None:
         with self.lock:
-            if self.writer is not None and not self.stopped:
-                try:
-                    self.writer.append_nmea(time_ns, sentence)
-                except RawFileError as exc:
-                    raise self._stop(str(exc)) from None
+            if self.stopped or self.ended:
+                return
+            if self.writer is None:
+                self._held.append((method, args))
+                return
+            try:
+                getattr(self.writer, method)(*args)
+            except RawFileError as exc:
+                raise self._stop(str(exc)) from None
 
     def flush(self) -> None:
         with self.lock:

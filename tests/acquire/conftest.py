@@ -33,7 +33,8 @@ def acquire_toml(tmp: Path, **sections) -> Path:
                    "rate_window_s": 5.0},
         "disk": {"min_free_mib": 0.0},
         "pairing": {"transmit_wait_s": 0.3, "start_timeout_s": 20.0, "drain_s": 1.0},
-        "navigation": {"history_s": 60.0, "wait_s": 0.5}}
+        "navigation": {"history_s": 60.0, "wait_s": 0.5},
+        "catch_up": {"linger_s": 15.0, "max_linger_s": 120.0}}
     for k, v in sections.items():
         tables[k].update(v)
     lines = []

@@ -1,0 +1,122 @@
+"""The boat-side chain as separate processes: ``svss sim-device`` -> ``svss acquire`` ->
+ZeroMQ (stream and catch-up service) -> ``svss worker``. Rotated recordings served across
+segments; a worker SIGKILLed mid-run and restarted ends with every tile once, equal voxel
+for voxel to ``svss process`` of the recording; counts reconcile from the device to the
+worker."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from svss_daq.ping_service import PingFetcher
+from svss_daq.rawfile import RawRunReader
+from svss_proc.tiles import read_tile
+
+from .conftest import CONFIG, ROOT, acquire_toml
+from .test_daemon import device_stats
+
+pytestmark = [pytest.mark.skipif(not sys.platform.startswith("linux"),
+                                 reason="needs Linux pseudo-terminals"), pytest.mark.slow]
+PROCESSING = CONFIG / "processing-demo.toml"
+
+
+def test_rotated_segments_are_complete_and_served_across_files(rig, tmp_path):
+    cfg = acquire_toml(tmp_path, rotation={"max_file_mib": 3.0})  # ~6 pings a segment
+    dev = rig.device("--time-scale", "2")
+    acq = rig.acquire(dev, "--duration", "300", config=cfg)
+    fetcher = PingFetcher(acq.endpoints["service"], timeout_s=10)
+    deadline = time.monotonic() + 60
+    while len(acq.files()) < 4 and time.monotonic() < deadline:
+        time.sleep(0.2)
+    # while the run goes on: pings from closed segments and the open one, by sequence
+    [info] = [r for r in fetcher.runs() if r.run_id == "run1"]
+    assert not info.ended and info.n_pings >= 18
+    pings, missing = fetcher.fetch("run1", info.first, info.last)
+    assert [p.sequence for p in pings] == list(range(info.first, info.last + 1))
+    assert missing == []
+    fetcher.close()
+    assert acq.stop() == 130                     # SIGTERM: flushed, closed, summarised
+    files = acq.files()
+    assert len(files) >= 4
+    seqs, segments = [], []
+    for f in files:
+        with RawRunReader(f) as run:
+            assert run.clean and run.attrs["run_id"] == "run1"
+            segments.append(int(run.attrs["segment"]))
+            assert f.stat().st_size <= 3.0 * 2**20 + 100_000      # plus its metadata
+            seqs += run.ping_table()["ping_sequence"].tolist()
+            summary = run.summary
+    assert segments == list(range(len(files)))
+    assert seqs == sorted(set(seqs)) and summary["counters"]["recorded"] == len(seqs)
+    by_seq = {p.sequence: p for p in pings}
+    with RawRunReader(files[0]) as run:
+        first = run.ping(0)
+    np.testing.assert_array_equal(by_seq[first.sequence].samples, first.samples)
+    assert by_seq[first.sequence].nav == first.nav
+    device_stats(dev)
+
+
+def _worker(tmp: Path, endpoints: dict, out: Path) -> subprocess.Popen:
+    log = open(tmp / "worker.log", "ab")
+    return subprocess.Popen(
+        [sys.executable, "-m", "svss", "worker", "--connect", endpoints["publisher"],
+         "--service", endpoints["service"], "--out", str(out), "--processing",
+         str(PROCESSING), "--runs", "1", "--idle-timeout", "120"],
+        stdout=subprocess.DEVNULL, stderr=log, cwd=ROOT)
+
+
+def test_worker_killed_mid_run_resumes_every_tile_once(rig, tmp_path):
+    dev = rig.device()
+    acq = rig.acquire(dev, "--pings", "90", "--wait-subscribers", "1")
+    out = tmp_path / "tiles"
+    worker = _worker(tmp_path, acq.endpoints, out)
+    run_dir = out / "run1"
+    deadline = time.monotonic() + 120
+    while not list(run_dir.glob("tile_*.h5")) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert list(run_dir.glob("tile_*.h5")), (tmp_path / "worker.log").read_text()[-3000:]
+    worker.send_signal(signal.SIGKILL)           # mid-run: tiles open, pings in flight
+    worker.wait(10)
+    time.sleep(1.0)                              # pings go by meanwhile
+    worker = _worker(tmp_path, acq.endpoints, out)
+    try:
+        assert acq.wait(180) == 0, acq.logs()[-3000:]
+        assert worker.wait(180) == 0, (tmp_path / "worker.log").read_text()[-3000:]
+    finally:
+        if worker.poll() is None:
+            worker.kill()
+    stats = device_stats(dev)
+    [raw] = acq.files()
+    with RawRunReader(raw) as run:
+        n = len(run)
+        summary = run.summary
+    # device -> daemon -> file -> worker
+    assert stats["pings_sent"] == summary["counters"]["delivered"] == n >= 90
+    manifest = json.loads((run_dir / "manifest.json").read_text())
+    assert manifest["complete"]
+    # every tile once, equal voxel for voxel to svss process of the recording
+    again = tmp_path / "again"
+    res = subprocess.run([sys.executable, "-m", "svss", "process", str(raw), "--out",
+                          str(again), "--processing", str(PROCESSING)], cwd=ROOT,
+                         capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-3000:]
+    live = sorted(p.name for p in run_dir.glob("tile_*.h5"))
+    ref = sorted(p.name for p in again.glob("tile_*.h5"))
+    assert live == ref and len(live) >= 3
+    assert not [p for p in run_dir.iterdir() if p.name.startswith(".")]
+    pings_in_tiles = set()
+    for name in live:
+        a, b = read_tile(run_dir / name), read_tile(again / name)
+        np.testing.assert_array_equal(a["ping_sequence"], b["ping_sequence"])
+        np.testing.assert_array_equal(a["image"], b["image"])
+        pings_in_tiles |= set(a["ping_sequence"].tolist())
+    with RawRunReader(raw) as run:
+        assert pings_in_tiles == set(run.ping_table()["ping_sequence"].tolist())
