@@ -234,7 +234,10 @@ def hostile_stream(pings, hw):
            if name not in ("back in time", "float samples")]
     bad += [lambda p, hw: with_nav(p, north_m=p.nav.north_m + 1000.0),
             lambda p, hw: with_nav(p, pitch_rad=1.55),
-            lambda p, hw: with_nav(p, down_m=p.nav.down_m - 20.0),
+            # 20 m too high by GPS height and DVL altitude alike (imaging.interface =
+            # "altitude" places a ping at its DVL altitude)
+            lambda p, hw: with_nav(p, down_m=p.nav.down_m - 20.0,
+                                   altitude_m=p.nav.altitude_m + 20.0),
             lambda p, hw: later(p, dt_ns=-10**9)]
     out, n_bad = [], 0
     for i, p in enumerate(pings):
