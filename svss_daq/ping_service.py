@@ -170,13 +170,14 @@ class RawRunStore:
                 continue
             if mtime == s.mtime_ns:
                 continue
+            # close first: HDF5 would hand a second open in this process (and the
+            # reader's forked child) the file as it was first read
+            s.reader.close()
             try:
                 new = self._open(s.path)
             except (RawFileError, OSError) as exc:
-                log.warning("%s: could not read it again (%s); serving what was read", s.path,
-                            exc)
-                continue
-            s.reader.close()
+                s.mtime_ns = -1                   # read it again at the next request
+                raise RawFileError(f"{s.path}: could not read it again ({exc})") from None
             self._segments[k] = new
 
     def _of(self, run_id: str) -> list[_Segment]:

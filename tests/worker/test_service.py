@@ -151,3 +151,68 @@ def test_fetch_rate_on_loopback(raw_run, capsys):
     with capsys.disabled():
         print(f"\ncatch-up fetch on loopback: {rate:.0f} pings/s ({mb:.0f} MB/s)")
     assert messages.decode(messages.encode_ping(pings[0])).sequence == 0
+
+
+WRITER = r"""
+import itertools, sys, time
+from pathlib import Path
+from sim_device.environment_source import EnvironmentSource
+from sim_device.scene import load_scene
+from svss_daq.config import HardwareConfig, config_path, load_with_text
+from svss_daq.rawfile import RawRunWriter
+hw = load_with_text(HardwareConfig, config_path("hardware.toml"))
+pings = list(itertools.islice(iter(EnvironmentSource(hw, load_scene(
+    config_path("scenes/demo.toml")))), 10))
+go = Path(sys.argv[2])
+with RawRunWriter(sys.argv[1], hw, flush_every_pings=1,
+                  run_attrs={"run_id": "live", "segment": 0}) as w:
+    for p in pings[:5]:
+        w.append(p)
+    w.flush()
+    print("5", flush=True)
+    while not go.exists():
+        time.sleep(0.05)
+    for p in pings[5:]:
+        w.append(p)
+    w.flush()
+    print("10", flush=True)
+    while go.read_text() != "close":
+        time.sleep(0.05)
+"""
+
+
+def test_a_run_still_being_written_answers_pending_then_found(tmp_path):
+    """A raw file still open for writing (another process, SWMR): the service says which
+    pings are not recorded yet (pending, not missing) and serves them once flushed."""
+    import subprocess
+    import sys
+    from .conftest import ROOT
+    path, go = tmp_path / "live.h5", tmp_path / "go"
+    w = subprocess.Popen([sys.executable, "-c", WRITER, str(path), str(go)], cwd=ROOT,
+                         stdout=subprocess.PIPE, text=True)
+    try:
+        assert w.stdout.readline().strip() == "5"
+        with RawRunStore([path]) as store, \
+                PingService("tcp://127.0.0.1:*", store) as svc, \
+                PingFetcher(svc.endpoint, timeout_s=30) as f:
+            (run,) = f.runs()
+            assert (run.run_id, run.last, run.ended) == ("live", 4, False)
+            got = f.fetch_once("live", 3, 8)
+            assert [p.sequence for p in got.pings] == [3, 4] and got.missing == []
+            assert got.pending and got.next == 5
+            go.write_text("more")
+            assert w.stdout.readline().strip() == "10"
+            deadline = time.monotonic() + 20
+            while True:                       # the file's change is seen, then read again
+                pings, missing = f.fetch("live", 3, 8)
+                if len(pings) == 6 or time.monotonic() > deadline:
+                    break
+                time.sleep(0.1)
+            assert [p.sequence for p in pings] == [3, 4, 5, 6, 7, 8] and missing == []
+            assert not f.runs()[0].ended
+    finally:
+        go.write_text("close")
+        w.wait(timeout=30)
+    with RawRunStore([path]) as store:
+        (run,) = store.runs()
+        assert run.ended and run.n_pings == 10
