@@ -199,3 +199,38 @@ def test_worker_stays_up_across_two_runs(raw_run, processed, hw, small_proc, tmp
     m = json.loads((out / MANIFEST).read_text())
     assert m["complete"] and set(m["runs"]) == {"line1", "line2"}
     assert m["pings"] == 180 and all(r["complete"] for r in m["runs"].values())
+
+
+def test_sequences_the_recording_lacks_are_skipped_and_counted(hw, small_proc, tmp_path):
+    """A recording with holes (pings the daemon never got): the service says they are
+    missing, the worker skips them at once (no wait) and its tiles equal `svss
+    process`'s of the same file."""
+    from svss_proc.worker import process_raw
+
+    from .conftest import simulate
+    raw = simulate(tmp_path / "holes.h5", 50, skip=frozenset({10, 11, 30}))
+    process_raw(raw, tmp_path / "ref", small_proc)
+    out = tmp_path / "w"
+    result = {}
+    ctx = zmq.Context()
+    with RawRunStore([raw]) as store, \
+            PingService("tcp://127.0.0.1:*", ReplayStore(store), ctx=ctx) as svc, \
+            PingPublisher("tcp://127.0.0.1:*", 1000, ctx=ctx) as pub, \
+            RawRunReader(raw) as run:
+        t = _serve_in_thread(result, pub.endpoint, out, hw, small_proc, 60,
+                             receive_hwm=1000, service=svc.endpoint, runs=1,
+                             gap_wait_s=600.0)
+        pub.wait_for_subscribers(timeout_s=60)
+        svc.store.begin("holes")
+        for p in run:
+            if p.sequence != 20:                      # and one dropped on the stream
+                pub.publish(p)
+        svc.store.end("holes")
+        pub.publish(messages.RunEnd("holes", len(run)))
+        t.join(timeout=300)
+    ctx.term()
+    assert not t.is_alive() and "error" not in result, result.get("error")
+    assert_same_tiles(tmp_path / "ref", out / "holes")
+    m = json.loads((out / MANIFEST).read_text())
+    assert m["missing_in_recording"] == 3 and m["fetched_pings"] == 1
+    assert m["skipped_pings"] == 0 and m["pings"] == 47
