@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.sim_devices.conftest import SimDeviceProcess
+from tests.sim_devices.conftest import SimDeviceProcess, stop_process
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "config"
@@ -92,14 +92,7 @@ class AcquireProcess:
         return self.proc.returncode
 
     def stop(self, sig: int = signal.SIGTERM, timeout_s: float = 20.0) -> int:
-        if self.proc.poll() is None:
-            self.proc.send_signal(sig)
-            try:
-                self.proc.wait(timeout_s)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
-        return self.proc.returncode
+        return stop_process(self.proc, sig, timeout_s)
 
     def files(self) -> list[Path]:
         return sorted(self.out.glob(f"{self.run_id}_*.h5"))

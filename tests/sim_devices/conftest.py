@@ -44,14 +44,21 @@ class SimDeviceProcess:
         return self.log.read_text(errors="replace")
 
     def stop(self, sig: int = signal.SIGTERM, timeout_s: float = 10.0) -> int:
-        if self.proc.poll() is None:
-            self.proc.send_signal(sig)
-            try:
-                self.proc.wait(timeout_s)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
-        return self.proc.returncode
+        return stop_process(self.proc, sig, timeout_s)
+
+
+def stop_process(proc: subprocess.Popen, sig: int = signal.SIGTERM,
+                 timeout_s: float = 10.0) -> int:
+    """Send ``sig`` to a running ``proc``, kill it if it is not gone within
+    ``timeout_s``; its exit code."""
+    if proc.poll() is None:
+        proc.send_signal(sig)
+        try:
+            proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+    return proc.returncode
 
 
 @pytest.fixture
@@ -79,4 +86,4 @@ def wait_for(pred, timeout_s: float = 5.0, step_s: float = 0.01) -> bool:
     return True
 
 
-__all__ = ["SimDeviceProcess", "DEMO", "wait_for"]
+__all__ = ["SimDeviceProcess", "DEMO", "wait_for", "stop_process"]
