@@ -42,6 +42,7 @@ Angles in radians, distances m, times int ns since the Unix epoch UTC.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from dataclasses import dataclass
@@ -255,6 +256,15 @@ def altitude_from_ranges(ranges_m, roll_rad: float, pitch_rad: float, beam_angle
     return below_head + float((rot @ np.asarray(dvl_lever_m, dtype=np.float64))[2])
 
 
+@functools.lru_cache(maxsize=8192)
+def _sample_altitude(d: "DvlSample", beam_angle_rad: float, dvl_lever_m: tuple,
+                     min_beams: int) -> float:
+    """:func:`altitude_from_ranges` of one DVL sample, computed once (a navigator poses
+    each ping from the same history of samples)."""
+    return altitude_from_ranges(d.ranges_m, d.roll_rad, d.pitch_rad, beam_angle_rad,
+                                dvl_lever_m, min_beams, d.vertical_range_m)
+
+
 def dvl_sample_from_pd0(ens, min_beams: int = 3,
                         beam_angle_rad: Optional[float] = None) -> Optional[DvlSample]:
     """A :class:`DvlSample` from a decoded PD0 ensemble (``svss_daq.drivers.pd0``).
@@ -438,7 +448,20 @@ def _headings(t: np.ndarray, heads: Sequence[HeadingSample], max_age_s: float, t
 
 
 def _rotations(roll, pitch, heading) -> np.ndarray:
-    return np.array([body_to_ned(r, p, h) for r, p, h in zip(roll, pitch, heading)]).reshape(-1, 3, 3)
+    """:func:`~svss_daq.frames.body_to_ned` of each (roll, pitch, heading), (n, 3, 3)."""
+    r, p, h = (np.asarray(a, dtype=np.float64).reshape(-1) for a in (roll, pitch, heading))
+    cr, sr, cp, sp, ch, sh = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(h), np.sin(h)
+    out = np.empty((r.size, 3, 3))
+    out[:, 0, 0] = ch * cp
+    out[:, 0, 1] = ch * sp * sr - sh * cr
+    out[:, 0, 2] = ch * sp * cr + sh * sr
+    out[:, 1, 0] = sh * cp
+    out[:, 1, 1] = sh * sp * sr + ch * cr
+    out[:, 1, 2] = sh * sp * cr - ch * sr
+    out[:, 2, 0] = -sp
+    out[:, 2, 1] = cp * sr
+    out[:, 2, 2] = cp * cr
+    return out
 
 
 def _smooth(t: np.ndarray, x: np.ndarray, window_s: float,
@@ -535,9 +558,8 @@ def compute_poses(times_ns, fixes: Sequence[GpsFix], headings: Sequence[HeadingS
         omega_x_r = np.stack([-yaw_rate * r_dvl[1], yaw_rate * r_dvl[0], np.zeros_like(td)], -1)
         rot_d = _rotations(rd, pd, hd)
         v_ned = np.einsum("kij,kj->ki", rot_d, vb - omega_x_r)
-        alt_d = np.array([altitude_from_ranges(d.ranges_m, d.roll_rad, d.pitch_rad, beam, r_dvl,
-                                               cfg.dvl_min_beams, d.vertical_range_m)
-                          for d in dvl])
+        lever = tuple(float(v) for v in r_dvl)
+        alt_d = np.array([_sample_altitude(d, beam, lever, cfg.dvl_min_beams) for d in dvl])
         ok = np.all(np.isfinite(v_ned), axis=1)
         idx = np.flatnonzero(ok)
         # runs of valid samples no further apart than dvl_max_gap_s
