@@ -72,7 +72,7 @@ def test_bad_scene_and_processing_are_named(tmp_path):
                    "target_strength_db = true")
     with pytest.raises(ConfigError, match=r"points\[0\].target_strength_db.*number"):
         load_scene(path)
-    path = _edited(tmp_path, "processing.toml", r'^interface = "navigation"',
+    path = _edited(tmp_path, "processing.toml", r'^interface = "altitude"',
                    'interface = "sonar"')
     with pytest.raises(ConfigError, match=r"imaging.interface.*'sonar'"):
         load(ProcessingConfig, path)
