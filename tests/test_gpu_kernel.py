@@ -92,10 +92,27 @@ def reference_results():
     return out
 
 
-def _run_gpu(tmp_path, simulator: bool):
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+def subprocess_env(simulator: bool, environ=None) -> dict:
+    """The environment of a GPU subprocess: the project root prepended to PYTHONPATH
+    (never replacing it: on the GPU machine the packages live on PYTHONPATH), and the
+    CUDA simulator chosen when asked."""
+    env = dict(os.environ if environ is None else environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + ([env["PYTHONPATH"]]
+                                                       if env.get("PYTHONPATH") else []))
     if simulator:
         env["NUMBA_ENABLE_CUDASIM"] = "1"
+    return env
+
+
+def test_subprocess_env_prepends_the_project_root():
+    env = subprocess_env(False, {"PYTHONPATH": "/opt/site"})
+    assert env["PYTHONPATH"] == os.pathsep.join([str(ROOT), "/opt/site"])
+    assert subprocess_env(True, {})["PYTHONPATH"] == str(ROOT)
+    assert subprocess_env(True, {})["NUMBA_ENABLE_CUDASIM"] == "1"
+
+
+def _run_gpu(tmp_path, simulator: bool):
+    env = subprocess_env(simulator)
     out = tmp_path / "gpu.npz"
     res = subprocess.run([sys.executable, "-c", SCRIPT, str(out)], cwd=ROOT, env=env,
                          capture_output=True, text=True, timeout=600)
