@@ -47,7 +47,7 @@ from .delays import _cpu as refraction_cpu
 from .kernel_args import (EXACT, LINEAR, NEAREST, SHIFT, STRAIGHT, TABLE, TAPS, DelayModel,
                           KernelArgs, KernelData, TapPlanes, TravelTimes, VoxelGeometry,
                           check_call, kernel_args)
-from .kernel_math import build, cast_like
+from .kernel_math import build, cast_like, kernel_one
 from .window_gather import LANES, window_gather_1, window_gather_2, window_gather_4
 
 
@@ -121,7 +121,7 @@ def _make_voxel_kernel(interp: int, mode: int, gating: bool, halvings: int):
             g.cos_rx)
         inv_cw, cw, cs, ttab, etab, inv_drho, z0, inv_dz, h_ref = (
             d.inv_cw, d.cw, d.cs, d.time, d.eta, d.inv_drho, d.z0, d.inv_dz, d.h_ref)
-        one = re[0, 0, 0] * 0 + 1
+        one = kernel_one(re)
         nc = cy.size
         nd = dz.size
         counts = np.zeros(ia1 - ia0, dtype=np.int64)

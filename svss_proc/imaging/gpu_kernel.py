@@ -16,7 +16,7 @@ from numba import cuda
 
 from .delays import build_refraction
 from .kernel_args import DelayModel, KernelData, check_call, kernel_args
-from .kernel_math import build
+from .kernel_math import build, kernel_one
 
 _dev = cuda.jit(device=True)
 _math = build(_dev, build_refraction(_dev))
@@ -38,7 +38,7 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
         rem = i % (nc * nd)
         ic = rem // nd
         iz = rem % nd
-        one = args.planes.re[0, 0, 0] * 0 + 1
+        one = kernel_one(args.planes.re)           # the kernel precision
         sr, si, n = _voxel_sum(args.geometry.ax[ia], args.geometry.cy[ic],
                                args.geometry.dz[iz], interp, mode, gating, halvings, args, one)
         img_re[ia, ic, iz] += sr                   # each thread owns its voxel

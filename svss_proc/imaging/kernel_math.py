@@ -32,6 +32,22 @@ def _cast_like(ref, x):
     return lambda ref, x: np.float64(x)
 
 
+def kernel_one(planes_re):
+    """1 in the kernel precision, the dtype of the tap planes. Kernels must take it from
+    here: ``re[0, 0, 0] * 0 + 1`` types as float64 in numba (float32 times an integer),
+    which silently ran the float32 GPU kernel's interpolation, phase and sums in float64
+    (mixed with float32 geometry) while the CUDA simulator (numpy scalars) ran them in
+    float32: the simulator did not test the arithmetic the GPU ran."""
+    return cast_like(planes_re[0, 0, 0], 1)
+
+
+@overload(kernel_one, inline="always", target="generic")
+def _kernel_one(planes_re):
+    if planes_re.dtype == types.float32:
+        return lambda planes_re: np.float32(1)
+    return lambda planes_re: np.float64(1)
+
+
 def build(jit, refr):
     """The scalar functions compiled with ``jit``; ``refr`` holds the matching
     refraction functions (:func:`svss_proc.imaging.delays.build_refraction`)."""
@@ -120,7 +136,7 @@ def build(jit, refr):
         if mode == STRAIGHT:
             dz = z + h
             return math.sqrt(dx * dx + dy * dy + dz * dz) * tt.inv_cw
-        one = tt.inv_cw * 0 + 1
+        one = cast_like(tt.inv_cw, 1)        # kernel precision (`x * 0 + 1` is float64)
         rho = math.sqrt(np.float64(dx) * dx + np.float64(dy) * dy)
         if mode == TABLE:
             ttab = tt.time
@@ -164,7 +180,11 @@ def build(jit, refr):
         r1 = math.sqrt(x * x + y * y + vz * vz)
         if gating and x * b0 + y * b1 + vz * b2 < r1 * g.cos_tx:
             return zero, zero, 0
-        t1 = travel_time(mode, x, y, z, g.h_tx, tt) - p.t0
+        # the projector leg in samples after the window start, once per voxel; each
+        # channel adds its own leg (relative quantities only: no absolute time is
+        # formed and differenced)
+        inv_dt = p.inv_dt
+        u1 = (travel_time(mode, x, y, z, g.h_tx, tt) - p.t0) * inv_dt
         acc_re = zero
         acc_im = zero
         n_upd = 0
@@ -176,8 +196,7 @@ def build(jit, refr):
             if gating:
                 r2 = math.sqrt(ex * ex + ey * ey + ez * ez)
                 w = w if ex * b0 + ey * b1 + ez * b2 >= r2 * g.cos_rx else zero
-            t2 = travel_time(mode, ex, ey, z, rx_h[ch], tt)
-            u = (t1 + t2) * p.inv_dt
+            u = u1 + travel_time(mode, ex, ey, z, rx_h[ch], tt) * inv_dt
             sr, si, valid = sample(re, im, ch, u, interp, halvings, p.theta, nt, one)
             w = w * valid
             acc_re += w * sr
