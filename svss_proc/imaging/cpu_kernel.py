@@ -102,10 +102,33 @@ def _table_time(tz, ez, ir, a, dh, iz, one):
             + a * (tz[ir + 1, iz] + dh * ez[ir + 1, iz]))
 
 
+@nb.njit(cache=True)
+def spread_step(n):
+    """A step coprime with ``n`` near n / golden ratio: ``j -> (j * step) % n`` is a
+    permutation of 0..n-1 under which every contiguous run of j covers the range evenly
+    (a low-discrepancy order). The parallel loops run over along-track slices in this
+    order: numba splits a prange into one contiguous block of iterations per thread, and
+    the work per slice follows the projector cone (little at its edges, most under the
+    projector), so contiguous blocks of slices left the threads at the cone's edges idle
+    while the middle ones worked; spread, every thread gets slices from the whole cone.
+    Each slice is computed by the same code whatever the order: images are unchanged."""
+    if n <= 2:
+        return 1
+    step = max(1, int(n * 0.6180339887498949 + 0.5))
+    while True:
+        a, b = step, n
+        while b:
+            a, b = b, a % b
+        if a == 1:
+            return step
+        step += 1
+
+
 # ------------------------------------------------------------------------- the kernel
 
 
-def _make_voxel_kernel(interp: int, mode: int, gating: bool, halvings: int):
+def _make_voxel_kernel(interp: int, mode: int, gating: bool, halvings: int,
+                       spread: bool = True):
     """Voxel-order kernel (channel loop innermost, :mod:`svss_proc.imaging.kernel_math`
     ``voxel_sum``), used for exact Fermat delays, whose per-pair solve dominates and does
     not vectorise."""
@@ -125,7 +148,9 @@ def _make_voxel_kernel(interp: int, mode: int, gating: bool, halvings: int):
         nc = cy.size
         nd = dz.size
         counts = np.zeros(ia1 - ia0, dtype=np.int64)
-        for k in nb.prange(ia1 - ia0):
+        step = spread_step(ia1 - ia0) if spread else 1
+        for j in nb.prange(ia1 - ia0):
+            k = (j * step) % (ia1 - ia0)             # balanced order (spread_step)
             a = KernelArgs(TapPlanes(re, im, t0, inv_dt, theta),
                            VoxelGeometry(ax, cy, dz, h_tx, rx_dx, rx_dy, rx_h, apod, bore,
                                          cos_tx, cos_rx),
@@ -148,14 +173,15 @@ def _make_voxel_kernel(interp: int, mode: int, gating: bool, halvings: int):
     return kernel
 
 
-def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
+def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
+                 spread: bool = True):
     """Column-order kernel for straight rays (mode 0) and the refraction table (mode 1),
     specialised at compile time on interpolation, delay mode and gating (constant
     branches fold away, so that the depth loop vectorises). Keep the prange body free of
     array views: numba then marks the arrays noalias, which the depth loop needs to
     vectorise (gathers next to accumulator stores)."""
     if mode == EXACT:
-        return _make_voxel_kernel(interp, mode, gating, halvings)
+        return _make_voxel_kernel(interp, mode, gating, halvings, spread)
 
     ntap = len(TAPS[interp])
     shift_s = SHIFT[interp]                 # phase reference of the fraction, samples
@@ -230,7 +256,9 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
         frac_w = np.empty(nk * npad, dtype=ft)
         wt_w = np.empty(nk * npad, dtype=ft)
         tap_w = np.empty(nk * 2 * ntap * npad, dtype=ft)  # re taps, then im taps
-        for k in nb.prange(nk):
+        step = spread_step(nk) if spread else 1      # balanced order: spread_step
+        for j in nb.prange(nk):
+            k = (j * step) % nk
             ia = ia0 + k
             x = ax[ia]
             bs = np.uint64(k * npad)                 # unsigned: no negative-index wraparound
