@@ -32,6 +32,7 @@ import math
 import time
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from svss_daq.assembly import PingAssembler, acoustic_axis
@@ -44,6 +45,7 @@ from svss_daq.waveform import make_waveform
 from .acoustics import Sediment
 from .beams import beam_table, interface_sigma_table, reflection_tables
 from .environment import Environment, build_environment
+from .fidelity import densities, resolution_cell, volume_depth_limits
 from .layered_rays import two_medium_table
 from .multipath import coherent_paths, image_depth, leg_image, leg_pairs, max_leg_reflections
 from .path_choice import choose_paths, nadir_sigma
@@ -52,7 +54,7 @@ from .scatterers import Scatterers, SeabedScatterers, scene_points
 from .scene import SceneConfig
 from .specular import (PathSet, SpectralSynthesiser, boundary_paths, interface_paths,
                        merge, select)
-from .synthesis import PulseSynthesiser, accumulate, transmit_legs
+from .synthesis import PulseSynthesiser, accumulate, accumulate_fast, transmit_legs
 from .targets.echo import TargetEchoes, build_targets
 from .track import ping_pose, truth_line
 
@@ -129,9 +131,27 @@ class EnvironmentSource:
         self.receiver_noise = ReceiverNoise(scene.noise, hw.waveform, dig)
         self.noise_power = self.receiver_noise.power
         self.points = scene_points(scene, self.env, self.p0)
+        self.synthesis = (sc.synthesis if sc is not None and sc.synthesis is not None
+                          else "fast")
+        self.resolution = self._resolution_cell()
+        dens = None
+        if sc is not None and sc.scatterers_per_resolution_cell is not None:
+            dens = densities(self.resolution, sc.scatterers_per_resolution_cell)
+            log.info("scatterer densities from %.3g per resolution cell (%.3f x %.3f x "
+                     "%.3f m): %.0f /m^2, %.0f /m^3", sc.scatterers_per_resolution_cell,
+                     self.resolution.along, self.resolution.across,
+                     self.resolution.depth_sediment, *dens)
         self.seabed = SeabedScatterers(scene, self.env, fc, self.p0, self.tx_beam.edge,
-                                       self.pulses.t_hi, self.water_depth)
+                                       self.pulses.t_hi, self.water_depth, dens)
         self.allowed = self._choose_paths()
+        #: zmax[m_tx, m_rx]: deepest scatterer each path synthesises (the level cut-off)
+        self.zmax = self._volume_limits()
+        if self.synthesis == "reference" and np.isfinite(self.zmax).any():
+            raise ValueError(f"scene {scene.scene.name!r}: scattering.volume_below_noise_db "
+                             "needs scattering.synthesis = 'fast' (the reference kernel has "
+                             "no per-path depth limits)")
+        kept = self.zmax[self.allowed]
+        self.seabed.z_cut = float(kept.max()) if kept.size else math.inf
         #: extra pressure contributions: callables f(source, i, geometry) ->
         #: (n_channels, n_samples) uPa, added by pressure(i); the scene's targets are one
         self.contributions: list = []
@@ -192,6 +212,35 @@ class EnvironmentSource:
             noise_power=self.noise_power, drop_db=self.drop_db)
         return allowed
 
+    def _resolution_cell(self):
+        """One ping's resolution cell at nadir (:func:`sim_device.fidelity.resolution_cell`)."""
+        wf = self.hw.waveform
+        g = self.frame(0)
+        altitude = max(-float(np.mean(g.rx[:, 2])), 1e-3)
+        c1 = self.media.c[1] if self.media.n > 1 else self.media.c[0]
+        return resolution_cell(self.geometry.receivers, self.hw.receive_array.pitch_m,
+                               abs(wf.f_stop_hz - wf.f_start_hz), self.fc, altitude,
+                               self.env.water_sound_speed, float(c1))
+
+    def _volume_limits(self) -> np.ndarray:
+        """zmax[m_tx, m_rx] of :func:`sim_device.fidelity.volume_depth_limits` (at the
+        first ping's geometry)."""
+        sc = self.fidelity
+        below = sc.volume_below_noise_db if sc is not None else None
+        if below is None or not self.env.has_seabed or not sc.volume:
+            return np.full(self.allowed.shape, np.inf)
+        g = self.frame(0)
+        tr = self.scene.transducers
+        back = (10.0 ** (tr.back_lobe_db / 20.0)
+                if tr is not None and tr.back_lobe_db is not None else 0.0)
+        zmax, self.volume_levels_db = volume_depth_limits(
+            allowed=self.allowed, tx_z=float(g.tx[2]), rx_z=float(np.mean(g.rx[:, 2])),
+            water_depth=self.water_depth, env=self.env, media=self.media, fc=self.fc,
+            p0=self.p0, pulse_s=self.waveform.duration_s, r_bottom=complex(self.r_bot[0]),
+            back_lobe=back, noise_power=self.noise_power, below_noise_db=below,
+            z_max=sc.volume_max_depth_m)
+        return zmax
+
     # --------------------------------------------------------------- scatterers
     def scatterers(self, i: int, g: PingGeometry | None = None) -> Scatterers:
         """The seabed scatterers the projector can reach on ping ``i`` (before the beam
@@ -237,11 +286,16 @@ class EnvironmentSource:
         idx = np.flatnonzero(seen)
         t2 = time.perf_counter()
         rb = self.rx_beam
-        buf = self.pulses.buffer(n_ch).astype(cf)
-        counts = accumulate(sx[idx], sy[idx], sz[idx], s.med[idx], tau_t[idx], amp_t[idx],
-                            img_r, self.allowed, *args_env, bore, rb.front, rb.back,
-                            rb.lo_front, rb.lo_back, self.sig, self.fc, self.pulses.t_lo,
-                            self.pulses.t_hi, self.pulses.t_buf0, self.fs, buf)
+        args = (sx[idx], sy[idx], sz[idx], s.med[idx], tau_t[idx], amp_t[idx], img_r,
+                self.allowed, *args_env, bore, rb.front, rb.back, rb.lo_front, rb.lo_back,
+                self.sig, self.fc, self.pulses.t_lo, self.pulses.t_hi, self.pulses.t_buf0,
+                self.fs)
+        if self.synthesis == "reference":
+            buf = self.pulses.buffer(n_ch).astype(cf)
+            counts = accumulate(*args, buf)
+        else:
+            buf, counts = accumulate_fast(*args, self.pulses.n_buf,
+                                          2 * numba.get_num_threads(), self.zmax)
         t3 = time.perf_counter()
         out = self.pulses.to_passband(buf.astype(np.complex128))
         self.last_stats.update(generated=n_gen, in_view=int(idx.size),

@@ -71,8 +71,17 @@ class SeabedScatterers:
     1 m)."""
 
     def __init__(self, scene: SceneConfig, env: Environment, fc: float, p0: float,
-                 beam_edge: float, t_hi: float, water_depth: float | None):
+                 beam_edge: float, t_hi: float, water_depth: float | None,
+                 densities: tuple[float, float] | None = None):
         self.fidelity = scene.scattering
+        sc = self.fidelity
+        #: (interface per m^2, volume per m^3): the scene's, or ``densities`` (the
+        #: resolution-cell option of :mod:`sim_device.fidelity`)
+        self.densities = (densities if densities is not None else
+                          (sc.interface_density_per_m2, sc.volume_density_per_m3)
+                          if sc is not None else (0.0, 0.0))
+        #: deepest volume scatterer generated (m; the level cut-off, if any)
+        self.z_cut = math.inf
         self.env = env
         self.media = env.media(fc)
         self.p0 = p0
@@ -96,7 +105,7 @@ class SeabedScatterers:
     def depth_limit(self, tx: np.ndarray, rx: np.ndarray) -> float:
         """Deepest volume scatterer: the scene's cut-off, or where even the vertical
         two-way path leaves the receive window."""
-        zmax = self.fidelity.volume_max_depth_m
+        zmax = min(self.fidelity.volume_max_depth_m, self.z_cut)
         c, z_top = self.media.c, self.media.z_top
         h_t = -tx[2]
         h_r = float(np.min(-rx[:, 2]))
@@ -120,7 +129,7 @@ class SeabedScatterers:
         parts = []
         if sc.interface:
             cells = possm.interface_cells(tx[0], tx[1], float(reach(0.0)[0]), cell)
-            n_per = possm.scatterers_per_cell(sc.interface_density_per_m2, cell * cell)
+            n_per = possm.scatterers_per_cell(self.densities[0], cell * cell)
             s = self._cells(cells, possm.KIND_INTERFACE, n_per, cell, seed)
             s.amp *= self.p0 * math.sqrt(cell * cell / n_per)
             s.med[:] = MED_INTERFACE
@@ -128,7 +137,7 @@ class SeabedScatterers:
         if sc.volume:
             zmax = self.depth_limit(tx, rx)
             cells = possm.volume_cells(tx[0], tx[1], lambda z: reach(z)[0], zmax, cell)
-            n_per = possm.scatterers_per_cell(sc.volume_density_per_m3, cell ** 3)
+            n_per = possm.scatterers_per_cell(self.densities[1], cell ** 3)
             s = self._cells(cells, possm.KIND_VOLUME, n_per, cell, seed)
             s = s.take(s.z <= zmax)
             s.med = np.searchsorted(self.media.z_top[1:], s.z, side="right").astype(np.int64)

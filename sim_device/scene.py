@@ -137,6 +137,17 @@ class ScatteringConfig:
                           "table; exact: double precision, Brent's method for every "
                           "refracted leg; float32: single-precision scatterer and leg "
                           "storage", choices=("float64", "exact", "float32"))
+    synthesis: str | None = spec("echo accumulation: fast (scatterer-parallel, float32 "
+                                 "buffers) or reference (channel-parallel, the original "
+                                 "kernel); absent: fast", choices=("fast", "reference"))
+    scatterers_per_resolution_cell: float | None = spec(
+        "scatterers per resolution cell of one ping at nadir (sim_device.fidelity); "
+        "when given it sets both densities (interface_density_per_m2 and "
+        "volume_density_per_m3 are then ignored)", lo=0.01, hi=1e4)
+    volume_below_noise_db: float | None = spec(
+        "each path's volume scatterers down to the depth where that path's nadir volume "
+        "level is this far below the noise, dB (absent: down to volume_max_depth_m)",
+        lo=-100, hi=200)
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,8 @@ import scipy.fft as sfft
 from svss_daq.conventions import ECHO_PHASE_SIGN, baseband_carrier, remodulation
 from svss_daq.waveform import Waveform
 
-from .layered_rays import leg_extents, ray_amplitude_terms, ray_tan, reflection, table_ray_tan
+from .layered_rays import (TABLE_TRUSTED, leg_extents, ray_amplitude_terms, ray_tan,
+                           reflection, table_ray_tan)
 
 #: columns of an element-image row: x, y (m), height above the interface (m), direction
 #: (+1: leaves the element downwards), the surface factor R_s^n_s, seabed bounces n_b
@@ -172,7 +173,7 @@ def leg(ex, ey, height, direction, f_surf, n_b, x, y, z, med, up, c, rho_m, delt
     g = gain(cos_off, g_front, g_back, lo_front, lo_back)
     if g == 0.0:
         return tau, complex(0.0, 0.0), sinp
-    amp = (g * f_surf * spread * math.exp(-att)) * trans
+    amp = (g * f_surf * spread * _exp_neg(att)) * trans
     if n_b > 0:
         rb = _interp(r_bot, sinp)
         for _ in range(n_b):
@@ -360,3 +361,350 @@ class PulseSynthesiser:
         """Convolve with the baseband pulse, remodulate, take the real part (uPa)."""
         y = sfft.ifft(sfft.fft(buf, self.n_fft, axis=-1) * self.pulse_fft, axis=-1)
         return (y[:, self.offset:self.offset + self.n] * self.remod).real
+
+
+# ------------------------------------------------------------------- fast accumulation
+#
+# The reference pass 2 (:func:`accumulate`) runs channels in parallel and, for each
+# channel, every scatterer: the scatterer arrays are streamed once per channel and the
+# per-scatterer bookkeeping (earliest transmit delay, receive images needed) is kept in
+# ping-sized arrays. :func:`accumulate_fast` turns the loops round: threads take
+# interleaved chunks of scatterers; for each scatterer the bookkeeping is done once, each
+# receive image's legs are evaluated for all channels in one inner loop (the same
+# :func:`leg` as the reference, element-image rows transposed so the channel loop reads
+# contiguous memory), then every kept transmit image's echoes for all channels are
+# formed and added to the thread's own complex64 buffer, laid out (sample, channel) so
+# that one scatterer's echoes on neighbouring channels land in neighbouring memory. The
+# threads' buffers are summed at the end. The echoes and their delays, amplitudes and
+# phases are those of the reference to float64 rounding; only the accumulation is
+# float32 (complex64), so the two paths agree to float32 rounding.
+
+
+@nb.njit(cache=True, inline="always")
+def cis_cycles32(x):
+    """(cos, sin) of 2 pi x as :func:`cis_cycles`, to float32 accuracy (error < 3e-8):
+    x reduced in float64 (the delay-phase product is large), the rest shorter series."""
+    a = 2.0 * math.pi * (x - math.floor(x + 0.5)) * 0.25
+    a2 = a * a
+    c = 1.0 + a2 * (-1 / 2 + a2 * (1 / 24 + a2 * (-1 / 720 + a2 * (1 / 40320))))
+    s = a * (1.0 + a2 * (-1 / 6 + a2 * (1 / 120 + a2 * (-1 / 5040 + a2 * (1 / 362880)))))
+    c, s = c * c - s * s, 2.0 * c * s
+    return c * c - s * s, 2.0 * c * s
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy", inline="always")
+def _idx(u, n1):
+    """Index and fraction of u (clamped to [0, 1]) on a uniform table of n1 + 1 nodes:
+    table[i] + f (table[i + 1] - table[i]) interpolates it. Scalars only (arrays passed
+    to inlined helpers cost reference counting in the channel loops)."""
+    x = min(max(u, 0.0), 1.0) * n1
+    i = min(int(x), n1 - 1)
+    return i, x - i
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy", inline="always")
+def _exp_neg(x):
+    """exp(-x) for x >= 0 without a library call (vectorisable): exp(-x/512) by its
+    Taylor series (|x/512| <= 0.16 below the clamp at x = 80; error < 1e-11), squared
+    nine times (relative error < 1e-8); exp(-80) = 2e-35 stands for anything smaller."""
+    y = -min(x, 80.0) * (1.0 / 512.0)
+    e = 1.0 + y * (1.0 + y * (1 / 2 + y * (1 / 6 + y * (1 / 24 + y * (
+        1 / 120 + y * (1 / 720 + y * (1 / 5040)))))))
+    e = e * e
+    e = e * e
+    e = e * e
+    e = e * e
+    e = e * e
+    e = e * e
+    e = e * e
+    e = e * e
+    return e * e
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy")
+def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tab, rt_re, rt_im, rb_re, rb_im, bore,
+                  g_front, g_back, lo_front, lo_back, sig, tr, ar_re, ar_im, fix, wk):
+    """Receive legs of one scatterer through element image ``b`` to every channel
+    (vectorisable loops): delay ``tr``, complex amplitude (``ar_re``, ``ar_im``) as
+    :func:`leg` (times sigma^(1/4) for interface scatterers). Channels the fast forms
+    do not cover (the two-medium table's checked region, a zero range, other media)
+    are marked in ``fix`` for :func:`leg`. Returns True if any channel was marked."""
+    nch = tr.size
+    c0 = c[0]
+    b0 = bore[0]
+    b1 = bore[1]
+    b2 = bore[2]
+    any_fix = False
+    # table sizes and scales (the back-lobe table may be empty: then it is never used)
+    ng = g_front.size - 1
+    ilf = 1.0 / (1.0 - lo_front)
+    if g_back.size > 1:
+        nbk = g_back.size - 1
+        ilb = 1.0 / (1.0 - lo_back)
+    else:
+        g_back = g_front
+        nbk = ng
+        ilb = 0.0
+        lo_back = 2.0
+    nr1 = rb_re.size - 1
+    ns1 = sig.size - 1
+    n_b = int(imt[b, IMG_NB, 0])
+    if n_b > 2:
+        for ch in range(nch):
+            fix[ch] = True
+        return True
+    if mk <= 0:
+        zz = zk if mk == 0 else 0.0
+        a0 = alpha[0]
+        for ch in range(nch):
+            dx = xk - imt[b, IMG_X, ch]
+            dy = yk - imt[b, IMG_Y, ch]
+            rho2 = dx * dx + dy * dy
+            v = imt[b, IMG_H, ch] + zz
+            d = imt[b, IMG_DIR, ch]
+            d = -d if v < 0.0 else d
+            v = abs(v)
+            r = math.sqrt(rho2 + v * v)
+            ir = 1.0 / max(r, 1e-300)
+            tau = r / c0
+            sinp = math.sqrt(rho2) * ir
+            cos_off = (dx * b0 + dy * b1) * ir + d * v * ir * b2
+            i, f = _idx((cos_off - lo_front) * ilf, ng)
+            gf = g_front[i] + f * (g_front[i + 1] - g_front[i])
+            i, f = _idx((-cos_off - lo_back) * ilb, nbk)
+            gb = g_back[i] + f * (g_back[i + 1] - g_back[i])
+            g = gf if cos_off >= lo_front else (gb if -cos_off >= lo_back else 0.0)
+            a = g * imt[b, IMG_RS, ch] * ir * _exp_neg(a0 * r)
+            i, f = _idx(sinp, nr1)
+            re = rb_re[i] + f * (rb_re[i + 1] - rb_re[i])
+            im = rb_im[i] + f * (rb_im[i + 1] - rb_im[i])
+            fr = 1.0 if n_b == 0 else (re if n_b == 1 else re * re - im * im)
+            fi = 0.0 if n_b == 0 else (im if n_b == 1 else 2.0 * re * im)
+            pr = a * fr
+            pi = a * fi
+            if mk == MED_INTERFACE:
+                i, f = _idx(sinp, ns1)
+                sg = sig[i] + f * (sig[i + 1] - sig[i])
+                pr *= sg
+                pi *= sg
+            tr[ch] = tau
+            ar_re[ch] = pr
+            ar_im[ch] = pi
+            fix[ch] = r == 0.0
+            any_fix |= r == 0.0
+        return any_fix
+    if mk != 1 or c.size < 2:
+        for ch in range(nch):
+            fix[ch] = True
+        return True
+    c1 = c[1]
+    cmax = c0 if c0 > c1 else c1
+    r0 = c0 / cmax
+    r1 = c1 / cmax
+    k0 = 1.0 - r0 * r0
+    k1 = 1.0 - r1 * r1
+    a0 = alpha[0]
+    a1 = alpha[1]
+    nw = tab.shape[0]
+    nv = tab.shape[1]
+    # three loops, so that the arithmetic ones (no table look-ups) vectorise:
+    # 1. the two-medium table (bilinear look-up of s = p c_max)
+    for ch in range(nch):
+        dx = xk - imt[b, IMG_X, ch]
+        dy = yk - imt[b, IMG_Y, ch]
+        rho = math.sqrt(dx * dx + dy * dy)
+        h0 = imt[b, IMG_H, ch]
+        d_all = h0 + zk
+        x = h0 / d_all * (nw - 1)
+        y = rho / (rho + d_all) * (nv - 1)
+        i = min(int(x), nw - 2)
+        j = min(int(y), nv - 2)
+        fx = x - i
+        fy = y - j
+        s = ((1.0 - fx) * ((1.0 - fy) * tab[i, j] + fy * tab[i, j + 1])
+             + fx * ((1.0 - fy) * tab[i + 1, j] + fy * tab[i + 1, j + 1]))
+        bad = (s >= TABLE_TRUSTED) | (rho <= 0.0) | (h0 <= 0.0)
+        wk[0, ch] = rho
+        wk[1, ch] = 0.5 if bad else s
+        fix[ch] = bad
+    # 2. two_medium_terms in s (no cancellation below TABLE_TRUSTED): the cosines
+    #    g_i = sqrt(1 - (s r_i)^2), independent of each other
+    for ch in range(nch):
+        rho = wk[0, ch]
+        s = wk[1, ch]
+        h0 = imt[b, IMG_H, ch]
+        p = s / cmax
+        q0 = s * r0
+        q1 = s * r1
+        g0 = math.sqrt(1.0 - q0 * q0)
+        g1 = math.sqrt(1.0 - q1 * q1)
+        ig0 = 1.0 / g0
+        ig1 = 1.0 / g1
+        tr[ch] = p * rho + h0 * g0 / c0 + zk * g1 / c1
+        s1 = h0 * c0 * ig0 + zk * c1 * ig1
+        s2 = h0 * c0 * ig0 * ig0 * ig0 + zk * c1 * ig1 * ig1 * ig1
+        spread = c1 * ig1 / math.sqrt(s1 * s2)
+        att = a0 * h0 * ig0 + a1 * zk * ig1
+        sinp = p * c0
+        irho = 1.0 / max(rho, 1e-300)
+        dx = xk - imt[b, IMG_X, ch]
+        dy = yk - imt[b, IMG_Y, ch]
+        wk[2, ch] = sinp
+        wk[3, ch] = sinp * (dx * b0 + dy * b1) * irho + imt[b, IMG_DIR, ch] * g0 * b2
+        wk[4, ch] = imt[b, IMG_RS, ch] * spread * _exp_neg(att)
+    # 3. beam gain, transmission 1 - R up through the interface, seabed bounces
+    for ch in range(nch):
+        sinp = wk[2, ch]
+        cos_off = wk[3, ch]
+        i, f = _idx((cos_off - lo_front) * ilf, ng)
+        gf = g_front[i] + f * (g_front[i + 1] - g_front[i])
+        i, f = _idx((-cos_off - lo_back) * ilb, nbk)
+        gb = g_back[i] + f * (g_back[i + 1] - g_back[i])
+        g = gf if cos_off >= lo_front else (gb if -cos_off >= lo_back else 0.0)
+        a = g * wk[4, ch]
+        i, f = _idx(sinp, nr1)
+        pr = a * (1.0 - (rt_re[i] + f * (rt_re[i + 1] - rt_re[i])))
+        pi = -a * (rt_im[i] + f * (rt_im[i + 1] - rt_im[i]))
+        re = rb_re[i] + f * (rb_re[i + 1] - rb_re[i])
+        im = rb_im[i] + f * (rb_im[i + 1] - rb_im[i])
+        fr = 1.0 if n_b == 0 else (re if n_b == 1 else re * re - im * im)
+        fi = 0.0 if n_b == 0 else (im if n_b == 1 else 2.0 * re * im)
+        ar_re[ch] = pr * fr - pi * fi
+        ar_im[ch] = pr * fi + pi * fr
+        any_fix |= fix[ch]
+    return any_fix
+
+
+@nb.njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
+def accumulate_fast(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delta, alpha,
+                    z_top, tab, r_top, r_bot, bore, g_front, g_back, lo_front, lo_back, sig,
+                    fc, t_lo, t_hi, t_buf0, fs, n_buf, n_blocks, zmax):
+    """Pass 2 as :func:`accumulate` (same echoes, same delays, amplitudes and phases to
+    float64 rounding), scatterer-parallel into per-thread complex64 buffers (module
+    comment above).
+
+    ``zmax[a, b]``: deepest scatterer (m below the interface) for which path (a, b) is
+    synthesised (``inf``: all; the level cut-off of :mod:`sim_device.fidelity`).
+    Returns (buffer (n_channels, n_buf) complex128, echoes added per block)."""
+    nch = img.shape[0]
+    nr = img.shape[1]
+    nt = tau_t.shape[1]
+    ns = sx.size
+    nmed = c.size
+    # element-image rows transposed: imt[b, column, ch]
+    imt = np.empty((nr, 6, nch))
+    for ch in range(nch):
+        for b in range(nr):
+            for j in range(6):
+                imt[b, j, ch] = img[ch, b, j]
+    rt_re = np.ascontiguousarray(r_top.real)
+    rt_im = np.ascontiguousarray(r_top.imag)
+    rb_re = np.ascontiguousarray(r_bot.real)
+    rb_im = np.ascontiguousarray(r_bot.imag)
+    sign = ECHO_PHASE_SIGN * fc
+    bufs = np.zeros((n_blocks, n_buf, nch), dtype=np.complex64)
+    counts = np.zeros(n_blocks, dtype=np.int64)
+    chunk = 64
+    n_chunks = (ns + chunk - 1) // chunk
+    for blk in nb.prange(n_blocks):
+        hbuf = np.empty(nmed + 1)
+        cbuf = np.empty(2)
+        need = np.zeros(nr, dtype=np.bool_)
+        tr = np.empty(nch)
+        ar_re = np.empty(nch)
+        ar_im = np.empty(nch)
+        fix = np.zeros(nch, dtype=np.bool_)
+        wk = np.empty((5, nch))
+        e_i = np.empty(nch, dtype=np.int64)
+        e_w = np.empty((nch, 4), dtype=np.float32)
+        e_re = np.empty(nch, dtype=np.float32)
+        e_im = np.empty(nch, dtype=np.float32)
+        e_ok = np.empty(nch, dtype=np.bool_)
+        buf = bufs[blk]
+        n_add = 0
+        for q in range(blk, n_chunks, n_blocks):
+            for k in range(q * chunk, min(ns, (q + 1) * chunk)):
+                any_need = False
+                zk = sz[k]
+                for b in range(nr):
+                    need[b] = False
+                for a in range(nt):
+                    if amp_t[k, a] != 0.0:
+                        for b in range(nr):
+                            if allowed[a, b] and zk <= zmax[a, b]:
+                                need[b] = True
+                                any_need = True
+                if not any_need:
+                    continue
+                xk = sx[k]
+                yk = sy[k]
+                mk = smed[k]
+                for b in range(nr):
+                    if not need[b]:
+                        continue
+                    if _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tab, rt_re, rt_im,
+                                     rb_re, rb_im, bore, g_front, g_back, lo_front,
+                                     lo_back, sig, tr, ar_re, ar_im, fix, wk):
+                        for ch in range(nch):
+                            if not fix[ch]:
+                                continue
+                            tau_r, a_r, cg = leg(
+                                imt[b, IMG_X, ch], imt[b, IMG_Y, ch], imt[b, IMG_H, ch],
+                                imt[b, IMG_DIR, ch], imt[b, IMG_RS, ch],
+                                int(imt[b, IMG_NB, ch]), xk, yk, zk, mk, True, c, rho_m,
+                                delta, alpha, z_top, tab, r_top, r_bot, bore, g_front,
+                                g_back, lo_front, lo_back, hbuf, cbuf)
+                            if mk == MED_INTERFACE and a_r != 0.0:
+                                a_r *= _interp(sig, cg)
+                            tr[ch] = tau_r
+                            ar_re[ch] = a_r.real
+                            ar_im[ch] = a_r.imag
+                    for a in range(nt):
+                        if not allowed[a, b] or zk > zmax[a, b]:
+                            continue
+                        a_t = amp_t[k, a]
+                        if a_t == 0.0:
+                            continue
+                        t_t = tau_t[k, a]
+                        at_re = a_t.real
+                        at_im = a_t.imag
+                        # echoes of all channels (vectorisable) ...
+                        for ch in range(nch):
+                            tau = t_t + tr[ch]
+                            co, si = cis_cycles32(sign * tau)
+                            pr = at_re * ar_re[ch] - at_im * ar_im[ch]
+                            pi = at_re * ar_im[ch] + at_im * ar_re[ch]
+                            u = (tau - t_buf0) * fs
+                            u = min(max(u, 1.0), n_buf - 3.0)
+                            i1 = int(u)
+                            w = u - i1
+                            wm1 = w - 1.0
+                            wm2 = w - 2.0
+                            wp1 = w + 1.0
+                            e_i[ch] = i1
+                            e_w[ch, 0] = -w * wm1 * wm2 / 6.0
+                            e_w[ch, 1] = wp1 * wm1 * wm2 / 2.0
+                            e_w[ch, 2] = -wp1 * w * wm2 / 2.0
+                            e_w[ch, 3] = wp1 * w * wm1 / 6.0
+                            e_re[ch] = pr * co - pi * si
+                            e_im[ch] = pr * si + pi * co
+                            e_ok[ch] = ((tau > t_lo) & (tau < t_hi)
+                                        & ((ar_re[ch] != 0.0) | (ar_im[ch] != 0.0)))
+                        # ... added at their fractional delays
+                        for ch in range(nch):
+                            if not e_ok[ch]:
+                                continue
+                            i1 = e_i[ch]
+                            re = e_re[ch]
+                            im = e_im[ch]
+                            for j in range(4):
+                                buf[i1 - 1 + j, ch] += np.complex64(
+                                    complex(re * e_w[ch, j], im * e_w[ch, j]))
+                            n_add += 1
+        counts[blk] = n_add
+    out = np.zeros((nch, n_buf), dtype=np.complex128)
+    for ch in nb.prange(nch):
+        for blk in range(n_blocks):
+            for j in range(n_buf):
+                out[ch, j] += bufs[blk, j, ch]
+    return out, counts
