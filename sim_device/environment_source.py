@@ -218,8 +218,9 @@ class EnvironmentSource:
         g = self.frame(0)
         altitude = max(-float(np.mean(g.rx[:, 2])), 1e-3)
         c1 = self.media.c[1] if self.media.n > 1 else self.media.c[0]
+        band = max(abs(wf.f_stop_hz - wf.f_start_hz), 1.0 / wf.duration_s)
         return resolution_cell(self.geometry.receivers, self.hw.receive_array.pitch_m,
-                               abs(wf.f_stop_hz - wf.f_start_hz), self.fc, altitude,
+                               band, self.fc, altitude,
                                self.env.water_sound_speed, float(c1))
 
     def _volume_limits(self) -> np.ndarray:

@@ -60,7 +60,8 @@ def resolution_cell(receivers_body: np.ndarray, pitch: float, bandwidth: float,
                     c_sediment: float) -> ResolutionCell:
     """The resolution cell of one ping at nadir: ``receivers_body`` (n, 3) element
     positions (body frame, x forward, y starboard), ``pitch`` the element spacing,
-    ``altitude`` the array's height above the interface (m)."""
+    ``altitude`` the array's height above the interface (m), ``bandwidth`` (Hz; for a
+    CW pulse give 1 / duration)."""
     lam = c_water / fc
     ext = np.ptp(receivers_body[:, :2], axis=0) + pitch
     return ResolutionCell(lam * altitude / ext[0], lam * altitude / ext[1],
