@@ -54,7 +54,8 @@ from .scatterers import Scatterers, SeabedScatterers, scene_points
 from .scene import SceneConfig
 from .specular import (PathSet, SpectralSynthesiser, boundary_paths, interface_paths,
                        merge, select)
-from .synthesis import PulseSynthesiser, accumulate, accumulate_fast, transmit_legs
+from .synthesis import (SERIAL_BELOW, PulseSynthesiser, accumulate, accumulate_fast,
+                        accumulate_fast_serial, transmit_legs)
 from .targets.echo import TargetEchoes, build_targets
 from .track import ping_pose, truth_line
 
@@ -295,8 +296,11 @@ class EnvironmentSource:
             buf = self.pulses.buffer(n_ch).astype(cf)
             counts = accumulate(*args, buf)
         else:
-            buf, counts = accumulate_fast(*args, self.pulses.n_buf,
-                                          2 * numba.get_num_threads(), self.zmax)
+            if idx.size < SERIAL_BELOW:
+                buf, counts = accumulate_fast_serial(*args, self.pulses.n_buf, 1, self.zmax)
+            else:
+                buf, counts = accumulate_fast(*args, self.pulses.n_buf,
+                                              2 * numba.get_num_threads(), self.zmax)
         t3 = time.perf_counter()
         out = self.pulses.to_passband(buf.astype(np.complex128))
         self.last_stats.update(generated=n_gen, in_view=int(idx.size),

@@ -708,3 +708,12 @@ def accumulate_fast(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delt
             for j in range(n_buf):
                 out[ch, j] += bufs[blk, j, ch]
     return out, counts
+
+
+#: :func:`accumulate_fast` compiled without threads, for pings with few scatterers (a
+#: scene of points in water): a parallel region's start costs more than their echoes
+accumulate_fast_serial = nb.njit(cache=True, fastmath=True, error_model="numpy")(
+    accumulate_fast.py_func)
+
+#: below this many scatterers in view the serial kernel is used
+SERIAL_BELOW = 2048
