@@ -1,15 +1,22 @@
 #!/usr/bin/env python
 """Benchmark the simulated device's environment synthesis (``sim_device``).
 
-1. Throughput: pings per second for the seed's sand (and silt) scene, 80 channels, at
-   the scene file's fidelity; the time for a reference tile's worth of pings (15 m at
-   1 m/s and 10 pings/s: 150 pings), measured on ``--pings`` pings and extrapolated, or
-   run in full with ``--full-tile``.
+1. Throughput: pings per second for the demo, silt and sand scenes, 80 channels, at
+   the scene file's fidelity, the fast accumulation and the reference kernel side by
+   side in one run (``[scattering] synthesis``; ``--reference-pings`` pings of the
+   reference, default 1), and the scenes under the fast profile (``--fast-profile``
+   options: density per resolution cell and the volume's level cut-off); the time for a
+   reference tile's worth of pings (15 m at 1 m/s and 10 pings/s: 150 pings), measured
+   on ``--pings`` pings and extrapolated, or run in full with ``--full-tile``. The demo
+   is timed through ``ping(i)`` (noise and quantisation included), the seabed scenes
+   through ``pressure(i)``. CPU seconds (all threads) per echo are reported beside the
+   wall time: the machine is shared, and CPU time is the steadier figure.
 2. Cost follows the scatterers in view: the same ping of the sand scene in a scene
    twice as long (and ten times as long) costs the same.
-3. Fidelity options (scatterer density, multipath order, volume depth cut-off,
-   precision): each row lowers one option from the highest-fidelity setting; time per
-   ping against the error relative to that setting:
+3. Fidelity options (scatterer density, density per resolution cell, multipath order,
+   volume depth cut-off, the volume's level cut-off, precision, the reference kernel):
+   each row lowers one option from the highest-fidelity setting; time per ping against
+   the error relative to that setting:
    * ``wave_err``: ||p - p_ref|| / ||p_ref|| over the noise-free samples (meaningful when
      the seabed is the same realisation: multipath, cut-off, precision);
    * ``energy_err_db``: 10 log10 of the ping energy (channels, pings, whole window)
@@ -17,14 +24,22 @@
    * ``profile_err_db``: rms over 0.2 ms bins of 10 log10(I / I_ref), I the mean square
      over channels and pings, in the bins where the reference is above the noise (a
      statistical measure, for the density rows; its floor is the ``other seed`` row; a
-     missing late arrival, e.g. multipath, counts with its full dB deficit).
+     missing late arrival, e.g. multipath, counts with its full dB deficit);
+   * ``speckle``: scintillation index <I^2>/<I>^2 - 1 of the envelope (analytic signal)
+     normalised by the mean profile, over channels, pings and the bins above the noise
+     (Gaussian speckle: 1; the reference's value is printed with it);
+   * ``at_target_db``: the background (mean square over channels and pings) in the
+     0.2 ms about the buried cylinder's two-way delay (1 m deep, under the track)
+     relative to the reference's: the change in the target's excess over its
+     background is minus this.
 
 Usage::
 
-    python benchmarks/bench_possm.py --out bench_possm.json [--pings 3]
+    python benchmarks/bench_possm.py --out benchmarks/results/bench_possm.json [--pings 3]
                                      [--fidelity-pings 2] [--quick] [--full-tile]
                                      [--threads N] [--only throughput,length,fidelity]
-                                     [--scenes seed_cylinder_sand,seed_cylinder_silt]
+                                     [--scenes demo,seed_cylinder_silt,seed_cylinder_sand]
+                                     [--reference-pings 1] [--fast-profile 2,20]
 
 Prints the tables and writes them to ``--out`` (JSON). The first ping of each source
 compiles or loads the numba kernels and is not timed.
@@ -55,16 +70,27 @@ from svss_daq.config import HardwareConfig, config_path, load_with_text  # noqa:
 log = logging.getLogger("bench_possm")
 
 TILE_PINGS = 150            # 15 m tile at 1 m/s and 10 pings/s (DESIGN.md)
+#: the fast profile's options (--fast-profile): scatterers per resolution cell, the
+#: volume's level cut-off below the noise (dB)
+FAST_PROFILE = {"per_cell": 2.0, "below_noise": 20.0}
 FIRST_PING = 100            # pings well inside the track
 
 
-def with_fidelity(scene, density=1.0, order=None, cutoff=None, precision=None, seed=None):
+def with_fidelity(scene, density=1.0, order=None, cutoff=None, precision=None, seed=None,
+                  synthesis=None, per_cell=None, below_noise=None):
     sc = scene.scattering
+    if sc is None:
+        return scene
     scat = dataclasses.replace(
         sc, interface_density_per_m2=sc.interface_density_per_m2 * density,
         volume_density_per_m3=sc.volume_density_per_m3 * density,
         volume_max_depth_m=sc.volume_max_depth_m if cutoff is None else cutoff,
-        precision=sc.precision if precision is None else precision)
+        precision=sc.precision if precision is None else precision,
+        synthesis=sc.synthesis if synthesis is None else synthesis,
+        scatterers_per_resolution_cell=(sc.scatterers_per_resolution_cell
+                                        if per_cell is None else per_cell),
+        volume_below_noise_db=(sc.volume_below_noise_db if below_noise is None
+                               else below_noise))
     surf = scene.surface if order is None else dataclasses.replace(scene.surface,
                                                                    multipath_order=order)
     out = dataclasses.replace(scene, scattering=scat, surface=surf, targets=())
@@ -76,44 +102,59 @@ def with_fidelity(scene, density=1.0, order=None, cutoff=None, precision=None, s
 _warm: set = set()
 
 
-def time_pings(src: EnvironmentSource, pings: list[int], keep: bool = False):
-    """Wall time per ping (s) of ``src.pressure`` over ``pings``, the pings' statistics,
-    and the pressures if ``keep``. The first source of each precision runs one untimed
-    ping first (numba compiles or loads its kernels)."""
-    if src.precision not in _warm:
-        src.pressure(pings[0] - 1)
-        _warm.add(src.precision)
+def time_pings(src: EnvironmentSource, pings: list[int], keep: bool = False,
+               whole: bool = False):
+    """Wall time per ping (s) of ``src.pressure`` (``src.ping`` if ``whole``) over
+    ``pings``, the pings' statistics (with ``cpu_s``: CPU seconds of all threads), and
+    the pressures if ``keep``. The first source of each precision and kernel runs one
+    untimed ping first (numba compiles or loads its kernels)."""
+    key = (src.precision, src.synthesis, whole)
+    if key not in _warm:
+        src.ping(pings[0] - 1) if whole else src.pressure(pings[0] - 1)
+        _warm.add(key)
     out, times, stats = [], [], []
     for i in pings:
+        c0 = time.process_time()
         t0 = time.perf_counter()
-        p = src.pressure(i)
+        p = src.ping(i) if whole else src.pressure(i)
         times.append(time.perf_counter() - t0)
-        stats.append(dict(src.last_stats))
+        stats.append(dict(src.last_stats, cpu_s=time.process_time() - c0))
         if keep:
             out.append(p)
     return np.array(times), stats, out
 
 
-def throughput(hw, name: str, n: int, full_tile: bool) -> dict:
-    scene = with_fidelity(load_scene(config_path(f"scenes/{name}.toml")))
+def throughput(hw, name: str, n: int, full_tile: bool, label: str = "scene file",
+               **options) -> dict:
+    scene = with_fidelity(load_scene(config_path(f"scenes/{name}.toml")), **options)
     src = EnvironmentSource(hw, scene)
-    pings = list(range(FIRST_PING, FIRST_PING + (TILE_PINGS if full_tile else n)))
-    times, stats, _ = time_pings(src, pings)
+    whole = src.scene.seabed is None
+    first = 30 if whole else FIRST_PING
+    n_all = min(TILE_PINGS, src.n_pings - first) if full_tile else n
+    pings = list(range(first, first + n_all))
+    times, stats, _ = time_pings(src, pings, whole=whole)
     per_ping = float(np.median(times))
-    echoes = float(np.mean([s["echoes"] for s in stats]))
+    echoes = float(np.mean([s.get("echoes", 0) for s in stats]))
+    cpu = float(np.median([s["cpu_s"] for s in stats]))
     row = {
-        "scene": name, "channels": src.geometry.n_channels,
+        "scene": name, "setting": label, "synthesis": src.synthesis,
+        "timed": "ping" if whole else "pressure", "channels": src.geometry.n_channels,
         "multipath_order": src.order, "pings_timed": len(pings),
         "s_per_ping_median": per_ping, "s_per_ping_min": float(times.min()),
         "pings_per_s": 1.0 / per_ping,
         "tile_s": float(times.sum()) if full_tile else per_ping * TILE_PINGS,
         "tile_measured": full_tile,
-        "scatterers_generated": int(np.mean([s["generated"] for s in stats])),
-        "scatterers_in_view": int(np.mean([s["in_view"] for s in stats])),
+        "scatterers_generated": int(np.mean([s.get("generated", 0) for s in stats])),
+        "scatterers_in_view": int(np.mean([s.get("in_view", 0) for s in stats])),
         "echoes_per_ping": int(echoes),
         "ns_per_echo": per_ping / max(echoes, 1.0) * 1e9,
+        "cpu_s_per_ping": cpu,
+        "cpu_ns_per_echo": cpu / max(echoes, 1.0) * 1e9,
+        "receive_s": float(np.median([s.get("receive_s", 0.0) for s in stats])),
         "coherent_paths": int(stats[-1].get("coherent_paths", 0)),
+        "options": {k: v for k, v in options.items()},
     }
+    log.info("%s (%s, %s): %.3f s/ping", name, label, src.synthesis, per_ping)
     return row
 
 
@@ -143,52 +184,98 @@ def profile(ps: list[np.ndarray], nbin: int = 25) -> np.ndarray:
     return np.mean(p[..., :n] ** 2, axis=(0, 1)).reshape(-1, nbin).mean(axis=1)
 
 
+def envelope_power(ps: list[np.ndarray]) -> np.ndarray:
+    """|analytic signal|^2 of the pressures: (pings, channels, samples)."""
+    p = np.stack(ps)
+    spec = np.fft.fft(p, axis=-1)
+    n = p.shape[-1]
+    spec[..., n // 2 + 1:] = 0.0
+    spec[..., 1:(n + 1) // 2] *= 2.0
+    return np.abs(np.fft.ifft(spec, axis=-1)) ** 2
+
+
+def speckle(ps: list[np.ndarray], above: np.ndarray, nbin: int = 25) -> float:
+    """Scintillation index of the envelope normalised by its mean over channels and
+    pings, over the samples of the bins marked ``above``."""
+    e = envelope_power(ps)
+    m = e.mean(axis=(0, 1))
+    n = above.size * nbin
+    keep = np.repeat(above, nbin)[:n] & (m[:n] > 0)
+    x = e[..., :n][..., keep] / m[:n][keep]
+    return float(np.mean(x ** 2) - 1.0)
+
+
+def target_bin(src: EnvironmentSource, depth: float = 1.0, nbin: int = 25) -> int:
+    """The profile bin of the nadir two-way delay of a point ``depth`` m below the
+    interface (the seed's buried cylinder)."""
+    g = src.frame(FIRST_PING)
+    h = -float(g.tx[2])
+    tau = 2.0 * h / src.media.c[0] + 2.0 * depth / src.media.c[1]
+    return int((tau - src.pulses.t_first) * src.fs) // nbin
+
+
 def fidelity(hw, n: int, quick: bool) -> tuple[dict, list[dict]]:
     """The fidelity table on ``n`` pings of the sand scene."""
     base = load_scene(config_path("scenes/seed_cylinder_sand.toml"))
-    top = dict(density=2.0, order=2, cutoff=3.0, precision="exact")
+    top = dict(density=2.0, order=2, cutoff=3.0, precision="float64")
     pings = list(range(FIRST_PING, FIRST_PING + n))
     ref_src = EnvironmentSource(hw, with_fidelity(base, **top))
     t_ref, s_ref, p_ref = time_pings(ref_src, pings, keep=True)
     noise = ref_src.noise_power
     i_ref = profile(p_ref)
     above = i_ref > noise
+    tb = target_bin(ref_src)
+    si_ref = speckle(p_ref, above)
     reference = {"options": top, "s_per_ping": float(np.median(t_ref)),
+                 "cpu_s_per_ping": float(np.median([x["cpu_s"] for x in s_ref])),
                  "echoes_per_ping": int(np.mean([s["echoes"] for s in s_ref])),
-                 "bins_above_noise": int(above.sum())}
+                 "bins_above_noise": int(above.sum()), "speckle": si_ref,
+                 "target_bin": tb}
     variants = [("density", 1.0), ("density", 0.5), ("density", 0.25),
+                ("per_cell", 4.0), ("per_cell", 2.0), ("per_cell", 1.0),
                 ("order", 1), ("order", 0),
-                ("cutoff", 2.5), ("cutoff", 1.5), ("cutoff", 1.0), ("cutoff", 0.5),
-                ("precision", "float64"), ("precision", "float32"),
+                ("cutoff", 2.5), ("cutoff", 1.5), ("cutoff", 1.0),
+                ("below_noise", 20.0), ("below_noise", 10.0), ("below_noise", 0.0),
+                ("precision", "exact"), ("precision", "float32"),
+                ("synthesis", "reference"),
+                ("profile", None),
                 ("seed", base.scene.seed + 1)]
     if quick:
-        variants = [("density", 0.5), ("order", 0), ("cutoff", 1.0),
-                    ("precision", "float64"), ("seed", base.scene.seed + 1)]
+        variants = [("per_cell", 2.0), ("order", 0), ("below_noise", 20.0),
+                    ("precision", "float32"), ("profile", None),
+                    ("seed", base.scene.seed + 1)]
     rows = []
     for key, value in variants:
         opts = dict(top)
         if key == "seed":
             sc = with_fidelity(base, **opts, seed=value)
             label = "other seed (same fidelity)"
+        elif key == "profile":
+            opts = dict(opts, **FAST_PROFILE, cutoff=None, density=1.0)
+            sc = with_fidelity(base, **opts)
+            label = "fast profile " + ", ".join(f"{k} {v}" for k, v in FAST_PROFILE.items())
         else:
             opts[key] = value
             sc = with_fidelity(base, **opts)
             label = f"{key} = {value}"
         src = EnvironmentSource(hw, sc)
         t, s, p = time_pings(src, pings, keep=True)
-        same_seabed = key in ("order", "cutoff", "precision")
+        same_seabed = key in ("order", "cutoff", "precision", "below_noise", "synthesis")
         wave = (float(np.sqrt(sum(np.sum((a - b) ** 2) for a, b in zip(p, p_ref))
                               / sum(np.sum(b ** 2) for b in p_ref)))
                 if same_seabed else None)
         i_opt = profile(p)
         ratio = i_opt[above] / i_ref[above]
         rows.append({"option": label, "s_per_ping": float(np.median(t)),
+                     "cpu_s_per_ping": float(np.median([x["cpu_s"] for x in s])),
                      "speedup": float(np.median(t_ref) / np.median(t)),
                      "echoes_per_ping": int(np.mean([x["echoes"] for x in s])),
                      "wave_err": wave,
                      "energy_err_db": float(10 * np.log10(i_opt.sum() / i_ref.sum())),
                      "profile_err_db": float(np.sqrt(np.mean((10 * np.log10(
-                         np.maximum(ratio, 1e-30))) ** 2)))})
+                         np.maximum(ratio, 1e-30))) ** 2))),
+                     "speckle": speckle(p, above),
+                     "at_target_db": float(10 * np.log10(i_opt[tb] / i_ref[tb]))})
         log.info("%s: %.2f s/ping", label, rows[-1]["s_per_ping"])
     return reference, rows
 
@@ -207,13 +294,21 @@ def main(argv=None) -> int:
     ap.add_argument("--hardware", default=None, help="hardware TOML")
     ap.add_argument("--only", default="throughput,length,fidelity",
                     help="comma-separated sections to run")
-    ap.add_argument("--scenes", default="seed_cylinder_sand,seed_cylinder_silt",
+    ap.add_argument("--scenes", default="demo,seed_cylinder_silt,seed_cylinder_sand",
                     help="comma-separated scenes (config/scenes) for the throughput")
+    ap.add_argument("--reference-pings", type=int, default=1,
+                    help="pings of the reference kernel per scene (0: none)")
+    ap.add_argument("--fast-profile", default=None,
+                    help="per_cell,below_noise_db of the fast-profile rows (default "
+                    f"{FAST_PROFILE['per_cell']},{FAST_PROFILE['below_noise']})")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger("sim_device").setLevel(logging.ERROR)
     if args.threads:
         numba.set_num_threads(args.threads)
+    if args.fast_profile:
+        a, b = args.fast_profile.split(",")
+        FAST_PROFILE.update(per_cell=float(a), below_noise=float(b))
     hw = load_with_text(HardwareConfig, args.hardware or config_path("hardware.toml"))
     result = {"machine": {"python": platform.python_version(), "numba": numba.__version__,
                           "threads": numba.get_num_threads(), "cpus": os.cpu_count(),
@@ -233,16 +328,33 @@ def main(argv=None) -> int:
 
 
 def throughput_section(hw, args, result) -> None:
-    print("\n== throughput (scene files' fidelity, 80 channels) ==")
-    rows = [throughput(hw, name, args.pings, args.full_tile)
-            for name in args.scenes.split(",")]
-    print(f"{'scene':22s} {'order':>5s} {'s/ping':>7s} {'min':>7s} {'pings/s':>7s} "
-          f"{'tile (s)':>9s} {'in view':>8s} {'echoes':>10s} {'ns/echo':>7s}")
+    print("\n== throughput (80 channels): fast and reference kernels, fast profile ==")
+    rows = []
+    for name in args.scenes.split(","):
+        rows.append(throughput(hw, name, args.pings, args.full_tile))
+        if name == "demo":
+            continue
+        if args.reference_pings:
+            rows.append(throughput(hw, name, args.reference_pings, False,
+                                   synthesis="reference"))
+        rows.append(throughput(hw, name, args.pings, args.full_tile, "fast profile",
+                               **FAST_PROFILE))
+    print(f"{'scene':20s} {'setting':12s} {'kernel':9s} {'s/ping':>7s} {'min':>7s} "
+          f"{'pings/s':>7s} {'tile (s)':>9s} {'in view':>8s} {'echoes':>10s} "
+          f"{'ns/echo':>7s} {'cpu ns/echo':>11s}")
     for r in rows:
-        print(f"{r['scene']:22s} {r['multipath_order']:5d} {r['s_per_ping_median']:7.2f} "
-              f"{r['s_per_ping_min']:7.2f} "
-              f"{r['pings_per_s']:7.3f} {r['tile_s']:9.0f} {r['scatterers_in_view']:8d} "
-              f"{r['echoes_per_ping']:10d} {r['ns_per_echo']:7.1f}")
+        print(f"{r['scene']:20s} {r['setting']:12s} {r['synthesis']:9s} "
+              f"{r['s_per_ping_median']:7.3f} {r['s_per_ping_min']:7.3f} "
+              f"{r['pings_per_s']:7.2f} {r['tile_s']:9.1f} {r['scatterers_in_view']:8d} "
+              f"{r['echoes_per_ping']:10d} {r['ns_per_echo']:7.1f} "
+              f"{r['cpu_ns_per_echo']:11.1f}")
+    for name in args.scenes.split(","):
+        fast = [r for r in rows if r["scene"] == name and r["setting"] == "scene file"
+                and r["synthesis"] == "fast"]
+        ref = [r for r in rows if r["scene"] == name and r["synthesis"] == "reference"]
+        if fast and ref:
+            print(f"{name}: fast / reference: wall x{ref[0]['s_per_ping_median'] / fast[0]['s_per_ping_median']:.1f}, "
+                  f"CPU per echo x{ref[0]['cpu_ns_per_echo'] / fast[0]['cpu_ns_per_echo']:.1f}")
     result["throughput"] = rows
 
 
@@ -260,14 +372,15 @@ def fidelity_section(hw, args, result) -> None:
     print("\n== fidelity options (sand): one option lowered from the highest fidelity ==")
     ref, rows = fidelity(hw, args.fidelity_pings, args.quick)
     print(f"reference {ref['options']}: {ref['s_per_ping']:.2f} s/ping, "
-          f"{ref['echoes_per_ping']} echoes/ping, {ref['bins_above_noise']} bins above noise")
-    print(f"{'option':28s} {'s/ping':>7s} {'speedup':>7s} {'echoes':>10s} {'wave_err':>9s} "
-          f"{'energy dB':>9s} {'profile dB':>10s}")
+          f"{ref['echoes_per_ping']} echoes/ping, {ref['bins_above_noise']} bins above "
+          f"noise, speckle {ref['speckle']:.2f}")
+    print(f"{'option':40s} {'s/ping':>7s} {'speedup':>7s} {'echoes':>10s} {'wave_err':>9s} "
+          f"{'energy dB':>9s} {'profile dB':>10s} {'speckle':>7s} {'@target dB':>10s}")
     for r in rows:
         w = f"{r['wave_err']:9.2e}" if r["wave_err"] is not None else f"{'-':>9s}"
-        print(f"{r['option']:28s} {r['s_per_ping']:7.2f} {r['speedup']:7.2f} "
+        print(f"{r['option']:40s} {r['s_per_ping']:7.2f} {r['speedup']:7.2f} "
               f"{r['echoes_per_ping']:10d} {w} {r['energy_err_db']:9.2f} "
-              f"{r['profile_err_db']:10.2f}")
+              f"{r['profile_err_db']:10.2f} {r['speckle']:7.2f} {r['at_target_db']:10.2f}")
     result["fidelity_reference"] = ref
     result["fidelity"] = rows
 
