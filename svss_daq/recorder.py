@@ -1,7 +1,8 @@
 """The acquisition daemon's recorder: one run in rotating raw-run segment files.
 
 Segment ``k`` of run ``R`` is ``<out_dir>/R_<kkk>.h5``, a complete raw-run file (root
-attributes ``run_id``, ``segment``) readable while written (SWMR). A new segment starts
+attributes ``run_id``, ``segment``) readable while written (SWMR), opened with its first
+ping. A new segment starts
 when the current one exceeds ``max_file_bytes`` or ``max_file_s``. Pings are appended in
 the order they are assembled; the recorder keeps the index sequence -> (segment, row)
 so that the catch-up service (:mod:`svss_daq.ping_service`) can read any recorded ping
@@ -61,7 +62,8 @@ class RunRecorder:
         self.ended = False
         self.free_bytes = self._free()
         self._check_free()
-        self._open_segment()
+        # the first segment opens with the first ping: a run that never pinged (devices
+        # that did not open) leaves no file
 
     # -- writing -----------------------------------------------------------------------
 
