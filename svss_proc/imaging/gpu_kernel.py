@@ -5,6 +5,15 @@ scalar building blocks (:mod:`svss_proc.imaging.kernel_math`, compiled as CUDA d
 Tile image planes stay on the device while a tile forms. On machines without a GPU it
 runs under numba's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``), which the tests use on
 small grids.
+
+Per ping (issue 16): the tap planes go up in one copy when they share one buffer (as
+:func:`~svss_proc.imaging.kernel_args.prepare` makes them) and the voxel and element
+geometry in one more, both into device buffers reused from ping to ping (no allocation
+per ping); the refraction table is uploaded once per table. The launch covers only the
+voxel columns the projector cone can reach (the along-track range the imager gives and
+the cross-track range of the cone at the tile's deepest voxel); the update count is
+reduced on the device (a block sum, one atomic add per block) and 8 bytes come back.
+Float32 planes keep every operation in float32 (:func:`~svss_proc.imaging.kernel_math.kernel_one`).
 """
 
 from __future__ import annotations
@@ -15,35 +24,48 @@ import numpy as np
 from numba import cuda
 
 from .delays import build_refraction
-from .kernel_args import DelayModel, KernelData, check_call, kernel_args
+from .kernel_args import (DelayModel, KernelArgs, KernelData, TapPlanes, TravelTimes,
+                          VoxelGeometry, check_call, kernel_args)
 from .kernel_math import build, kernel_one
 
 _dev = cuda.jit(device=True)
 _math = build(_dev, build_refraction(_dev))
 _voxel_sum = _math.voxel_sum
-THREADS = 128
+THREADS = 128                 # per block; the count reduction assumes a power of two
 
 _KERNELS: dict = {}
 
 
 def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
     @cuda.jit
-    def kernel(img_re, img_im, args, ia0, ia1, counts):
+    def kernel(img_re, img_im, args, ia0, ia1, ic0, ic1, count):
         i = cuda.grid(1)
-        nc = args.geometry.cy.size
+        t = cuda.threadIdx.x
+        nc = ic1 - ic0
         nd = args.geometry.dz.size
-        if i >= (ia1 - ia0) * nc * nd:
-            return
-        ia = ia0 + i // (nc * nd)
-        rem = i % (nc * nd)
-        ic = rem // nd
-        iz = rem % nd
-        one = kernel_one(args.planes.re)           # the kernel precision
-        sr, si, n = _voxel_sum(args.geometry.ax[ia], args.geometry.cy[ic],
-                               args.geometry.dz[iz], interp, mode, gating, halvings, args, one)
-        img_re[ia, ic, iz] += sr                   # each thread owns its voxel
-        img_im[ia, ic, iz] += si
-        counts[i] = n
+        part = cuda.shared.array(THREADS, dtype=np.int64)
+        n = 0
+        if i < (ia1 - ia0) * nc * nd:
+            ia = ia0 + i // (nc * nd)
+            rem = i % (nc * nd)
+            ic = ic0 + rem // nd
+            iz = rem % nd
+            one = kernel_one(args.planes.re)       # the kernel precision
+            sr, si, n = _voxel_sum(args.geometry.ax[ia], args.geometry.cy[ic],
+                                   args.geometry.dz[iz], interp, mode, gating, halvings,
+                                   args, one)
+            img_re[ia, ic, iz] += sr               # each thread owns its voxel
+            img_im[ia, ic, iz] += si
+        part[t] = n                                # the block's updates, summed here
+        cuda.syncthreads()
+        s = THREADS // 2
+        while s > 0:
+            if t < s:
+                part[t] += part[t + s]
+            cuda.syncthreads()
+            s //= 2
+        if t == 0 and part[0] != 0:
+            cuda.atomic.add(count, 0, part[0])
 
     return kernel
 
@@ -60,11 +82,89 @@ def kernel_for(interp: int, mode: int, gating: bool, halvings: int):
     return _KERNELS[key]
 
 
-def _to_device(bundle):
-    """A named bundle with its arrays copied to the GPU (nested bundles too)."""
-    return type(bundle)(*(cuda.to_device(v) if isinstance(v, np.ndarray)
-                          else _to_device(v) if isinstance(v, tuple) else v
-                          for v in bundle))
+class _Buffers:
+    """Device buffers reused from ping to ping (one per role and size), and device
+    copies of the refraction tables (by identity: the imager keeps its tables)."""
+
+    def __init__(self):
+        self.buffers: dict = {}
+        self.tables: dict = {}
+
+    def upload(self, role: str, host: np.ndarray):
+        key = (role, host.shape, host.dtype.str)
+        dev = self.buffers.get(key)
+        if dev is None:
+            dev = self.buffers[key] = cuda.to_device(host)
+        else:
+            dev.copy_to_device(host)
+        return dev
+
+    def table(self, host: np.ndarray):
+        entry = self.tables.get(id(host))
+        if entry is None or entry[0] is not host:
+            if len(self.tables) > 64:
+                self.tables.clear()
+            entry = self.tables[id(host)] = (host, cuda.to_device(host))
+        return entry[1]
+
+
+_BUFFERS = _Buffers()
+
+
+def _planes_to_device(p: TapPlanes) -> TapPlanes:
+    """Tap planes on the device: one copy when re and im are the two halves of one
+    buffer, two otherwise."""
+    base = p.re.base
+    if (base is not None and base is p.im.base and base.flags.c_contiguous
+            and base.shape == (2,) + p.re.shape and np.shares_memory(base[0], p.re)
+            and np.shares_memory(base[1], p.im)):
+        dev = _BUFFERS.upload("planes", base)
+        re, im = dev[0], dev[1]
+    else:
+        re, im = _BUFFERS.upload("planes_re", p.re), _BUFFERS.upload("planes_im", p.im)
+    return TapPlanes(re, im, p.t0, p.inv_dt, p.theta)
+
+
+def _geometry_to_device(g: VoxelGeometry) -> VoxelGeometry:
+    """The voxel and element arrays on the device in one copy (one host buffer, device
+    views of it)."""
+    arrays = (g.ax, g.cy, g.dz, g.rx_dx, g.rx_dy, g.rx_h, g.apod, g.bore)
+    edges = np.cumsum([0] + [a.size for a in arrays])
+    host = np.concatenate(arrays)
+    dev = _BUFFERS.upload("geometry", host)
+    views = [dev[edges[k]:edges[k + 1]] for k in range(len(arrays))]
+    ax, cy, dz, rx_dx, rx_dy, rx_h, apod, bore = views
+    return VoxelGeometry(ax, cy, dz, g.h_tx, rx_dx, rx_dy, rx_h, apod, bore, g.cos_tx,
+                         g.cos_rx)
+
+
+def _to_device(args: KernelArgs) -> KernelArgs:
+    d = args.delays
+    delays = TravelTimes(d.inv_cw, d.cw, d.cs, _BUFFERS.table(d.time),
+                         _BUFFERS.table(d.eta), d.inv_drho, d.z0, d.inv_dz, d.h_ref)
+    return KernelArgs(_planes_to_device(args.planes), _geometry_to_device(args.geometry),
+                      delays)
+
+
+def cross_range(args: KernelArgs, gating: bool) -> tuple[int, int]:
+    """The cross-track voxel range ic0..ic1 the projector cone can reach at the tile's
+    deepest voxel (all of it without gating), one voxel to spare on either side."""
+    g = args.geometry
+    nc = g.cy.size
+    if not gating or nc == 0:
+        return 0, nc
+    cy = np.asarray(g.cy, dtype=np.float64)
+    bore = np.asarray(g.bore, dtype=np.float64)
+    half = math.acos(min(1.0, max(-1.0, float(g.cos_tx))))
+    tilt = math.acos(min(1.0, max(-1.0, float(bore[2]))))
+    cone = half + tilt
+    if cone >= math.radians(89.0):
+        return 0, nc
+    reach = max(0.0, float(np.max(g.dz)) + float(g.h_tx)) * math.tan(cone)
+    inside = np.flatnonzero(np.abs(cy) <= reach)
+    if inside.size == 0:
+        return 0, 0
+    return max(int(inside[0]) - 1, 0), min(int(inside[-1]) + 2, nc)
 
 
 def run_ping_gpu(img_re, img_im, kd: KernelData, tx, rx, along, cross, depth, ia0, ia1, *,
@@ -77,11 +177,12 @@ def run_ping_gpu(img_re, img_im, kd: KernelData, tx, rx, along, cross, depth, ia
     check_call(img_re, img_im, along, cross, depth, ia0, ia1)
     args = kernel_args(kd, tx, rx, along, cross, depth, bore=bore, cos_tx=cos_tx,
                        cos_rx=cos_rx, apod=apod, delays=delays)
-    n = (ia1 - ia0) * cross.size * depth.size
+    ic0, ic1 = cross_range(args, gating)
+    n = (ia1 - ia0) * (ic1 - ic0) * depth.size
     if n <= 0:
         return 0
-    counts = cuda.device_array(n, dtype=np.int64)
+    count = _BUFFERS.upload("count", np.zeros(1, dtype=np.int64))
     kernel = kernel_for(kd.interp, delays.code, gating, kd.halvings)
     kernel[math.ceil(n / THREADS), THREADS](img_re, img_im, _to_device(args), ia0, ia1,
-                                            counts)
-    return int(counts.copy_to_host().sum())
+                                            ic0, ic1, count)
+    return int(count.copy_to_host()[0])

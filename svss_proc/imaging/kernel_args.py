@@ -135,9 +135,13 @@ def prepare(cond: Conditioned, interp: str, dtype) -> KernelData:
     max_angle = 0.5 * abs(theta)     # |w - s| <= 1/2 for every interpolation
     halvings = max(0, math.ceil(math.log2(max(max_angle, 1e-12) / MAX_HALF_ANGLE)))
     ft = np.dtype(dtype).type
-    return KernelData(TapPlanes(np.ascontiguousarray(planes.real, dtype=ft),
-                                np.ascontiguousarray(planes.imag, dtype=ft),
-                                ft(cond.axis.start_s), ft(1.0 / cond.axis.step_s), ft(theta)),
+    # real and imaginary planes are the two halves of one buffer: the GPU path uploads
+    # them in one copy
+    both = np.empty((2,) + planes.shape, dtype=ft)
+    both[0] = planes.real
+    both[1] = planes.imag
+    return KernelData(TapPlanes(both[0], both[1], ft(cond.axis.start_s),
+                                ft(1.0 / cond.axis.step_s), ft(theta)),
                       code, halvings)
 
 
