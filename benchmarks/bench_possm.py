@@ -72,12 +72,18 @@ log = logging.getLogger("bench_possm")
 TILE_PINGS = 150            # 15 m tile at 1 m/s and 10 pings/s (DESIGN.md)
 #: the fast profile's options (--fast-profile): scatterers per resolution cell, the
 #: volume's level cut-off below the noise (dB)
-FAST_PROFILE = {"per_cell": 2.0, "below_noise": 20.0}
+FAST_PROFILE = {"per_cell": 1.0, "below_noise": 0.0}
+#: the settings of the scene files before issue 17 (explicit densities, no level
+#: cut-off): the "former" rows
+FORMER = {"per_cell": None, "below_noise": None}
 FIRST_PING = 100            # pings well inside the track
 
 
+KEEP = "scene"       # with_fidelity: keep the scene file's value (None: option off)
+
+
 def with_fidelity(scene, density=1.0, order=None, cutoff=None, precision=None, seed=None,
-                  synthesis=None, per_cell=None, below_noise=None):
+                  synthesis=None, per_cell=KEEP, below_noise=KEEP):
     sc = scene.scattering
     if sc is None:
         return scene
@@ -88,8 +94,8 @@ def with_fidelity(scene, density=1.0, order=None, cutoff=None, precision=None, s
         precision=sc.precision if precision is None else precision,
         synthesis=sc.synthesis if synthesis is None else synthesis,
         scatterers_per_resolution_cell=(sc.scatterers_per_resolution_cell
-                                        if per_cell is None else per_cell),
-        volume_below_noise_db=(sc.volume_below_noise_db if below_noise is None
+                                        if per_cell == KEEP else per_cell),
+        volume_below_noise_db=(sc.volume_below_noise_db if below_noise == KEEP
                                else below_noise))
     surf = scene.surface if order is None else dataclasses.replace(scene.surface,
                                                                    multipath_order=order)
@@ -214,10 +220,13 @@ def target_bin(src: EnvironmentSource, depth: float = 1.0, nbin: int = 25) -> in
     return int((tau - src.pulses.t_first) * src.fs) // nbin
 
 
-def fidelity(hw, n: int, quick: bool) -> tuple[dict, list[dict]]:
+def fidelity(hw, n: int, quick: bool, only_rows: str | None = None
+             ) -> tuple[dict, list[dict]]:
     """The fidelity table on ``n`` pings of the sand scene."""
     base = load_scene(config_path("scenes/seed_cylinder_sand.toml"))
-    top = dict(density=2.0, order=2, cutoff=3.0, precision="float64")
+    # highest fidelity: twice the scene file's former densities, no level cut-off
+    top = dict(density=2.0, order=2, cutoff=3.0, precision="float64", per_cell=None,
+               below_noise=None)
     pings = list(range(FIRST_PING, FIRST_PING + n))
     ref_src = EnvironmentSource(hw, with_fidelity(base, **top))
     t_ref, s_ref, p_ref = time_pings(ref_src, pings, keep=True)
@@ -238,22 +247,23 @@ def fidelity(hw, n: int, quick: bool) -> tuple[dict, list[dict]]:
                 ("below_noise", 20.0), ("below_noise", 10.0), ("below_noise", 0.0),
                 ("precision", "exact"), ("precision", "float32"),
                 ("synthesis", "reference"),
-                ("profile", None),
+                ("default", None),
                 ("seed", base.scene.seed + 1)]
     if quick:
         variants = [("per_cell", 2.0), ("order", 0), ("below_noise", 20.0),
-                    ("precision", "float32"), ("profile", None),
+                    ("precision", "float32"), ("default", None),
                     ("seed", base.scene.seed + 1)]
+    if only_rows:
+        variants = [v for v in variants if v[0] in only_rows.split(",")]
     rows = []
     for key, value in variants:
         opts = dict(top)
         if key == "seed":
             sc = with_fidelity(base, **opts, seed=value)
             label = "other seed (same fidelity)"
-        elif key == "profile":
-            opts = dict(opts, **FAST_PROFILE, cutoff=None, density=1.0)
-            sc = with_fidelity(base, **opts)
-            label = "fast profile " + ", ".join(f"{k} {v}" for k, v in FAST_PROFILE.items())
+        elif key == "default":
+            sc = with_fidelity(base)
+            label = "scene file (default)"
         else:
             opts[key] = value
             sc = with_fidelity(base, **opts)
@@ -290,6 +300,9 @@ def main(argv=None) -> int:
     ap.add_argument("--full-tile", action="store_true",
                     help="time a whole tile (150 pings) instead of extrapolating")
     ap.add_argument("--quick", action="store_true", help="fewer fidelity rows")
+    ap.add_argument("--rows", default=None, help="only these fidelity rows (comma-"
+                    "separated keys: density, per_cell, order, cutoff, below_noise, "
+                    "precision, synthesis, default, seed)")
     ap.add_argument("--threads", type=int, default=None, help="numba threads")
     ap.add_argument("--hardware", default=None, help="hardware TOML")
     ap.add_argument("--only", default="throughput,length,fidelity",
@@ -331,13 +344,15 @@ def throughput_section(hw, args, result) -> None:
     print("\n== throughput (80 channels): fast and reference kernels, fast profile ==")
     rows = []
     for name in args.scenes.split(","):
-        rows.append(throughput(hw, name, args.pings, args.full_tile))
         if name == "demo":
+            rows.append(throughput(hw, name, args.pings, args.full_tile))
             continue
         if args.reference_pings:
-            rows.append(throughput(hw, name, args.reference_pings, False,
-                                   synthesis="reference"))
-        rows.append(throughput(hw, name, args.pings, args.full_tile, "fast profile",
+            rows.append(throughput(hw, name, args.reference_pings, False, "former",
+                                   synthesis="reference", **FORMER))
+        rows.append(throughput(hw, name, args.pings, False, "former", **FORMER))
+        rows.append(throughput(hw, name, args.pings, args.full_tile))
+        rows.append(throughput(hw, name, args.pings, args.full_tile, "lean",
                                **FAST_PROFILE))
     print(f"{'scene':20s} {'setting':12s} {'kernel':9s} {'s/ping':>7s} {'min':>7s} "
           f"{'pings/s':>7s} {'tile (s)':>9s} {'in view':>8s} {'echoes':>10s} "
@@ -349,12 +364,13 @@ def throughput_section(hw, args, result) -> None:
               f"{r['echoes_per_ping']:10d} {r['ns_per_echo']:7.1f} "
               f"{r['cpu_ns_per_echo']:11.1f}")
     for name in args.scenes.split(","):
-        fast = [r for r in rows if r["scene"] == name and r["setting"] == "scene file"
-                and r["synthesis"] == "fast"]
         ref = [r for r in rows if r["scene"] == name and r["synthesis"] == "reference"]
-        if fast and ref:
-            print(f"{name}: fast / reference: wall x{ref[0]['s_per_ping_median'] / fast[0]['s_per_ping_median']:.1f}, "
-                  f"CPU per echo x{ref[0]['cpu_ns_per_echo'] / fast[0]['cpu_ns_per_echo']:.1f}")
+        for r in rows:
+            if ref and r["scene"] == name and r["synthesis"] == "fast":
+                print(f"{name} {r['setting']} (fast) against former (reference): wall "
+                      f"x{ref[0]['s_per_ping_median'] / r['s_per_ping_median']:.1f}, CPU "
+                      f"x{ref[0]['cpu_s_per_ping'] / r['cpu_s_per_ping']:.1f}, CPU per echo "
+                      f"x{ref[0]['cpu_ns_per_echo'] / r['cpu_ns_per_echo']:.1f}")
     result["throughput"] = rows
 
 
@@ -370,7 +386,7 @@ def length_section(hw, args, result) -> None:
 
 def fidelity_section(hw, args, result) -> None:
     print("\n== fidelity options (sand): one option lowered from the highest fidelity ==")
-    ref, rows = fidelity(hw, args.fidelity_pings, args.quick)
+    ref, rows = fidelity(hw, args.fidelity_pings, args.quick, args.rows)
     print(f"reference {ref['options']}: {ref['s_per_ping']:.2f} s/ping, "
           f"{ref['echoes_per_ping']} echoes/ping, {ref['bins_above_noise']} bins above "
           f"noise, speckle {ref['speckle']:.2f}")

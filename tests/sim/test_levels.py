@@ -56,6 +56,9 @@ def small_hardware(hardware, rows=4, cols=2, module=(4, 2), centre=(-0.182, 0.0,
 
 def sand_scene(**scattering):
     sc = load_scene(config_path("scenes/seed_cylinder_sand.toml"))
+    if {"interface_density_per_m2", "volume_density_per_m3"} & set(scattering):
+        # explicit densities: the scene file's density per resolution cell gives way
+        scattering.setdefault("scatterers_per_resolution_cell", None)
     scat = dataclasses.replace(sc.scattering, specular=False, **scattering)
     return dataclasses.replace(sc, scattering=scat, surface=None, targets=(),
                                noise=dataclasses.replace(sc.noise, electronic_rms_counts=0.0,
@@ -211,6 +214,17 @@ def test_mean_intensity_does_not_depend_on_scatterer_density(hardware):
         energies.append(ms.sum())
     print("density x4: dB", 10 * np.log10(energies[1] / energies[0]))
     assert abs(10 * np.log10(energies[1] / energies[0])) < 0.5
+    # the same through the density per resolution cell (the seed scenes' setting):
+    # 1 and 4 scatterers per cell
+    per_cell = []
+    for n in (1.0, 4.0):
+        sc = sand_scene(scatterers_per_resolution_cell=n, volume_max_depth_m=0.5)
+        src = EnvironmentSource(hw2, sc)
+        assert src.seabed.densities[1] * src.resolution.volume == pytest.approx(n)
+        ms, _ = mean_square(hw2, sc, 20, range(101, 181))
+        per_cell.append(ms.sum())
+    print("per resolution cell 1 -> 4: dB", 10 * np.log10(per_cell[1] / per_cell[0]))
+    assert abs(10 * np.log10(per_cell[1] / per_cell[0])) < 0.5
 
 
 def test_spatial_coherence_follows_van_cittert_zernike(hardware):
