@@ -10,6 +10,7 @@ with its earlier reply and does not execute it twice) up to ``retries`` times.
 from __future__ import annotations
 
 import itertools
+import random
 import time
 import logging
 import queue as queue_mod
@@ -75,7 +76,12 @@ class SequencerDriver:
         self.retries = retries
         self.on_ping = on_ping
         self.ping_queue = ping_queue if ping_queue is not None else queue_mod.Queue(maxsize=100000)
-        self._mids = itertools.cycle(range(1, proto.MAX_MID + 1))
+        # ids start at a random point: the device answers a repeated id from its cache
+        # of recent replies without executing it (a host retry), so a new session that
+        # began at 1 again would have its first commands taken for the last session's
+        first = random.randrange(proto.MAX_MID)
+        self._mids = itertools.cycle([*range(first + 1, proto.MAX_MID + 1),
+                                      *range(1, first + 1)])
         self._cmd_lock = threading.Lock()
         self._replies: queue_mod.Queue = queue_mod.Queue()
         self._last_sequence: Optional[int] = None

@@ -174,3 +174,20 @@ def test_full_disk_stops_recording_cleanly(rig):
         pings = list(run)
     assert [p.sequence for p in pings] == sorted({p.sequence for p in pings})
     assert all(p.samples.any() for p in pings)
+
+
+def test_two_survey_lines_on_one_device(rig):
+    """The daemon restarted for the next line (same device, same folder): both runs are
+    recorded whole, each in its own files."""
+    dev = rig.device("--time-scale", "2")
+    first = rig.acquire(dev, "--pings", "20", run_id="lineA")
+    assert first.wait(120) == 0, first.logs()[-3000:]
+    second = rig.acquire(dev, "--pings", "20", run_id="lineB")
+    assert second.wait(120) == 0, second.logs()[-3000:]
+    for acq in (first, second):
+        pings, summary = recorded(acq.files())
+        assert len(pings) == summary["counters"]["recorded"] >= 20
+        assert [p.sequence for p in pings] == sorted({p.sequence for p in pings})
+    t_a = recorded(first.files())[0][-1].transmit_time_ns
+    t_b = recorded(second.files())[0][0].transmit_time_ns
+    assert t_b > t_a                             # the second line came after the first
