@@ -212,3 +212,19 @@ def test_scalar_math_keeps_float32_in_float32():
     assert times.nopython_signatures[0].return_type == types.UniTuple(types.float32, 2)
     for sig in voxel.nopython_signatures:
         assert sig.return_type == types.Tuple((types.float32, types.float32, types.int64))
+
+
+@requires_cuda
+def test_real_gpu_float32_kernel_has_no_float64_instructions(tmp_path):
+    """The float32 kernel compiled for sm_90 (benchmarks/bench_gpu.py --ptx-only) holds
+    float32 arithmetic and no float64 instruction (the old kernel: 16 fma.rn.f64,
+    11 mul.f64, 13 cvt.f64.f32 among others)."""
+    import json
+    out = tmp_path / "ptx.json"
+    res = subprocess.run([sys.executable, "benchmarks/bench_gpu.py", "--ptx-only", "--quick",
+                          "--out", str(out)], cwd=ROOT, env=subprocess_env(False),
+                         capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-3000:]
+    ptx = json.loads(out.read_text())["ptx_float32"]
+    assert "error" not in ptx, ptx
+    assert ptx["float64_ops"] == {} and ptx["float32_ops"].get("fma.rn.f32", 0) > 0, ptx
