@@ -228,3 +228,63 @@ def test_real_gpu_float32_kernel_has_no_float64_instructions(tmp_path):
     ptx = json.loads(out.read_text())["ptx_float32"]
     assert "error" not in ptx, ptx
     assert ptx["float64_ops"] == {} and ptx["float32_ops"].get("fma.rn.f32", 0) > 0, ptx
+
+
+CROSS_SCRIPT = textwrap.dedent("""
+    import pickle, sys, numpy as np
+    from numba import cuda
+    from svss_proc.imaging import gpu_kernel
+    from svss_proc.imaging.kernel_args import kernel_args
+    with open(sys.argv[1], "rb") as fh:
+        args, kw = pickle.load(fh)
+    kd, tx, rx, along, cross, depth = args
+    ka = kernel_args(kd, tx, rx, along, cross, depth, bore=kw["bore"], cos_tx=kw["cos_tx"],
+                     cos_rx=kw["cos_rx"], apod=None, delays=kw["delays"])
+    shape = (along.size, cross.size, depth.size)
+    re = cuda.to_device(np.zeros(shape, kd.dtype))
+    im = cuda.to_device(np.zeros(shape, kd.dtype))
+    n = gpu_kernel.run_ping_gpu(re, im, *args, 0, along.size, **kw)
+    np.savez(sys.argv[2], image=re.copy_to_host() + 1j * im.copy_to_host(), n=n,
+             box=np.array(gpu_kernel.cross_range(ka, True)))
+""")
+
+
+def test_gpu_launch_over_the_cone_cross_range_matches_cpu(tmp_path):
+    """A tile much wider than the projector cone: the GPU launch covers only the
+    cross-track range the cone reaches (a few of 41 columns) and the image and the
+    update count equal the CPU kernel's over the whole tile."""
+    from svss_daq.ping import SampleAxis
+    from svss_proc.conditioning import Conditioned
+    from svss_proc.imaging.cpu_kernel import run_ping
+    from svss_proc.imaging.kernel_args import DelayModel, prepare
+    rng = np.random.default_rng(8)
+    nch, nt = 6, 200
+    data = (rng.normal(size=(nch, nt)) + 1j * rng.normal(size=(nch, nt))).astype(np.complex64)
+    kd = prepare(Conditioned.from_baseband(data, SampleAxis(4e-4, 16e-6, nt), 27.5e3),
+                 "linear", np.float32)
+    tx = np.array([0.0, 0.05, -0.5])
+    rx = np.column_stack([rng.uniform(-0.1, 0.1, nch), rng.uniform(-0.1, 0.1, nch),
+                          np.full(nch, -0.5)])
+    along, cross, depth = np.linspace(-0.1, 0.1, 3), np.linspace(-2, 2, 41), \
+        np.array([0.0, 0.15, 0.3])
+    kw = dict(bore=np.array([0.0, 0.0, 1.0]), cos_tx=math.cos(math.radians(20)),
+              cos_rx=math.cos(math.radians(50)), gating=True,
+              delays=DelayModel("straight", 1500.0, 1500.0))
+    shape = (along.size, cross.size, depth.size)
+    re, im = np.zeros(shape, np.float32), np.zeros(shape, np.float32)
+    n_cpu = run_ping(re, im, kd, tx, rx, along, cross, depth, 0, along.size, **kw)
+    job = tmp_path / "job.pkl"
+    with open(job, "wb") as fh:
+        pickle.dump(((kd, tx, rx, along, cross, depth), kw), fh)
+    res = subprocess.run([sys.executable, "-c", CROSS_SCRIPT, str(job),
+                          str(tmp_path / "out.npz")], cwd=ROOT,
+                         env=subprocess_env(True), capture_output=True, text=True,
+                         timeout=600)
+    assert res.returncode == 0, res.stderr[-3000:]
+    out = np.load(tmp_path / "out.npz")
+    ic0, ic1 = out["box"]
+    assert 0 < ic0 and ic1 < cross.size and ic1 - ic0 <= 8        # the launch is cut
+    assert n_cpu > 0 and int(out["n"]) == n_cpu
+    cpu = re + 1j * im
+    assert not cpu[:, :ic0].any() and not cpu[:, ic1:].any()       # nothing lost outside
+    np.testing.assert_allclose(out["image"], cpu, rtol=0, atol=1e-5 * np.abs(cpu).max())
