@@ -21,14 +21,18 @@ s_bb(t) = s_a(t) exp(-j 2 pi f_c t) and remodulates. The baseband pulse occupies
 accurate to ~-90 dB; only the pulse's out-of-band edges (the taper's pedestal) are
 band-limited, as a real digitiser's anti-alias filter would.
 
-Pass 1 (:func:`transmit_legs`) evaluates every scatterer's transmit legs; pass 2
-(:func:`accumulate`) runs in parallel over channels, so no two threads write the same
-buffer. Geometry is in the tile frame (z down from the interface), float64.
+Pass 1 (:func:`transmit_legs`) evaluates every scatterer's transmit legs. Pass 2 has
+two implementations that form the same echoes: :func:`accumulate_fast` (the default:
+scatterer-parallel into per-thread complex64 buffers, the receive legs of one scatterer
+vectorised across channels; see the comment above it) and :func:`accumulate` (the
+reference: parallel over channels, so no two threads write the same buffer). Geometry is
+in the tile frame (z down from the interface), float64.
 """
 
 from __future__ import annotations
 
 import math
+import types
 
 import numba as nb
 import numpy as np
@@ -37,8 +41,14 @@ import scipy.fft as sfft
 from svss_daq.conventions import ECHO_PHASE_SIGN, baseband_carrier, remodulation
 from svss_daq.waveform import Waveform
 
-from .layered_rays import (TABLE_TRUSTED, leg_extents, ray_amplitude_terms, ray_tan,
-                           reflection, table_ray_tan)
+from .layered_rays import (
+    TABLE_TRUSTED,
+    leg_extents,
+    ray_amplitude_terms,
+    ray_tan,
+    reflection,
+    table_ray_tan,
+)
 
 #: columns of an element-image row: x, y (m), height above the interface (m), direction
 #: (+1: leaves the element downwards), the surface factor R_s^n_s, seabed bounces n_b
@@ -501,8 +511,6 @@ def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tab, rt_re, rt_im, rb_re, rb
     cmax = c0 if c0 > c1 else c1
     r0 = c0 / cmax
     r1 = c1 / cmax
-    k0 = 1.0 - r0 * r0
-    k1 = 1.0 - r1 * r1
     a0 = alpha[0]
     a1 = alpha[1]
     nw = tab.shape[0]
@@ -710,10 +718,21 @@ def accumulate_fast(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delt
     return out, counts
 
 
+def _renamed(func, name):
+    """A copy of ``func`` under another name: numba's on-disk cache is keyed by the
+    qualified name (and line), not by the compile flags, so a serial compilation of the
+    same function under the same name would be loaded by the parallel dispatcher."""
+    f = types.FunctionType(func.__code__, func.__globals__, name, func.__defaults__,
+                           func.__closure__)
+    f.__qualname__ = name
+    f.__doc__ = func.__doc__
+    return f
+
+
 #: :func:`accumulate_fast` compiled without threads, for pings with few scatterers (a
 #: scene of points in water): a parallel region's start costs more than their echoes
 accumulate_fast_serial = nb.njit(cache=True, fastmath=True, error_model="numpy")(
-    accumulate_fast.py_func)
+    _renamed(accumulate_fast.py_func, "accumulate_fast_serial"))
 
 #: below this many scatterers in view the serial kernel is used
 SERIAL_BELOW = 2048
