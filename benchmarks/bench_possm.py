@@ -136,6 +136,8 @@ def throughput(hw, name: str, n: int, full_tile: bool, label: str = "scene file"
     src = EnvironmentSource(hw, scene)
     whole = src.scene.seabed is None
     first = 30 if whole else FIRST_PING
+    if full_tile:                   # a whole tile's pings inside the track
+        first = max(1, min(first, src.n_pings - TILE_PINGS))
     n_all = min(TILE_PINGS, src.n_pings - first) if full_tile else n
     pings = list(range(first, first + n_all))
     times, stats, _ = time_pings(src, pings, whole=whole)
@@ -147,6 +149,7 @@ def throughput(hw, name: str, n: int, full_tile: bool, label: str = "scene file"
         "timed": "ping" if whole else "pressure", "channels": src.geometry.n_channels,
         "multipath_order": src.order, "pings_timed": len(pings),
         "s_per_ping_median": per_ping, "s_per_ping_min": float(times.min()),
+        "s_per_ping_mean": float(times.mean()), "first_ping": first,
         "pings_per_s": 1.0 / per_ping,
         "tile_s": float(times.sum()) if full_tile else per_ping * TILE_PINGS,
         "tile_measured": full_tile,
@@ -309,6 +312,9 @@ def main(argv=None) -> int:
                     help="comma-separated sections to run")
     ap.add_argument("--scenes", default="demo,seed_cylinder_silt,seed_cylinder_sand",
                     help="comma-separated scenes (config/scenes) for the throughput")
+    ap.add_argument("--settings", default="former,scene,lean",
+                    help="throughput rows: former (reference and fast kernels), scene "
+                    "(the scene file), lean (--fast-profile)")
     ap.add_argument("--reference-pings", type=int, default=1,
                     help="pings of the reference kernel per scene (0: none)")
     ap.add_argument("--fast-profile", default=None,
@@ -347,13 +353,17 @@ def throughput_section(hw, args, result) -> None:
         if name == "demo":
             rows.append(throughput(hw, name, args.pings, args.full_tile))
             continue
-        if args.reference_pings:
+        settings = args.settings.split(",")
+        if args.reference_pings and "former" in settings:
             rows.append(throughput(hw, name, args.reference_pings, False, "former",
                                    synthesis="reference", **FORMER))
-        rows.append(throughput(hw, name, args.pings, False, "former", **FORMER))
-        rows.append(throughput(hw, name, args.pings, args.full_tile))
-        rows.append(throughput(hw, name, args.pings, args.full_tile, "lean",
-                               **FAST_PROFILE))
+        if "former" in settings:
+            rows.append(throughput(hw, name, args.pings, False, "former", **FORMER))
+        if "scene" in settings:
+            rows.append(throughput(hw, name, args.pings, args.full_tile))
+        if "lean" in settings:
+            rows.append(throughput(hw, name, args.pings, args.full_tile, "lean",
+                                   **FAST_PROFILE))
     print(f"{'scene':20s} {'setting':12s} {'kernel':9s} {'s/ping':>7s} {'min':>7s} "
           f"{'pings/s':>7s} {'tile (s)':>9s} {'in view':>8s} {'echoes':>10s} "
           f"{'ns/echo':>7s} {'cpu ns/echo':>11s}")
