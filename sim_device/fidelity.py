@@ -100,7 +100,6 @@ def volume_depth_limits(*, allowed: np.ndarray, tx_z: float, rx_z: float,
     med = np.clip(np.searchsorted(z_top[1:], z, side="right"), 1, c.size - 1)
     sig_v = np.array([0.0] + [ly.sediment.volume_scattering_coefficient(fc)
                               for ly in env.layers])[med]
-    dz = np.gradient(z) if n > 1 else np.ones(1)
     att = np.concatenate([[0.0], np.cumsum(0.5 * (alpha[med[1:]] + alpha[med[:-1]])
                                             * np.diff(z))])
     stretch = np.concatenate([[0.0], np.cumsum(0.5 * (c[med[1:]] + c[med[:-1]]) / c0

@@ -24,9 +24,9 @@ def sand(**scattering):
     ones) and cut at 1.2 m so that a ping is quick, no level cut-off; multipath to second
     order; no coherent returns, no targets."""
     sc = load_scene(config_path("scenes/seed_cylinder_sand.toml"))
-    opts = dict(specular=False, interface_density_per_m2=100.0,
-                volume_density_per_m3=400.0, volume_max_depth_m=1.2,
-                scatterers_per_resolution_cell=None, volume_below_noise_db=None)
+    opts = {"specular": False, "interface_density_per_m2": 100.0,
+            "volume_density_per_m3": 400.0, "volume_max_depth_m": 1.2,
+            "scatterers_per_resolution_cell": None, "volume_below_noise_db": None}
     opts.update(scattering)
     return dataclasses.replace(sc, scattering=dataclasses.replace(sc.scattering, **opts),
                                targets=())
@@ -58,12 +58,10 @@ def test_fast_path_agrees_with_the_reference_to_float32_rounding(sand_pair):
 def test_fast_path_agrees_at_other_precisions(hardware, precision):
     """exact: every refracted leg goes through the fast path's scalar fall-back (Brent);
     float32: single-precision inputs."""
-    opts = dict(precision=precision, volume_max_depth_m=0.5, multipath_order=None)
-    del opts["multipath_order"]
-    a = EnvironmentSource(hardware, sand(**opts, interface_density_per_m2=30.0,
-                                         volume_density_per_m3=100.0))
-    b = EnvironmentSource(hardware, sand(**opts, interface_density_per_m2=30.0,
-                                         volume_density_per_m3=100.0, synthesis="reference"))
+    opts = {"precision": precision, "volume_max_depth_m": 0.5,
+            "interface_density_per_m2": 30.0, "volume_density_per_m3": 100.0}
+    a = EnvironmentSource(hardware, sand(**opts))
+    b = EnvironmentSource(hardware, sand(**opts, synthesis="reference"))
     pa, pb = a.scattered(PING), b.scattered(PING)
     assert a.last_stats["echoes"] == b.last_stats["echoes"] > 10000
     assert rel(pa, pb) < (1e-5 if precision == "exact" else 1e-4)
