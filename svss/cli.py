@@ -437,6 +437,9 @@ def _stop_on_sigterm() -> None:
         raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, handler)
+        # a command started in the background by a shell inherits SIGINT ignored, and
+        # Python then leaves it ignored: an explicit SIGINT must still stop it
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -30,7 +30,7 @@ DEMO_PROCESSING = "processing-demo.toml"
 DEMO_RUN = "demo"
 #: simulated seconds the device's clock runs before the track starts: the daemon and the
 #: worker start meanwhile, and the sequencer's first ping is then the track's first
-DEMO_LEAD_S = 20.0
+DEMO_LEAD_S = 12.0
 STARTUP_S = 120.0
 
 

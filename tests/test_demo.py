@@ -15,6 +15,7 @@ import pytest
 
 from sim_device.scene import load_scene
 from svss_daq.config import ProcessingConfig, config_path, load
+from svss_daq.frames import TrackLine
 from svss_daq.rawfile import RawRunReader
 from svss_proc.tiles import read_tile
 
@@ -22,11 +23,12 @@ pytestmark = pytest.mark.slow
 
 #: the worker writes each run's tiles into a folder named by the run id
 RUN = "demo"
-#: where the targets may be found: a voxel in depth (each ping at its DVL altitude); the
-#: navigation's horizontal error along and across (GPS 0.3 m smoothed over 5 s with DVL
-#: dead reckoning, and the tile frame taken from the first ping's measured pose)
+#: where the targets may be found, in the tile frame the worker took from the first
+#: ping's measured pose: a voxel and a half in depth (each ping at its DVL altitude); the
+#: navigation's drift relative to that first pose along and across (GPS 0.3 m smoothed
+#: over 5 s with DVL dead reckoning: up to 0.17 m seen in five runs)
 TOL_DEPTH_M = 0.03
-TOL_HORIZONTAL_M = 0.15
+TOL_HORIZONTAL_M = 0.25
 
 
 def svss(*args, cwd=None):
@@ -65,33 +67,48 @@ def test_demo_writes_run_tiles_and_pngs(demo):
     assert seq.tolist() == list(range(len(seq)))
 
 
+def expected_in_tile(pt, scene, attrs) -> np.ndarray:
+    """Where a scene point lies in a tile's frame: the scene places it along and across
+    the true track from its first ping; the tile frame is the one the worker took from
+    the first ping's *measured* pose (stored in the tile). Depth is below the interface,
+    where each ping is placed at its DVL altitude."""
+    tr = scene.track
+    h = np.deg2rad(tr.heading_deg)
+    north = tr.start_ne_m[0] + pt.along_m * np.cos(h) - pt.cross_m * np.sin(h)
+    east = tr.start_ne_m[1] + pt.along_m * np.sin(h) + pt.cross_m * np.cos(h)
+    line = TrackLine((float(attrs["line_origin_north_m"]), float(attrs["line_origin_east_m"])),
+                     float(attrs["line_heading_rad"]), float(attrs["interface_down_m"]))
+    along, cross, _ = line.ned_to_tile(np.array([north, east, 0.0]))
+    return np.array([along, cross, pt.depth_m])
+
+
 def test_targets_at_true_positions(demo):
     out, _ = demo
     scene = load_scene(config_path("scenes/demo.toml"))
     tile_cfg = load(ProcessingConfig, config_path("processing-demo.toml")).tile
-    tiles = {}
+    tiles, truth = {}, {}
     for pt in scene.points:
         k = int(np.floor(pt.along_m / tile_cfg.length_m))
         t = tiles.setdefault(k, read_tile(out / "tiles" / RUN / f"tile_{k:04d}.h5"))
+        want = expected_in_tile(pt, scene, t["attrs"])
+        truth.setdefault(k, []).append(want)
         mag = np.abs(t["image"])
         box = [np.flatnonzero(np.abs(ax - x) <= 0.3)
-               for ax, x in zip((t["along"], t["cross"], t["depth"]),
-                                (pt.along_m, pt.cross_m, pt.depth_m))]
+               for ax, x in zip((t["along"], t["cross"], t["depth"]), want)]
         sub = mag[np.ix_(*box)]
         i, j, m = np.unravel_index(sub.argmax(), sub.shape)
         peak = np.array([t["along"][box[0][i]], t["cross"][box[1][j]], t["depth"][box[2][m]]])
-        err = np.abs(peak - [pt.along_m, pt.cross_m, pt.depth_m])
-        assert np.all(err <= [TOL_HORIZONTAL_M, TOL_HORIZONTAL_M, TOL_DEPTH_M]), (pt, peak)
+        err = np.abs(peak - want)
+        assert np.all(err <= [TOL_HORIZONTAL_M, TOL_HORIZONTAL_M, TOL_DEPTH_M]), (pt, peak, want)
         # a real peak: well above the tile's median level
         assert 20 * np.log10(sub.max() / np.median(mag[mag > 0])) > 25
     # and the brightest voxel of each tile is one of the targets
-    truth = np.array([[p.along_m, p.cross_m, p.depth_m] for p in scene.points])
     for k, t in tiles.items():
         mag = np.abs(t["image"])
         i, j, m = np.unravel_index(mag.argmax(), mag.shape)
         peak = np.array([t["along"][i], t["cross"][j], t["depth"][m]])
-        near = np.all(np.abs(truth - peak) <= [TOL_HORIZONTAL_M, TOL_HORIZONTAL_M,
-                                                TOL_DEPTH_M], axis=1)
+        near = np.all(np.abs(np.array(truth[k]) - peak)
+                      <= [TOL_HORIZONTAL_M, TOL_HORIZONTAL_M, TOL_DEPTH_M], axis=1)
         assert near.any(), (k, peak)
 
 

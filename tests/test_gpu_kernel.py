@@ -139,6 +139,7 @@ def _compare(gpu):
         assert int(gpu[name + "_n"]) == n == n_ref, name
 
 
+@pytest.mark.extended     # tests/test_gpu_float32.py runs the realistic case by default
 def test_gpu_simulator_matches_direct_sum_and_cpu(tmp_path):
     _compare(_run_gpu(tmp_path, simulator=True))
 

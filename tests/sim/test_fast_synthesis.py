@@ -54,6 +54,7 @@ def test_fast_path_agrees_with_the_reference_to_float32_rounding(sand_pair):
     assert rel(a, b) < 1e-5                                  # ... summed in float32
 
 
+@pytest.mark.extended      # the default precision's agreement runs by default (above)
 @pytest.mark.parametrize("precision", ["exact", "float32"])
 def test_fast_path_agrees_at_other_precisions(hardware, precision):
     """exact: every refracted leg goes through the fast path's scalar fall-back (Brent);

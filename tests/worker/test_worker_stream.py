@@ -132,7 +132,8 @@ def _stop(proc):
             proc.wait()
 
 
-@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
+@pytest.mark.parametrize("sig", [signal.SIGKILL,
+                                 pytest.param(signal.SIGTERM, marks=pytest.mark.extended)])
 def test_stopped_worker_resumes_with_every_tile_once(sig, raw_run, processed,
                                                      small_proc_path, tmp_path):
     """SIGKILL: the tiles written stay, the open ones are imaged again from the resume
