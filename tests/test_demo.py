@@ -26,7 +26,7 @@ RUN = "demo"
 #: where the targets may be found, in the tile frame the worker took from the first
 #: ping's measured pose: a voxel and a half in depth (each ping at its DVL altitude); the
 #: navigation's drift relative to that first pose along and across (GPS 0.3 m smoothed
-#: over 5 s with DVL dead reckoning: up to 0.17 m seen in five runs)
+#: over 5 s with DVL dead reckoning: up to 0.17 m seen in two runs)
 TOL_DEPTH_M = 0.03
 TOL_HORIZONTAL_M = 0.25
 
