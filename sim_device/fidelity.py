@@ -24,7 +24,6 @@
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,7 +31,7 @@ import numpy as np
 from svss_daq.decibels import power_to_db
 
 from .environment import Environment
-from .multipath import image_depth, leg_image
+from .path_choice import path_geometry
 
 log = logging.getLogger(__name__)
 
@@ -112,14 +111,9 @@ def volume_depth_limits(*, allowed: np.ndarray, tx_z: float, rx_z: float,
         for b in range(shape[1]):
             if not allowed[a, b]:
                 continue
-            la, lb = leg_image(a), leg_image(b)
-            h_t = -float(image_depth(a, tx_z, depth))
-            h_r = -float(image_depth(b, rx_z, depth))
-            lobes = (1.0 if a % 2 == 0 else back_lobe) * (1.0 if b % 2 == 0 else back_lobe)
-            refl = (abs(env.surface_reflection) ** (la.n_surface + lb.n_surface)
-                    * r0 ** (la.n_bottom + lb.n_bottom))
-            area = math.pi * 0.5 * (h_t + h_r) * c0 * pulse_s
-            ms = (0.5 * p0 ** 2 * (lobes * refl) ** 2 * t4 * sig_v * slab * area
+            h_t, h_r, amp, area = path_geometry(a, b, tx_z, rx_z, depth, env, r0,
+                                                back_lobe, pulse_s)
+            ms = (0.5 * p0 ** 2 * amp ** 2 * t4 * sig_v * slab * area
                   * np.exp(-4.0 * att) / ((h_t + stretch) * (h_r + stretch)) ** 2)
             above = np.flatnonzero(ms >= floor)
             zmax[a, b] = float(z[above[-1]]) if above.size else 0.0

@@ -40,6 +40,23 @@ def nadir_sigma(fidelity, env: Environment, top: Sediment | None, fc: float) -> 
     return (s_int if fidelity.interface else 0.0) + (s_vol if fidelity.volume else 0.0)
 
 
+def path_geometry(a: int, b: int, tx_z: float, rx_z: float, depth: float,
+                  env: Environment, r_bottom: float, back_lobe: float,
+                  pulse_s: float) -> tuple[float, float, float, float]:
+    """Leg pair (``a`` transmit, ``b`` receive image legs) at nadir: the heights of the
+    two image sources above the interface (m), the amplitude factor of their surface and
+    bottom reflections (``r_bottom`` = |R| at normal incidence) and back lobes, and the
+    area of the annulus one pulse insonifies (m^2)."""
+    la, lb = leg_image(a), leg_image(b)
+    h_t = -float(image_depth(a, tx_z, depth))
+    h_r = -float(image_depth(b, rx_z, depth))
+    lobes = (1.0 if a % 2 == 0 else back_lobe) * (1.0 if b % 2 == 0 else back_lobe)
+    refl = (abs(env.surface_reflection) ** (la.n_surface + lb.n_surface)
+            * r_bottom ** (la.n_bottom + lb.n_bottom))
+    area = math.pi * 0.5 * (h_t + h_r) * env.water_sound_speed * pulse_s
+    return h_t, h_r, lobes * refl, area
+
+
 def choose_paths(*, order: int, m_max: int, tx_z: float, rx_z: float,
                  water_depth: float | None, sigma: float, target_strength: float,
                  p0: float, pulse_s: float, env: Environment, r_bottom: float,
@@ -56,18 +73,12 @@ def choose_paths(*, order: int, m_max: int, tx_z: float, rx_z: float,
     allowed = np.zeros((n, n), dtype=np.bool_)
     pairs = leg_pairs(order, m_max) or [(0, 0)]
     depth = water_depth if water_depth is not None else 0.0
-    c0 = env.water_sound_speed
     levels = {}
     noise_db = float(power_to_db(noise_power))
     for (a, b) in pairs:
-        la, lb = leg_image(a), leg_image(b)
-        h_t = -float(image_depth(a, tx_z, depth))
-        h_r = -float(image_depth(b, rx_z, depth))
-        lobes = (1.0 if a % 2 == 0 else back_lobe) * (1.0 if b % 2 == 0 else back_lobe)
-        refl = (abs(env.surface_reflection) ** (la.n_surface + lb.n_surface)
-                * r_bottom ** (la.n_bottom + lb.n_bottom))
-        area = math.pi * 0.5 * (h_t + h_r) * c0 * pulse_s
-        ms = (0.5 * p0 ** 2 * (lobes * refl) ** 2 * (sigma * area + target_strength)
+        h_t, h_r, amp, area = path_geometry(a, b, tx_z, rx_z, depth, env, r_bottom,
+                                            back_lobe, pulse_s)
+        ms = (0.5 * p0 ** 2 * amp ** 2 * (sigma * area + target_strength)
               / (h_t * h_r) ** 2)
         level = float(power_to_db(ms))
         levels[(a, b)] = level
