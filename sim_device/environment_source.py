@@ -296,11 +296,13 @@ class EnvironmentSource:
             buf = self.pulses.buffer(n_ch).astype(cf)
             counts = accumulate(*args, buf)
         else:
+            # finite: the fast kernels are compiled with fastmath (no infinities)
+            zlim = np.minimum(self.zmax, np.finfo(np.float64).max)
             if idx.size < SERIAL_BELOW:
-                buf, counts = accumulate_fast_serial(*args, self.pulses.n_buf, 1, self.zmax)
+                buf, counts = accumulate_fast_serial(*args, self.pulses.n_buf, 1, zlim)
             else:
                 buf, counts = accumulate_fast(*args, self.pulses.n_buf,
-                                              2 * numba.get_num_threads(), self.zmax)
+                                              2 * numba.get_num_threads(), zlim)
         t3 = time.perf_counter()
         out = self.pulses.to_passband(buf.astype(np.complex128))
         self.last_stats.update(generated=n_gen, in_view=int(idx.size),

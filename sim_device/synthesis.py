@@ -183,7 +183,7 @@ def leg(ex, ey, height, direction, f_surf, n_b, x, y, z, med, up, c, rho_m, delt
     g = gain(cos_off, g_front, g_back, lo_front, lo_back)
     if g == 0.0:
         return tau, complex(0.0, 0.0), sinp
-    amp = (g * f_surf * spread * _exp_neg(att)) * trans
+    amp = (g * f_surf * spread * math.exp(-att)) * trans
     if n_b > 0:
         rb = _interp(r_bot, sinp)
         for _ in range(n_b):

@@ -158,7 +158,7 @@ def cmd_acquire(args) -> int:
     from svss_daq.daemon import AcquisitionDaemon
 
     setup = load_acquire(args.config or config_path("acquire.toml"), devices=args.devices,
-                         out_dir=args.out)
+                         out_dir=args.out, hardware=args.hardware)
     endpoints = {}
     if args.ephemeral_ports:
         endpoints = {k: "tcp://127.0.0.1:*" for k in ("publisher", "service", "status")}
@@ -315,6 +315,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--devices", help="devices TOML replacing the one the acquisition "
                     "TOML names (e.g. what svss sim-device printed)")
     sp.add_argument("--out", help="raw-run folder replacing run.out_dir")
+    sp.add_argument("--hardware", help="hardware TOML replacing run.hardware")
     sp.add_argument("--run-id", help="run id (default: run.name and the UTC start time)")
     sp.add_argument("--pings", type=int, default=None, help="stop after this many pings")
     sp.add_argument("--duration", type=float, default=None, help="stop after this many "

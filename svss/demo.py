@@ -60,22 +60,6 @@ def _stop(proc: subprocess.Popen | None, timeout_s: float = 20.0) -> None:
         proc.wait()
 
 
-def _acquire_toml(out: Path, hw: Path) -> Path:
-    path = out / "acquire.toml"
-    text = config_path("acquire.toml").read_text()
-    base = config_path("acquire.toml").parent
-    for key in ("devices", "daq"):
-        text = re.sub(rf'^{key} = "[^"]*"', f'{key} = "{(base / f"{key}.toml").as_posix()}"',
-                      text, count=1, flags=re.M)
-    text = re.sub(r'^hardware = "[^"]*"', f'hardware = "{hw.as_posix()}"', text, count=1,
-                  flags=re.M)
-    text = re.sub(r'^out_dir = "[^"]*"', f'out_dir = "{(out / "runs").as_posix()}"', text,
-                  count=1, flags=re.M)
-    text = re.sub(r'^name = "[^"]*"', f'name = "{DEMO_RUN}"', text, count=1, flags=re.M)
-    path.write_text(text)
-    return path
-
-
 def run_demo(out: Path, scene: str | None = None, hardware: str | None = None,
              processing: str | None = None, worker_timeout_s: float = 600.0,
              force: bool = False, lead_s: float = DEMO_LEAD_S) -> list[Path]:
@@ -113,8 +97,9 @@ def run_demo(out: Path, scene: str | None = None, hardware: str | None = None,
         log.info("simulated device up (logs/sim-device.log); starting the acquisition")
         with open(logs / "acquire.log", "wb") as err:
             procs["acquire"] = subprocess.Popen(
-                _svss("acquire", "--config", str(_acquire_toml(out, hw_path)), "--devices",
-                      str(devices), "--out", str(runs), "--run-id", DEMO_RUN, "--pings",
+                _svss("acquire", "--config", str(config_path("acquire.toml")), "--hardware",
+                      str(hw_path), "--devices", str(devices), "--out", str(runs),
+                      "--run-id", DEMO_RUN, "--pings",
                       str(n_pings), "--ephemeral-ports", "--endpoints-out", str(endpoints),
                       "--wait-subscribers", "1"),
                 stdout=subprocess.DEVNULL, stderr=err)

@@ -106,10 +106,11 @@ class AcquireSetup:
 
 
 def load_acquire(path: str | os.PathLike, *, devices: str | os.PathLike | None = None,
-                 out_dir: str | os.PathLike | None = None) -> AcquireSetup:
-    """Read ``path`` and the configurations it names; ``devices`` / ``out_dir`` replace
-    the file's (e.g. the devices TOML printed by ``svss sim-device``). Errors name the
-    file and the key."""
+                 out_dir: str | os.PathLike | None = None,
+                 hardware: str | os.PathLike | None = None) -> AcquireSetup:
+    """Read ``path`` and the configurations it names; ``devices`` / ``out_dir`` /
+    ``hardware`` replace the file's (e.g. the devices TOML printed by ``svss
+    sim-device``). Errors name the file and the key."""
     path = Path(path)
     cfg = from_dict(AcquireConfig, read_toml(path), str(path))
     base = path.resolve().parent
@@ -121,7 +122,8 @@ def load_acquire(path: str | os.PathLike, *, devices: str | os.PathLike | None =
             raise ConfigError(f"{path}: key '{key}' names {p}, which does not exist")
         return p
 
-    hw = load_with_text(HardwareConfig, named(cfg.run.hardware, "run.hardware"))
+    hw = load_with_text(HardwareConfig,
+                        hardware or named(cfg.run.hardware, "run.hardware"))
     dev_path = Path(devices) if devices else named(cfg.run.devices, "run.devices")
     dev = load(DevicesConfig, dev_path)
     daq = load(DaqConfig, named(cfg.run.daq, "run.daq"))

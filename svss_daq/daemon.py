@@ -31,7 +31,6 @@ import queue
 import threading
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 from . import messages
 from .acquire_config import AcquireSetup
@@ -166,7 +165,7 @@ class AcquisitionDaemon:
         self._times: collections.deque = collections.deque()
         self._last_seq: int | None = None
         self._seen: set[int] = set()
-        self._pending: collections.deque = collections.deque()   # (deadline, CompletePing)
+        self._pending: collections.deque = collections.deque()   # (arrival, CompletePing)
         self.recorder: RunRecorder | None = None
         self.publisher: PingPublisher | None = None
         self.status_pub: StatusPublisher | None = None
@@ -175,6 +174,8 @@ class AcquisitionDaemon:
         self.digitiser: DigitiserClient | None = None
         self.dvl_link: SerialLink | None = None
         self.gps_link: SerialLink | None = None
+        self.dvl_parser: Pd0StreamParser | None = None
+        self.gps_tap: _NmeaTap | None = None
         self.navigator = Navigator(setup.devices.navigation, setup.hardware.value.lever_arms,
                                    history_s=acq.navigation.history_s)
         self._t_start = time.monotonic()
@@ -539,8 +540,8 @@ class AcquisitionDaemon:
                            "discarded in all")
         for name, link, parser in (("sequencer", self.sequencer and self.sequencer.link,
                                     self.sequencer and self.sequencer.parser),
-                                   ("dvl", self.dvl_link, getattr(self, "dvl_parser", None)),
-                                   ("gps", self.gps_link, getattr(self, "gps_tap", None))):
+                                   ("dvl", self.dvl_link, self.dvl_parser),
+                                   ("gps", self.gps_link, self.gps_tap)):
             if link is None:
                 continue
             if w.delta(f"{name}.disconnects", link.stats.disconnects) > 0:
@@ -579,7 +580,6 @@ class AcquisitionDaemon:
 
     def status(self) -> dict:
         c = self.counters
-        c.publish_dropped = self.publisher.dropped if self.publisher else c.publish_dropped
         rec = self.recorder
         devices = {}
         if self.sequencer is not None:
@@ -587,8 +587,8 @@ class AcquisitionDaemon:
             devices["sequencer"] = {"connected": self.sequencer.link.connected,
                                     "reopens": max(ls.connects - 1, 0),
                                     "events_missing": self.sequencer.missed_pings,
-                                    "garbage_bytes": self.sequencer.parser.stats.bytes_discarded
-                                    if hasattr(self.sequencer.parser, "stats") else 0}
+                                    "garbage_bytes":
+                                        self.sequencer.parser.stats.bytes_discarded}
         if self.digitiser is not None:
             d = self.digitiser
             devices["digitiser"] = {"connected": d.connected,
@@ -596,8 +596,8 @@ class AcquisitionDaemon:
                                     "bad_frames": d.decoder.frames.stats.bad_headers
                                     + d.decoder.frames.stats.corrupt_payloads,
                                     "garbage_bytes": d.decoder.frames.stats.bytes_discarded}
-        for name, link, parser in (("dvl", self.dvl_link, getattr(self, "dvl_parser", None)),
-                                   ("gps", self.gps_link, getattr(self, "gps_tap", None))):
+        for name, link, parser in (("dvl", self.dvl_link, self.dvl_parser),
+                                   ("gps", self.gps_link, self.gps_tap)):
             if link is not None:
                 devices[name] = {"connected": link.connected,
                                  "reopens": max(link.stats.connects - 1, 0),
@@ -649,11 +649,11 @@ class AcquisitionDaemon:
             return
         failed = self.state == "failed"
         self.state = "stopping"
-        for what, fn in (("sequencer stop", lambda: self.sequencer and self.sequencer.stop()),):
-            try:
-                fn()
-            except Exception as exc:             # a vanished device must not lose the run
-                self.event("sequencer.stop_failed", f"{what}: {exc}")
+        try:
+            if self.sequencer is not None:
+                self.sequencer.stop()
+        except Exception as exc:                 # a vanished device must not lose the run
+            self.event("sequencer.stop_failed", str(exc))
         if not failed and self.digitiser is not None:
             drain = time.monotonic() + self.setup.acquire.pairing.drain_s
             while time.monotonic() < drain and not (self.recorder and self.recorder.stopped):
@@ -684,7 +684,6 @@ class AcquisitionDaemon:
                 log.warning("closing %s: %s", obj, exc)
         if self.publisher is not None:
             self.publisher.publish(messages.RunEnd(self.run_id, self.counters.recorded))
-            self.counters.publish_dropped = self.publisher.dropped
             self.publisher.close()
         if self.service is not None:
             self._linger()
@@ -732,9 +731,4 @@ def _unknown_pose(t_ns: int) -> NavSnapshot:
     return NavSnapshot(t_ns, NAN, NAN, NAN, NAN, NAN, NAN, NAN, NAN, NAN, NAN)
 
 
-def segments_of(out_dir: Path, run_id: str) -> list[Path]:
-    """The raw-run files of ``run_id`` in ``out_dir``, in segment order."""
-    return sorted(Path(out_dir).glob(f"{run_id}_*.h5"))
-
-
-__all__ = ["AcquisitionDaemon", "Counters", "run_id_now", "segments_of"]
+__all__ = ["AcquisitionDaemon", "Counters", "run_id_now"]

@@ -532,6 +532,15 @@ class PingFetcher:
     def _request(self, req: dict) -> tuple[list[Ping], dict]:
         self.requests += 1
         self.sock.send(json.dumps({**req, "version": VERSION}).encode())
+        try:
+            return self._reply()
+        except ServiceError:
+            # the rest of a reply that failed part-way would be taken for the next one's
+            self.sock.close(linger=0)
+            self._connect()
+            raise
+
+    def _reply(self) -> tuple[list[Ping], dict]:
         pings = []
         while True:
             frames = self._recv()

@@ -130,10 +130,11 @@ class RunRecorder:
     @property
     def n_flushed(self) -> int:
         """Pings of the run known to be on disk."""
-        if self.writer is None:                 # between segments, or closed
-            return len(self.sequences) if not self.stopped else self._seg_first[-1] if \
-                self._seg_first else 0
-        return self._seg_first[-1] + self.writer.n_flushed
+        if self.writer is not None:
+            return self._seg_first[-1] + self.writer.n_flushed
+        if self.stopped and self._seg_first:    # a segment that could not be opened
+            return self._seg_first[-1]
+        return len(self.sequences)              # between segments, or closed
 
     def append(self, ping: Ping) -> None:
         """Record one ping (raises :class:`RecordingStopped` when recording cannot go

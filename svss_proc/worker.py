@@ -18,7 +18,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import math
 import os
 import re
 import shutil
@@ -722,7 +721,6 @@ def serve(endpoint: str, out_dir: str | Path, hardware: Loaded[HardwareConfig],
     check_endpoint(endpoint, bind=False)            # before anything is written
     if service is not None:
         check_endpoint(service, bind=False)
-    preflight(processing.value, processing.source)
     fetcher = (PingFetcher(service, curve=curve, timeout_s=service_timeout_s)
                if service is not None else None)
     sock = None

@@ -83,7 +83,8 @@ def kernel_for(interp: int, mode: int, gating: bool, halvings: int):
 
 
 class _Buffers:
-    """Device buffers reused from ping to ping (one per role and size), and device
+    """Device buffers reused from ping to ping (one per role, replaced when its shape
+    changes), and device
     copies of the refraction tables (by identity: the imager keeps its tables)."""
 
     def __init__(self):
@@ -91,10 +92,9 @@ class _Buffers:
         self.tables: dict = {}
 
     def upload(self, role: str, host: np.ndarray):
-        key = (role, host.shape, host.dtype.str)
-        dev = self.buffers.get(key)
-        if dev is None:
-            dev = self.buffers[key] = cuda.to_device(host)
+        dev = self.buffers.get(role)
+        if dev is None or dev.shape != host.shape or dev.dtype != host.dtype:
+            dev = self.buffers[role] = cuda.to_device(host)   # the old one is freed
         else:
             dev.copy_to_device(host)
         return dev
