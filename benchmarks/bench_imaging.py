@@ -108,16 +108,16 @@ def numpy_baseline(hw, proc, pings, n_pings: int = 2):
         origin = line.ned_to_tile(nav.ned)
         tx = origin + rot @ geo.projectors[p.projector]
         rx = origin + geo.receivers @ rot.T
-        cond = imager.conditioner(p.samples, p.window_start_ns * 1e-9)
+        cond = imager.conditioner.ping(p)   # analytic signal at its arrival times
         r1 = np.sqrt((X - tx[0]) ** 2 + (Y - tx[1]) ** 2 + (Z - tx[2]) ** 2)
         in_tx = (Z - tx[2]) >= r1 * cos_tx
         for ch in range(rx.shape[0]):
             r2 = np.sqrt((X - rx[ch, 0]) ** 2 + (Y - rx[ch, 1]) ** 2 + (Z - rx[ch, 2]) ** 2)
             ok = in_tx & ((Z - rx[ch, 2]) >= r2 * cos_rx)
             tau = (r1 + r2) / c
-            idx = np.rint((tau - cond.t0_s) / cond.dt_s).astype(np.int64)
-            ok &= (idx >= 0) & (idx < cond.data.shape[1])
-            img[ok] += cond.data[ch, idx[ok]] * np.exp(2j * np.pi * cond.center_hz * tau[ok])
+            idx = np.rint((tau - cond.axis.start_s) / cond.axis.step_s).astype(np.int64)
+            ok &= (idx >= 0) & (idx < cond.analytic.shape[1])
+            img[ok] += cond.analytic[ch, idx[ok]]
             updates += int(ok.sum())
     el = time.perf_counter() - t0
     return {"pings": n_pings, "seconds": el, "updates": updates, "updates_per_s": updates / el}
