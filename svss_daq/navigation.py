@@ -141,11 +141,17 @@ def ecef_to_geodetic(xyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     lat = np.arctan2(z, p * (1.0 - WGS84_E2))
     for _ in range(8):
         n = WGS84_A / np.sqrt(1.0 - WGS84_E2 * np.sin(lat) ** 2)
-        h = p / np.cos(lat) - n
+        h = _height(p, z, lat, n)
         lat = np.arctan2(z, p * (1.0 - WGS84_E2 * n / (n + h)))
     n = WGS84_A / np.sqrt(1.0 - WGS84_E2 * np.sin(lat) ** 2)
-    h = p / np.cos(lat) - n
-    return np.degrees(lat), np.degrees(lon), h
+    return np.degrees(lat), np.degrees(lon), _height(p, z, lat, n)
+
+
+def _height(p, z, lat, n):
+    """Height above the ellipsoid, p cos(lat) + z sin(lat) - n (1 - e2 sin^2 lat): valid
+    at the poles too (p / cos(lat) - n was 0/0 there: NaN on the polar axis)."""
+    s = np.sin(lat)
+    return p * np.cos(lat) + z * s - n * (1.0 - WGS84_E2 * s * s)
 
 
 def ned_rotation(lat0_deg: float, lon0_deg: float) -> np.ndarray:

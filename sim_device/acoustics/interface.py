@@ -76,7 +76,15 @@ def vertical_wavenumber_ratio(theta: ArrayLike, nu: ArrayLike,
     θ grazing angle (rad); ν sound-speed ratio; δ loss parameter.
     """
     th = np.asarray(theta, dtype=float)
-    p = np.sqrt(kappa(nu, delta) ** 2 - np.cos(th) ** 2 + 0j)
+    nu = np.asarray(nu, dtype=float)
+    delta = np.asarray(delta, dtype=float)
+    # near grazing, kappa^2 - cos^2 as (kappa^2 - 1) + sin^2: cos^2 rounds to 1 below
+    # 1e-8 rad, which lost sin^2 and gave R = 1 on a matched sediment (nu = 1; exact:
+    # (rho - 1)/(rho + 1)); elsewhere the direct form (as the ray code's, which takes cos)
+    k2m1 = ((1.0 - nu) * (1.0 + nu) - delta * delta + 2j * delta) / (nu * nu)
+    s = np.sin(th)
+    arg = np.where(s * s < 1e-4, k2m1 + s * s, kappa(nu, delta) ** 2 - np.cos(th) ** 2)
+    p = np.where(k2m1 == 0.0, s + 0j, np.sqrt(arg + 0j))      # s * s may underflow
     # numpy's principal root already has Re ≥ 0; flip the few cases a signed zero put
     # on the lower half plane so the transmitted wave decays (or is outgoing).
     return np.where(p.imag < 0.0, -p, p)
@@ -94,6 +102,10 @@ def reflection_coefficient(theta: ArrayLike, rho: ArrayLike, nu: ArrayLike,
     rho, nu, delta = _check_medium(rho, nu, delta)
     p = vertical_wavenumber_ratio(th, nu, delta)
     a = rho * np.sin(th)
+    # both terms scaled to order 1: complex division of subnormals (θ ~ 1e-320) gave NaN
+    scale = np.maximum(np.abs(a), np.abs(p))
+    scale = np.where(scale > 0.0, scale, 1.0)
+    a, p = a / scale, p.real / scale + 1j * (p.imag / scale)
     den = a + p
     zero = den == 0  # only θ = 0 with κ = 1 exactly (lossless, ν = 1)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -188,8 +200,12 @@ def band_limited_rms_roughness(spectral_strength: ArrayLike, spectral_exponent: 
         raise ValueError("need 0 < k_min < k_max (rad/m)")
     if np.any(np.isinf(kmax) & (g <= 2.0)):
         raise ValueError("an unbounded band needs spectral_exponent > 2")
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         e = 2.0 - g
-        power = np.where(np.abs(e) < 1e-12, np.log(kmax / kmin),
-                         (kmin ** e - np.where(np.isinf(kmax), 0.0, kmax ** e)) / -e)
+        span = np.log(kmax / kmin)
+        # (K_min^e - K_max^e)/(-e) = K_min^e expm1(e ln(K_max/K_min))/e: no cancellation
+        # as gamma -> 2 (the difference of powers lost 7 digits at gamma = 2 + 1e-11)
+        bounded = np.where(np.abs(e) < 1e-300, span,
+                           kmin ** e * np.expm1(e * span) / np.where(e == 0, 1.0, e))
+        power = np.where(np.isinf(kmax), kmin ** e / -e, bounded)
     return np.sqrt(2.0 * np.pi * w2 * power)

@@ -49,12 +49,15 @@ def build_refraction(jit):
         for _ in range(100):
             rw = math.sqrt(x * x + h * h)
             rs = math.sqrt((rho - x) * (rho - x) + z * z)
-            g = x / (cw * rw) - (rho - x) / (cs * rs)
+            # rs = 0 when the point lies on the interface to rounding (z * z underflows,
+            # z < 1e-154 m) and x = rho: the sediment leg vanishes (was 0/0)
+            g = x / (cw * rw) - ((rho - x) / (cs * rs) if rs > 0.0 else 0.0)
             if g > 0.0:
                 hi = x
             else:
                 lo = x
-            dg = h * h / (cw * rw * rw * rw) + z * z / (cs * rs * rs * rs)
+            dg = h * h / (cw * rw * rw * rw) + (z * z / (cs * rs * rs * rs) if rs > 0.0
+                                                else 0.0)
             xn = x - g / dg
             if not (lo < xn < hi):
                 xn = 0.5 * (lo + hi)

@@ -46,5 +46,13 @@ def tile_grid(cfg: TileConfig, index: int) -> TileGrid:
 
 
 def tile_index(cfg: TileConfig, along_m: float) -> int:
-    """Index of the tile holding along-track position ``along_m``."""
-    return int(math.floor(along_m / cfg.length_m))
+    """Index of the tile holding along-track position ``along_m``: k with
+    k * length <= along_m < (k + 1) * length in floating point (the quotient alone can
+    round across a tile edge, e.g. -5e-324 / 2 = -0.0 gave tile 0)."""
+    length = cfg.length_m
+    k = math.floor(along_m / length)
+    if k * length > along_m:
+        k -= 1
+    elif (k + 1) * length <= along_m:
+        k += 1
+    return int(k)
