@@ -1,0 +1,287 @@
+"""Tile planning for batch reprocessing: which pings of which raw files go into which
+tile, decided from the runs' ping and navigation tables alone (no sample is read).
+
+The plan replays the streaming worker's bookkeeping (:class:`svss_proc.worker.Worker`:
+the :class:`~svss_daq.ping_gate.PingGate`, then :class:`TileImager.add
+<svss_proc.imaging.imager.TileImager.add>`'s pose checks, tile frame, reach, tile
+opening, early closing under ``limits.memory_gib`` and closing after
+``tile.close_after_pings`` clear pings) ping by ping, with the same functions
+(:func:`~svss_proc.imaging.imager.line_from_ping`, :func:`~svss_daq.geometry.place_array`,
+:func:`~svss_proc.imaging.imager.along_reach`, :func:`~svss_proc.imaging.grid.tile_index`,
+:class:`~svss_proc.imaging.pose_check.TrackGuard`), but without imaging. Each tile's
+plan is then the list of pings the streaming worker images into it, in order, as index
+ranges of the run's segment files: a task images exactly those (and checks that the
+imager took exactly those), so that its tile equals ``svss process``'s voxel for voxel.
+
+The one check the plan cannot make without the samples is the ADC-code range of
+:func:`~svss_daq.ping_gate.ping_problem`; a ping refused for it is found by the task,
+which then fails naming the file and the ping (:class:`PlanMismatch`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
+from svss_daq.frames import TrackLine
+from svss_daq.geometry import array_geometry, place_array
+from svss_daq.ping import Ping, SampleAxis
+from svss_daq.ping_gate import PingGate, PingRejected
+from svss_daq.rawfile import RawFileError, RawRunReader
+from svss_daq.waveform import make_waveform
+
+from ..conditioning import Conditioner
+from ..imaging.grid import tile_grid, tile_index
+from ..imaging.imager import CLOSE_AFTER_PINGS, along_reach, line_from_ping, ping_frame
+from ..imaging.pose_check import TrackGuard
+from ..preflight import preflight
+
+log = logging.getLogger(__name__)
+
+
+class PlanMismatch(RuntimeError):
+    """A tile task's imager took other pings than the plan gave it."""
+
+
+@dataclass(frozen=True)
+class TilePlan:
+    """One tile of one run: what a task needs (file paths and ping index ranges, never
+    the pings themselves). ``ranges``: (raw file, first index, index past the last) in
+    imaging order; ``sequences``: the pings the tile must hold, in order; ``others``:
+    the run's other tiles (closed in the task's imager, so that only this one is
+    formed); ``line``: the run's tile frame (origin N, E m; heading rad; interface
+    down m)."""
+    run_id: str
+    folder: str
+    index: int
+    ranges: tuple[tuple[str, int, int], ...]
+    sequences: tuple[int, ...]
+    others: tuple[int, ...]
+    line: tuple[float, float, float, float]
+    hardware_id: str
+
+    @property
+    def key(self) -> str:
+        """The task's name (unique in a survey)."""
+        return f"tile-{self.folder}-{self.index}"
+
+    @property
+    def n_pings(self) -> int:
+        return len(self.sequences)
+
+    def track_line(self) -> TrackLine:
+        n, e, heading, interface = self.line
+        return TrackLine((n, e), heading, interface)
+
+
+@dataclass
+class RunPlan:
+    """The tiles of one run (its segment files in order)."""
+    run_id: str
+    folder: str
+    paths: list[Path]
+    hardware_id: str
+    n_pings: int
+    tiles: list[TilePlan] = field(default_factory=list)
+    refused: dict[str, int] = field(default_factory=dict)
+    late_pings: int = 0
+
+
+def _ranges(refs: list[tuple[int, int]], paths: list[Path]) -> tuple:
+    """(segment, index) references, in order, as (path, start, stop) runs."""
+    out: list[list] = []
+    for seg, i in refs:
+        if out and out[-1][0] == seg and out[-1][2] == i:
+            out[-1][2] = i + 1
+        else:
+            out.append([seg, i, i + 1])
+    return tuple((str(paths[s]), a, b) for s, a, b in out)
+
+
+class TilePlanner:
+    """The streaming worker's tile bookkeeping on poses only (see the module doc)."""
+
+    def __init__(self, hardware: Loaded[HardwareConfig], processing: ProcessingConfig,
+                 source: str, name: str):
+        self.hardware, self.proc = hardware, processing
+        self.max_open_tiles = preflight(processing, source)
+        self.gate = PingGate(hardware, name=name)
+        self.track = TrackGuard(processing.ping_gate)
+        self.geometry = array_geometry(hardware.value)
+        hold = processing.tile.close_after_pings
+        self.close_after = CLOSE_AFTER_PINGS if hold is None else hold
+        self.line: TrackLine | None = None
+        self.active: dict[int, list] = {}
+        self.clear: dict[int, int] = {}
+        self.done: set[int] = set()
+        self.tiles: dict[int, list] = {}          # index -> [(ref, sequence)]
+        self.late_pings = 0
+        cond = processing.conditioning
+        dig = hardware.value.digitiser
+        self._step_out = cond.decimation / (dig.sample_rate_hz * cond.upsample)
+        self._group_delay = dig.group_delay_s
+
+    def _echo_end_s(self, ping: Ping) -> float:
+        """End of the conditioned (arrival-time) axis, s: what
+        :class:`~svss_proc.conditioning.Conditioner` gives, without the samples."""
+        if not hasattr(self, "_n_out"):
+            c = self.proc.conditioning
+            hw = self.hardware.value
+            self._n_out = Conditioner(hw.digitiser, make_waveform(hw.waveform),
+                                      c.decimation, c.upsample).n_out
+        start = ping.sample_axis.start_s - self._group_delay
+        return SampleAxis(start, self._step_out, self._n_out).end_s
+
+    def add(self, ping: Ping, ref) -> None:
+        """One ping (``ref``: where it lies, kept in the plan)."""
+        if not self.gate.admit(ping):
+            return
+        try:
+            self._add(ping, ref)
+        except PingRejected as exc:
+            self.gate.refuse(exc)
+
+    def _add(self, ping: Ping, ref) -> None:
+        proc, tcfg, geo = self.proc, self.proc.tile, self.geometry
+        line = self.line or line_from_ping(ping, proc)
+        placed = place_array(geo, ping.nav, ping.projector, ping_frame(line, ping.nav, proc))
+        tx, bore = placed.tx, placed.bore
+        fix = self.track.check(ping.sequence, ping.nav, tx)
+        if proc.imaging.beam_gating:
+            reach = along_reach(tx, bore, geo.projector_half_angle, tcfg.top_m + tcfg.depth_m)
+        else:
+            reach = self._echo_end_s(ping) * proc.imaging.water_sound_speed_m_s / 2
+        lo, hi = tx[0] - reach, tx[0] + reach
+        k_lo, k_hi = tile_index(tcfg, lo), tile_index(tcfg, hi)
+        if k_hi - k_lo + 1 > self.max_open_tiles:
+            raise PingRejected(ping.sequence, f"reaches {k_hi - k_lo + 1} tiles (along-track "
+                               f"{lo:.1f} to {hi:.1f} m), more than the "
+                               f"{self.max_open_tiles} that fit in limits.memory_gib")
+        if self.line is None:
+            self.line = line
+        self.track.commit(fix)
+        reached = [k for k in range(k_lo, k_hi + 1) if k not in self.done]
+        if not reached:
+            self.late_pings += 1
+        else:
+            self._make_room([k for k in reached if k not in self.active], reached)
+        v = tcfg.voxel_m
+        for k in reached:
+            if k not in self.active:
+                self.active[k] = self.tiles.setdefault(k, [])
+                self.clear[k] = 0
+            a = tile_grid(tcfg, k).along
+            ia0 = int(np.clip(np.floor((lo - a[0]) / v), 0, a.size))
+            ia1 = int(np.clip(np.ceil((hi - a[0]) / v) + 1, 0, a.size))
+            if ia1 > ia0:
+                self.active[k].append((ref, ping.sequence))
+        finished = []
+        for k in self.active:
+            if k_lo <= k <= k_hi:
+                self.clear[k] = 0
+            else:
+                self.clear[k] += 1
+                if self.clear[k] >= self.close_after:
+                    finished.append(k)
+        for k in sorted(finished):
+            self._close(k)
+
+    def _make_room(self, new: list[int], reached: list[int]) -> None:
+        spare = sorted((k for k in self.active if k not in reached),
+                       key=lambda k: -min(abs(k - r) for r in reached))
+        while len(self.active) + len(new) > self.max_open_tiles and spare:
+            self._close(spare.pop(0))
+
+    def _close(self, k: int) -> None:
+        self.done.add(k)
+        self.clear.pop(k, None)
+        self.active.pop(k)
+
+
+def _pose_ping(reader: RawRunReader, i: int, meta: dict, zeros: np.ndarray) -> Ping:
+    """Ping ``i`` of ``reader`` with its records and pose but no samples (a read-only
+    zero view of the right shape: nothing is read or allocated)."""
+    return Ping(sequence=int(meta["ping_sequence"][i]),
+                projector=int(meta["transmit_projector"][i]),
+                transmit_time_ns=int(meta["ping_time"][i]),
+                sample_rate_hz=reader.sample_rate_hz,
+                window_start_ns=int(meta["window_start_ns"][i]),
+                samples=zeros, nav=reader.nav(i), config_id=reader.hardware.id)
+
+
+def group_runs(paths: list[str | Path]) -> dict[str, list[Path]]:
+    """Raw files grouped into runs, each run's segment files in segment order. A run's
+    id is the root attribute ``run_id`` (else the file's stem) and the segment number
+    the root attribute ``segment`` (else 0), as the catch-up service reads them
+    (:class:`svss_daq.ping_service.RawRunStore`); runs in the order of their first file
+    given. :class:`~svss_daq.rawfile.RawFileError` names a missing or unreadable file."""
+    from svss_daq.ping_service import RawRunStore
+    if not paths:
+        raise ValueError("svss batch: no raw-run files given")
+    for p in paths:
+        if not Path(p).is_file():
+            raise RawFileError(f"{p}: no such raw-run file")
+    store = RawRunStore([Path(p) for p in paths])
+    try:
+        runs = {r: store.paths(r) for r in store.run_ids()}
+    finally:
+        store.close()
+    seen: dict[Path, str] = {}
+    for r, ps in runs.items():
+        for p in ps:
+            if p.resolve() in seen:
+                raise ValueError(f"{p}: given twice (runs {seen[p.resolve()]} and {r})")
+            seen[p.resolve()] = r
+    return runs
+
+
+def plan_run(run_id: str, folder: str, paths: list[Path],
+             processing: Loaded[ProcessingConfig]) -> RunPlan:
+    """Plan the tiles of one run (its segment files, in order) for ``processing``."""
+    readers = []
+    try:
+        for p in paths:
+            readers.append(RawRunReader(p))
+        hw = readers[0].hardware
+        for r in readers[1:]:
+            if r.hardware.id != hw.id:
+                raise RawFileError(f"{r.path}: recorded with hardware configuration "
+                                   f"{r.hardware.id}, the run's first segment "
+                                   f"{readers[0].path} with {hw.id}; a run has one")
+        planner = TilePlanner(hw, processing.value, processing.source,
+                              name=f"batch plan of run {run_id}")
+        dig = hw.value.digitiser
+        zeros = np.broadcast_to(np.zeros((), np.int32), (dig.n_channels, dig.window_samples))
+        n = 0
+        for s, r in enumerate(readers):
+            meta = r.ping_table()         # the reader checked the samples' shape
+            for i in range(len(r)):
+                planner.add(_pose_ping(r, i, meta, zeros), (s, i))
+            n += len(r)
+    finally:
+        for r in readers:
+            r.close()
+    plan = RunPlan(run_id, folder, list(paths), hw.id, n,
+                   refused=dict(planner.gate.refused), late_pings=planner.late_pings)
+    if planner.line is None:
+        log.warning("run %s: no ping passed the checks; no tile", run_id)
+        return plan
+    ln = planner.line
+    line = (float(ln.origin_ne[0]), float(ln.origin_ne[1]), float(ln.heading),
+            float(ln.interface_down))
+    all_tiles = tuple(sorted(planner.tiles))
+    for k in all_tiles:
+        refs = planner.tiles[k]
+        plan.tiles.append(TilePlan(
+            run_id, folder, k, _ranges([r for r, _ in refs], paths),
+            tuple(s for _, s in refs), tuple(j for j in all_tiles if j != k), line, hw.id))
+    log.info("run %s: %d ping(s) in %d file(s) -> %d tile(s) (frame origin N %.2f E %.2f m, "
+             "heading %.1f deg)", run_id, n, len(paths), len(plan.tiles), line[0], line[1],
+             math.degrees(line[2]))
+    return plan
+

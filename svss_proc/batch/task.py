@@ -1,0 +1,109 @@
+"""One batch task: image one planned tile from its raw files and save it, in whatever
+process runs it (a Dask worker, or this one).
+
+The task opens the tile's raw files itself and reads only the pings of its ranges
+(:meth:`svss_daq.rawfile.RawRunReader.ping`, one by one). It images them with the
+streaming worker's :class:`~svss_proc.imaging.imager.TileImager`, set to the run's tile
+frame and with the run's other tiles closed, so that only this tile is formed, and
+saves it with :func:`~svss_proc.products.chain.save_tile` (products, quicklook, the
+atomic ``tile_NNNN.h5`` rename as commit point). A tile whose ``.h5`` is already
+there is not imaged again (resume, or a task rerun after its worker died).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from svss_daq.config import Loaded, ProcessingConfig
+from svss_daq.ping_gate import PingRejected
+from svss_daq.rawfile import RawFileError, RawRunReader
+
+from ..imaging.imager import TileImager
+from ..products.chain import save_tile
+from ..tiles import read_tile_header, tile_name
+from .plan import PlanMismatch, TilePlan
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class _Judged:
+    """Stands in for the imager's :class:`~svss_proc.imaging.pose_check.TrackGuard`:
+    the plan judged every pose against the whole run's track already (a tile's pings
+    alone are not that track)."""
+    reanchored: int = 0
+
+    def check(self, sequence, nav, tx_tile):
+        return None
+
+    def commit(self, fix) -> None:
+        pass
+
+
+def tile_paths(out: Path, plan: TilePlan) -> tuple[Path, Path]:
+    """(tile .h5, quicklook .png) of ``plan`` under the batch output folder ``out``."""
+    d = Path(out) / plan.folder
+    name = tile_name(plan.index)
+    return d / f"{name}.h5", d / f"{name}_mip.png"
+
+
+def _result(plan: TilePlan, h5: Path, detections: int, t0: float, skipped: bool) -> dict:
+    return {"key": plan.key, "run_id": plan.run_id, "folder": plan.folder,
+            "index": plan.index, "pings": plan.n_pings, "detections": int(detections),
+            "compute_s": time.perf_counter() - t0, "skipped": skipped, "file": str(h5),
+            "pid": os.getpid()}
+
+
+def image_tile(plan: TilePlan, out: str, processing: Loaded[ProcessingConfig]) -> dict:
+    """Image and save one tile; a summary (``pings``, ``detections``, ``compute_s``,
+    ``skipped`` when its committed file was already there, ``pid``)."""
+    t0 = time.perf_counter()
+    h5, _ = tile_paths(Path(out), plan)
+    if h5.is_file():
+        return _result(plan, h5, len(read_tile_header(h5)["detections"]), t0, True)
+    readers: dict[str, RawRunReader] = {}
+    try:
+        for path, _, _ in plan.ranges:
+            if path not in readers:
+                readers[path] = RawRunReader(path)
+        hardware = next(iter(readers.values())).hardware
+        for r in readers.values():
+            if r.hardware.id != plan.hardware_id:
+                raise RawFileError(f"{r.path}: hardware configuration {r.hardware.id}, the "
+                                   f"plan was made with {plan.hardware_id} (file changed?)")
+        imager = TileImager(hardware, processing.value, source=processing.source)
+        imager.line = plan.track_line()
+        imager.done = set(plan.others)
+        imager.track = _Judged()
+        for path, start, stop in plan.ranges:
+            r = readers[path]
+            for i in range(start, stop):
+                try:
+                    early = imager.add(r.ping(i))
+                except PingRejected as exc:
+                    raise PlanMismatch(f"{path}: ping {i} ({exc}) was refused imaging "
+                                       f"tile {plan.index} of run {plan.run_id}, though its "
+                                       "records and pose passed the plan; process this "
+                                       "run with svss process") from None
+                if early:
+                    raise PlanMismatch(f"{path}: tile(s) {[t.grid.index for t in early]} "
+                                       f"closed early imaging tile {plan.index}")
+    finally:
+        for r in readers.values():
+            r.close()
+    tiles = {t.grid.index: t for t in imager.finish()}
+    tile = tiles.get(plan.index)
+    got = tuple(tile.pings) if tile is not None else ()
+    if got != plan.sequences:
+        raise PlanMismatch(f"run {plan.run_id} tile {plan.index}: imaged pings "
+                           f"{got[:5]}... ({len(got)}), the plan has {plan.sequences[:5]}... "
+                           f"({len(plan.sequences)})")
+    save_tile(tile, h5.parent, hardware, processing)
+    dets = len(read_tile_header(h5)["detections"])
+    log.info("%s: tile %d of run %s, %d pings, %d detections, %.2f s", h5, plan.index,
+             plan.run_id, len(got), dets, time.perf_counter() - t0)
+    return _result(plan, h5, dets, t0, False)

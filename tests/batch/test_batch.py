@@ -1,0 +1,179 @@
+"""svss batch on a LocalCluster of two worker processes on loopback: the tiles of a
+two-run survey equal `svss process`'s voxel for voxel, also when a worker process is
+killed mid-run; a rerun skips finished tiles and redoes a half-written one; the survey
+index lists every tile as its file says; bad raw files are named."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from svss_daq.rawfile import RawFileError
+from svss_proc.batch.plan import plan_run
+from svss_proc.batch.run import STATE, run_batch
+from svss_proc.batch.task import image_tile
+from svss_proc.survey_index import INDEX_NAME
+from svss_proc.tiles import read_detections, read_tile_header
+from tests.worker.conftest import ROOT, assert_same_tiles
+
+pytest.importorskip("distributed")
+
+RUNS = ("lineA", "lineB")
+
+
+class KillOnce:
+    """The tile task, except that the first task of run ``run_id`` kills its own worker
+    process (SIGKILL) once, before imaging: the marker file records the pid."""
+
+    def __init__(self, marker: Path, run_id: str):
+        self.marker, self.run_id = str(marker), run_id
+
+    def __call__(self, plan, out, processing):
+        if plan.run_id == self.run_id:
+            try:
+                fd = os.open(self.marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+            except FileExistsError:
+                pass
+            else:
+                os.write(fd, f"{os.getpid()} {plan.index}".encode())
+                os.close(fd)
+                os.kill(os.getpid(), signal.SIGKILL)
+        return image_tile(plan, out, processing)
+
+
+@pytest.fixture(scope="module")
+def batch(survey, coarse_proc, client, tmp_path_factory) -> dict:
+    """The survey batched (run B's segments given out of order), one worker killed."""
+    d = tmp_path_factory.mktemp("batch")
+    marker = d / "killed"
+    out = d / "out"
+    files = [survey["A"], *reversed(survey["B_segments"])]
+    summary = run_batch(files, out, coarse_proc, client=client,
+                        task=KillOnce(marker, "lineB"))
+    return {"out": out, "summary": summary, "marker": marker}
+
+
+def test_tiles_equal_svss_process_voxel_for_voxel(batch, reference):
+    for run in RUNS:
+        assert_same_tiles(reference[run], batch["out"] / run)
+        for ref in sorted(reference[run].glob("tile_*.h5")):
+            got = batch["out"] / run / ref.name
+            a, b = read_detections(ref)[0], read_detections(got)[0]
+            assert a.dtype == b.dtype, ref.name
+            for name in a.dtype.names:                # NaN where a field is undefined
+                np.testing.assert_array_equal(a[name], b[name], err_msg=ref.name)
+            assert got.with_name(ref.stem + "_mip.png").is_file()
+
+
+def test_killed_worker_leaves_no_missing_tile(batch, reference):
+    pid, index = map(int, batch["marker"].read_text().split())
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)                               # that worker process is gone
+    s = batch["summary"]
+    n_ref = sum(len(list(reference[r].glob("tile_*.h5"))) for r in RUNS)
+    assert (s["tiles"], s["imaged"], s["failed"], s["skipped"]) == (n_ref, n_ref, 0, 0)
+    assert pid not in s["task_pids"] and len(s["task_pids"]) >= 2
+    assert (batch["out"] / "lineB" / f"tile_{index:04d}.h5").is_file()
+    assert not [p for p in batch["out"].rglob("*") if ".partial" in p.name]
+
+
+def test_survey_index_lists_every_tile(batch, reference):
+    import pandas as pd
+    import xarray as xr
+    out = batch["out"]
+    df = pd.read_csv(out / INDEX_NAME)
+    tiles = sorted(out.glob("*/tile_*.h5"))
+    assert sorted(df["file"]) == sorted(str(p.relative_to(out)) for p in tiles)
+    assert set(df["run_id"]) == set(RUNS)
+    for row in df.itertuples():
+        h = read_tile_header(out / row.file)
+        v = float(h["attrs"]["voxel_m"])
+        assert row.tile_index == int(h["attrs"]["tile_index"])
+        assert row.n_pings == h["ping_sequence"].size
+        assert (row.first_ping, row.last_ping) == (h["ping_sequence"].min(),
+                                                   h["ping_sequence"].max())
+        assert row.n_detections == len(read_detections(out / row.file)[0])
+        assert row.along_min_m == pytest.approx(h["along"][0] - v / 2)
+        assert row.along_max_m == pytest.approx(h["along"][-1] + v / 2)
+        assert row.depth_max_m == pytest.approx(h["depth"][-1] + v / 2)
+        assert row.line_heading_deg == pytest.approx(
+            np.degrees(h["attrs"]["line_heading_rad"]))
+        assert row.processing_config_id == h["attrs"]["processing_config_id"]
+        assert row.voxel_m == 0.05 and row.delays == "straight"
+    assert df["n_detections"].sum() == batch["summary"]["detections"]
+    # runs have their own tile frames (run B starts 8 pings later)
+    assert df.groupby("run_id")["line_origin_north_m"].nunique().eq(1).all()
+    assert df["line_origin_north_m"].nunique() == 2
+    ds = xr.Dataset.from_dataframe(df.set_index(["run_id", "tile_index"]))
+    assert int(ds["n_pings"].sum()) == df["n_pings"].sum()
+    # svss process writes the same index for its folder
+    for run in RUNS:
+        ref = pd.read_csv(reference[run] / INDEX_NAME)
+        mine = df[df["run_id"] == run].reset_index(drop=True)
+        cols = ["tile_index", "n_pings", "n_detections", "along_min_m",
+                "line_origin_east_m", "processing_config_id"]
+        pd.testing.assert_frame_equal(ref[cols], mine[cols])
+
+
+def test_rerun_skips_finished_tiles_and_redoes_a_half_written_one(batch, reference, survey,
+                                                                  coarse_proc, cluster,
+                                                                  tmp_path):
+    """Through the command line, on the running cluster's scheduler (--scheduler)."""
+    out = tmp_path / "out"
+    shutil.copytree(batch["out"], out)
+    redo = sorted((out / "lineA").glob("tile_*.h5"))[1]
+    redo.unlink()
+    redo.with_name(redo.stem + "_mip.png").unlink()
+    half = redo.with_name(f".{redo.stem}.partial-0badf00d.h5")
+    half.write_bytes(b"\x89HDF\r\n\x1a\n half-written")
+    before = {p: p.stat().st_mtime_ns for p in out.rglob("tile_*.h5")}
+    files = [str(survey["A"]), *map(str, survey["B_segments"])]
+    res = subprocess.run([sys.executable, "-m", "svss", "batch", *files, "--out", str(out),
+                          "--processing", coarse_proc.source,
+                          "--scheduler", cluster.scheduler_address],
+                         cwd=ROOT, capture_output=True, text=True, timeout=120,
+                         check=False)
+    assert res.returncode == 0, res.stderr[-3000:]
+    n = len(before) + 1
+    assert f"{n} tile(s) of 2 run(s) (1 imaged, {n - 1} already done)" in res.stdout
+    assert not half.exists() and redo.is_file()
+    assert {p: p.stat().st_mtime_ns for p in before} == before      # not rewritten
+    for run in RUNS:
+        assert_same_tiles(reference[run], out / run)
+    assert "svss.batch_state" in (out / STATE).read_text()
+
+
+def test_segments_plan_as_the_whole_run(survey, coarse_proc):
+    whole = plan_run("w", "w", [survey["B_whole"]], coarse_proc)
+    segs = plan_run("s", "s", survey["B_segments"], coarse_proc)
+    assert [t.index for t in whole.tiles] == [t.index for t in segs.tiles]
+    assert [t.sequences for t in whole.tiles] == [t.sequences for t in segs.tiles]
+    assert whole.tiles[0].line == segs.tiles[0].line
+    # a tile spanning the segment boundary reads from both files
+    assert any(len({r[0] for r in t.ranges}) == 2 for t in segs.tiles)
+
+
+def test_missing_or_corrupt_raw_file_is_named(survey, coarse_proc, tmp_path):
+    missing = tmp_path / "nothere.h5"
+    with pytest.raises(RawFileError, match=str(missing)):
+        run_batch([survey["A"], missing], tmp_path / "o1", coarse_proc, workers=1)
+    bad = tmp_path / "truncated.h5"
+    data = survey["A"].read_bytes()
+    bad.write_bytes(data[: len(data) // 2])
+    with pytest.raises(RawFileError, match=str(bad)):
+        run_batch([bad], tmp_path / "o2", coarse_proc, workers=1)
+
+
+def test_cli_names_the_extra_without_dask(survey, tmp_path, monkeypatch, caplog):
+    from svss.cli import main
+    monkeypatch.setitem(sys.modules, "distributed", None)      # as if not installed
+    assert main(["batch", str(survey["A"]), "--out", str(tmp_path / "o")]) == 2
+    assert "svss[distributed]" in caplog.text and "dask" in caplog.text
+    assert not (tmp_path / "o").exists()
