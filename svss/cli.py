@@ -5,9 +5,11 @@
     svss status [--connect ENDPOINT] [--json] [--follow]
     svss simulate --scene FILE --out RUN.h5
     svss process RUN.h5 --out DIR
+    svss batch RUN.h5 [RUN2.h5 ...] --out DIR [--scheduler ADDRESS] [--workers N]
     svss worker --connect ENDPOINT --out DIR [--service E] [--runs N]
     svss replay RUN.h5 [RUN2.h5 ...] [--endpoint E] [--service E] [--realtime]
     svss inspect FILE [--json]
+    svss products TILES_DIR [--out DIR] [--origin LAT LON [HEIGHT]]
     svss score TILES_DIR --scene FILE [--radius M] [--out REPORT.json]
     svss sim-device --scene FILE [--time-scale S] [--faults FILE] [--from-run RUN.h5]
                     [--devices-out FILE] [--workers N] [--no-navigation] [--lead S]
@@ -72,6 +74,21 @@ def cmd_process(args) -> int:
     files = process_raw(args.run, args.out, _processing(args), force=args.force)
     for p in files:
         print(p)
+    return 0
+
+
+def cmd_batch(args) -> int:
+    from svss_proc.batch.run import BatchError, format_summary, require_dask, run_batch
+
+    try:
+        require_dask()                  # before any work; the message names the extra
+        summary = run_batch(args.run, args.out, _processing(args),
+                            scheduler=args.scheduler, workers=args.workers,
+                            force=args.force)
+    except (ImportError, BatchError) as exc:
+        log.error("%s", exc)
+        return 2 if isinstance(exc, ImportError) else 1
+    print(format_summary(summary))
     return 0
 
 
@@ -222,12 +239,33 @@ def cmd_inspect(args) -> int:
     return 0
 
 
+def cmd_products(args) -> int:
+    from svss_proc.products.run_products import write_run_products
+
+    origin = None
+    if args.origin is not None:
+        if len(args.origin) not in (2, 3):
+            log.error("--origin takes LAT LON [HEIGHT] (deg, deg, m); got %d values",
+                      len(args.origin))
+            return 2
+        origin = (args.origin[0], args.origin[1],
+                  args.origin[2] if len(args.origin) == 3 else 0.0)
+    files = write_run_products(args.tiles, args.out, origin)
+    if not files:
+        log.error("%s: no tiles with products; nothing written", args.tiles)
+        return 1
+    print("svss products wrote:")
+    for p in files:
+        print(f"  {p}")
+    return 0
+
+
 def cmd_score(args) -> int:
     import json
 
     from svss.score import format_report, score_tiles
 
-    report = score_tiles(args.tiles, args.scene, args.radius)
+    report = score_tiles(args.tiles, args.scene, args.radius, args.level)
     print(format_report(report))
     if args.out:
         Path(args.out).write_text(json.dumps(report, indent=2))
@@ -349,6 +387,20 @@ def build_parser() -> argparse.ArgumentParser:
     force(sp, "tiles and manifest of an earlier run in --out")
     sp.set_defaults(func=cmd_process)
 
+    sp = sub.add_parser("batch", help="reprocess raw runs into tiles on Dask distributed, "
+                        "one task per tile (docs/batch.md)")
+    sp.add_argument("run", nargs="+", help="raw-run HDF5 file(s) (a run's segment files "
+                    "together), on a path every worker sees")
+    sp.add_argument("--out", required=True, help="output folder (OUT/RUN/tile_NNNN.h5, "
+                    "OUT/survey_index.csv); a rerun skips the tiles already there")
+    sp.add_argument("--processing", help="processing TOML (default: config/processing.toml)")
+    sp.add_argument("--scheduler", help="Dask scheduler address, e.g. tcp://HOST:8786 "
+                    "(default: a local cluster of --workers processes)")
+    sp.add_argument("--workers", type=int, default=None, help="worker processes of the "
+                    "local cluster (default: the CPU count)")
+    force(sp, "tiles of an earlier batch made with another processing configuration")
+    sp.set_defaults(func=cmd_batch)
+
     sp = sub.add_parser("worker", help="image pings received over ZeroMQ")
     sp.add_argument("--connect", required=True, help="publisher endpoint")
     sp.add_argument("--out", required=True, help="output folder")
@@ -389,6 +441,16 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--json", action="store_true", help="print the summary as JSON")
     sp.set_defaults(func=cmd_inspect)
 
+    sp = sub.add_parser("products", help="(re)write a run's products from its tiles: "
+                        "contacts (CSV, GeoJSON with latitude/longitude) and the MIP mosaic "
+                        "(docs/products.md)")
+    sp.add_argument("tiles", help="folder of a run's tile_*.h5 files")
+    sp.add_argument("--out", help="output folder (default: the tiles' folder)")
+    sp.add_argument("--origin", type=float, nargs="+", metavar="VALUE",
+                    help="survey origin LAT LON [HEIGHT] (deg, deg, m) for tiles whose "
+                    "pings carried no geodetic position (simulated runs)")
+    sp.set_defaults(func=cmd_products)
+
     sp = sub.add_parser("score", help="score a folder of tiles' detections against a "
                         "simulated scene's targets")
     sp.add_argument("tiles", help="folder of tile_*.h5 files")
@@ -396,6 +458,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--radius", type=float, default=None, help="match radius, m (default: "
                     "products.detection.match_radius_m of the tiles' processing)")
     sp.add_argument("--out", help="also write the report as JSON to this file")
+    sp.add_argument("--level", choices=("run", "tile"), default="run",
+                    help="score the run's contacts (filtered across tiles; default) or "
+                    "every tile's own detections")
     sp.set_defaults(func=cmd_score)
 
     sp = sub.add_parser("sim-device", help="serve a simulated sonar (sequencer on a pty, "

@@ -26,6 +26,7 @@ from svss_daq.config import ConfigError, ProcessingConfig, loads
 from svss_daq.frames import TrackLine
 from svss_proc import tiles
 from svss_proc.products import detect
+from svss_proc.products.run_products import TileView, run_contacts
 
 log = logging.getLogger(__name__)
 
@@ -159,12 +160,17 @@ def tile_paths(tiles_dir: str | Path) -> list[Path]:
 
 
 def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
-                radius_m: float | None = None) -> dict:
+                radius_m: float | None = None, level: str = "run") -> dict:
     """Score the tiles of ``tiles_dir`` (:func:`tile_paths`) against the scene's
-    targets. The match radius is ``radius_m`` or the
-    ``products.detection.match_radius_m`` the tiles were processed with. A tile that
+    targets. ``level``: ``"run"`` scores the run's contacts (the tiles' detections
+    filtered across tiles: :mod:`svss_proc.products.run_products`, what an operator
+    gets), ``"tile"`` every tile's own detections. The match radius is ``radius_m`` or
+    the ``products.detection.match_radius_m`` the tiles were processed with. A tile that
     cannot be read, or has no detections (processed without products), is an error
-    naming it. Returns a JSON-serialisable report."""
+    naming it. Returns a JSON-serialisable report, with false alarms per tile and per
+    square metre of the tiles' plan area."""
+    if level not in ("run", "tile"):
+        raise ValueError(f"level is {level!r}; expected 'run' or 'tile'")
     tiles_dir = Path(tiles_dir)
     paths = tile_paths(tiles_dir)
     if not paths:
@@ -185,8 +191,22 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
         np.array([t["scene_m"] for t in truth], dtype=np.float64).reshape(-1, 3))
     det_rows, det_ned = [], []
     covered = np.zeros(len(truth), dtype=bool)
+    kept = None
+    if level == "run":
+        try:
+            contacts, _ = run_contacts([TileView(p, h) for p, h in zip(paths, headers)])
+            kept = {(c["tile"], c["tile_row"]) for c in contacts}
+        except tiles.TileFileError as exc:
+            log.warning("%s; scoring every tile's own detections instead", exc)
+            level = "tile"
+    area = 0.0
     for path, header in zip(paths, headers):
         table, attrs = header["detections"], header["attrs"]
+        voxel = float(attrs["voxel_m"])
+        area += (header["along"].size * voxel) * (header["cross"].size * voxel)
+        if kept is not None:
+            table = table[[(path.name, i) in kept for i in range(len(table))]] \
+                if len(table) else table
         line = _tile_line(attrs)
         axes = [header[d] for d in tiles.DIMS]
         voxel = float(attrs["voxel_m"])
@@ -222,6 +242,13 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
         det_rows[di]["status"] = "hit"
     summary = result.summary()
     summary["outside"] = int(len(truth) - scored.size)
+    per_tile = {p.name: 0 for p in paths}
+    for di in result.false_alarms:
+        per_tile[det_rows[di]["tile"]] += 1
+    summary.update(level=level, plan_area_m2=area,
+                   false_alarms_per_tile=len(result.false_alarms) / len(paths),
+                   false_alarms_per_m2=len(result.false_alarms) / area if area else None,
+                   false_alarms_by_tile=per_tile)
     return {"tiles_dir": str(tiles_dir), "scene": str(scene_path), "scene_name":
             scene.scene.name, "tiles": [p.name for p in paths], "match_radius_m": radius_m,
             "summary": summary, "truth": truth, "detections": det_rows}
@@ -240,6 +267,10 @@ def format_report(r: dict) -> str:
              f"{s['detections']} detection(s): {s['hits']} detected, {s['misses']} missed, "
              f"{s['false_alarms']} false alarm(s), {s['duplicates']} duplicate(s); "
              f"Pd = {_f(s['probability_of_detection'])}",
+             f"  {s.get('level', 'tile')}-level detections; false alarms: "
+             f"{s.get('false_alarms_per_tile', float('nan')):.2f} per tile, "
+             f"{s.get('false_alarms_per_m2') or 0.0:.3g} per m2 of "
+             f"{s.get('plan_area_m2', float('nan')):.1f} m2 imaged (plan)",
              "  target        along_m  cross_m  depth_m  status     dist_m  excess_dB"]
     for t in r["truth"]:
         a, c, d = t["scene_m"]

@@ -199,6 +199,10 @@ class BackgroundConfig:
                               "median")
     floor_db: float = spec("smallest background divided by, dB re the tile's median "
                            "background", lo=-300, hi=0)
+    coverage_whitening: bool | None = spec(
+        "divide each magnitude by the square root of the ping-channel pairs that reached "
+        "the voxel before the median, and multiply the median back (the background then "
+        "follows the coverage; omitted: true)")
 
 
 @dataclass(frozen=True)
@@ -232,6 +236,12 @@ class DetectionConfig:
                               "within sidelobe_m is taken for its sidelobe and dropped, dB",
                               lo=0, hi=300)
     sidelobe_m: float = spec("sidelobe suppression radius, m (0: none)", lo=0.0, hi=100)
+    sidelobe_footprint: bool | None = spec(
+        "also take for a sidelobe a contact sidelobe_db weaker (peak magnitude) that one "
+        "ping's projector cone sees together with the stronger one (omitted: true)")
+    min_coverage_fraction: float | None = spec(
+        "voxels imaged by fewer pings than this fraction of the full coverage at their "
+        "depth never detect (omitted: 0.5)", lo=0.0, hi=1.0)
     max_per_tile: int = spec("most contacts kept per tile (strongest first)", lo=1,
                              hi=10**6)
     match_radius_m: float = spec("scoring: a detection within this distance of a true "
@@ -243,6 +253,8 @@ class QuicklookConfig:
     depth_slices_m: tuple[float, ...] = spec("depths below the interface of the depth "
                                              "slices shown, m", min_length=0)
     dpi: int = spec("PNG resolution, dots per inch", lo=20, hi=600)
+    max_labels: int | None = spec("contacts labelled on the views, strongest first (the "
+                                  "rest are listed; omitted: 12)", lo=0, hi=1000)
 
 
 @dataclass(frozen=True)

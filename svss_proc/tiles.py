@@ -35,6 +35,7 @@ from .products import detect
 from .imaging.grid import TileGrid
 
 if TYPE_CHECKING:
+    from .imaging.coverage import Coverage
     from .products.chain import Products
 
 log = logging.getLogger(__name__)
@@ -83,6 +84,8 @@ class Tile:
     im: np.ndarray
     pings: list[int] = field(default_factory=list)
     updates: int = 0
+    #: which pings and channels reached each voxel (None: not computed)
+    coverage: "Coverage | None" = None
 
     @functools.cached_property
     def image(self) -> np.ndarray:
@@ -190,6 +193,8 @@ def _write(f: h5py.File, tile: Tile, hardware: Loaded[HardwareConfig],
     mag.attrs.update({"long_name": "image magnitude", "units": "uPa"})
     _attach(image, f, DIMS)
     _attach(mag, f, DIMS)
+    if tile.coverage is not None:
+        _write_coverage(f, tile.coverage, keep)
     if products is not None:
         _write_products(f, products, keep)
     prov = f.create_group("provenance")
@@ -198,6 +203,26 @@ def _write(f: h5py.File, tile: Tile, hardware: Loaded[HardwareConfig],
     prov.attrs.update({"software_name": "svss", "software_version": __version__,
                        "hardware_config_source": hardware.source,
                        "processing_config_source": processing.source})
+
+
+def _write_coverage(f: h5py.File, c: Coverage, keep) -> None:
+    """The coverage volumes (docs/products.md) and the tile's geometry summary."""
+    for name, data, long_name in (
+            ("coverage_pings", c.pings, ("pings that reached the voxel (projector cone, "
+                                         "a receiver cone and the receive window)")),
+            ("coverage_channels", c.channels, "ping-channel pairs that reached the voxel")):
+        ds = keep(f.create_dataset(name, data=data.astype(np.uint16), chunks=True, **_GZIP))
+        ds.attrs.update({"long_name": long_name, "units": "1", "saturates_at": 65535})
+        _attach(ds, f, DIMS)
+    full = keep(f.create_dataset("coverage_full_pings",
+                                 data=c.pings.max(axis=(0, 1)).astype(np.uint16)))
+    full.attrs.update({"long_name": "full coverage per depth: the most pings any voxel of "
+                                    "the depth layer got", "units": "1"})
+    _attach(full, f, ("depth",))
+    f.attrs["coverage_n_channels"] = c.n_channels
+    f.attrs["projector_height_m"] = c.mean_height_m
+    if c.geodetic_ref is not None:
+        f.attrs["geodetic_ref"] = np.asarray(c.geodetic_ref, dtype=np.float64)
 
 
 def _write_products(f: h5py.File, p: "Products", keep) -> None:
@@ -328,6 +353,9 @@ def _header(f: h5py.File, path: Path) -> dict:
                             "with products (root attribute has_products is true)")
     out["detections"] = _read_detections(f, path)
     out["products"] = [k for k in ("background", "drc", *MIPS, "detections") if k in f]
+    if "coverage_full_pings" in f:
+        out["coverage_full_pings"] = _volume(f, "coverage_full_pings", path,
+                                             (out["depth"].size,), "u", ("depth",))[()]
     if "background" in f:
         out["background_attrs"] = {k: v for k, v in f["background"].attrs.items()
                                    if k != "DIMENSION_LIST"}
@@ -341,7 +369,8 @@ def read_tile_header(path: str | Path) -> dict:
     """Everything of a tile file but its volumes: the axes (``along``, ``cross``,
     ``depth``), ``ping_sequence``, ``attrs``, ``detections`` (empty when the tile has
     no ``/detections`` group: see ``products``), the names of the ``products`` it holds,
-    ``background_attrs`` and the configuration texts."""
+    ``background_attrs``, the configuration texts and, for tiles with coverage,
+    ``coverage_full_pings`` (per depth)."""
     return _read(path, _header)
 
 
@@ -354,6 +383,9 @@ def _full(f: h5py.File, path: Path) -> dict:
                             "expected complex64")
     out["magnitude"] = (_volume(f, "magnitude", path, shape, "f")[()] if "magnitude" in f
                         else np.abs(out["image"]))
+    for k in ("coverage_pings", "coverage_channels"):
+        if k in f:
+            out[k] = _volume(f, k, path, shape, "u")[()]
     if "background" in f:
         out["background"] = _volume(f, "background", path, shape, "f")[()]
     if "depth_gain_db" in f:
@@ -373,10 +405,31 @@ def _full(f: h5py.File, path: Path) -> dict:
     return out
 
 
+def _views(f: h5py.File, path: Path) -> dict:
+    out = _header(f, path)
+    shape = tuple(out[d].size for d in DIMS)
+    for k, (axis, dims) in MIPS.items():
+        if k in f:
+            out[k] = _volume(f, k, path, tuple(n for i, n in enumerate(shape) if i != axis),
+                             "f", dims)[()]
+    if "coverage_pings" in f:
+        out["coverage_plan"] = _volume(f, "coverage_pings", path, shape, "u")[()].max(axis=2)
+    return out
+
+
+def read_tile_views(path: str | Path) -> dict:
+    """:func:`read_tile_header` plus the MIPs the tile has and, for tiles with coverage,
+    ``coverage_plan``: the most pings any voxel of each (along, cross) column got (0:
+    a column no ping imaged). For run-level products, without the volumes."""
+    return _read(path, _views)
+
+
 def read_tile(path: str | Path) -> dict:
     """Read a tile file into plain arrays: :func:`read_tile_header` plus image,
     magnitude and, when the file has them, background, drc (decoded to 0..1),
-    depth_gain_db and the MIPs (``mip_depth``, ``mip_cross``, ``mip_along``)."""
+    depth_gain_db, the MIPs (``mip_depth``, ``mip_cross``, ``mip_along``) and the
+    coverage (``coverage_pings``, ``coverage_channels``; tiles written before coverage
+    existed have none)."""
     return _read(path, _full)
 
 
@@ -388,6 +441,9 @@ def _read_detections(f: h5py.File, path: Path) -> np.ndarray:
                 what="contact numbers").shape[0]
     out = np.zeros(n, dtype=detect.DTYPE)
     for name in detect.DTYPE.names:
+        if name in detect.OPTIONAL_FIELDS and name not in g:     # an older tile
+            out[name] = detect.OPTIONAL_FIELDS[name]
+            continue
         ds = dataset(g, name, path, 1, "iuf", TileFileError, what=f"{n} values")
         if ds.shape != (n,):
             raise TileFileError(f"{path}: dataset '/detections/{name}' has shape "

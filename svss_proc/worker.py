@@ -42,6 +42,7 @@ from svss_daq.subscriber import subscribe
 from .imaging.imager import TileImager
 from .preflight import preflight
 from .products.chain import save_tile
+from .products.run_products import run_products_at_end
 from .tiles import is_temporary, tile_name
 
 log = logging.getLogger(__name__)
@@ -316,6 +317,7 @@ class Worker:
         self._write_journal(complete=complete, stopped_open=() if complete else open_tiles,
                             resume=resume)
         _atomic_json(self.out / MANIFEST, self.summary(complete))
+        run_products_at_end(self.out)     # contacts and mosaic of the run (docs/products.md)
         return self.written
 
     def summary(self, complete: bool) -> dict:

@@ -29,6 +29,7 @@ from svss_daq.waveform import make_waveform
 from ..conditioning import Conditioner
 from ..preflight import preflight
 from ..tiles import Tile
+from .coverage import Coverage
 from .cpu_kernel import run_ping
 from .delays import TravelTimeTable, build_table
 from .grid import tile_grid, tile_index
@@ -141,7 +142,8 @@ class TileImager:
             self.clear[k] = 0
             grid = tile_grid(self.proc.tile, k)
             self.active[k] = Tile(grid, self.line, self._zeros(grid.shape, dtype=self.dtype),
-                                  self._zeros(grid.shape, dtype=self.dtype))
+                                  self._zeros(grid.shape, dtype=self.dtype),
+                                  coverage=Coverage.new(grid.shape, self.geometry.receivers))
         return self.active[k]
 
     def add(self, ping: Ping) -> list[Tile]:
@@ -207,6 +209,9 @@ class TileImager:
                           ia0, ia1, bore=bore, cos_tx=math.cos(geo.projector_half_angle),
                           cos_rx=math.cos(geo.receiver_half_angle), delays=delays,
                           gating=gating, apod=self.apod)
+            # which voxels this ping reached (geometry only; the image is not touched)
+            window = (cond.axis.start_s, cond.axis.end_s - cond.axis.step_s)
+            tile.coverage.add(tile.grid, ia0, ia1, placed, geo, window, im, ping.nav)
             tile.pings.append(ping.sequence)
             tile.updates += int(n)
             self.updates += int(n)

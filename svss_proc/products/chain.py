@@ -8,6 +8,7 @@ compression, maximum intensity projections and detections.
 from __future__ import annotations
 
 import logging
+import math
 import os
 import time
 from dataclasses import dataclass, field
@@ -19,11 +20,15 @@ from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig, ProductsCo
 
 from . import drc as drc_mod
 from .background import kernel_voxels, median_background
-from .detect import detect
+from .detect import Footprint, detect
+from ..imaging.coverage import full_fraction
 from .quicklook import mip_png, products_png
 from ..tiles import MIPS, Tile, TileFileError, temporary_path, tile_name, write_tile
 
 log = logging.getLogger(__name__)
+
+#: ``detection.min_coverage_fraction`` when the configuration omits it
+DEFAULT_MIN_COVERAGE = 0.5
 
 
 @dataclass
@@ -52,19 +57,52 @@ class Products:
     timings: dict[str, float] = field(default_factory=dict)
 
 
+def coverage_settings(cfg: ProductsConfig) -> tuple[bool, float, bool]:
+    """(coverage_whitening, min_coverage_fraction, sidelobe_footprint) of ``cfg``, with
+    their defaults where the configuration omits them."""
+    b, d = cfg.background, cfg.detection
+    return (True if b.coverage_whitening is None else b.coverage_whitening,
+            DEFAULT_MIN_COVERAGE if d.min_coverage_fraction is None
+            else d.min_coverage_fraction,
+            True if d.sidelobe_footprint is None else d.sidelobe_footprint)
+
+
+def whitened_background(mag: np.ndarray, channels: np.ndarray | None, kernel, bcfg
+                        ) -> np.ndarray:
+    """The 3-D median background of ``mag``; with ``channels`` (ping-channel pairs per
+    voxel) the median of ``mag / sqrt(channels)`` times ``sqrt(channels)``: noise summed
+    over N independent channel samples grows as sqrt(N), so the background follows the
+    coverage instead of being smeared across its edges by the kernel. Voxels no channel
+    reached have background 0."""
+    if channels is None:
+        return median_background(mag, kernel, bcfg.method, bcfg.histogram_bin_db,
+                                 bcfg.boundary, bcfg.ignore_zeros)
+    w = np.sqrt(channels.astype(np.float32))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        white = np.where(w > 0, mag / w, 0.0).astype(np.float32)
+    bg = median_background(white, kernel, bcfg.method, bcfg.histogram_bin_db,
+                           bcfg.boundary, bcfg.ignore_zeros)
+    return (bg * w).astype(np.float32)
+
+
 def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.ndarray],
-                     voxel_m: float, cfg: ProductsConfig, keep_volumes: bool = True
-                     ) -> Products:
+                     voxel_m: float, cfg: ProductsConfig, keep_volumes: bool = True,
+                     coverage: tuple[np.ndarray, np.ndarray] | None = None,
+                     footprint: Footprint | None = None) -> Products:
     """Products of one tile. ``image``: complex image or magnitude (along x cross x
     depth, uPa); ``axes``: voxel-centre coordinates (m); ``voxel_m``: voxel edge (m).
-    ``keep_volumes``: return the background and compressed volumes (else None)."""
+    ``keep_volumes``: return the background and compressed volumes (else None).
+    ``coverage``: (pings, ping-channel pairs) per voxel (None: unknown; every voxel
+    counts as fully imaged); ``footprint``: the sidelobe geometry (None: the
+    ``sidelobe_m`` radius only)."""
     t = {}
     t0 = time.perf_counter()
     mag = np.abs(image).astype(np.float32, copy=False)
     bcfg = cfg.background
+    whiten, min_fraction, use_footprint = coverage_settings(cfg)
     kernel = kernel_voxels(bcfg.kernel_m, voxel_m)
-    bg = median_background(mag, kernel, bcfg.method, bcfg.histogram_bin_db, bcfg.boundary,
-                           bcfg.ignore_zeros)
+    pings, channels = coverage if coverage is not None else (None, None)
+    bg = whitened_background(mag, channels if whiten else None, kernel, bcfg)
     t1 = time.perf_counter()
     t["background"] = t1 - t0
     floor = drc_mod.background_floor(bg, bcfg.floor_db)
@@ -82,8 +120,12 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
     t3 = time.perf_counter()
     t["compression_and_mips"] = t3 - t2
     dc = cfg.detection
+    fraction = None if pings is None else full_fraction(pings)
     table = detect(level, mag, bg, axes, dc.threshold_db, dc.min_voxels, dc.merge_m,
-                   dc.max_per_tile, dc.sidelobe_db, dc.sidelobe_m)
+                   dc.max_per_tile, dc.sidelobe_db, dc.sidelobe_m,
+                   detectable=None if fraction is None else fraction >= min_fraction,
+                   coverage_pings=pings, coverage_fraction=fraction,
+                   footprint=footprint if use_footprint else None)
     t["detection"] = time.perf_counter() - t3
     return Products(
         method=bcfg.method, kernel_m=tuple(bcfg.kernel_m), kernel_voxels=kernel,
@@ -97,7 +139,16 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
         detection_attrs={"threshold_db": dc.threshold_db, "min_voxels": dc.min_voxels,
                          "merge_m": np.asarray(dc.merge_m),
                          "sidelobe_db": dc.sidelobe_db, "sidelobe_m": dc.sidelobe_m,
-                         "max_per_tile": dc.max_per_tile},
+                         "max_per_tile": dc.max_per_tile,
+                         "min_coverage_fraction": min_fraction,
+                         "coverage_used": pings is not None,
+                         "coverage_whitening": bool(whiten and channels is not None),
+                         "sidelobe_footprint_height_m": (
+                             np.nan if footprint is None or not use_footprint
+                             else footprint.height_m),
+                         "sidelobe_footprint_tan": (
+                             np.nan if footprint is None or not use_footprint
+                             else footprint.tan_half_angle)},
         timings=t)
 
 
@@ -107,6 +158,16 @@ def tile_title(name: str, tile: Tile) -> str:
     pings = (f"pings {min(tile.pings)}-{max(tile.pings)} ({len(tile.pings)})"
              if tile.pings else "no pings")
     return (f"SVSS {name}: along-track {g.along[0]:.2f}-{g.along[-1]:.2f} m, {pings}")
+
+
+def tile_footprint(tile: Tile, hardware: Loaded[HardwareConfig]) -> Footprint | None:
+    """The sidelobe geometry of a tile: its pings' mean projector height and the
+    projector's half-angle (None without coverage or pings)."""
+    cov = tile.coverage
+    if cov is None or not np.isfinite(cov.mean_height_m):
+        return None
+    half = math.radians(hardware.value.beams.projector_half_angle_deg)
+    return Footprint(cov.mean_height_m, math.tan(half))
 
 
 def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
@@ -130,8 +191,11 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
     g = tile.grid
     prods = None
     if pcfg is not None:
+        cov = tile.coverage
         prods = compute_products(tile.image, (g.along, g.cross, g.depth), voxel, pcfg,
-                                 keep_volumes=pcfg.store_volumes)
+                                 keep_volumes=pcfg.store_volumes,
+                                 coverage=None if cov is None else (cov.pings, cov.channels),
+                                 footprint=tile_footprint(tile, hardware))
     tmp_png = temporary_path(png)
     try:
         try:
@@ -139,7 +203,8 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
                 mip_png(tmp_png, tile.image, tile.grid, title)
             else:
                 products_png(tmp_png, prods.mips, prods.level, prods.gain_db,
-                             prods.detections, g, voxel, pcfg, title, ident)
+                             prods.detections, g, voxel, pcfg, title, ident,
+                             coverage=None if tile.coverage is None else tile.coverage.pings)
         except OSError as exc:
             raise TileFileError(f"{png}: writing the quicklook failed "
                                 f"({exc.strerror or exc}); no file written") from None

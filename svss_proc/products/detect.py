@@ -1,14 +1,16 @@
 """Contacts in the background-normalised volume.
 
 Detection (docs/products.md): voxels whose normalised level (dB re background) reaches
-``threshold_db`` are grouped into 26-connected regions; regions of fewer than
-``min_voxels`` voxels are dropped; each region's contact sits at its peak voxel, refined
-to sub-voxel precision by a parabola through the peak and its two neighbours along each
-axis (in dB; at most half a voxel). Contacts closer than ``merge_m`` (per axis) to a
-stronger contact merge into it (its extent grows to cover both). A contact at least
-``sidelobe_db`` weaker than a stronger contact within ``sidelobe_m`` (Euclidean) is taken
-for one of its sidelobes (or its decaying elastic tail) and dropped. The strongest
-``max_per_tile`` are kept.
+``threshold_db`` and that enough pings imaged (``detectable``: the coverage rule) are
+grouped into 26-connected regions; regions of fewer than ``min_voxels`` voxels are
+dropped; each region's contact sits at its peak voxel, refined to sub-voxel precision by
+a parabola through the peak and its two neighbours along each axis (in dB; at most half
+a voxel). Contacts closer than ``merge_m`` (per axis) to a stronger contact merge into it
+(its extent grows to cover both). A contact whose peak *magnitude* is at least
+``sidelobe_db`` below a stronger contact's, within that contact's sidelobe region
+(:func:`is_sidelobe`: seen by one ping's projector cone together with it, or within
+``sidelobe_m``), is taken for one of its imaging sidelobes (or its decaying elastic
+tail) and dropped. The strongest ``max_per_tile`` are kept.
 
 For speckle (Rayleigh-distributed magnitude) normalised by its median the probability
 that a voxel reaches ``T`` dB is ``2 ** -(10 ** (T / 10))``: 1.7e-5 at 12 dB, 2.8e-8 at
@@ -22,6 +24,7 @@ This module never sees the truth of a scene: scoring against ground truth is the
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
@@ -43,13 +46,70 @@ FIELDS = (
     ("extent_cross_m", "f4", "m", "cross-track extent of the voxels above threshold"),
     ("extent_depth_m", "f4", "m", "depth extent of the voxels above threshold"),
     ("n_voxels", "i8", "1", "voxels above threshold"),
+    ("coverage_pings", "i4", "1", "pings that imaged the peak voxel (0: not known)"),
+    ("coverage_fraction", "f4", "1", ("coverage_pings as a fraction of the full coverage "
+                                      "at that depth (-1: not known)")),
 )
 DTYPE = np.dtype([(name, dt) for name, dt, _, _ in FIELDS])
+#: columns a tile written before they existed may lack, and their fill values
+OPTIONAL_FIELDS = {"coverage_pings": 0, "coverage_fraction": -1.0}
+
+
+@dataclass(frozen=True)
+class Footprint:
+    """What bounds the imaging sidelobes of a point: the projector's height above the
+    interface (m) and the tangent of its cone's half-angle. A ping puts the echo of a
+    point onto every voxel at the same two-way range inside its projector cone, so a
+    point's sidelobes lie within the horizontal distance over which one ping's cone
+    holds both the point and the voxel: ``(2 h + z_point + z_voxel) tan(half-angle)``."""
+    height_m: float
+    tan_half_angle: float
+
+    def reach_m(self, z_a: float, z_b: float) -> float:
+        return (2.0 * self.height_m + max(z_a, 0.0) + max(z_b, 0.0)) * self.tan_half_angle
+
+
+def is_sidelobe(weak_pos, weak_peak_db: float, strong_pos, strong_peak_db: float,
+                sidelobe_db: float, sidelobe_m: float,
+                footprint: Footprint | None = None) -> bool:
+    """Whether a contact at ``weak_pos`` (along, cross, depth; m) whose peak magnitude is
+    ``weak_peak_db`` (dB re 1 uPa) can be an imaging sidelobe of a contact at
+    ``strong_pos`` with ``strong_peak_db``: at least ``sidelobe_db`` weaker, and within
+    ``sidelobe_m`` (Euclidean) or, with a ``footprint``, horizontally within the reach
+    of one ping's projector cone. Magnitudes, not excesses, are compared: a sidelobe's
+    amplitude is a fraction of its source's whatever the backgrounds (the background
+    under a strong target is raised by its own sidelobes, so its excess can be smaller
+    than theirs)."""
+    if strong_peak_db - weak_peak_db < sidelobe_db:
+        return False
+    w, s = np.asarray(weak_pos, dtype=np.float64), np.asarray(strong_pos, dtype=np.float64)
+    if np.linalg.norm(w - s) <= sidelobe_m:
+        return True
+    if footprint is None:
+        return False
+    return float(np.hypot(*(w[:2] - s[:2]))) <= footprint.reach_m(w[2], s[2])
 
 
 def empty() -> np.ndarray:
     """A detection table with no rows."""
     return np.zeros(0, dtype=DTYPE)
+
+
+def sidelobe_filter(pos: np.ndarray, peak_db: np.ndarray, sidelobe_db: float,
+                    sidelobe_m: float, footprint: Footprint | None = None) -> np.ndarray:
+    """Which contacts survive sidelobe suppression: ``pos`` (n, 3) along, cross, depth
+    (m, one frame), ``peak_db`` (n,) peak magnitudes (dB re 1 uPa). Strongest first, a
+    contact is dropped when it :func:`is_sidelobe` of a stronger one kept. Returns a
+    boolean mask (n,)."""
+    order = np.argsort(-np.asarray(peak_db, dtype=np.float64), kind="stable")
+    keep = np.zeros(len(order), dtype=bool)
+    kept: list[int] = []
+    for i in order:
+        if not any(is_sidelobe(pos[i], peak_db[i], pos[k], peak_db[k], sidelobe_db,
+                               sidelobe_m, footprint) for k in kept):
+            kept.append(int(i))
+            keep[i] = True
+    return keep
 
 
 def _refine(level: np.ndarray, idx: tuple[int, int, int], axis: int) -> float:
@@ -72,18 +132,26 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
            axes: tuple[np.ndarray, np.ndarray, np.ndarray], threshold_db: float,
            min_voxels: int, merge_m: tuple[float, float, float],
            max_detections: int, sidelobe_db: float = np.inf,
-           sidelobe_m: float = 0.0) -> np.ndarray:
+           sidelobe_m: float = 0.0, *, detectable: np.ndarray | None = None,
+           coverage_pings: np.ndarray | None = None,
+           coverage_fraction: np.ndarray | None = None,
+           footprint: Footprint | None = None) -> np.ndarray:
     """Contacts of a tile.
 
     ``level``: normalised level, dB re background (along x cross x depth; NaN never
     detects); ``mag`` and ``background``: magnitude and background (uPa, same shape);
-    ``axes``: voxel-centre coordinates (m) of the three axes. Returns a table of
-    :data:`DTYPE` rows, strongest excess first.
+    ``axes``: voxel-centre coordinates (m) of the three axes; ``detectable``: voxels
+    allowed to detect (None: all); ``coverage_pings``, ``coverage_fraction``: the
+    coverage volumes, reported at each contact's peak; ``footprint``: sidelobe geometry
+    (:func:`is_sidelobe`). Returns a table of :data:`DTYPE` rows, strongest excess
+    first.
     """
     if level.shape != mag.shape or level.shape != background.shape:
         raise ValueError(f"shapes differ: level {level.shape}, magnitude {mag.shape}, "
                          f"background {background.shape}")
     mask = np.asarray(level >= threshold_db)  # NaN compares False
+    if detectable is not None:
+        mask &= detectable
     if not mask.any():
         return empty()
     labels, n = ndimage.label(mask, structure=np.ones((3, 3, 3), dtype=bool))
@@ -103,25 +171,27 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
         pos = [float(axes[k][peak[k]]) + _refine(level, peak, k) * voxel[k]
                for k in range(3)]
         cands.append({"pos": np.array(pos), "peak": peak, "excess": float(level[peak]),
+                      "peak_db": float(amplitude_to_db(max(float(mag[peak]), 1e-30))),
                       "lo": np.array([s.start for s in box]),
                       "hi": np.array([s.stop for s in box]), "n": int(counts[lab - 1])})
-    cands.sort(key=lambda c: -c["excess"])
+    # one object per merge box, then sidelobes: both strongest (peak magnitude) first
+    cands.sort(key=lambda c: -c["peak_db"])
     merge = np.asarray(merge_m, dtype=np.float64)
-    kept: list[dict] = []
-    n_sidelobes = 0
+    merged: list[dict] = []
     for c in cands:
-        for k in kept:
+        for k in merged:
             if np.all(np.abs(c["pos"] - k["pos"]) <= merge):
                 k["lo"] = np.minimum(k["lo"], c["lo"])
                 k["hi"] = np.maximum(k["hi"], c["hi"])
                 k["n"] += c["n"]
                 break
-            if (k["excess"] - c["excess"] >= sidelobe_db
-                    and np.linalg.norm(c["pos"] - k["pos"]) <= sidelobe_m):
-                n_sidelobes += 1
-                break
         else:
-            kept.append(c)
+            merged.append(c)
+    keep = sidelobe_filter(np.array([c["pos"] for c in merged]).reshape(-1, 3),
+                           np.array([c["peak_db"] for c in merged]), sidelobe_db,
+                           sidelobe_m, footprint)
+    n_sidelobes = int((~keep).sum())
+    kept = sorted((c for c, k in zip(merged, keep) if k), key=lambda c: -c["excess"])
     kept = kept[:max_detections]
     out = np.zeros(len(kept), dtype=DTYPE)
     for row, c in zip(out, kept):
@@ -133,6 +203,9 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
         ext = (c["hi"] - c["lo"]) * np.asarray(voxel)
         row["extent_along_m"], row["extent_cross_m"], row["extent_depth_m"] = ext
         row["n_voxels"] = c["n"]
+        row["coverage_pings"] = 0 if coverage_pings is None else int(coverage_pings[p])
+        row["coverage_fraction"] = (-1.0 if coverage_fraction is None
+                                    else float(coverage_fraction[p]))
     log.debug("%d regions above %.1f dB, %d of at least %d voxels, %d sidelobes, "
               "%d contacts", n, threshold_db, keep.size, min_voxels, n_sidelobes, out.size)
     return out

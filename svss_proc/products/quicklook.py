@@ -76,75 +76,164 @@ def mip_png(path: str | Path, image: np.ndarray, grid: TileGrid, title: str,
     return path
 
 
+#: colour of voxels no ping imaged (RGBA): distinct from every colour of the map
+NO_DATA_RGBA = (0.62, 0.66, 0.70, 1.0)
+#: contacts labelled on the views when ``quicklook.max_labels`` is omitted
+DEFAULT_MAX_LABELS = 12
+#: panel heights, inches: a 2 m axis of a 15 m tile gets at least MIN_PANEL_IN
+MIN_PANEL_IN, MAX_PANEL_IN, FIG_WIDTH_IN = 2.4, 3.6, 16.0
+DEPTH_LABEL = "depth below seabed (m)"
+CROSS_LABEL = "cross-track (m), starboard +"
+
+
+def view_rgba(display: np.ndarray, imaged: np.ndarray | None, floor_db: float,
+              knee_db: float, ceiling_db: float) -> np.ndarray:
+    """RGBA image (x index first, like ``display``) of a view in dB: compressed
+    (:func:`~svss_proc.products.drc.compress`) through the colour map, and
+    :data:`NO_DATA_RGBA` where ``imaged`` is False (no ping reached the voxels) or the
+    value is NaN; low signal stays at the dark end of the map."""
+    u = compress(display, floor_db, knee_db, ceiling_db)
+    rgba = plt.get_cmap(CMAP)(np.nan_to_num(u, nan=0.0))
+    missing = np.isnan(display) if imaged is None else (~imaged | np.isnan(display))
+    rgba[missing] = NO_DATA_RGBA
+    return rgba
+
+
+def choose_labels(xy_px: np.ndarray, max_labels: int, min_sep_px: float = 16.0) -> list[int]:
+    """Which contacts (rows of ``xy_px``: display positions, strongest first) get a
+    number on a view: strongest first, at most ``max_labels``, none closer than
+    ``min_sep_px`` to a label already placed (the others are listed, not labelled)."""
+    chosen: list[int] = []
+    for i, p in enumerate(np.asarray(xy_px, dtype=np.float64).reshape(-1, 2)):
+        if len(chosen) >= max_labels:
+            break
+        if all(np.hypot(*(p - xy_px[j])) >= min_sep_px for j in chosen):
+            chosen.append(i)
+    return chosen
+
+
+def _panel_height(extent_m: float, along_m: float, width_in: float) -> tuple[float, float]:
+    """Height (in) of a full-width panel showing ``extent_m`` against ``along_m`` and
+    its vertical exaggeration (1: equal scales)."""
+    natural = extent_m * width_in / along_m
+    h = min(max(natural, MIN_PANEL_IN), MAX_PANEL_IN)
+    return h, h / natural
+
+
+def _draw(ax, rgba, xe, ye, xlabel, ylabel, title, depth_down):
+    extent = (xe[0], xe[1], ye[1], ye[0]) if depth_down else (xe[0], xe[1], ye[0], ye[1])
+    ax.imshow(np.transpose(rgba, (1, 0, 2)), origin="upper" if depth_down else "lower",
+              extent=extent, aspect="auto", interpolation="nearest")
+    ax.set_xlabel(xlabel, fontsize=8)
+    ax.set_ylabel(ylabel, fontsize=8)
+    ax.set_title(title, fontsize=9, loc="left")
+    ax.tick_params(labelsize=7)
+
+
+def _sides(ax, horizontal: bool) -> None:
+    """Mark port and starboard on a view whose cross-track axis is vertical (top view,
+    depth slices; starboard up) or horizontal (end view; starboard right)."""
+    kw = {"transform": ax.transAxes, "fontsize": 7, "color": "white", "weight": "bold",
+          "bbox": {"boxstyle": "round,pad=0.15", "fc": "0.15", "ec": "none", "alpha": 0.7}}
+    if horizontal:
+        ax.text(0.99, 0.02, "STBD →", ha="right", va="bottom", **kw)
+        ax.text(0.01, 0.02, "← PORT", ha="left", va="bottom", **kw)
+    else:
+        ax.text(0.005, 0.97, "STBD", ha="left", va="top", **kw)
+        ax.text(0.005, 0.03, "PORT", ha="left", va="bottom", **kw)
+
+
 def products_png(path: str | Path, mips: dict[str, np.ndarray], level: np.ndarray,
                  gain_db: np.ndarray, detections: np.ndarray, grid: TileGrid,
-                 voxel_m: float, cfg: ProductsConfig, title: str, identity: str) -> Path:
+                 voxel_m: float, cfg: ProductsConfig, title: str, identity: str,
+                 coverage: np.ndarray | None = None) -> Path:
     """Quicklook of a tile's products.
 
-    ``mips``: the projections of level + gain (dB re background, keys of
-    :data:`svss_proc.tiles.MIPS`); ``level``: normalised level (dB re background, along x
-    cross x depth) and ``gain_db`` the display gain per depth, for the depth slices at
-    ``cfg.quicklook.depth_slices_m``; ``detections``: contacts to mark; ``title`` and
-    ``identity``: the tile's name and provenance lines.
+    Full-width views stacked (top view, side view, depth slices at
+    ``cfg.quicklook.depth_slices_m``), each at least :data:`MIN_PANEL_IN` high (the
+    vertical exaggeration is given in its title when the scales differ), then the end
+    view, the colour bar and the contact list. ``mips``: the projections of level +
+    gain (dB re background, keys of :data:`svss_proc.tiles.MIPS`); ``level``:
+    normalised level (dB re background, along x cross x depth) and ``gain_db`` the
+    display gain per depth; ``detections``: contacts, strongest first: the strongest
+    ``quicklook.max_labels`` that do not overlap are numbered on the views, every one
+    is circled and the list gives the first 25; ``coverage``: pings per voxel (voxels
+    no ping reached are drawn in :data:`NO_DATA_RGBA`; None: all imaged); ``title``
+    and ``identity``: the tile's name and provenance lines.
     """
     d = cfg.drc
-
-    def comp(x):
-        return compress(x, d.floor_db, d.knee_db, d.ceiling_db)
-
+    maxl = cfg.quicklook.max_labels
+    max_labels = DEFAULT_MAX_LABELS if maxl is None else maxl
     a, c, z = grid.along, grid.cross, grid.depth
     ea, ec, ed = _edges(a, voxel_m), _edges(c, voxel_m), _edges(z, voxel_m)
     la, lc, ld = ea[1] - ea[0], ec[1] - ec[0], ed[1] - ed[0]
-    slices = []
+    hit = None if coverage is None else coverage > 0
+
+    def rgba(x, imaged):
+        return view_rgba(x, imaged, d.floor_db, d.knee_db, d.ceiling_db)
+
+    panels = [(rgba(mips["mip_depth"], None if hit is None else hit.any(axis=2)), ec, lc,
+               CROSS_LABEL, "top view: maximum over depth", False, ("along_m", "cross_m"),
+               None),
+              (rgba(mips["mip_cross"], None if hit is None else hit.any(axis=1)), ed, ld,
+               DEPTH_LABEL, "side view: maximum over cross-track", True,
+               ("along_m", "depth_m"), None)]
     for depth in cfg.quicklook.depth_slices_m:
         if ed[0] <= depth <= ed[1]:
             k = int(np.argmin(np.abs(z - depth)))
-            slices.append((k, comp(level[:, :, k] + gain_db[k])))
-    heights = [lc, ld] + [lc] * len(slices)
-    right = max(lc, 0.3 * la)
-    scale = min(12.0 / (la + right), 11.0 / sum(heights))  # inches per metre
-    fig = plt.figure(figsize=(max(scale * (la + right) + 2.0, 9.0),
-                              scale * sum(heights) + 2.0), constrained_layout=True)
-    gs = fig.add_gridspec(len(heights), 2, width_ratios=[la, right], height_ratios=heights)
-    kw = {"cmap": CMAP, "vmin": 0.0, "vmax": 1.0}
-    ax = fig.add_subplot(gs[0, 0])
-    _show(ax, comp(mips["mip_depth"]), ea, ec, "along-track (m)", "cross-track (m)",
-          "MIP over depth (top view)", depth_down=False, **kw)
-    _mark(ax, detections["along_m"], detections["cross_m"])
-    ax = fig.add_subplot(gs[1, 0])
-    _show(ax, comp(mips["mip_cross"]), ea, ed, "along-track (m)", "depth (m)",
-          "MIP over cross-track (side view)", depth_down=True, **kw)
-    _mark(ax, detections["along_m"], detections["depth_m"])
-    for row, (k, img) in enumerate(slices, start=2):
-        ax = fig.add_subplot(gs[row, 0])
-        _show(ax, img, ea, ec, "along-track (m)", "cross-track (m)",
-              f"depth slice at {z[k]:.2f} m", depth_down=False, **kw)
-        near = np.flatnonzero(np.abs(detections["depth_m"] - z[k]) <= max(voxel_m, 0.05))
-        _mark(ax, detections["along_m"][near], detections["cross_m"][near], near)
-    ax = fig.add_subplot(gs[0:2, 1]) if len(heights) > 1 else fig.add_subplot(gs[0, 1])
-    _show(ax, comp(mips["mip_along"]), ec, ed, "cross-track (m)", "depth (m)",
-          "MIP over along-track (end view)", depth_down=True, **kw)
-    _mark(ax, detections["cross_m"], detections["depth_m"])
-    levels = [lv for lv in (d.floor_db, 0.0, 10.0, d.knee_db, d.knee_db + 10.0,
-                            d.ceiling_db, d.ceiling_db + 20.0) if lv >= d.floor_db]
-    levels = sorted(set(levels))
-    cb = fig.colorbar(ScalarMappable(Normalize(0.0, 1.0), CMAP), ax=ax, location="bottom",
-                      shrink=0.9)
-    cb.set_ticks(comp(np.asarray(levels)))
+            near = np.abs(detections["depth_m"] - z[k]) <= max(voxel_m, 0.05)
+            panels.append((rgba(level[:, :, k] + gain_db[k],
+                                None if hit is None else hit[:, :, k]), ec, lc, CROSS_LABEL,
+                           f"depth slice {z[k]:.2f} m below seabed", False,
+                           ("along_m", "cross_m"), near))
+    width_ax = FIG_WIDTH_IN - 1.6
+    heights = [_panel_height(p[2], la, width_ax) for p in panels]
+    bottom_h = 3.6
+    fig = plt.figure(figsize=(FIG_WIDTH_IN, sum(h for h, _ in heights) + bottom_h + 1.6),
+                     constrained_layout=True)
+    gs = fig.add_gridspec(len(panels) + 1, 3, height_ratios=[h for h, _ in heights]
+                          + [bottom_h], width_ratios=[1.0, 0.35, 1.3])
+    n_det = len(detections)
+    order = np.arange(n_det)
+    drawn = []
+    for row, ((img, ye, _, ylabel, name, down, keys, sel), (_, exag)) in enumerate(
+            zip(panels, heights)):
+        ax = fig.add_subplot(gs[row, :])
+        if abs(exag - 1.0) > 0.05:
+            name += f" (vertical scale ×{exag:.1f})"
+        _draw(ax, img, ea, ye, "along-track (m)", ylabel, name, down)
+        if not down:
+            _sides(ax, horizontal=False)
+        idx = order if sel is None else order[sel]
+        drawn.append((ax, idx, keys))
+    ax = fig.add_subplot(gs[-1, 0])
+    _draw(ax, rgba(mips["mip_along"], None if hit is None else hit.any(axis=0)), ec, ed,
+          CROSS_LABEL, DEPTH_LABEL, "end view: maximum over along-track", True)
+    ax.set_aspect("equal")
+    _sides(ax, horizontal=True)
+    drawn.append((ax, order, ("cross_m", "depth_m")))
+    cax = fig.add_subplot(gs[-1, 1])
+    levels = sorted({lv for lv in (d.floor_db, 0.0, 10.0, d.knee_db, d.knee_db + 10.0,
+                                   d.ceiling_db, d.ceiling_db + 20.0) if lv >= d.floor_db})
+    cb = fig.colorbar(ScalarMappable(Normalize(0.0, 1.0), CMAP), cax=cax)
+    cb.set_ticks(compress(np.asarray(levels), d.floor_db, d.knee_db, d.ceiling_db))
     cb.set_ticklabels([f"{lv:g}" for lv in levels])
     gain = cfg.depth_gain
-    label = "normalised level (compressed scale)\ndB re background"
+    label = "normalised level, dB re background\n(compressed scale; grey: no ping)"
     if gain.db_per_m:
         label += f"\n+ display gain {gain.db_per_m:g} dB/m below {gain.start_m:g} m"
     cb.set_label(label, fontsize=8)
     cb.ax.tick_params(labelsize=7)
-    if len(heights) > 2:
-        tax = fig.add_subplot(gs[2:, 1])
-        tax.axis("off")
-        tax.text(0.0, 1.0, _detection_lines(detections), va="top", ha="left",
-                 family="monospace", fontsize=7, transform=tax.transAxes)
-    fig.suptitle(f"{title}; {len(detections)} detection(s) at "
-                 f"{cfg.detection.threshold_db:g} dB re background\n{identity}", fontsize=8)
+    tax = fig.add_subplot(gs[-1, 2])
+    tax.axis("off")
+    tax.text(0.0, 1.0, _detection_lines(detections, 25), va="top", ha="left",
+             family="monospace", fontsize=7, transform=tax.transAxes)
+    fig.suptitle(f"{title}; {n_det} detection(s) at {cfg.detection.threshold_db:g} dB re "
+                 f"background (numbers: strongest {max_labels} on each view)\n{identity}",
+                 fontsize=9)
+    fig.canvas.draw()                       # the layout is fixed: label in pixels
+    for ax, idx, keys in drawn:
+        _mark(ax, detections, idx, keys, max_labels)
     path = Path(path)
     fig.savefig(path, dpi=cfg.quicklook.dpi)
     plt.close(fig)
@@ -152,24 +241,31 @@ def products_png(path: str | Path, mips: dict[str, np.ndarray], level: np.ndarra
 
 
 def _detection_lines(detections: np.ndarray, n_max: int = 20) -> str:
-    """The strongest detections as text lines (position m, excess dB)."""
-    lines = ["#   along   cross  depth  excess"]
+    """The strongest detections as text lines: number, position (m; depth below the
+    seabed), excess (dB re background), largest extent (m)."""
+    lines = ["#    along  cross  depth  excess   size", "      (m)    (m)    (m)    (dB)    (m)"]
     for i, row in enumerate(detections[:n_max]):
-        lines.append(f"{i:<2d} {row['along_m']:7.2f} {row['cross_m']:6.2f} "
-                     f"{row['depth_m']:6.2f} {row['excess_db']:5.1f} dB")
+        size = max(row["extent_along_m"], row["extent_cross_m"], row["extent_depth_m"])
+        lines.append(f"{i:<3d}{row['along_m']:6.2f} {row['cross_m']:6.2f} "
+                     f"{row['depth_m']:6.2f} {row['excess_db']:6.1f} {size:6.2f}")
     if len(detections) > n_max:
-        lines.append(f"... {len(detections) - n_max} more")
+        lines.append(f"... {len(detections) - n_max} more (in the tile file)")
     if len(detections) == 0:
         lines.append("(no detections)")
     return "\n".join(lines)
 
 
-def _mark(ax, x: np.ndarray, y: np.ndarray, numbers=None) -> None:
-    """Mark detections with open circles numbered as in the detection table."""
-    if len(x) == 0:
-        return
+def _mark(ax, detections: np.ndarray, idx: np.ndarray, keys: tuple[str, str],
+          max_labels: int) -> list[int]:
+    """Circle the contacts ``idx`` (rows of ``detections``, strongest first) on a view
+    and number those :func:`choose_labels` picks; returns the numbered rows."""
+    if len(idx) == 0:
+        return []
+    x, y = detections[keys[0]][idx], detections[keys[1]][idx]
     ax.scatter(x, y, s=60, facecolors="none", edgecolors="cyan", linewidths=0.8)
-    numbers = range(len(x)) if numbers is None else numbers
-    for i, xi, yi in zip(numbers, x, y):
-        ax.annotate(str(i), (xi, yi), xytext=(3, 3), textcoords="offset points",
-                    color="cyan", fontsize=6)
+    px = ax.transData.transform(np.column_stack([x, y]))
+    chosen = choose_labels(px, max_labels)
+    for j in chosen:
+        ax.annotate(str(int(idx[j])), (x[j], y[j]), xytext=(4, 4),
+                    textcoords="offset points", color="cyan", fontsize=7, weight="bold")
+    return [int(idx[j]) for j in chosen]

@@ -175,9 +175,17 @@ def test_score_against_scene_truth(tmp_path, hardware, demo_processing):
     res = svss("score", str(out), "--scene", str(scene), "--out", str(report_path))
     r = json.loads(report_path.read_text())
     assert r["match_radius_m"] == demo_processing.value.products.detection.match_radius_m
-    assert r["summary"] == {"truth": 3, "detections": 3, "hits": 2, "misses": 1,
-                            "false_alarms": 1, "duplicates": 0,
-                            "probability_of_detection": pytest.approx(2 / 3), "outside": 1}
+    expected = {"truth": 3, "detections": 3, "hits": 2, "misses": 1, "false_alarms": 1,
+                "duplicates": 0, "probability_of_detection": pytest.approx(2 / 3),
+                "outside": 1, "level": "run"}
+    assert {k: r["summary"][k] for k in expected} == expected
+    # false alarms per tile and per square metre of the tiles' plan area
+    t = demo_processing.value.tile
+    area = 2 * t.length_m * t.width_m
+    assert r["summary"]["plan_area_m2"] == pytest.approx(area)
+    assert r["summary"]["false_alarms_per_m2"] == pytest.approx(1 / area)
+    assert r["summary"]["false_alarms_per_tile"] == pytest.approx(0.5)
+    assert sum(r["summary"]["false_alarms_by_tile"].values()) == 1
     status = [t["status"] for t in r["truth"]]
     assert status == ["detected", "detected", "missed", "outside"]
     for t in r["truth"][:2]:

@@ -1,0 +1,502 @@
+"""Run-level products of a folder of tiles: the run's contact list (CSV and GeoJSON, with
+latitude and longitude) and a mosaic of the tiles' plan-view MIPs (PNG and HDF5).
+
+Contacts (docs/products.md "Run products"). Each tile's detections are placed in the
+survey frame through the tile's line, then into the run frame (the first tile's line),
+and filtered across tiles, which a tile alone cannot do:
+
+1. coverage: a contact whose peak voxel was imaged by fewer pings than
+   ``min_coverage_fraction`` of the run's full coverage at its depth (the most pings any
+   voxel of that depth got in any tile) is dropped (a tile at the start or end of a run
+   measures its fraction against itself only);
+2. one object: contacts of neighbouring tiles within ``merge_m`` (per axis) are one
+   (the same object seen in two tiles), strongest peak first;
+3. sidelobes: a contact ``sidelobe_db`` weaker (peak magnitude) than a stronger one
+   within its sidelobe region (:func:`svss_proc.products.detect.is_sidelobe`), whichever
+   tile each is in, is dropped.
+
+Latitude and longitude: survey NED to geodetic through
+:func:`svss_daq.navigation.ned_to_geodetic` about the survey origin: the one given, or
+else the one recovered from a ping's geodetic position recorded in a tile
+(``geodetic_ref``); without either they are empty (CSV) or the feature has a null
+geometry (GeoJSON). GeoJSON follows RFC 7946: WGS-84, [longitude, latitude].
+
+Pure geometry (:func:`filter_contacts`, :func:`survey_origin`, :func:`mosaic_grid`) is
+kept apart from the file handling (:func:`write_run_products`).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from svss_daq.config import (ConfigError, HardwareConfig, ProcessingConfig, ProductsConfig,
+                             loads)
+from svss_daq.frames import TrackLine
+from svss_daq.navigation import geodetic_to_ned, ned_to_geodetic
+
+from .chain import DEFAULT_MIN_COVERAGE, coverage_settings
+from .detect import Footprint, sidelobe_filter
+from .drc import compress
+from ..tiles import TileFileError, is_temporary, read_tile_views, temporary_path
+
+log = logging.getLogger(__name__)
+
+CONTACTS_CSV = "contacts.csv"
+CONTACTS_GEOJSON = "contacts.geojson"
+MOSAIC_PNG = "mosaic.png"
+MOSAIC_H5 = "mosaic.h5"
+#: most cells along either side of the mosaic grid (coarser cells beyond)
+MAX_MOSAIC_CELLS = 4000
+
+#: contact columns: (name, units, meaning)
+CONTACT_FIELDS = (
+    ("contact", "1", "contact number in the run, strongest excess first"),
+    ("latitude_deg", "deg", "WGS-84 latitude of the peak (empty: no geodetic origin)"),
+    ("longitude_deg", "deg", "WGS-84 longitude of the peak"),
+    ("depth_below_seabed_m", "m", "depth of the peak below the water-sediment interface"),
+    ("size_along_m", "m", "along-track extent above the threshold"),
+    ("size_cross_m", "m", "cross-track extent above the threshold"),
+    ("size_depth_m", "m", "depth extent above the threshold"),
+    ("excess_db", "dB", "signal excess: normalised level at the peak, dB re background"),
+    ("peak_db", "dB re 1 uPa", "image magnitude at the peak"),
+    ("north_m", "m", "survey-frame north of the peak"),
+    ("east_m", "m", "survey-frame east of the peak"),
+    ("along_m", "m", "along-track position in the run frame (the first tile's line)"),
+    ("cross_m", "m", "cross-track position in the run frame, starboard positive"),
+    ("coverage_fraction", "1", "pings that imaged the peak over the run's full coverage "
+                               "at its depth"),
+    ("tile", "", "tile file the contact was detected in"),
+    ("tile_row", "1", "row of the tile's detection table"),
+    ("n_tiles", "1", "tiles whose detections were merged into the contact"),
+)
+
+
+@dataclass
+class TileView:
+    """What the run products need of one tile: its file, header (:func:`read_tile_header`
+    keys), MIPs and coverage plan."""
+    path: Path
+    data: dict
+
+    @property
+    def line(self) -> TrackLine:
+        a = self.data["attrs"]
+        return TrackLine((float(a["line_origin_north_m"]), float(a["line_origin_east_m"])),
+                         float(a["line_heading_rad"]), float(a["interface_down_m"]))
+
+    @property
+    def voxel_m(self) -> float:
+        return float(self.data["attrs"]["voxel_m"])
+
+
+def tile_paths(tiles_dir: str | Path) -> list[Path]:
+    """Finished tile files of a folder (``tile_*.h5``; files being written excluded)."""
+    return sorted(p for p in Path(tiles_dir).glob("tile_*.h5") if not is_temporary(p))
+
+
+def load_views(tiles_dir: str | Path) -> list[TileView]:
+    """Every tile of ``tiles_dir`` (:func:`read_tile_views`)."""
+    return [TileView(p, read_tile_views(p)) for p in tile_paths(tiles_dir)]
+
+
+# ----------------------------------------------------------------------- geometry
+
+
+def survey_origin(ref: tuple[float, float, float, float, float],
+                  iterations: int = 6) -> tuple[float, float, float]:
+    """The survey origin (lat deg, lon deg, ellipsoidal height m) of a frame in which a
+    point at (``ref`` lat, lon) has survey NED (``ref`` north, east, down): the origin
+    whose :func:`~svss_daq.navigation.geodetic_to_ned` gives the point that NED. The
+    point's height is taken as ``-down`` (origin height 0: heights move latitude and
+    longitude by far less than a millimetre)."""
+    lat, lon, n, e, d = (float(v) for v in ref)
+    point = (lat, lon, -d)
+    ned = np.array([n, e, d])
+    lat0, lon0, h0 = ned_to_geodetic(-ned, point)          # first guess
+    origin = (float(lat0), float(lon0), float(h0))
+    for _ in range(iterations):
+        err = geodetic_to_ned(*point, origin) - ned
+        lat0, lon0, h0 = ned_to_geodetic(err, origin)
+        origin = (float(lat0), float(lon0), float(h0))
+    return origin
+
+
+def _depth_index(depth_axis: np.ndarray, z: float) -> int:
+    return int(np.clip(np.argmin(np.abs(depth_axis - z)), 0, depth_axis.size - 1))
+
+
+def filter_contacts(rows: list[dict], full_pings: np.ndarray | None, depth_axis: np.ndarray,
+                    min_fraction: float, merge_m, sidelobe_db: float, sidelobe_m: float,
+                    footprint: Footprint | None) -> list[dict]:
+    """The run's contacts from the tiles' detections (``rows``: dicts with ``run_m``
+    (along, cross, depth in the run frame), ``peak_db``, ``coverage_pings``, extents,
+    ...): coverage against the run's full coverage per depth ``full_pings`` (None:
+    none known), merge across tiles, sidelobes across tiles (module docstring).
+    Returns the kept rows (``n_tiles`` and ``coverage_fraction`` set), strongest
+    excess first."""
+    kept = []
+    for r in rows:
+        if full_pings is not None and r["coverage_pings"] > 0:
+            ref = float(full_pings[_depth_index(depth_axis, r["depth_m"])])
+            r["coverage_fraction"] = r["coverage_pings"] / ref if ref > 0 else 0.0
+            if r["coverage_fraction"] < min_fraction:
+                continue
+        else:
+            r["coverage_fraction"] = float("nan")
+        kept.append(r)
+    kept.sort(key=lambda r: -r["peak_db"])
+    merge = np.asarray(merge_m, dtype=np.float64)
+    merged: list[dict] = []
+    for r in kept:
+        for m in merged:
+            if r["tile"] != m["tile"] and np.all(np.abs(r["run_m"] - m["run_m"]) <= merge):
+                m["lo"] = np.minimum(m["lo"], r["lo"])
+                m["hi"] = np.maximum(m["hi"], r["hi"])
+                m["n_tiles"] += 1
+                break
+        else:
+            r["n_tiles"] = 1
+            r["lo"], r["hi"] = r["run_m"] - r["half"], r["run_m"] + r["half"]
+            merged.append(r)
+    if not merged:
+        return []
+    keep = sidelobe_filter(np.array([m["run_m"] for m in merged]),
+                           np.array([m["peak_db"] for m in merged]), sidelobe_db,
+                           sidelobe_m, footprint)
+    out = [m for m, k in zip(merged, keep) if k]
+    out.sort(key=lambda r: -r["excess_db"])
+    return out
+
+
+def mosaic_grid(bounds_ne: tuple[float, float, float, float], cell_m: float,
+                max_cells: int = MAX_MOSAIC_CELLS) -> tuple[np.ndarray, np.ndarray, float]:
+    """Cell centres (north, east; m) of a north-east grid over ``bounds_ne`` (north min,
+    north max, east min, east max) at ``cell_m``, coarsened so that neither side has
+    more than ``max_cells`` cells. Returns (north, east, cell)."""
+    n0, n1, e0, e1 = bounds_ne
+    cell = max(cell_m, (n1 - n0) / max_cells, (e1 - e0) / max_cells)
+    north = n0 + (np.arange(max(1, math.ceil((n1 - n0) / cell))) + 0.5) * cell
+    east = e0 + (np.arange(max(1, math.ceil((e1 - e0) / cell))) + 0.5) * cell
+    return north, east, cell
+
+
+def place_plan(values: np.ndarray, along: np.ndarray, cross: np.ndarray, voxel_m: float,
+               line: TrackLine, north: np.ndarray, east: np.ndarray) -> np.ndarray:
+    """A tile's plan view ``values`` (along x cross) sampled at the grid's cell centres
+    (nearest voxel), NaN outside the tile: shape (north, east)."""
+    nn, ee = np.meshgrid(north, east, indexing="ij")
+    atd = line.ned_to_tile(np.stack([nn, ee, np.zeros_like(nn)], axis=-1))
+    ia = np.floor((atd[..., 0] - (along[0] - voxel_m / 2)) / voxel_m).astype(np.int64)
+    ic = np.floor((atd[..., 1] - (cross[0] - voxel_m / 2)) / voxel_m).astype(np.int64)
+    inside = (ia >= 0) & (ia < along.size) & (ic >= 0) & (ic < cross.size)
+    out = np.full(nn.shape, np.nan, dtype=np.float32)
+    out[inside] = values[ia[inside], ic[inside]]
+    return out
+
+
+def tile_corners_ne(view: TileView) -> np.ndarray:
+    """The four plan corners (north, east; m) of a tile."""
+    a, c, v = view.data["along"], view.data["cross"], view.voxel_m
+    atd = np.array([[a[0] - v / 2, c[0] - v / 2, 0.0], [a[-1] + v / 2, c[0] - v / 2, 0.0],
+                    [a[-1] + v / 2, c[-1] + v / 2, 0.0], [a[0] - v / 2, c[-1] + v / 2, 0.0]])
+    return view.line.tile_to_ned(atd)[:, :2]
+
+
+# ----------------------------------------------------------------------- settings
+
+
+def _configs(view: TileView) -> tuple[ProductsConfig | None, HardwareConfig | None]:
+    out = []
+    for key, cls in (("processing_config_toml", ProcessingConfig),
+                     ("hardware_config_toml", HardwareConfig)):
+        text = view.data.get(key)
+        try:
+            out.append(None if text is None else loads(cls, text, f"{view.path}:/provenance/{key}"))
+        except ConfigError as exc:
+            log.warning("%s", exc)
+            out.append(None)
+    proc, hw = out
+    return (None if proc is None else proc.products), hw
+
+
+# ----------------------------------------------------------------------- contacts
+
+
+def run_contacts(views: list[TileView],
+                 origin: tuple[float, float, float] | None = None) -> tuple[list[dict], dict]:
+    """The run's contacts (dicts with the :data:`CONTACT_FIELDS`) from its tiles, and a
+    summary (settings, origin, counts)."""
+    if not views:
+        return [], {"tiles": 0}
+    pcfg, hw = _configs(views[0])
+    if pcfg is None:
+        raise TileFileError(f"{views[0].path}: no [products] in its processing "
+                            "configuration: the tiles have no detections")
+    _, min_fraction, use_footprint = coverage_settings(pcfg)
+    dc = pcfg.detection
+    run_line = views[0].line
+    depth_axis = views[0].data["depth"]
+    fulls = [v.data["coverage_full_pings"] for v in views
+             if "coverage_full_pings" in v.data
+             and v.data["coverage_full_pings"].shape == depth_axis.shape]
+    full = np.max(fulls, axis=0) if fulls else None
+    heights = [float(v.data["attrs"]["projector_height_m"]) for v in views
+               if np.isfinite(float(v.data["attrs"].get("projector_height_m", np.nan)))]
+    footprint = None
+    if use_footprint and heights and hw is not None:
+        footprint = Footprint(float(np.mean(heights)),
+                              math.tan(math.radians(hw.beams.projector_half_angle_deg)))
+    rows = []
+    for v in views:
+        table = v.data["detections"]
+        if not len(table):
+            continue
+        xyz = np.stack([table["along_m"], table["cross_m"], table["depth_m"]], axis=1)
+        ned = v.line.tile_to_ned(xyz)
+        run = run_line.ned_to_tile(ned)
+        run[:, 2] = xyz[:, 2]                     # depth below the seabed as imaged
+        for i, row in enumerate(table):
+            half = 0.5 * np.array([row["extent_along_m"], row["extent_cross_m"],
+                                   row["extent_depth_m"]], dtype=np.float64)
+            rows.append({"tile": v.path.name, "tile_row": i, "run_m": run[i],
+                         "ned": ned[i], "half": half, "depth_m": float(xyz[i, 2]),
+                         "peak_db": float(row["peak_db"]),
+                         "excess_db": float(row["excess_db"]),
+                         "coverage_pings": int(row["coverage_pings"])})
+    n_tile_detections = len(rows)
+    kept = filter_contacts(rows, full, depth_axis, min_fraction, dc.merge_m, dc.sidelobe_db,
+                           dc.sidelobe_m, footprint)
+    if origin is None:
+        refs = [v.data["attrs"]["geodetic_ref"] for v in views
+                if "geodetic_ref" in v.data["attrs"]]
+        origin = survey_origin(refs[0]) if refs else None
+    out = []
+    for k, r in enumerate(kept):
+        lat = lon = float("nan")
+        if origin is not None:
+            la, lo, _ = ned_to_geodetic(r["ned"], origin)
+            lat, lon = float(la), float(lo)
+        size = r["hi"] - r["lo"]
+        out.append({"contact": k, "latitude_deg": lat, "longitude_deg": lon,
+                    "depth_below_seabed_m": r["depth_m"], "size_along_m": float(size[0]),
+                    "size_cross_m": float(size[1]), "size_depth_m": float(size[2]),
+                    "excess_db": r["excess_db"], "peak_db": r["peak_db"],
+                    "north_m": float(r["ned"][0]), "east_m": float(r["ned"][1]),
+                    "along_m": float(r["run_m"][0]), "cross_m": float(r["run_m"][1]),
+                    "coverage_fraction": float(r["coverage_fraction"]), "tile": r["tile"],
+                    "tile_row": r["tile_row"], "n_tiles": r["n_tiles"]})
+    summary = {"tiles": len(views), "tile_detections": n_tile_detections,
+               "contacts": len(out), "origin": None if origin is None else list(origin),
+               "min_coverage_fraction": min_fraction,
+               "run_full_coverage_pings": None if full is None else int(full.max()),
+               "sidelobe_db": dc.sidelobe_db,
+               "footprint": None if footprint is None else
+               {"height_m": footprint.height_m, "tan_half_angle": footprint.tan_half_angle}}
+    return out, summary
+
+
+def write_contacts_csv(path: Path, contacts: list[dict]) -> Path:
+    """One row per contact, :data:`CONTACT_FIELDS` columns (NaN written empty)."""
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow([name for name, _, _ in CONTACT_FIELDS])
+        for c in contacts:
+            w.writerow(["" if isinstance(c[k], float) and not math.isfinite(c[k])
+                        else (f"{c[k]:.8f}" if k in ("latitude_deg", "longitude_deg")
+                              else (f"{c[k]:.4f}" if isinstance(c[k], float) else c[k]))
+                        for k, _, _ in CONTACT_FIELDS])
+    return path
+
+
+def contacts_geojson(contacts: list[dict], summary: dict) -> dict:
+    """RFC 7946 FeatureCollection: a Point [longitude, latitude] per contact (null
+    geometry without a geodetic origin), the other columns as properties."""
+    feats = []
+    for c in contacts:
+        ok = math.isfinite(c["latitude_deg"]) and math.isfinite(c["longitude_deg"])
+        props = {k: (None if isinstance(c[k], float) and not math.isfinite(c[k]) else c[k])
+                 for k, _, _ in CONTACT_FIELDS if k not in ("latitude_deg", "longitude_deg")}
+        feats.append({"type": "Feature", "id": c["contact"],
+                      "geometry": ({"type": "Point",
+                                    "coordinates": [round(c["longitude_deg"], 9),
+                                                    round(c["latitude_deg"], 9)]}
+                                   if ok else None),
+                      "properties": props})
+    return {"type": "FeatureCollection", "features": feats,
+            "svss_run": {k: summary.get(k) for k in ("tiles", "tile_detections",
+                                                     "contacts", "origin")}}
+
+
+# ----------------------------------------------------------------------- mosaic
+
+
+def run_mosaic(views: list[TileView]) -> dict:
+    """The plan-view MIPs (dB re background) of every tile on one north-east grid:
+    ``north``, ``east`` (cell centres, m), ``mip_db`` (north x east, NaN where no tile
+    or no ping), ``tile`` (index of the tile shown, -1 none), ``imaged`` (a ping reached
+    the column), ``cell_m``."""
+    corners = np.concatenate([tile_corners_ne(v) for v in views])
+    cell = min(v.voxel_m for v in views)
+    north, east, cell = mosaic_grid((corners[:, 0].min(), corners[:, 0].max(),
+                                     corners[:, 1].min(), corners[:, 1].max()), cell)
+    mip = np.full((north.size, east.size), np.nan, dtype=np.float32)
+    which = np.full(mip.shape, -1, dtype=np.int32)
+    imaged = np.zeros(mip.shape, dtype=bool)
+    for k, v in enumerate(views):
+        d = v.data
+        plan = d.get("mip_depth")
+        if plan is None:
+            continue
+        if "coverage_plan" in d:
+            plan = np.where(d["coverage_plan"] > 0, plan, np.nan)
+        placed = place_plan(plan, d["along"], d["cross"], v.voxel_m, v.line, north, east)
+        inside = ~np.isnan(place_plan(np.zeros_like(plan), d["along"], d["cross"],
+                                      v.voxel_m, v.line, north, east))
+        better = inside & ~(placed <= mip)           # NaN-aware: larger, or first there
+        better &= ~np.isnan(placed) | (which < 0)
+        mip[better] = placed[better]
+        which[inside & (which < 0)] = k
+        which[better] = k
+        imaged |= ~np.isnan(placed)
+    return {"north": north, "east": east, "mip_db": mip, "tile": which, "imaged": imaged,
+            "cell_m": cell, "tiles": [v.path.name for v in views]}
+
+
+def write_mosaic_h5(path: Path, m: dict, origin) -> Path:
+    with h5py.File(path, "w") as f:
+        f.attrs.update({"title": "SVSS run mosaic: plan-view MIP of the tiles",
+                        "cell_m": m["cell_m"], "tiles": json.dumps(m["tiles"]),
+                        "survey_origin_lat_lon_h": (np.asarray(origin, dtype=np.float64)
+                                                    if origin is not None else np.nan)})
+        for name, units in (("north", "m"), ("east", "m")):
+            ds = f.create_dataset(name, data=m[name])
+            ds.attrs["units"] = units
+            ds.make_scale(name)
+        for name, units, long_name in (
+                ("mip_db", "dB re background", "maximum over depth and tiles of the "
+                                               "normalised level plus display gain"),
+                ("tile", "1", "index of the tile shown (-1: none)"),
+                ("imaged", "1", "a ping reached the column")):
+            ds = f.create_dataset(name, data=m[name].astype(np.uint8) if name == "imaged"
+                                  else m[name], compression="gzip", compression_opts=1)
+            ds.attrs.update({"units": units, "long_name": long_name})
+            ds.dims[0].attach_scale(f["north"])
+            ds.dims[1].attach_scale(f["east"])
+    return path
+
+
+def write_mosaic_png(path: Path, m: dict, contacts: list[dict], pcfg: ProductsConfig,
+                     title: str, max_labels: int = 20) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+
+    d = pcfg.drc
+    img = compress(m["mip_db"], d.floor_db, d.knee_db, d.ceiling_db)
+    img = np.where(np.isnan(m["mip_db"]), np.nan, img)
+    cell = m["cell_m"]
+    n, e = m["north"], m["east"]
+    extent = (e[0] - cell / 2, e[-1] + cell / 2, n[0] - cell / 2, n[-1] + cell / 2)
+    w, h = extent[1] - extent[0], extent[3] - extent[2]
+    scale = min(14.0 / max(w, 1e-6), 14.0 / max(h, 1e-6), 300.0)
+    fig, ax = plt.subplots(figsize=(max(w * scale, 6.0) + 1.5, max(h * scale, 4.0) + 1.2),
+                           constrained_layout=True)
+    rgba = plt.get_cmap("magma")(np.nan_to_num(img, nan=0.0))
+    rgba[np.isnan(img) & (m["tile"] >= 0)] = (0.6, 0.6, 0.6, 1.0)    # in a tile, no ping
+    rgba[m["tile"] < 0] = (1.0, 1.0, 1.0, 1.0)                        # outside every tile
+    ax.imshow(rgba, extent=extent, origin="lower", interpolation="nearest")
+    im = ScalarMappable(Normalize(0.0, 1.0), "magma")
+    ax.set_xlabel("east (m, survey frame)")
+    ax.set_ylabel("north (m, survey frame)")
+    ax.set_aspect("equal")
+    for c in contacts[:max_labels]:
+        ax.plot(c["east_m"], c["north_m"], "o", mfc="none", mec="cyan", ms=8)
+        ax.annotate(str(c["contact"]), (c["east_m"], c["north_m"]), xytext=(4, 4),
+                    textcoords="offset points", color="cyan", fontsize=7)
+    cb = fig.colorbar(im, ax=ax, shrink=0.8)
+    levels = [lv for lv in (d.floor_db, 0.0, 10.0, d.knee_db, d.ceiling_db) if lv >= d.floor_db]
+    cb.set_ticks(compress(np.asarray(levels, dtype=np.float64), d.floor_db, d.knee_db,
+                          d.ceiling_db))
+    cb.set_ticklabels([f"{lv:g}" for lv in levels])
+    cb.set_label("plan-view MIP, dB re background (grey: no ping)", fontsize=8)
+    ax.set_title(title, fontsize=9)
+    fig.savefig(path, dpi=pcfg.quicklook.dpi)
+    plt.close(fig)
+    return path
+
+
+# ----------------------------------------------------------------------- the entry
+
+
+def write_run_products(tiles_dir: str | Path, out_dir: str | Path | None = None,
+                       origin: tuple[float, float, float] | None = None) -> list[Path]:
+    """Write the run products of the tiles in ``tiles_dir`` into ``out_dir`` (default:
+    the same folder): ``contacts.csv``, ``contacts.geojson``, ``mosaic.png`` and
+    ``mosaic.h5``. ``origin``: survey origin (lat deg, lon deg, height m) when the
+    tiles carry no geodetic reference. Returns the files written (none when the
+    folder has no tiles with products)."""
+    tiles_dir = Path(tiles_dir)
+    out = Path(out_dir) if out_dir is not None else tiles_dir
+    views = load_views(tiles_dir)
+    if not views:
+        log.warning("%s: no tiles; no run products", tiles_dir)
+        return []
+    pcfg, _ = _configs(views[0])
+    if pcfg is None:
+        log.warning("%s: tiles without products; no run products", tiles_dir)
+        return []
+    out.mkdir(parents=True, exist_ok=True)
+    contacts, summary = run_contacts(views, origin)
+    origin = summary["origin"]
+    m = run_mosaic(views)
+    maxl = pcfg.quicklook.max_labels
+    title = (f"SVSS run mosaic: {len(views)} tile(s) from {tiles_dir.name}, "
+             f"{len(contacts)} contact(s) (from {summary['tile_detections']} tile "
+             f"detections); cell {m['cell_m'] * 100:.0f} cm")
+    geojson = json.dumps(contacts_geojson(contacts, summary), indent=1)
+    writers = {CONTACTS_CSV: lambda p: write_contacts_csv(p, contacts),
+               CONTACTS_GEOJSON: lambda p: p.write_text(geojson),
+               MOSAIC_H5: lambda p: write_mosaic_h5(p, m, origin),
+               MOSAIC_PNG: lambda p: write_mosaic_png(p, m, contacts, pcfg, title,
+                                                      20 if maxl is None else maxl)}
+    files = []
+    for name, write in writers.items():
+        final = out / name
+        tmp = temporary_path(final)          # whole files only, under their final names
+        try:
+            write(tmp)
+            os.replace(tmp, final)
+        finally:
+            tmp.unlink(missing_ok=True)
+        files.append(final)
+    log.info("%s: %d contact(s) from %d tile detection(s) in %d tile(s); wrote %s",
+             out, len(contacts), summary["tile_detections"], len(views),
+             ", ".join(p.name for p in files))
+    return files
+
+
+def run_products_at_end(tiles_dir: str | Path) -> list[Path]:
+    """:func:`write_run_products` for the worker at a run's end: a failure is logged
+    (naming the folder), never raised, so that it cannot cost the run's tiles."""
+    try:
+        return write_run_products(tiles_dir)
+    except Exception:                                   # noqa: BLE001 - logged
+        log.exception("%s: writing the run products failed (rewrite them with "
+                      "'svss products %s')", tiles_dir, tiles_dir)
+        return []
+
+
+__all__ = ["run_products_at_end", "write_run_products", "run_contacts", "run_mosaic", "filter_contacts",
+           "survey_origin", "CONTACT_FIELDS", "DEFAULT_MIN_COVERAGE"]
