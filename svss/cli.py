@@ -14,6 +14,8 @@
     svss sim-device --scene FILE [--time-scale S] [--faults FILE] [--from-run RUN.h5]
                     [--devices-out FILE] [--workers N] [--no-navigation] [--lead S]
     svss keys --out DIR [--name NAME] [--force]
+    svss trade --out DIR [--quick] [--budget-s S] [--areas imaging,simulation,normalisation]
+    svss reproduce --out DIR [--quick] [--seeds N] [--no-field]
 """
 
 from __future__ import annotations
@@ -318,6 +320,29 @@ def cmd_keys(args) -> int:
     return 0
 
 
+def cmd_trade(args) -> int:
+    from svss.trade.runner import AREAS, print_table, run_trade
+
+    areas = tuple(a for a in args.areas.split(",") if a)
+    bad = [a for a in areas if a not in AREAS]
+    if bad or not areas:
+        log.error("--areas: expected a comma-separated subset of %s, got %r",
+                  ",".join(AREAS), args.areas)
+        return 2
+    res = run_trade(_hardware(args), _processing(args).value, Path(args.out),
+                    quick=args.quick, budget_s=args.budget_s, areas=areas)
+    print_table(res)
+    return 0
+
+
+def cmd_reproduce(args) -> int:
+    from svss.reproduce.run import run
+
+    path = run(args.out, quick=args.quick, n_seeds=args.seeds, field=not args.no_field)
+    print(f"svss reproduce wrote {path}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="svss", description="Sediment Volume Search Sonar: "
                                 "acquisition, simulation and 3-D imaging.")
@@ -493,6 +518,30 @@ def build_parser() -> argparse.ArgumentParser:
                     "or a client's name")
     force(sp, "an existing key pair of that name")
     sp.set_defaults(func=cmd_keys)
+
+    sp = sub.add_parser("trade", help="measure speed against accuracy of every imaging, "
+                        "simulation and normalisation option on this machine "
+                        "(docs/trade.md)")
+    sp.add_argument("--out", required=True, help="folder for trade.csv, trade.json, "
+                    "trade.md and pareto_<area>.png")
+    sp.add_argument("--quick", action="store_true", help="tiny workloads (seconds)")
+    sp.add_argument("--budget-s", type=float, default=15.0, help="real-time budget per "
+                    "tile, s (default 15: a 15 m tile at 1 m/s)")
+    sp.add_argument("--areas", default="imaging,simulation,normalisation",
+                    help="comma-separated areas to measure")
+    common(sp)
+    sp.set_defaults(func=cmd_trade)
+
+    sp = sub.add_parser("reproduce", help="simulate and image the seed paper's scenes, "
+                        "measure its statements and write a report with figures "
+                        "(docs/reproduce.md)")
+    sp.add_argument("--out", required=True, help="output folder (report.md, PNGs, "
+                    "results.json)")
+    sp.add_argument("--quick", action="store_true", help="shortened run (minutes)")
+    sp.add_argument("--seeds", type=int, default=None, help="seabed realisations of the "
+                    "seed's configuration (default 5; quick: 2)")
+    sp.add_argument("--no-field", action="store_true", help="leave out the test field")
+    sp.set_defaults(func=cmd_reproduce)
     return p
 
 
