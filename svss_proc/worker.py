@@ -43,6 +43,7 @@ from .imaging.imager import TileImager
 from .preflight import preflight
 from .products.chain import save_tile
 from .products.run_products import run_products_at_end
+from .survey_index import write_survey_index
 from .tiles import is_temporary, tile_name
 
 log = logging.getLogger(__name__)
@@ -354,10 +355,16 @@ class Worker:
 def process_raw(path: str | Path, out_dir: str | Path,
                 processing: Loaded[ProcessingConfig], *, force: bool = False) -> list[Path]:
     """Image a recorded raw run with the hardware configuration it was recorded with,
-    into ``out_dir`` directly (the same tiles as the worker's ``OUT/RUN_ID/``)."""
+    into ``out_dir`` directly (the same tiles as the worker's ``OUT/RUN_ID/``), and
+    the folder's survey index (``survey_index.csv``, :mod:`.survey_index`)."""
     with RawRunReader(path) as run:
         worker = Worker(run.hardware, processing, out_dir, force=force)
-        return worker.run(iter(run), total=len(run))
+        files = worker.run(iter(run), total=len(run))
+        run_id = run.attrs.get("run_id")
+    run_id = run_id.decode() if isinstance(run_id, bytes) else run_id
+    write_survey_index(out_dir, [(str(run_id or Path(path).stem), p) for p in files
+                                 if p.suffix == ".h5"])
+    return files
 
 
 # --------------------------------------------------------------------------- stream

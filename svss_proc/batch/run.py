@@ -5,8 +5,10 @@ The runs' tiles are planned here from the files' ping and navigation tables
 gets file paths and ping index ranges, never pings, and reads its pings from the files
 itself, so the raw files must lie on a path every worker sees (docs/batch.md). Tiles go
 to ``OUT/RUN/tile_NNNN.h5`` (``RUN``: the run's id made a folder name, as the stream
-worker names its run folders), the index of every tile to ``OUT/survey_index.csv`` and
-the batch's settings and last summary to ``OUT/batch_state.json``.
+worker names its run folders), with the run products (contacts, mosaic:
+:mod:`svss_proc.products.run_products`) once a run's tiles are all there, the index of
+every tile to ``OUT/survey_index.csv`` and the batch's settings and last summary to
+``OUT/batch_state.json``.
 
 Resume: a tile whose committed ``.h5`` is there is not imaged again; temporaries left by
 a killed writer are removed first. A worker process that dies mid-task is replaced by
@@ -27,6 +29,7 @@ from pathlib import Path
 from svss_daq.config import Loaded, ProcessingConfig
 from svss_daq.progress import Progress
 
+from ..products.run_products import run_products_at_end
 from ..survey_index import INDEX_NAME, write_survey_index
 from ..worker import remove_temporaries, run_folder_name
 from .plan import RunPlan, TilePlan, group_runs, plan_run
@@ -98,11 +101,15 @@ def _client(scheduler: str | None, workers: int | None):
     if scheduler:
         log.info("batch: connecting to the Dask scheduler at %s", scheduler)
         return distributed.Client(scheduler, timeout=30), None
-    n = workers or os.cpu_count() or 1
+    cores = os.cpu_count() or 1
+    n = workers or cores
+    # the cores shared out: each worker's imaging kernel runs numba threads of its own
+    threads = os.environ.get("NUMBA_NUM_THREADS") or str(max(1, cores // n))
     cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                       host="127.0.0.1", dashboard_address=None)
-    log.info("batch: local cluster of %d worker process(es) at %s", n,
-             cluster.scheduler_address)
+                                       host="127.0.0.1", dashboard_address=None,
+                                       env={"NUMBA_NUM_THREADS": threads})
+    log.info("batch: local cluster of %d worker process(es) (%s kernel thread(s) each) "
+             "at %s", n, threads, cluster.scheduler_address)
     return distributed.Client(cluster), cluster
 
 
@@ -159,6 +166,12 @@ def run_batch(paths: list[str | Path], out: str | Path,
     t_run = time.perf_counter() - t_run0
     imaged = len(results)
     skipped = len(tiles) - len(todo)
+    # the run products (contacts, mosaic) of every run whose tiles this batch completed,
+    # as the streaming worker writes them at a run's end
+    touched = {r["folder"] for r in results}
+    for p in plans:
+        if p.folder in touched and all(tile_paths(out, t)[0].is_file() for t in p.tiles):
+            run_products_at_end(out / p.folder)
     index_tiles = [(t.run_id, tile_paths(out, t)[0]) for t in tiles
                    if tile_paths(out, t)[0].is_file()]
     index, rows = write_survey_index(out, index_tiles)

@@ -8,7 +8,6 @@ from __future__ import annotations
 import os
 import shutil
 import signal
-import subprocess
 import sys
 from pathlib import Path
 
@@ -21,7 +20,7 @@ from svss_proc.batch.run import STATE, run_batch
 from svss_proc.batch.task import image_tile
 from svss_proc.survey_index import INDEX_NAME
 from svss_proc.tiles import read_detections, read_tile_header
-from tests.worker.conftest import ROOT, assert_same_tiles
+from tests.worker.conftest import assert_same_tiles
 
 pytest.importorskip("distributed")
 
@@ -70,6 +69,10 @@ def test_tiles_equal_svss_process_voxel_for_voxel(batch, reference):
             for name in a.dtype.names:                # NaN where a field is undefined
                 np.testing.assert_array_equal(a[name], b[name], err_msg=ref.name)
             assert got.with_name(ref.stem + "_mip.png").is_file()
+        # the run products, as the streaming worker writes them at a run's end
+        assert (batch["out"] / run / "contacts.csv").read_text() == \
+            (reference[run] / "contacts.csv").read_text()
+        assert (batch["out"] / run / "mosaic.h5").is_file()
 
 
 def test_killed_worker_leaves_no_missing_tile(batch, reference):
@@ -124,8 +127,9 @@ def test_survey_index_lists_every_tile(batch, reference):
 
 def test_rerun_skips_finished_tiles_and_redoes_a_half_written_one(batch, reference, survey,
                                                                   coarse_proc, cluster,
-                                                                  tmp_path):
+                                                                  tmp_path, capsys):
     """Through the command line, on the running cluster's scheduler (--scheduler)."""
+    from svss.cli import main
     out = tmp_path / "out"
     shutil.copytree(batch["out"], out)
     redo = sorted((out / "lineA").glob("tile_*.h5"))[1]
@@ -135,14 +139,11 @@ def test_rerun_skips_finished_tiles_and_redoes_a_half_written_one(batch, referen
     half.write_bytes(b"\x89HDF\r\n\x1a\n half-written")
     before = {p: p.stat().st_mtime_ns for p in out.rglob("tile_*.h5")}
     files = [str(survey["A"]), *map(str, survey["B_segments"])]
-    res = subprocess.run([sys.executable, "-m", "svss", "batch", *files, "--out", str(out),
-                          "--processing", coarse_proc.source,
-                          "--scheduler", cluster.scheduler_address],
-                         cwd=ROOT, capture_output=True, text=True, timeout=120,
-                         check=False)
-    assert res.returncode == 0, res.stderr[-3000:]
+    assert main(["batch", *files, "--out", str(out), "--processing", coarse_proc.source,
+                 "--scheduler", cluster.scheduler_address]) == 0
     n = len(before) + 1
-    assert f"{n} tile(s) of 2 run(s) (1 imaged, {n - 1} already done)" in res.stdout
+    assert f"{n} tile(s) of 2 run(s) (1 imaged, {n - 1} already done)" in \
+        capsys.readouterr().out
     assert not half.exists() and redo.is_file()
     assert {p: p.stat().st_mtime_ns for p in before} == before      # not rewritten
     for run in RUNS:
