@@ -81,7 +81,9 @@ NO_DATA_RGBA = (0.62, 0.66, 0.70, 1.0)
 #: contacts labelled on the views when ``quicklook.max_labels`` is omitted
 DEFAULT_MAX_LABELS = 12
 #: panel heights, inches: a 2 m axis of a 15 m tile gets at least MIN_PANEL_IN
-MIN_PANEL_IN, MAX_PANEL_IN, FIG_WIDTH_IN = 2.4, 3.6, 16.0
+MIN_PANEL_IN, MAX_PANEL_IN = 2.4, 3.0
+#: figure width, inches: about one inch per metre of tile, within these bounds
+MIN_WIDTH_IN, MAX_WIDTH_IN = 7.0, 16.0
 DEPTH_LABEL = "depth below seabed (m)"
 CROSS_LABEL = "cross-track (m), starboard +"
 
@@ -186,10 +188,10 @@ def products_png(path: str | Path, mips: dict[str, np.ndarray], level: np.ndarra
                                 None if hit is None else hit[:, :, k]), ec, lc, CROSS_LABEL,
                            f"depth slice {z[k]:.2f} m below seabed", False,
                            ("along_m", "cross_m"), near))
-    width_ax = FIG_WIDTH_IN - 1.6
-    heights = [_panel_height(p[2], la, width_ax) for p in panels]
-    bottom_h = 3.6
-    fig = plt.figure(figsize=(FIG_WIDTH_IN, sum(h for h, _ in heights) + bottom_h + 1.6),
+    width = float(np.clip(la + 1.6, MIN_WIDTH_IN, MAX_WIDTH_IN))
+    heights = [_panel_height(p[2], la, width - 1.6) for p in panels]
+    bottom_h = 3.0
+    fig = plt.figure(figsize=(width, sum(h for h, _ in heights) + bottom_h + 1.6),
                      constrained_layout=True)
     gs = fig.add_gridspec(len(panels) + 1, 3, height_ratios=[h for h, _ in heights]
                           + [bottom_h], width_ratios=[1.0, 0.35, 1.3])
@@ -228,16 +230,31 @@ def products_png(path: str | Path, mips: dict[str, np.ndarray], level: np.ndarra
     tax.axis("off")
     tax.text(0.0, 1.0, _detection_lines(detections, 25), va="top", ha="left",
              family="monospace", fontsize=7, transform=tax.transAxes)
-    fig.suptitle(f"{title}; {n_det} detection(s) at {cfg.detection.threshold_db:g} dB re "
-                 f"background (numbers: strongest {max_labels} on each view)\n{identity}",
-                 fontsize=9)
+    fig.suptitle(f"{title}\n{n_det} detection(s) at {cfg.detection.threshold_db:g} dB re "
+                 f"background (numbered: the strongest {max_labels} on each view); "
+                 f"{identity}", fontsize=8)
     fig.canvas.draw()                       # the layout is fixed: label in pixels
     for ax, idx, keys in drawn:
         _mark(ax, detections, idx, keys, max_labels)
     path = Path(path)
-    fig.savefig(path, dpi=cfg.quicklook.dpi)
+    save_png(fig, path, cfg.quicklook.dpi)
     plt.close(fig)
     return path
+
+
+def save_png(fig, path: Path, dpi: int) -> None:
+    """Save ``fig`` as a PNG of at most 256 colours (a palette image: a third of the
+    bytes of full colour; the colour map has 256 levels anyway)."""
+    from io import BytesIO
+
+    from PIL import Image
+
+    buf = BytesIO()
+    fig.savefig(buf, dpi=dpi, format="png")
+    buf.seek(0)
+    with Image.open(buf) as im:
+        im.convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT).save(
+            path, format="PNG", optimize=True)
 
 
 def _detection_lines(detections: np.ndarray, n_max: int = 20) -> str:

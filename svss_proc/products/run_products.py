@@ -38,15 +38,21 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from svss_daq.config import (ConfigError, HardwareConfig, ProcessingConfig, ProductsConfig,
-                             loads)
+from svss_daq.config import (
+    ConfigError,
+    HardwareConfig,
+    ProcessingConfig,
+    ProductsConfig,
+    loads,
+)
 from svss_daq.frames import TrackLine
 from svss_daq.navigation import geodetic_to_ned, ned_to_geodetic
 
+from ..tiles import TileFileError, is_temporary, read_tile_views, temporary_path
 from .chain import DEFAULT_MIN_COVERAGE, coverage_settings
 from .detect import Footprint, sidelobe_filter
 from .drc import compress
-from ..tiles import TileFileError, is_temporary, read_tile_views, temporary_path
+from .quicklook import save_png
 
 log = logging.getLogger(__name__)
 
@@ -72,8 +78,8 @@ CONTACT_FIELDS = (
     ("east_m", "m", "survey-frame east of the peak"),
     ("along_m", "m", "along-track position in the run frame (the first tile's line)"),
     ("cross_m", "m", "cross-track position in the run frame, starboard positive"),
-    ("coverage_fraction", "1", "pings that imaged the peak over the run's full coverage "
-                               "at its depth"),
+    ("coverage_fraction", "1", ("pings that imaged the peak over the run's full coverage "
+                                "at its depth")),
     ("tile", "", "tile file the contact was detected in"),
     ("tile_row", "1", "row of the tile's detection table"),
     ("n_tiles", "1", "tiles whose detections were merged into the contact"),
@@ -190,9 +196,10 @@ def mosaic_grid(bounds_ne: tuple[float, float, float, float], cell_m: float,
 
 
 def place_plan(values: np.ndarray, along: np.ndarray, cross: np.ndarray, voxel_m: float,
-               line: TrackLine, north: np.ndarray, east: np.ndarray) -> np.ndarray:
+               line: TrackLine, north: np.ndarray, east: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
     """A tile's plan view ``values`` (along x cross) sampled at the grid's cell centres
-    (nearest voxel), NaN outside the tile: shape (north, east)."""
+    (nearest voxel): (values, NaN outside the tile; inside the tile), each (north, east)."""
     nn, ee = np.meshgrid(north, east, indexing="ij")
     atd = line.ned_to_tile(np.stack([nn, ee, np.zeros_like(nn)], axis=-1))
     ia = np.floor((atd[..., 0] - (along[0] - voxel_m / 2)) / voxel_m).astype(np.int64)
@@ -200,7 +207,7 @@ def place_plan(values: np.ndarray, along: np.ndarray, cross: np.ndarray, voxel_m
     inside = (ia >= 0) & (ia < along.size) & (ic >= 0) & (ic < cross.size)
     out = np.full(nn.shape, np.nan, dtype=np.float32)
     out[inside] = values[ia[inside], ic[inside]]
-    return out
+    return out, inside
 
 
 def tile_corners_ne(view: TileView) -> np.ndarray:
@@ -358,15 +365,19 @@ def run_mosaic(views: list[TileView]) -> dict:
             continue
         if "coverage_plan" in d:
             plan = np.where(d["coverage_plan"] > 0, plan, np.nan)
-        placed = place_plan(plan, d["along"], d["cross"], v.voxel_m, v.line, north, east)
-        inside = ~np.isnan(place_plan(np.zeros_like(plan), d["along"], d["cross"],
-                                      v.voxel_m, v.line, north, east))
-        better = inside & ~(placed <= mip)           # NaN-aware: larger, or first there
-        better &= ~np.isnan(placed) | (which < 0)
-        mip[better] = placed[better]
-        which[inside & (which < 0)] = k
-        which[better] = k
-        imaged |= ~np.isnan(placed)
+        # only the cells of the tile's bounding box
+        cn = tile_corners_ne(v)
+        i0, i1 = np.searchsorted(north, [cn[:, 0].min() - cell, cn[:, 0].max() + cell])
+        j0, j1 = np.searchsorted(east, [cn[:, 1].min() - cell, cn[:, 1].max() + cell])
+        box = (slice(i0, i1), slice(j0, j1))
+        placed, inside = place_plan(plan, d["along"], d["cross"], v.voxel_m, v.line,
+                                    north[box[0]], east[box[1]])
+        cur, who = mip[box], which[box]
+        better = inside & ~np.isnan(placed) & ~(placed <= cur)     # NaN-aware maximum
+        cur[better] = placed[better]
+        who[inside & (who < 0)] = k
+        who[better] = k
+        imaged[box] |= ~np.isnan(placed)
     return {"north": north, "east": east, "mip_db": mip, "tile": which, "imaged": imaged,
             "cell_m": cell, "tiles": [v.path.name for v in views]}
 
@@ -382,8 +393,8 @@ def write_mosaic_h5(path: Path, m: dict, origin) -> Path:
             ds.attrs["units"] = units
             ds.make_scale(name)
         for name, units, long_name in (
-                ("mip_db", "dB re background", "maximum over depth and tiles of the "
-                                               "normalised level plus display gain"),
+                ("mip_db", "dB re background", ("maximum over depth and tiles of the "
+                                                "normalised level plus display gain")),
                 ("tile", "1", "index of the tile shown (-1: none)"),
                 ("imaged", "1", "a ping reached the column")):
             ds = f.create_dataset(name, data=m[name].astype(np.uint8) if name == "imaged"
@@ -410,8 +421,8 @@ def write_mosaic_png(path: Path, m: dict, contacts: list[dict], pcfg: ProductsCo
     n, e = m["north"], m["east"]
     extent = (e[0] - cell / 2, e[-1] + cell / 2, n[0] - cell / 2, n[-1] + cell / 2)
     w, h = extent[1] - extent[0], extent[3] - extent[2]
-    scale = min(14.0 / max(w, 1e-6), 14.0 / max(h, 1e-6), 300.0)
-    fig, ax = plt.subplots(figsize=(max(w * scale, 6.0) + 1.5, max(h * scale, 4.0) + 1.2),
+    scale = min(9.0 / max(w, 1e-6), 9.0 / max(h, 1e-6), 300.0)
+    fig, ax = plt.subplots(figsize=(max(w * scale, 5.0) + 1.5, max(h * scale, 3.0) + 1.2),
                            constrained_layout=True)
     rgba = plt.get_cmap("magma")(np.nan_to_num(img, nan=0.0))
     rgba[np.isnan(img) & (m["tile"] >= 0)] = (0.6, 0.6, 0.6, 1.0)    # in a tile, no ping
@@ -432,7 +443,7 @@ def write_mosaic_png(path: Path, m: dict, contacts: list[dict], pcfg: ProductsCo
     cb.set_ticklabels([f"{lv:g}" for lv in levels])
     cb.set_label("plan-view MIP, dB re background (grey: no ping)", fontsize=8)
     ax.set_title(title, fontsize=9)
-    fig.savefig(path, dpi=pcfg.quicklook.dpi)
+    save_png(fig, path, pcfg.quicklook.dpi)
     plt.close(fig)
     return path
 
@@ -492,11 +503,19 @@ def run_products_at_end(tiles_dir: str | Path) -> list[Path]:
     (naming the folder), never raised, so that it cannot cost the run's tiles."""
     try:
         return write_run_products(tiles_dir)
-    except Exception:                                   # noqa: BLE001 - logged
+    except Exception:
         log.exception("%s: writing the run products failed (rewrite them with "
                       "'svss products %s')", tiles_dir, tiles_dir)
         return []
 
 
-__all__ = ["run_products_at_end", "write_run_products", "run_contacts", "run_mosaic", "filter_contacts",
-           "survey_origin", "CONTACT_FIELDS", "DEFAULT_MIN_COVERAGE"]
+__all__ = [
+    "CONTACT_FIELDS",
+    "DEFAULT_MIN_COVERAGE",
+    "filter_contacts",
+    "run_contacts",
+    "run_mosaic",
+    "run_products_at_end",
+    "survey_origin",
+    "write_run_products",
+]

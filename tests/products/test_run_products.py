@@ -1,0 +1,151 @@
+"""Run products on the built-in scene of six points in water (simulated, imaged by the
+worker, whose run end writes the run products): every point detected, no false alarm;
+the contacts read back from the CSV and the GeoJSON at the points' true latitude and
+longitude (the scene's truth converted independently); the mosaic covers every tile;
+``svss products`` rewrites them."""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import json
+import math
+
+import h5py
+import numpy as np
+import pytest
+
+from sim_device.scene import load_scene
+from sim_device.track import truth_line
+from svss.score import scene_truth, score_tiles
+from svss_daq.config import config_path
+from svss_proc.products.run_products import (
+    CONTACTS_CSV,
+    CONTACTS_GEOJSON,
+    MOSAIC_H5,
+    MOSAIC_PNG,
+    load_views,
+    survey_origin,
+    tile_corners_ne,
+    write_run_products,
+)
+
+from .test_cli import svss
+
+SCENE = config_path("scenes/demo.toml")
+ORIGIN = (41.5240, -70.6710, 0.0)           # config/sim-device.toml's survey origin
+WGS84_A, WGS84_F = 6378137.0, 1.0 / 298.257223563
+
+
+@pytest.fixture(scope="session")
+def demo_run(tmp_path_factory, hardware, demo_processing):
+    """The demo scene simulated to a raw file and processed by ``svss process``'s
+    function (demo tiles, 2 cm voxels)."""
+    from sim_device.environment_source import EnvironmentSource
+    from svss_daq.rawfile import RawRunWriter
+    from svss_proc.worker import process_raw
+    raw = tmp_path_factory.mktemp("raw") / "demo.h5"
+    scene = load_scene(SCENE)
+    with RawRunWriter(raw, hardware, run_attrs={}) as rec:
+        for p in itertools.islice(iter(EnvironmentSource(hardware, scene)),
+                                  scene.track.n_pings):
+            rec.append(p)
+    out = tmp_path_factory.mktemp("tiles")
+    process_raw(raw, out, demo_processing)
+    return out
+
+
+def local_latlon(north_m, east_m, origin):
+    """Independent of svss_daq.navigation: offsets on the WGS-84 ellipsoid by its radii
+    of curvature at the origin (meridional M, prime vertical N); good to a few
+    millimetres within 100 m."""
+    lat0 = math.radians(origin[0])
+    e2 = WGS84_F * (2 - WGS84_F)
+    s2 = math.sin(lat0) ** 2
+    m = WGS84_A * (1 - e2) / (1 - e2 * s2) ** 1.5
+    n = WGS84_A / math.sqrt(1 - e2 * s2)
+    return (origin[0] + math.degrees(north_m / m),
+            origin[1] + math.degrees(east_m / (n * math.cos(lat0))))
+
+
+def test_six_points_all_detected_and_no_false_alarm(demo_run):
+    r = score_tiles(demo_run, SCENE)
+    s = r["summary"]
+    assert (s["truth"], s["hits"], s["false_alarms"], s["duplicates"]) == (6, 6, 0, 0), \
+        s
+    assert s["false_alarms_per_m2"] == 0.0
+    for t in r["truth"]:
+        assert t["distance_m"] <= 0.03                 # within 1.5 voxels
+    # the run end wrote the run products (the worker's call)
+    for name in (CONTACTS_CSV, CONTACTS_GEOJSON, MOSAIC_H5, MOSAIC_PNG):
+        assert (demo_run / name).is_file(), name
+
+
+def test_contacts_at_the_true_latitude_and_longitude(demo_run, tmp_path):
+    files = write_run_products(demo_run, tmp_path, origin=ORIGIN)
+    assert {p.name for p in files} == {CONTACTS_CSV, CONTACTS_GEOJSON, MOSAIC_H5, MOSAIC_PNG}
+    scene = load_scene(SCENE)
+    truth = scene_truth(scene)
+    ned = truth_line(scene.track).tile_to_ned(np.array([t["scene_m"] for t in truth]))
+    true_ll = np.array([local_latlon(n, e, ORIGIN) for n, e, _ in ned])
+    depth = np.array([t["scene_m"][2] for t in truth])
+    with open(tmp_path / CONTACTS_CSV, newline="") as f:
+        rows = list(csv.DictReader(f))
+    gj = json.loads((tmp_path / CONTACTS_GEOJSON).read_text())
+    assert gj["type"] == "FeatureCollection" and len(gj["features"]) == len(rows) == 6
+    m_per_deg = (111_000.0, 111_000.0 * math.cos(math.radians(ORIGIN[0])))
+    for row, feat in zip(rows, gj["features"]):
+        lat, lon = float(row["latitude_deg"]), float(row["longitude_deg"])
+        assert feat["geometry"]["type"] == "Point"
+        assert feat["geometry"]["coordinates"] == pytest.approx([lon, lat], abs=1e-8)
+        assert feat["properties"]["excess_db"] == pytest.approx(float(row["excess_db"]),
+                                                                abs=1e-3)
+        err = np.hypot((true_ll[:, 0] - lat) * m_per_deg[0],
+                       (true_ll[:, 1] - lon) * m_per_deg[1])
+        k = int(np.argmin(err))
+        assert err[k] <= 0.03, (row, err[k])           # m: the detection's own error
+        assert float(row["depth_below_seabed_m"]) == pytest.approx(depth[k], abs=0.03)
+        for key in ("size_along_m", "size_cross_m", "size_depth_m"):
+            assert 0.0 < float(row[key]) < 1.0
+        assert float(row["excess_db"]) > 14.0
+
+
+def test_survey_origin_recovered_from_a_geodetic_reference():
+    from svss_daq.navigation import ned_to_geodetic
+    ned = np.array([123.4, -56.7, 1.5])
+    lat, lon, _ = ned_to_geodetic(ned, ORIGIN)
+    got = survey_origin((float(lat), float(lon), *ned))
+    assert got[0] == pytest.approx(ORIGIN[0], abs=1e-9)
+    assert got[1] == pytest.approx(ORIGIN[1], abs=1e-9)
+
+
+def test_mosaic_covers_every_tile(demo_run):
+    views = load_views(demo_run)
+    with h5py.File(demo_run / MOSAIC_H5, "r") as f:
+        north, east, which = f["north"][()], f["east"][()], f["tile"][()]
+        imaged = f["imaged"][()].astype(bool)
+        cell = float(f.attrs["cell_m"])
+    assert len(views) == 5
+    nn, ee = np.meshgrid(north, east, indexing="ij")
+    for k, v in enumerate(views):
+        # the cells whose centres lie inside the tile's plan footprint
+        atd = v.line.ned_to_tile(np.stack([nn, ee, np.zeros_like(nn)], axis=-1))
+        a, c, vox = v.data["along"], v.data["cross"], v.voxel_m
+        inside = ((atd[..., 0] >= a[0] - vox / 2) & (atd[..., 0] < a[-1] + vox / 2)
+                  & (atd[..., 1] >= c[0] - vox / 2) & (atd[..., 1] < c[-1] + vox / 2))
+        area = (a.size * vox) * (c.size * vox)
+        assert inside.sum() * cell ** 2 == pytest.approx(area, rel=0.03)
+        assert np.all(which[inside] >= 0)              # every cell of the tile is shown
+        corners = tile_corners_ne(v)
+        assert north[0] - cell <= corners[:, 0].min() and corners[:, 0].max() <= north[-1] + cell
+        assert east[0] - cell <= corners[:, 1].min() and corners[:, 1].max() <= east[-1] + cell
+    assert imaged.any() and not np.all(imaged[which >= 0])   # fringes no ping reached
+
+
+def test_products_command_rewrites_them(demo_run, tmp_path):
+    res = svss("products", str(demo_run), "--out", str(tmp_path), "--origin",
+               str(ORIGIN[0]), str(ORIGIN[1]))
+    assert "contacts.csv" in res.stdout
+    gj = json.loads((tmp_path / CONTACTS_GEOJSON).read_text())
+    assert len(gj["features"]) == 6
+    assert all(f["geometry"] is not None for f in gj["features"])
