@@ -52,16 +52,17 @@ class PlanMismatch(RuntimeError):
 class TilePlan:
     """One tile of one run: what a task needs (file paths and ping index ranges, never
     the pings themselves). ``ranges``: (raw file, first index, index past the last) in
-    imaging order; ``sequences``: the pings the tile must hold, in order; ``others``:
-    the run's other tiles (closed in the task's imager, so that only this one is
-    formed); ``line``: the run's tile frame (origin N, E m; heading rad; interface
-    down m)."""
+    imaging order; ``sequences``: the pings the tile must hold, in order; ``span``: the
+    run's first and last tile index (every other tile in it is closed in the task's
+    imager, so that only this one is formed: no ping of the run reaches a tile outside
+    it); ``line``: the run's tile frame (origin N, E m; heading rad; interface down
+    m)."""
     run_id: str
     folder: str
     index: int
     ranges: tuple[tuple[str, int, int], ...]
     sequences: tuple[int, ...]
-    others: tuple[int, ...]
+    span: tuple[int, int]
     line: tuple[float, float, float, float]
     hardware_id: str
 
@@ -69,6 +70,11 @@ class TilePlan:
     def key(self) -> str:
         """The task's name (unique in a survey)."""
         return f"tile-{self.folder}-{self.index}"
+
+    @property
+    def others(self) -> set[int]:
+        """The run's tiles but this one."""
+        return set(range(self.span[0], self.span[1] + 1)) - {self.index}
 
     @property
     def n_pings(self) -> int:
@@ -279,7 +285,7 @@ def plan_run(run_id: str, folder: str, paths: list[Path],
         refs = planner.tiles[k]
         plan.tiles.append(TilePlan(
             run_id, folder, k, _ranges([r for r, _ in refs], paths),
-            tuple(s for _, s in refs), tuple(j for j in all_tiles if j != k), line, hw.id))
+            tuple(s for _, s in refs), (all_tiles[0], all_tiles[-1]), line, hw.id))
     log.info("run %s: %d ping(s) in %d file(s) -> %d tile(s) (frame origin N %.2f E %.2f m, "
              "heading %.1f deg)", run_id, n, len(paths), len(plan.tiles), line[0], line[1],
              math.degrees(line[2]))

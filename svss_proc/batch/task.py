@@ -77,7 +77,7 @@ def image_tile(plan: TilePlan, out: str, processing: Loaded[ProcessingConfig]) -
                                    f"plan was made with {plan.hardware_id} (file changed?)")
         imager = TileImager(hardware, processing.value, source=processing.source)
         imager.line = plan.track_line()
-        imager.done = set(plan.others)
+        imager.done = plan.others
         imager.track = _Judged()
         for path, start, stop in plan.ranges:
             r = readers[path]
