@@ -112,6 +112,13 @@ def _wait_for(pred, timeout_s, what):
         time.sleep(0.05)
 
 
+def _journal_written(folder) -> bool:
+    try:
+        return bool(json.loads((folder / JOURNAL).read_text()).get("written"))
+    except (OSError, ValueError):
+        return False
+
+
 def _replay(*runs, realtime=True, linger=120):
     proc = svss("replay", *map(str, runs), "--endpoint", "tcp://127.0.0.1:*", "--service",
                 "tcp://127.0.0.1:*", "--linger", str(linger), "--wait", "120",
@@ -147,8 +154,10 @@ def test_stopped_worker_resumes_with_every_tile_once(sig, raw_run, processed,
     try:
         w1 = svss(*worker_args)
         try:
-            _wait_for(lambda: any((out / "line1").glob("tile_*.h5")), 120,
-                      "the first tile")
+            # the journal is updated just after a tile's rename: wait for both, so
+            # that the stop falls after a tile the journal knows (a stop between the
+            # two is the resume of test_chain's SIGKILL at any moment)
+            _wait_for(lambda: _journal_written(out / "line1"), 120, "the first tile")
             w1.send_signal(sig)
             w1.wait(timeout=30)
         finally:
