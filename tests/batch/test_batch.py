@@ -5,6 +5,7 @@ index lists every tile as its file says; bad raw files are named."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -171,6 +172,19 @@ def test_missing_or_corrupt_raw_file_is_named(survey, coarse_proc, tmp_path):
     bad.write_bytes(data[: len(data) // 2])
     with pytest.raises(RawFileError, match=str(bad)):
         run_batch([bad], tmp_path / "o2", coarse_proc, workers=1)
+
+
+def test_folder_of_other_settings_is_refused(survey, coarse_proc, tmp_path):
+    """Its tiles would be taken as done: refused, named, unless --force."""
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / STATE).write_text(json.dumps({"processing_config_id": "0123abcd", "runs": {
+        "lineA": {"folder": "lineA"}}}))
+    (out / "lineA").mkdir()
+    (out / "lineA" / "tile_0001.h5").write_bytes(b"old")
+    with pytest.raises(FileExistsError, match=f"{out}.*0123abcd.*--force"):
+        run_batch([survey["A"]], out, coarse_proc, workers=1)
+    assert (out / "lineA" / "tile_0001.h5").read_bytes() == b"old"
 
 
 def test_cli_names_the_extra_without_dask(survey, tmp_path, monkeypatch, caplog):
