@@ -46,14 +46,14 @@ def orthogonal_slices(path: str | Path, image: np.ndarray, axes, peak: tuple[flo
     with np.errstate(divide="ignore"):
         db = 20 * np.log10(mag / mag.max()) + gain_db_per_m * np.maximum(d, 0.0)[None, None, :]
     i, j, k = (int(np.argmin(np.abs(v - p))) for v, p in zip((a, c, d), peak))
-    top = float(db[i, j, k]) if np.isfinite(db[i, j, k]) else float(np.nanmax(db))
-    vmax = max(top, float(np.nanmax(db[:, :, k])))
+    shown = [db[:, j, :], db[i, :, :], db[:, :, k]]
+    vmax = max(float(np.nanmax(np.where(np.isfinite(s), s, np.nan))) for s in shown)
     vmin = vmax - dynamic_range_db
-    fig = plt.figure(figsize=(11, 6.2))
+    fig = plt.figure(figsize=(11, 6.8), layout="constrained")
     grid = fig.add_gridspec(2, 3, width_ratios=[a.size, c.size, 0.06 * a.size],
                             height_ratios=[d.size, c.size])
     ax1 = fig.add_subplot(grid[0, 0])
-    _panel(ax1, db[:, j, :], a, d, "along-track (m)", "depth below the seabed (m)",
+    _panel(ax1, db[:, j, :], a, d, "", "depth below the seabed (m)",
            f"along x depth at cross {c[j]:+.2f} m", vmin, vmax)
     ax2 = fig.add_subplot(grid[0, 1], sharey=ax1)
     _panel(ax2, db[i, :, :], c, d, "cross-track (m, starboard +)", "",

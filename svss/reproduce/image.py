@@ -27,6 +27,9 @@ from svss_proc.imaging.imager import TileImager
 
 log = logging.getLogger(__name__)
 
+#: tiles either side of the region marked as written (not imaged)
+NEIGHBOURS = 64
+
 
 @dataclass(frozen=True)
 class Region:
@@ -83,6 +86,11 @@ def image_regions(src: EnvironmentSource, pings, regions: dict[str, Region],
     returns the volumes by name and timings (s: simulation, imaging)."""
     imagers = {name: TileImager(src.hardware, region_processing(src, r))
                for name, r in regions.items()}
+    for im in imagers.values():
+        # only tile 0 (the region) is wanted: the imager leaves tiles it has already
+        # written alone, so the neighbours a ping's cone also reaches are marked so
+        # (halves the imaging: a cone reaches ~3 m either side at 3 m depth)
+        im.done.update(k for k in range(-NEIGHBOURS, NEIGHBOURS + 1) if k != 0)
     found: dict[str, object] = {}
     t_sim = t_img = 0.0
     pings = list(pings)

@@ -8,8 +8,8 @@ span chosen by the caller), leaving out a sphere about the target; in dB re its 
 features of a profile are its local maxima deeper than ``min_depth`` (clear of the
 interface's own return) whose prominence -- the height above the higher of the two
 lowest points reached on the way to a higher maximum (or the profile's end) on either
-side -- is at least ``min_prominence_db``. The first-order multipath is the shallowest
-feature, the second-order the deepest. Each feature's depth is its **peak**, refined by
+side -- is at least ``min_prominence_db`` (3 dB). Of the two most prominent features,
+the shallower is the first-order multipath, the deeper the second-order. Each feature's depth is its **peak**, refined by
 a parabola (in dB) through the maximum and its two neighbours; its **onset** is where
 the profile, coming from above, first rises to within ``onset_db`` (3 dB) of the peak
 (linear interpolation between voxels).
@@ -17,7 +17,10 @@ the profile, coming from above, first rises to within ``onset_db`` (3 dB) of the
 **Excess** (:func:`target_excess`): as the products define a contact's excess (docs/
 products.md): the level L = 20 log10(|image| / B) at the target's peak voxel, B the 3-D
 median background (the products' kernel, method and boundary), the peak being the
-largest |image| within ``radius`` of the target's true centre.
+largest |image| within ``radius`` of the target's true centre. Beside it,
+:func:`surround_excess`: the same peak over the median |image| at its depth away from
+the target (which the products' window cannot guarantee for a long target lying along
+the track's axis).
 """
 
 from __future__ import annotations
@@ -135,13 +138,15 @@ def find_features(depth: np.ndarray, db: np.ndarray, min_depth: float,
 
 
 def multipath_features(depth: np.ndarray, db: np.ndarray, min_depth: float = 0.2,
-                       min_prominence_db: float = 6.0, onset_db: float = 3.0
+                       min_prominence_db: float = 3.0, onset_db: float = 3.0
                        ) -> tuple[Feature | None, Feature | None, list[Feature]]:
-    """(first-order, second-order, all features) of a depth profile: the shallowest and
-    the deepest feature (None when there are fewer than one or two)."""
+    """(first-order, second-order, all features) of a depth profile: of the two most
+    prominent features, the shallower and the deeper (the second None when there is
+    one feature only, both None when there is none)."""
     feats = find_features(depth, db, min_depth, min_prominence_db, onset_db)
-    first = feats[0] if feats else None
-    second = feats[-1] if len(feats) > 1 else None
+    top = sorted(sorted(feats, key=lambda f: -f.prominence_db)[:2], key=lambda f: f.depth)
+    first = top[0] if top else None
+    second = top[1] if len(top) > 1 else None
     return first, second, feats
 
 
@@ -192,3 +197,30 @@ def target_excess(image: np.ndarray, axes, voxel_m: float, centre: tuple[float, 
     i, j, k = np.unravel_index(int(np.argmax(near)), mag.shape)
     return Excess(float(level[i, j, k]), (float(a[i]), float(c[j]), float(d[k])),
                   float(mag[i, j, k]), float(bg[i, j, k]))
+
+
+def surround_excess(image: np.ndarray, axes, centre: tuple[float, float, float],
+                    radius: float = 0.3, keep_out: float = 0.6,
+                    band: float = 0.05) -> Excess:
+    """The target's excess over its surroundings (dB): the peak |image| within
+    ``radius`` (m) of ``centre`` over the median |image| of the voxels in the depth band
+    ``band`` (m) either side of the peak's depth whose horizontal distance from the
+    target's centre exceeds ``keep_out`` (m). Unlike :func:`target_excess`, the
+    background cannot hold the target itself (the products' 1.2 m x 0.2 m x 0.1 m median
+    window is half filled by a 61 cm cylinder lying along the track)."""
+    mag = np.abs(np.asarray(image)).astype(np.float64)
+    a, c, d = (np.asarray(x, dtype=np.float64) for x in axes)
+    r2 = ((a[:, None, None] - centre[0]) ** 2 + (c[None, :, None] - centre[1]) ** 2
+          + (d[None, None, :] - centre[2]) ** 2)
+    near = np.where(r2 <= radius ** 2, mag, -1.0)
+    if near.max() <= 0:
+        raise ValueError(f"no imaged voxel within {radius} m of the target at {centre}")
+    i, j, k = np.unravel_index(int(np.argmax(near)), mag.shape)
+    h2 = (a[:, None] - centre[0]) ** 2 + (c[None, :] - centre[1]) ** 2
+    ring = (h2 > keep_out ** 2)[:, :, None] & (np.abs(d - d[k]) <= band + 1e-9)[None, None, :]
+    vals = mag[ring & (mag > 0)]
+    if vals.size == 0:
+        raise ValueError(f"no imaged voxel farther than {keep_out} m from the target")
+    bg = float(np.median(vals))
+    return Excess(float(20 * np.log10(mag[i, j, k] / bg)),
+                  (float(a[i]), float(c[j]), float(d[k])), float(mag[i, j, k]), bg)

@@ -10,8 +10,8 @@ simulates only the pings whose projector cone reaches the target down to 1.2 m
 (:mod:`.image`): a narrow column under the track for the depth profile, a box about the
 target for its excess, and (for the figure cases) a wide box for the slices.
 
-``quick``: one seabed per case but one extra seed, fewer variants, the test field
-shortened to its first three objects, figure voxels of 4 cm, and 1 scatterer per
+``quick``: one extra seed, fewer variants, the test field shortened to three of its
+objects, figure voxels of 4 cm, and 1 scatterer per
 resolution cell instead of the scene files' 2 (docs/simulator.md: the level, profile
 and background at the target stay within the statistical floor of another seabed).
 """
@@ -49,7 +49,7 @@ PROFILE_DEPTH = (-0.3, 3.5)
 PROFILE_VOXEL = 0.01
 #: the profile's column under the track: |cross| <= this (m)
 PROFILE_HALF_WIDTH = 0.05
-TARGET_DEPTH = (0.4, 1.6)
+TARGET_DEPTH = (0.5, 1.5)
 FIGURE_DEPTH = (-0.2, 3.3)
 
 
@@ -109,9 +109,9 @@ def case_pings(src, target) -> range:
 def regions(target, quick: bool, figure: bool) -> dict[str, image.Region]:
     """The regions a case images about ``target`` (see the module docstring)."""
     a = target.along_m
-    out = {"profile": image.Region((a - 1.5, a + 1.5), PROFILE_HALF_WIDTH, *PROFILE_DEPTH,
+    out = {"profile": image.Region((a - 1.2, a + 1.2), PROFILE_HALF_WIDTH, *PROFILE_DEPTH,
                                    PROFILE_VOXEL),
-           "target": image.Region((a - 1.0, a + 1.0), 0.5, *TARGET_DEPTH, 0.02)}
+           "target": image.Region((a - 1.0, a + 1.0), 0.3, *TARGET_DEPTH, 0.02)}
     if figure:
         out["figure"] = image.Region((a - 2.0, a + 2.0), 1.0, *FIGURE_DEPTH,
                                      0.04 if quick else 0.02)
@@ -132,18 +132,21 @@ def measure_case(case: Case, quick: bool) -> tuple[dict, dict]:
     t = vols["target"]
     exc = measures.target_excess(t.image, t.axes, t.voxel,
                                  (tgt.along_m, tgt.cross_m, tgt.depth_m))
+    sur = measures.surround_excess(t.image, t.axes, (tgt.along_m, tgt.cross_m, tgt.depth_m))
     cw, cs = float(src.media.c[0]), float(src.media.c[1])
     res = {"tag": case.tag, "array": case.array, "scene": case.scene,
            "group": case.group, "variant": dataclasses.asdict(case.variant),
            "label": case.variant.label(), "pings": [pings.start, pings.stop - 1],
            "n_channels": int(src.hw.digitiser.n_channels), "water_speed": cw,
            "sediment_speed": cs, "excess_db": exc.excess_db, "peak": exc.peak,
+           "surround_excess_db": sur.excess_db,
            "first": None if first is None else dataclasses.asdict(first),
            "second": None if second is None else dataclasses.asdict(second),
            "features": [dataclasses.asdict(f) for f in feats],
            "profile_depth": p.depth.tolist(), "profile_db": db.tolist(), **times}
-    log.info("%s: excess %.1f dB at %s; multipath features %s; %.0f s", case.tag,
-             exc.excess_db, tuple(round(x, 2) for x in exc.peak),
+    log.info("%s: excess %.1f dB (re surroundings %.1f dB) at %s; multipath features %s; "
+             "%.0f s", case.tag, exc.excess_db, sur.excess_db,
+             tuple(round(x, 2) for x in exc.peak),
              [round(f.depth, 3) for f in feats], times["simulation_s"] + times["imaging_s"])
     keep = {"figure": vols["figure"]} if "figure" in vols else {}
     return res, keep
@@ -156,7 +159,9 @@ def field_case(out: Path, quick: bool) -> dict:
     from svss_daq.config import ProcessingConfig, config_path, load
     from svss_proc.products.chain import compute_products
     src = scenes.source("80ch", "field", Variant(per_cell=1.0 if quick else None))
-    targets = src.scene.targets[:3] if quick else src.scene.targets
+    # quick: three objects (a proud cylinder at 45 deg, a shot put 10 cm deep, a
+    # cylinder 15 cm deep) instead of nine
+    targets = src.scene.targets[3:6] if quick else src.scene.targets
     lo = min(t.along_m for t in targets) - 1.0
     hi = max(t.along_m for t in targets) + 1.0
     r = scenes.reach_m(src, 0.8)
@@ -179,9 +184,9 @@ def field_case(out: Path, quick: bool) -> dict:
                                 f"cross-track MIP after background normalisation and "
                                 f"compression")
     det = prod.detections
-    return {"figure": path.name, "pings": [pings.start, pings.stop - 1],
+    return {**times, "figure": path.name, "pings": [pings.start, pings.stop - 1],
             "n_targets": len(targets), "depth_slice_m": depth_slice,
-            "detections": len(det), **times}
+            "detections": len(det)}
 
 
 def run(out: str | Path, quick: bool = False, n_seeds: int | None = None,

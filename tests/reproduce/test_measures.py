@@ -21,11 +21,14 @@ def _profile(depth, peaks, floor_db=-60.0, width=0.03):
 def test_features_found_at_known_depths_first_and_second_order():
     depth = np.arange(-0.3, 3.5, 0.01) + 0.005
     db = _profile(depth, [(0.0, 0.0), (0.5893, -15.0), (1.18, -57.0), (2.9447, -30.0)])
-    first, second, feats = m.multipath_features(depth, db, min_prominence_db=6.0)
+    first, second, feats = m.multipath_features(depth, db)
     assert first.depth == pytest.approx(0.5893, abs=2e-3)
     assert second.depth == pytest.approx(2.9447, abs=2e-3)
-    # the bump at 1.18 m stands 4.8 dB over the floor only: below the 6 dB prominence
-    assert [round(f.depth, 1) for f in feats] == [0.6, 2.9]
+    # the bump at 1.18 m stands 4.8 dB over the floor: a feature (>= 3 dB), but not
+    # one of the two most prominent
+    assert [round(f.depth, 1) for f in feats] == [0.6, 1.2, 2.9]
+    assert m.multipath_features(depth, db, min_prominence_db=6.0)[2][1].depth == \
+        pytest.approx(2.9447, abs=2e-3)
     # onset of a Gaussian bump well above the floor: 3 dB down on its shallow side,
     # z - sigma sqrt(2 ln 2^(3/10... )): exp(-x^2/2) = 10^(-0.3)
     x = np.sqrt(2 * 0.3 * np.log(10))
