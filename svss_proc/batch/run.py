@@ -98,6 +98,8 @@ def _client(scheduler: str | None, workers: int | None):
     """(client, cluster or None): a client of ``scheduler``, or of a new LocalCluster of
     ``workers`` single-threaded worker processes on the loopback interface."""
     distributed = require_dask()
+    if not log.isEnabledFor(logging.DEBUG):     # Dask's own INFO lines only with -v
+        logging.getLogger("distributed").setLevel(logging.WARNING)
     if scheduler:
         log.info("batch: connecting to the Dask scheduler at %s", scheduler)
         return distributed.Client(scheduler, timeout=30), None
@@ -149,21 +151,23 @@ def run_batch(paths: list[str | Path], out: str | Path,
                       for p in plans}}
     _atomic_json(out / STATE, {**state, "complete": False})
     results, errors = [], []
-    t_run0 = time.perf_counter()
-    n_workers = 0
+    t_cluster0 = time.perf_counter()
+    n_workers, t_run = 0, 0.0
     if todo:
         own = client is None
         cluster = None
         if own:
             client, cluster = _client(scheduler, workers)
         try:
+            t_run0 = time.perf_counter()
             results, errors, n_workers = _dispatch(client, todo, out, processing, task)
+            t_run = time.perf_counter() - t_run0
         finally:
             if own:
                 client.close()
                 if cluster is not None:
                     cluster.close()
-    t_run = time.perf_counter() - t_run0
+    t_cluster = time.perf_counter() - t_cluster0 - t_run
     imaged = len(results)
     skipped = len(tiles) - len(todo)
     # the run products (contacts, mosaic) of every run whose tiles this batch completed,
@@ -182,7 +186,10 @@ def run_batch(paths: list[str | Path], out: str | Path,
         # tasks run again after their worker died that found their tile committed
         "found_committed": sum(r["skipped"] for r in results),
         "pings": sum(p.n_pings for p in plans),
+        # run_s: from the first task submitted to the last result; cluster_s: starting,
+        # connecting and closing (0 with a client given)
         "detections": dets, "plan_s": round(t_plan, 4), "run_s": round(t_run, 4),
+        "cluster_s": round(t_cluster, 4),
         "total_s": round(time.perf_counter() - t0, 4),
         "compute_s": round(sum(r["compute_s"] for r in results), 4),
         "workers": n_workers, "index": str(index),
@@ -227,4 +234,5 @@ def format_summary(s: dict) -> str:
     return (f"svss batch: {s['tiles']} tile(s) of {s['runs']} run(s) ({s['imaged']} imaged, "
             f"{s['skipped']} already done), {s['pings']} pings, {s['detections']} "
             f"detection(s), {s['total_s']:.1f} s (plan {s['plan_s']:.1f} s, tiles "
-            f"{s['run_s']:.1f} s on {s['workers']} worker(s))\nindex: {s['index']}")
+            f"{s['run_s']:.1f} s on {s['workers']} worker(s), cluster start and stop "
+            f"{s['cluster_s']:.1f} s)\nindex: {s['index']}")
