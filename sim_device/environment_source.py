@@ -134,6 +134,14 @@ class EnvironmentSource:
         self.points = scene_points(scene, self.env, self.p0)
         self.synthesis = (sc.synthesis if sc is not None and sc.synthesis is not None
                           else "fast")
+        #: pass 2 on the GPU ([scattering] device = "cuda", sim_device.synthesis_gpu)
+        self.gpu = None
+        if sc is not None and sc.device == "cuda":
+            if self.synthesis == "reference":
+                raise ValueError(f"scene {scene.scene.name!r}: scattering.device = 'cuda' "
+                                 "needs scattering.synthesis = 'fast'")
+            from .synthesis_gpu import GpuAccumulator
+            self.gpu = GpuAccumulator(f"scene {scene.scene.name!r}: scattering.device")
         self.resolution = self._resolution_cell()
         dens = None
         if sc is not None and sc.scatterers_per_resolution_cell is not None:
@@ -298,7 +306,9 @@ class EnvironmentSource:
         else:
             # finite: the fast kernels are compiled with fastmath (no infinities)
             zlim = np.minimum(self.zmax, np.finfo(np.float64).max)
-            if idx.size < SERIAL_BELOW:
+            if self.gpu is not None:
+                buf, counts = self.gpu(*args, self.pulses.n_buf, zlim)
+            elif idx.size < SERIAL_BELOW:
                 buf, counts = accumulate_fast_serial(*args, self.pulses.n_buf, 1, zlim)
             else:
                 buf, counts = accumulate_fast(*args, self.pulses.n_buf,

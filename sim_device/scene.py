@@ -148,6 +148,9 @@ class ScatteringConfig:
         "each path's volume scatterers down to the depth where that path's nadir volume "
         "level is this far below the noise, dB (absent: down to volume_max_depth_m)",
         lo=-100, hi=200)
+    device: str | None = spec("where the fast synthesis's pass 2 runs: cpu, or cuda (an "
+                              "NVIDIA GPU through numba-cuda, sim_device.synthesis_gpu); "
+                              "absent: cpu", choices=("cpu", "cuda"))
 
 
 @dataclass(frozen=True)
@@ -268,6 +271,15 @@ def check_scene(sc: SceneConfig, source: str = "<scene>") -> SceneConfig:
         if s.interface_model == "constant" and s.interface_strength_db is None:
             raise fail("scattering.interface_strength_db", "needed when interface_model "
                        "= 'constant'")
+        if s.device == "cuda":
+            if s.synthesis == "reference":
+                raise fail("scattering.device", "'cuda' runs the fast synthesis: leave "
+                           "scattering.synthesis out or set it to 'fast', not 'reference'")
+            from .synthesis_gpu import cuda_available
+            if not cuda_available():
+                raise fail("scattering.device", "'cuda' asked for, but no CUDA GPU is "
+                           "available to numba (install the 'gpu' extra, numba-cuda, on a "
+                           "machine with an NVIDIA GPU, or set it to 'cpu')")
     n = sc.noise
     if n.sea_state is not None:
         if n.ambient_band_hz is None:

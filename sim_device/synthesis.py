@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 import types
+from types import SimpleNamespace
 
 import numba as nb
 import numpy as np
@@ -41,13 +42,10 @@ import scipy.fft as sfft
 from svss_daq.conventions import ECHO_PHASE_SIGN, baseband_carrier, remodulation
 from svss_daq.waveform import Waveform
 
-from .layered_rays import (
+from . import layered_rays
+from .layered_rays import (  # noqa: F401 (ray_amplitude_terms: re-exported for tests)
     TABLE_TRUSTED,
-    leg_extents,
     ray_amplitude_terms,
-    ray_tan,
-    reflection,
-    table_ray_tan,
 )
 
 #: columns of an element-image row: x, y (m), height above the interface (m), direction
@@ -61,134 +59,177 @@ MED_INTERFACE = -1
 _MARGIN = 4
 
 
-@nb.njit(cache=True, inline="always")
-def _interp(table, x):
-    """Linear interpolation of ``table`` sampled uniformly on [0, 1] at x in [0, 1]."""
-    n = table.size
-    u = x * (n - 1)
-    if u <= 0.0:
-        return table[0]
-    if u >= n - 1:
-        return table[n - 1]
-    i = int(u)
-    f = u - i
-    return table[i] + f * (table[i + 1] - table[i])
+def build(jit_inline, rays):
+    """The scalar synthesis functions compiled with ``jit_inline`` (numba's
+    ``njit(inline="always")`` for the CPU kernels of this module, ``cuda.jit(device=True)``
+    for :mod:`sim_device.synthesis_gpu`); ``rays``: the ray functions of
+    :func:`sim_device.layered_rays.build` compiled for the same target. Returns a
+    namespace of them: one source for the CPU and GPU kernels."""
+    table_ray_tan = rays.table_ray_tan
+    leg_extents = rays.leg_extents
+    ray_tan = rays.ray_tan
+    amplitude_terms = rays.ray_amplitude_terms
+    reflection = rays.reflection
 
+    @jit_inline
+    def _interp(table, x):
+        """Linear interpolation of ``table`` sampled uniformly on [0, 1] at x in [0, 1]."""
+        n = table.size
+        u = x * (n - 1)
+        if u <= 0.0:
+            return table[0]
+        if u >= n - 1:
+            return table[n - 1]
+        i = int(u)
+        f = u - i
+        return table[i] + f * (table[i + 1] - table[i])
 
-@nb.njit(cache=True, inline="always")
-def cis_cycles(x):
-    """(cos, sin) of 2 pi x for any x (cycles): x is reduced to [-1/2, 1/2], the angle
-    quartered into [-pi/4, pi/4], a Taylor series taken there (error < 1e-12) and
-    squared back twice."""
-    a = 2.0 * math.pi * (x - math.floor(x + 0.5)) * 0.25
-    a2 = a * a
-    c = 1.0 + a2 * (-1 / 2 + a2 * (1 / 24 + a2 * (-1 / 720 + a2 * (1 / 40320 + a2 * (
-        -1 / 3628800 + a2 * (1 / 479001600))))))
-    s = a * (1.0 + a2 * (-1 / 6 + a2 * (1 / 120 + a2 * (-1 / 5040 + a2 * (
-        1 / 362880 + a2 * (-1 / 39916800 + a2 * (1 / 6227020800)))))))
-    c, s = c * c - s * s, 2.0 * c * s
-    return c * c - s * s, 2.0 * c * s
+    @jit_inline
+    def cis_cycles(x):
+        """(cos, sin) of 2 pi x for any x (cycles): x is reduced to [-1/2, 1/2], the angle
+        quartered into [-pi/4, pi/4], a Taylor series taken there (error < 1e-12) and
+        squared back twice."""
+        a = 2.0 * math.pi * (x - math.floor(x + 0.5)) * 0.25
+        a2 = a * a
+        c = 1.0 + a2 * (-1 / 2 + a2 * (1 / 24 + a2 * (-1 / 720 + a2 * (1 / 40320 + a2 * (
+            -1 / 3628800 + a2 * (1 / 479001600))))))
+        s = a * (1.0 + a2 * (-1 / 6 + a2 * (1 / 120 + a2 * (-1 / 5040 + a2 * (
+            1 / 362880 + a2 * (-1 / 39916800 + a2 * (1 / 6227020800)))))))
+        c, s = c * c - s * s, 2.0 * c * s
+        return c * c - s * s, 2.0 * c * s
 
+    @jit_inline
+    def gain(cos_off, front, back, lo_front, lo_back):
+        """Beam gain for the cosine of the off-axis angle: the main-lobe table over
+        [lo_front, 1], the back-lobe table over [lo_back, 1] for -cos_off, else 0."""
+        if cos_off >= lo_front:
+            return _interp(front, (cos_off - lo_front) / (1.0 - lo_front))
+        if back.size > 0 and -cos_off >= lo_back:
+            return _interp(back, (-cos_off - lo_back) / (1.0 - lo_back))
+        return 0.0
 
-@nb.njit(cache=True, inline="always")
-def gain(cos_off, front, back, lo_front, lo_back):
-    """Beam gain for the cosine of the off-axis angle: the main-lobe table over
-    [lo_front, 1], the back-lobe table over [lo_back, 1] for -cos_off, else 0."""
-    if cos_off >= lo_front:
-        return _interp(front, (cos_off - lo_front) / (1.0 - lo_front))
-    if back.size > 0 and -cos_off >= lo_back:
-        return _interp(back, (-cos_off - lo_back) / (1.0 - lo_back))
-    return 0.0
+    @jit_inline
+    def two_medium_terms(t, rho, h0, h1, c0, c1, a0, a1, src):
+        """:func:`ray_amplitude_terms` for water over one sediment (both extents > 0)."""
+        cmax = c0 if c0 > c1 else c1  # noqa: FURB136
+        tt = t * t
+        iq = 1.0 / math.sqrt(1.0 + tt)
+        p = t * iq / cmax
+        r0 = c0 / cmax
+        r1 = c1 / cmax
+        g0 = iq if r0 == 1.0 else math.sqrt(1.0 + tt * (1.0 - r0 * r0)) * iq
+        g1 = iq if r1 == 1.0 else math.sqrt(1.0 + tt * (1.0 - r1 * r1)) * iq
+        ig0 = 1.0 / g0
+        ig1 = 1.0 / g1
+        tau = p * rho + h0 * g0 / c0 + h1 * g1 / c1
+        s1 = h0 * c0 * ig0 + h1 * c1 * ig1
+        s2 = h0 * c0 * ig0 * ig0 * ig0 + h1 * c1 * ig1 * ig1 * ig1
+        gs = g1 / c1 if src == 1 else g0 / c0
+        spread = 1.0 / (gs * math.sqrt(s1 * s2))
+        att = a0 * h0 * ig0 + a1 * h1 * ig1
+        return p, tau, spread, g0, att
 
+    @jit_inline
+    def leg(ex, ey, height, direction, f_surf, n_b, x, y, z, med, up, c, rho_m, delta, alpha,
+            z_top, tab, r_top, r_bot, bore, g_front, g_back, lo_front, lo_back, hbuf, cbuf):
+        """One leg between an element image (ex, ey, height above the interface, direction,
+        surface factor R_s^n_s, seabed bounces n_b) and a scatterer (x, y, z, medium
+        ``med``; -1: on the interface).
 
-@nb.njit(cache=True, inline="always")
-def two_medium_terms(t, rho, h0, h1, c0, c1, a0, a1, src):
-    """:func:`ray_amplitude_terms` for water over one sediment (both extents > 0)."""
-    cmax = c0 if c0 > c1 else c1
-    tt = t * t
-    iq = 1.0 / math.sqrt(1.0 + tt)
-    p = t * iq / cmax
-    r0 = c0 / cmax
-    r1 = c1 / cmax
-    g0 = iq if r0 == 1.0 else math.sqrt(1.0 + tt * (1.0 - r0 * r0)) * iq
-    g1 = iq if r1 == 1.0 else math.sqrt(1.0 + tt * (1.0 - r1 * r1)) * iq
-    ig0 = 1.0 / g0
-    ig1 = 1.0 / g1
-    tau = p * rho + h0 * g0 / c0 + h1 * g1 / c1
-    s1 = h0 * c0 * ig0 + h1 * c1 * ig1
-    s2 = h0 * c0 * ig0 * ig0 * ig0 + h1 * c1 * ig1 * ig1 * ig1
-    gs = g1 / c1 if src == 1 else g0 / c0
-    spread = 1.0 / (gs * math.sqrt(s1 * s2))
-    att = a0 * h0 * ig0 + a1 * h1 * ig1
-    return p, tau, spread, g0, att
-
-
-@nb.njit(cache=True, inline="always")
-def leg(ex, ey, height, direction, f_surf, n_b, x, y, z, med, up, c, rho_m, delta, alpha,
-        z_top, tab, r_top, r_bot, bore, g_front, g_back, lo_front, lo_back, hbuf, cbuf):
-    """One leg between an element image (ex, ey, height above the interface, direction,
-    surface factor R_s^n_s, seabed bounces n_b) and a scatterer (x, y, z, medium
-    ``med``; -1: on the interface).
-
-    ``up``: the leg carries the scattered wave up to a receiver (transmission 1 - R and
-    spreading from a source in the scatterer's medium) rather than down from the
-    projector. ``r_top``/``r_bot``: tables over cos(grazing) in [0, 1] of the interface's
-    reflection coefficient and of its coherent (Eckart) value for seabed bounces.
-    Returns (delay s, complex amplitude factor, cos of the grazing angle at the interface);
-    the amplitude is 0 where the element's beam does not see the leg.
-    """
-    dx = x - ex
-    dy = y - ey
-    rho = math.sqrt(dx * dx + dy * dy)
-    c0 = c[0]
-    trans = complex(1.0, 0.0)
-    if med <= 0:
-        v = height + (z if med == 0 else 0.0)
-        d = direction
-        if v < 0.0:
-            v = -v
-            d = -d
-        r = math.sqrt(rho * rho + v * v)
-        if r == 0.0:
-            return 0.0, complex(0.0, 0.0), 0.0
-        tau = r / c0
-        sinp = rho / r
-        cosp = v / r
-        spread = 1.0 / r
-        att = alpha[0] * r
-    else:
-        if med == 1 and height > 0.0 and z > 0.0:
-            t = table_ray_tan(rho, height, z, c0, c[1], tab, hbuf, cbuf)
-            n = 2
-            p, tau, spread, cosp, att = two_medium_terms(t, rho, height, z, c0, c[1],
-                                                         alpha[0], alpha[1], 1 if up else 0)
+        ``up``: the leg carries the scattered wave up to a receiver (transmission 1 - R and
+        spreading from a source in the scatterer's medium) rather than down from the
+        projector. ``r_top``/``r_bot``: tables over cos(grazing) in [0, 1] of the interface's
+        reflection coefficient and of its coherent (Eckart) value for seabed bounces.
+        Returns (delay s, complex amplitude factor, cos of the grazing angle at the interface);
+        the amplitude is 0 where the element's beam does not see the leg.
+        """
+        dx = x - ex
+        dy = y - ey
+        rho = math.sqrt(dx * dx + dy * dy)
+        c0 = c[0]
+        trans = complex(1.0, 0.0)
+        if med <= 0:
+            v = height + (z if med == 0 else 0.0)
+            d = direction
+            if v < 0.0:
+                v = -v
+                d = -d
+            r = math.sqrt(rho * rho + v * v)
+            if r == 0.0:
+                return 0.0, complex(0.0, 0.0), 0.0
+            tau = r / c0
+            sinp = rho / r
+            cosp = v / r
+            spread = 1.0 / r
+            att = alpha[0] * r
         else:
-            n = leg_extents(height, z, med, z_top, hbuf)
-            t = ray_tan(rho, hbuf, c, n)
-            p, tau, spread, cosp, att = ray_amplitude_terms(t, rho, hbuf, c, alpha, n,
-                                                            med if up else 0)
-        sinp = p * c0
-        for k in range(1, n):
-            q = c[k - 1] * p
-            if k == 1:
-                rk = _interp(r_top, q)
+            if med == 1 and height > 0.0 and z > 0.0:
+                t = table_ray_tan(rho, height, z, c0, c[1], tab, hbuf, cbuf)
+                n = 2
+                p, tau, spread, cosp, att = two_medium_terms(t, rho, height, z, c0, c[1],
+                                                             alpha[0], alpha[1], 1 if up else 0)
             else:
-                rk = reflection(q, rho_m[k] / rho_m[k - 1], c[k] / c[k - 1], delta[k])
-            trans *= (1.0 - rk) if up else (1.0 + rk)
-        d = direction
-    if rho > 0.0:
-        cos_off = (sinp * (dx * bore[0] + dy * bore[1]) / rho + d * cosp * bore[2])
-    else:
-        cos_off = d * cosp * bore[2]
-    g = gain(cos_off, g_front, g_back, lo_front, lo_back)
-    if g == 0.0:
-        return tau, complex(0.0, 0.0), sinp
-    amp = (g * f_surf * spread * math.exp(-att)) * trans
-    if n_b > 0:
-        rb = _interp(r_bot, sinp)
-        for _ in range(n_b):
-            amp *= rb
-    return tau, amp, sinp
+                n = leg_extents(height, z, med, z_top, hbuf)
+                t = ray_tan(rho, hbuf, c, n)
+                p, tau, spread, cosp, att = amplitude_terms(t, rho, hbuf, c, alpha, n,
+                                                            med if up else 0)
+            sinp = p * c0
+            for k in range(1, n):
+                q = c[k - 1] * p
+                if k == 1:
+                    rk = _interp(r_top, q)
+                else:
+                    rk = reflection(q, rho_m[k] / rho_m[k - 1], c[k] / c[k - 1], delta[k])
+                trans *= (1.0 - rk) if up else (1.0 + rk)
+            d = direction
+        if rho > 0.0:
+            cos_off = (sinp * (dx * bore[0] + dy * bore[1]) / rho + d * cosp * bore[2])
+        else:
+            cos_off = d * cosp * bore[2]
+        g = gain(cos_off, g_front, g_back, lo_front, lo_back)
+        if g == 0.0:
+            return tau, complex(0.0, 0.0), sinp
+        amp = (g * f_surf * spread * math.exp(-att)) * trans
+        if n_b > 0:
+            rb = _interp(r_bot, sinp)
+            for _ in range(n_b):
+                amp *= rb
+        return tau, amp, sinp
+
+    @jit_inline
+    def cis_cycles32(x):
+        """(cos, sin) of 2 pi x as :func:`cis_cycles`, to float32 accuracy (error < 3e-8):
+        x reduced in float64 (the delay-phase product is large), the rest shorter series."""
+        a = 2.0 * math.pi * (x - math.floor(x + 0.5)) * 0.25
+        a2 = a * a
+        c = 1.0 + a2 * (-1 / 2 + a2 * (1 / 24 + a2 * (-1 / 720 + a2 * (1 / 40320))))
+        s = a * (1.0 + a2 * (-1 / 6 + a2 * (1 / 120 + a2 * (-1 / 5040 + a2 * (1 / 362880)))))
+        c, s = c * c - s * s, 2.0 * c * s
+        return c * c - s * s, 2.0 * c * s
+
+    @jit_inline
+    def lagrange4(w):
+        """Cubic Lagrange weights of the samples i1 - 1 .. i1 + 2 for an echo at fractional
+        position w in [0, 1) after sample i1."""
+        wm1 = w - 1.0
+        wm2 = w - 2.0
+        wp1 = w + 1.0
+        return (-w * wm1 * wm2 / 6.0, wp1 * wm1 * wm2 / 2.0, -wp1 * w * wm2 / 2.0,
+                wp1 * w * wm1 / 6.0)
+
+    return SimpleNamespace(_interp=_interp, cis_cycles=cis_cycles, gain=gain,
+                           two_medium_terms=two_medium_terms, leg=leg,
+                           cis_cycles32=cis_cycles32, lagrange4=lagrange4)
+
+
+_cpu = build(nb.njit(cache=True, inline="always"), layered_rays._cpu)
+_interp = _cpu._interp
+cis_cycles = _cpu.cis_cycles
+gain = _cpu.gain
+two_medium_terms = _cpu.two_medium_terms
+leg = _cpu.leg
+cis_cycles32 = _cpu.cis_cycles32
+lagrange4 = _cpu.lagrange4
 
 
 @nb.njit(parallel=True, cache=True)
@@ -285,14 +326,11 @@ def accumulate(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delta, al
                     amp = a_t * a_r * complex(co, si)
                     u = (tau - t_buf0) * fs
                     i1 = int(u)
-                    w = u - i1
-                    wm1 = w - 1.0
-                    wm2 = w - 2.0
-                    wp1 = w + 1.0
-                    buf[ch, i1 - 1] += amp * (-w * wm1 * wm2 / 6.0)
-                    buf[ch, i1] += amp * (wp1 * wm1 * wm2 / 2.0)
-                    buf[ch, i1 + 1] += amp * (-wp1 * w * wm2 / 2.0)
-                    buf[ch, i1 + 2] += amp * (wp1 * w * wm1 / 6.0)
+                    w0, w1, w2, w3 = lagrange4(u - i1)
+                    buf[ch, i1 - 1] += amp * w0
+                    buf[ch, i1] += amp * w1
+                    buf[ch, i1 + 1] += amp * w2
+                    buf[ch, i1 + 2] += amp * w3
                     n_add += 1
         counts[ch] = n_add
     return counts
@@ -388,18 +426,6 @@ class PulseSynthesiser:
 # threads' buffers are summed at the end. The echoes and their delays, amplitudes and
 # phases are those of the reference to float64 rounding; only the accumulation is
 # float32 (complex64), so the two paths agree to float32 rounding.
-
-
-@nb.njit(cache=True, inline="always")
-def cis_cycles32(x):
-    """(cos, sin) of 2 pi x as :func:`cis_cycles`, to float32 accuracy (error < 3e-8):
-    x reduced in float64 (the delay-phase product is large), the rest shorter series."""
-    a = 2.0 * math.pi * (x - math.floor(x + 0.5)) * 0.25
-    a2 = a * a
-    c = 1.0 + a2 * (-1 / 2 + a2 * (1 / 24 + a2 * (-1 / 720 + a2 * (1 / 40320))))
-    s = a * (1.0 + a2 * (-1 / 6 + a2 * (1 / 120 + a2 * (-1 / 5040 + a2 * (1 / 362880)))))
-    c, s = c * c - s * s, 2.0 * c * s
-    return c * c - s * s, 2.0 * c * s
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", inline="always")
@@ -685,15 +711,12 @@ def accumulate_fast(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delt
                             u = (tau - t_buf0) * fs
                             u = min(max(u, 1.0), n_buf - 3.0)
                             i1 = int(u)
-                            w = u - i1
-                            wm1 = w - 1.0
-                            wm2 = w - 2.0
-                            wp1 = w + 1.0
+                            w0, w1, w2, w3 = lagrange4(u - i1)
                             e_i[ch] = i1
-                            e_w[ch, 0] = -w * wm1 * wm2 / 6.0
-                            e_w[ch, 1] = wp1 * wm1 * wm2 / 2.0
-                            e_w[ch, 2] = -wp1 * w * wm2 / 2.0
-                            e_w[ch, 3] = wp1 * w * wm1 / 6.0
+                            e_w[ch, 0] = w0
+                            e_w[ch, 1] = w1
+                            e_w[ch, 2] = w2
+                            e_w[ch, 3] = w3
                             e_re[ch] = pr * co - pi * si
                             e_im[ch] = pr * si + pi * co
                             e_ok[ch] = ((tau > t_lo) & (tau < t_hi)
