@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 
 import numpy as np
 from numba import config, cuda
@@ -176,6 +177,7 @@ class GpuAccumulator:
                                "NVIDIA GPU, or set it to 'cpu')")
         self._buffers: dict[str, object] = {}
         self._tables: dict[str, tuple[np.ndarray, object]] = {}
+        self.last_times: dict[str, float] = {}
 
     def _upload(self, role: str, host: np.ndarray, dtype) -> object:
         """``host`` in the device buffer of ``role`` (grown to 5/4 of the need when too
@@ -185,6 +187,7 @@ class GpuAccumulator:
         d = self._buffers.get(role)
         if d is None or d.shape[0] < n or d.shape[1:] != host.shape[1:] or d.dtype != dtype:
             cap = max(n + n // 4, 1)
+            log.debug("GPU buffer %s: %s %s", role, (cap, *host.shape[1:]), np.dtype(dtype))
             d = cuda.device_array((cap, *host.shape[1:]), dtype=dtype)
             self._buffers[role] = d
         view = d[:n]
@@ -221,19 +224,28 @@ class GpuAccumulator:
                                         rho_m, delta, alpha, z_top, tab, r_top, r_bot, bore,
                                         g_front, g_back, lo_front, lo_back, sig, fc, t_lo,
                                         t_hi, t_buf0, fs, zmax)
+        t0 = time.perf_counter()
         dev = [self._table(role, host, dtype) if fixed else self._upload(role, host, dtype)
                for role, host, dtype, fixed in arrays]
         nch = img.shape[0]
         buf_re, buf_im, count = self._planes(int(n_buf), nch)
         _zero[ZERO_BLOCKS, THREADS](buf_re, buf_im, count)
+        cuda.synchronize()
+        t1 = time.perf_counter()
         n_threads = sx.size * nch
         if n_threads:
             _receive_kernel[(n_threads + THREADS - 1) // THREADS, THREADS](
                 *dev, *scalars, buf_re, buf_im, count)
+        cuda.synchronize()
+        t2 = time.perf_counter()
         out = np.empty((nch, int(n_buf)), dtype=np.complex128)
         out.real = buf_re.copy_to_host().T
         out.imag = buf_im.copy_to_host().T
-        return out, count.copy_to_host()
+        n = count.copy_to_host()
+        #: seconds of the last call: uploads and zeroing, the receive kernel, read-back
+        self.last_times = {"upload_s": t1 - t0, "kernel_s": t2 - t1,
+                           "download_s": time.perf_counter() - t2}
+        return out, n
 
 
 def kernel_inputs(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delta, alpha,
