@@ -213,7 +213,10 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
         t_tile = line.ned_to_tile(truth_ned)
         inside = np.ones(len(truth), dtype=bool)
         for k, ax in enumerate(axes):
-            inside &= (t_tile[:, k] >= ax[0] - voxel / 2) & (t_tile[:, k] <= ax[-1] + voxel / 2)
+            # depth: objects resting on the bottom above a tile that starts at the
+            # interface are imaged in its top voxels: within the radius counts
+            pad = voxel / 2 + (radius_m if k == 2 else 0.0)
+            inside &= (t_tile[:, k] >= ax[0] - pad) & (t_tile[:, k] <= ax[-1] + pad)
         covered |= inside
         for t, pos in zip(np.flatnonzero(inside), t_tile[inside]):
             truth[t].setdefault("tile_m", {})[path.name] = pos.tolist()

@@ -239,6 +239,13 @@ class DetectionConfig:
     sidelobe_footprint: bool | None = spec(
         "also take for a sidelobe a contact sidelobe_db weaker (peak magnitude) that one "
         "ping's projector cone sees together with the stronger one (omitted: true)")
+    point_threshold_db: float | None = spec(
+        "a region above threshold_db is a contact only if its peak reaches this level "
+        "or it is an extended object (extended_min_m3), dB re background (omitted: "
+        "threshold_db: every region)", lo=0, hi=200)
+    extended_min_m3: float | None = spec(
+        "smallest volume above threshold_db that makes a region a contact whatever its "
+        "peak, m^3 (omitted: none)", lo=0.0, hi=1e3)
     min_coverage_fraction: float | None = spec(
         "voxels imaged by fewer pings than this fraction of the full coverage at their "
         "depth never detect (omitted: 0.5)", lo=0.0, hi=1.0)

@@ -125,7 +125,9 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
                    dc.max_per_tile, dc.sidelobe_db, dc.sidelobe_m,
                    detectable=None if fraction is None else fraction >= min_fraction,
                    coverage_pings=pings, coverage_fraction=fraction,
-                   footprint=footprint if use_footprint else None)
+                   footprint=footprint if use_footprint else None,
+                   point_threshold_db=dc.point_threshold_db,
+                   extended_min_m3=dc.extended_min_m3)
     t["detection"] = time.perf_counter() - t3
     return Products(
         method=bcfg.method, kernel_m=tuple(bcfg.kernel_m), kernel_voxels=kernel,
@@ -141,6 +143,10 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
                          "sidelobe_db": dc.sidelobe_db, "sidelobe_m": dc.sidelobe_m,
                          "max_per_tile": dc.max_per_tile,
                          "min_coverage_fraction": min_fraction,
+                         "point_threshold_db": (dc.threshold_db if dc.point_threshold_db
+                                                is None else dc.point_threshold_db),
+                         "extended_min_m3": (np.nan if dc.extended_min_m3 is None
+                                             else dc.extended_min_m3),
                          "coverage_used": pings is not None,
                          "coverage_whitening": bool(whiten and channels is not None),
                          "sidelobe_footprint_height_m": (

@@ -5,7 +5,9 @@ Detection (docs/products.md): voxels whose normalised level (dB re background) r
 grouped into 26-connected regions; regions of fewer than ``min_voxels`` voxels are
 dropped; each region's contact sits at its peak voxel, refined to sub-voxel precision by
 a parabola through the peak and its two neighbours along each axis (in dB; at most half
-a voxel). Contacts closer than ``merge_m`` (per axis) to a stronger contact merge into it
+a voxel); a region peaking on the bottom face, or on a top face in the water, is
+dropped (its maximum is outside the volume). Contacts closer than ``merge_m`` (per
+axis) to a stronger contact merge into it
 (its extent grows to cover both). A contact whose peak *magnitude* is at least
 ``sidelobe_db`` below a stronger contact's, within that contact's sidelobe region
 (:func:`is_sidelobe`: seen by one ping's projector cone together with it, or within
@@ -83,11 +85,11 @@ def is_sidelobe(weak_pos, weak_peak_db: float, strong_pos, strong_peak_db: float
     if strong_peak_db - weak_peak_db < sidelobe_db:
         return False
     w, s = np.asarray(weak_pos, dtype=np.float64), np.asarray(strong_pos, dtype=np.float64)
-    if np.linalg.norm(w - s) <= sidelobe_m:
+    if float(np.linalg.norm(w - s)) <= sidelobe_m:
         return True
     if footprint is None:
         return False
-    return float(np.hypot(*(w[:2] - s[:2]))) <= footprint.reach_m(w[2], s[2])
+    return bool(float(np.hypot(*(w[:2] - s[:2]))) <= footprint.reach_m(w[2], s[2]))
 
 
 def empty() -> np.ndarray:
@@ -135,7 +137,8 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
            sidelobe_m: float = 0.0, *, detectable: np.ndarray | None = None,
            coverage_pings: np.ndarray | None = None,
            coverage_fraction: np.ndarray | None = None,
-           footprint: Footprint | None = None) -> np.ndarray:
+           footprint: Footprint | None = None, point_threshold_db: float | None = None,
+           extended_min_m3: float | None = None) -> np.ndarray:
     """Contacts of a tile.
 
     ``level``: normalised level, dB re background (along x cross x depth; NaN never
@@ -143,8 +146,10 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
     ``axes``: voxel-centre coordinates (m) of the three axes; ``detectable``: voxels
     allowed to detect (None: all); ``coverage_pings``, ``coverage_fraction``: the
     coverage volumes, reported at each contact's peak; ``footprint``: sidelobe geometry
-    (:func:`is_sidelobe`). Returns a table of :data:`DTYPE` rows, strongest excess
-    first.
+    (:func:`is_sidelobe`); ``point_threshold_db``: with it, a region (voxels at
+    ``threshold_db`` or more) is a contact only when its peak reaches this level or
+    its volume is at least ``extended_min_m3`` (m^3; an extended object). Returns a
+    table of :data:`DTYPE` rows, strongest excess first.
     """
     if level.shape != mag.shape or level.shape != background.shape:
         raise ValueError(f"shapes differ: level {level.shape}, magnitude {mag.shape}, "
@@ -161,12 +166,32 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
     if keep.size == 0:
         return empty()
     finite = np.where(np.isfinite(level), level, -np.inf)
+    voxel = [float(ax[1] - ax[0]) if ax.size > 1 else 0.0 for ax in axes]
+    if point_threshold_db is not None and point_threshold_db > threshold_db:
+        # a region is a contact when its peak reaches the point threshold, or when it
+        # is an extended object: at least extended_min_m3 above the region threshold
+        top = ndimage.maximum(finite, labels, keep)
+        big = (counts[keep - 1] * float(np.prod(voxel)) >= extended_min_m3
+               if extended_min_m3 is not None else np.zeros(keep.size, dtype=bool))
+        keep = keep[(np.asarray(top) >= point_threshold_db) | big]
+        if keep.size == 0:
+            return empty()
     peaks = ndimage.maximum_position(finite, labels, keep)
     boxes = ndimage.find_objects(labels)
-    voxel = [float(ax[1] - ax[0]) if ax.size > 1 else 0.0 for ax in axes]
     cands = []
+    # a peak on the bottom face, or on a top face lying in the water, is not a maximum
+    # of the image: the object is outside the depth range (a deeper reflector, or a
+    # multipath ghost above the seabed); a top face at the interface keeps its
+    # contacts (objects resting on the seabed peak there)
+    faces = {level.shape[2] - 1}
+    if axes[2].size and axes[2][0] - voxel[2] / 2 < -0.5 * voxel[2]:
+        faces.add(0)
+    n_faces = 0
     for lab, peak in zip(keep, peaks):
         peak = tuple(int(p) for p in peak)
+        if peak[2] in faces and level.shape[2] > 2:
+            n_faces += 1
+            continue
         box = boxes[lab - 1]
         pos = [float(axes[k][peak[k]]) + _refine(level, peak, k) * voxel[k]
                for k in range(3)]
@@ -206,6 +231,7 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
         row["coverage_pings"] = 0 if coverage_pings is None else int(coverage_pings[p])
         row["coverage_fraction"] = (-1.0 if coverage_fraction is None
                                     else float(coverage_fraction[p]))
-    log.debug("%d regions above %.1f dB, %d of at least %d voxels, %d sidelobes, "
-              "%d contacts", n, threshold_db, keep.size, min_voxels, n_sidelobes, out.size)
+    log.debug("%d regions above %.1f dB, %d of at least %d voxels, %d peaking on a depth "
+              "face, %d sidelobes, %d contacts", n, threshold_db, keep.size, min_voxels,
+              n_faces, n_sidelobes, out.size)
     return out

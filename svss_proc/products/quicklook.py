@@ -19,6 +19,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.cm import ScalarMappable  # noqa: E402
 from matplotlib.colors import Normalize  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from svss_daq.config import ProductsConfig  # noqa: E402
 from svss_daq.decibels import amplitude_to_db_floored  # noqa: E402
@@ -212,6 +213,7 @@ def products_png(path: str | Path, mips: dict[str, np.ndarray], level: np.ndarra
     _draw(ax, rgba(mips["mip_along"], None if hit is None else hit.any(axis=0)), ec, ed,
           CROSS_LABEL, DEPTH_LABEL, "end view: maximum over along-track", True)
     ax.set_aspect("equal")
+    ax.xaxis.set_major_locator(MaxNLocator(5))
     _sides(ax, horizontal=True)
     drawn.append((ax, order, ("cross_m", "depth_m")))
     cax = fig.add_subplot(gs[-1, 1])
@@ -242,9 +244,19 @@ def products_png(path: str | Path, mips: dict[str, np.ndarray], level: np.ndarra
     return path
 
 
+def _palette() -> list[int]:
+    """The 256 colours of a quicklook: the colour map at 224 levels, greys, white,
+    black, the marker cyan and the no-data colour."""
+    cols = [tuple(plt.get_cmap(CMAP)(x)[:3]) for x in np.linspace(0.0, 1.0, 224)]
+    cols += [(g, g, g) for g in np.linspace(0.0, 1.0, 24)]
+    cols += [(0.0, 1.0, 1.0), (0.0, 0.75, 0.75), (0.5, 1.0, 1.0), NO_DATA_RGBA[:3],
+             (0.15, 0.15, 0.15), (0.6, 0.6, 0.6), (0.3, 0.3, 0.3), (0.9, 0.9, 0.9)]
+    return [int(round(255 * v)) for c in cols[:256] for v in c]
+
+
 def save_png(fig, path: Path, dpi: int) -> None:
-    """Save ``fig`` as a PNG of at most 256 colours (a palette image: a third of the
-    bytes of full colour; the colour map has 256 levels anyway)."""
+    """Save ``fig`` as a palette PNG (:func:`_palette`: the colour map at 224 levels and
+    the few other colours a quicklook uses; a third of the bytes of full colour)."""
     from io import BytesIO
 
     from PIL import Image
@@ -252,8 +264,10 @@ def save_png(fig, path: Path, dpi: int) -> None:
     buf = BytesIO()
     fig.savefig(buf, dpi=dpi, format="png")
     buf.seek(0)
+    pal = Image.new("P", (1, 1))
+    pal.putpalette(_palette())
     with Image.open(buf) as im:
-        im.convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT).save(
+        im.convert("RGB").quantize(palette=pal, dither=Image.Dither.NONE).save(
             path, format="PNG", optimize=True)
 
 

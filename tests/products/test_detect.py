@@ -135,3 +135,66 @@ def test_no_detections_in_an_empty_or_missing_volume():
     assert len(_detect(z, z, z)) == 0
     n = np.full(SHAPE, np.nan, dtype=np.float32)
     assert len(_detect(n, n, n)) == 0
+
+
+def test_sidelobes_compared_by_peak_magnitude_not_excess():
+    """A strong target raises its own background (its sidelobes fill the median
+    window), so a sidelobe further out can have the larger excess: the magnitudes
+    decide. Here the weak contact has 10 dB more excess but a 40 dB weaker peak."""
+    a, c, z = AXES[0][60], AXES[1][20], AXES[2][20]
+    level = np.full(SHAPE, 0.0, dtype=np.float32)
+    mag = np.full(SHAPE, 1.0, dtype=np.float32)
+    bg = np.ones(SHAPE, dtype=np.float32)
+    for (ia, excess, peak) in ((60, 30.0, 1e4), (85, 40.0, 1e2)):
+        level[ia - 1:ia + 2, 19:22, 19:22] = excess
+        mag[ia - 1:ia + 2, 19:22, 19:22] = peak
+        level[ia, 20, 20] += 1.0                                  # the peak voxel
+        mag[ia, 20, 20] *= 1.1
+    det = _detect(level, mag, bg, sidelobe_db=30.0, sidelobe_m=1.0)
+    np.testing.assert_allclose(det["along_m"], [a], atol=0.5 * VOXEL)
+    assert det["cross_m"][0] == pytest.approx(c, abs=0.5 * VOXEL)
+    assert det["depth_m"][0] == pytest.approx(z, abs=0.5 * VOXEL)
+    assert len(_detect(level, mag, bg, sidelobe_db=50.0, sidelobe_m=1.0)) == 2
+
+
+def test_sidelobe_region_is_the_projector_footprint():
+    """Seen by one ping's cone together: (2 h + z1 + z2) tan(half-angle) apart at most."""
+    from svss_proc.products.detect import Footprint, is_sidelobe
+    fp = Footprint(2.0, np.tan(np.radians(25.0)))
+    reach = (4.0 + 0.3 + 0.5) * np.tan(np.radians(25.0))            # 2.24 m
+    strong = (0.0, 0.0, 0.3)
+    for d, want in ((reach - 0.01, True), (reach + 0.01, False)):
+        weak = (d * 0.8, d * 0.6, 0.5)
+        assert is_sidelobe(weak, 150.0, strong, 190.0, 30.0, 0.0, fp) is want
+        assert not is_sidelobe(weak, 170.0, strong, 190.0, 30.0, 0.0, fp)   # 20 dB only
+    assert not is_sidelobe((1.5, 0.0, 0.3), 150.0, strong, 190.0, 30.0, 1.0)  # no footprint
+
+
+def test_voxels_below_the_coverage_fraction_never_detect():
+    a, c = AXES[0][60], AXES[1][20]
+    level, mag, bg = _blobs([((a, c, AXES[2][10]), 30.0), ((a, c, AXES[2][30]), 30.0)])
+    detectable = np.ones(SHAPE, dtype=bool)
+    detectable[:, :, 25:] = False
+    det = detect(level, mag, bg, AXES, 14.0, 2, (0.2,) * 3, 50, detectable=detectable)
+    np.testing.assert_allclose(det["depth_m"], [AXES[2][10]], atol=0.5 * VOXEL)
+
+
+def test_background_follows_the_coverage(cfg):
+    """Speckle whose level follows the coverage (noise summed over N channel samples
+    grows as sqrt(N)): with whitening, the normalised level's median is 0 dB on both
+    sides of a coverage step and nothing is detected at the step; without it the
+    median window straddles the step and the well-covered side stands out."""
+    from dataclasses import replace
+    rng = np.random.default_rng(5)
+    channels = np.full(SHAPE, 2000, dtype=np.uint16)
+    channels[:100] = 125                                      # 1/16 the looks: -12 dB
+    img = (speckle(SHAPE, rng) * np.sqrt(channels.astype(np.float32))).astype(np.complex64)
+    pings = (channels // 80).astype(np.uint16)
+    pings[:100] = 25                                          # at least half of 25: all
+    p = compute_products(img, AXES, VOXEL, cfg, coverage=(pings, channels))
+    for part in (slice(0, 95), slice(105, None)):
+        assert np.median(p.level[part]) == pytest.approx(0.0, abs=0.3)
+    assert len(p.detections) == 0
+    off = replace(cfg, background=replace(cfg.background, coverage_whitening=False))
+    q = compute_products(img, AXES, VOXEL, off, coverage=(pings, channels))
+    assert np.median(q.level[100:110]) > 5.0                  # the step, unwhitened

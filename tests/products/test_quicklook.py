@@ -1,0 +1,87 @@
+"""Quicklooks an operator can read: on a default 15 m x 2 m x 2 m tile the 2 m axes get
+at least MIN_PANEL_IN inches each, voxels no ping reached are drawn in the no-data
+colour (not as low signal), and at most ``max_labels`` contacts are numbered, none on
+top of another."""
+
+from __future__ import annotations
+
+import matplotlib.image
+import numpy as np
+import pytest
+
+from svss_daq.config import ProcessingConfig, config_path, load
+from svss_proc.imaging.grid import tile_grid
+from svss_proc.products import detect
+from svss_proc.products.quicklook import (DEFAULT_MAX_LABELS, MIN_PANEL_IN, NO_DATA_RGBA,
+                                          choose_labels, products_png, view_rgba)
+from svss_proc.tiles import MIPS
+
+
+@pytest.fixture(scope="module")
+def default_tile():
+    """Products of a default tile, made up: speckle-like levels, 39 contacts, and the
+    first 1.5 m along-track imaged by no ping."""
+    proc = load(ProcessingConfig, config_path("processing.toml"))
+    grid = tile_grid(proc.tile, 0)
+    rng = np.random.default_rng(3)
+    level = rng.normal(0.0, 5.0, grid.shape).astype(np.float32)
+    coverage = np.full(grid.shape, 20, dtype=np.uint16)
+    coverage[:75] = 0
+    level[:75] = -300.0                       # what an unimaged voxel's level is
+    gain = np.zeros(grid.shape[2], dtype=np.float32)
+    mips = {k: level.max(axis=axis) for k, (axis, _) in MIPS.items()}
+    det = np.zeros(39, dtype=detect.DTYPE)
+    det["along_m"] = rng.uniform(2.0, 14.0, 39)
+    det["cross_m"] = rng.uniform(-0.9, 0.9, 39)
+    det["depth_m"] = rng.uniform(0.05, 1.9, 39)
+    det["excess_db"] = np.sort(rng.uniform(14.0, 40.0, 39))[::-1]
+    det["extent_along_m"] = 0.1
+    return proc, grid, level, gain, mips, det, coverage
+
+
+def _count(img: np.ndarray, rgba, tol: float = 0.02) -> int:
+    return int(np.all(np.abs(img[..., :3] - np.asarray(rgba[:3])) <= tol, axis=-1).sum())
+
+
+def test_unimaged_voxels_get_the_no_data_colour():
+    display = np.array([[-300.0, 0.0], [30.0, np.nan]])
+    imaged = np.array([[True, False], [True, True]])
+    rgba = view_rgba(display, imaged, -10.0, 20.0, 40.0)
+    no_data = np.all(rgba == NO_DATA_RGBA, axis=-1)
+    np.testing.assert_array_equal(no_data, [[False, True], [False, True]])
+    assert not np.allclose(rgba[0, 0], NO_DATA_RGBA)           # low signal stays dark
+    assert rgba[0, 0, :3].sum() < rgba[1, 0, :3].sum()
+
+
+def test_labels_at_most_n_and_never_overlapping():
+    rng = np.random.default_rng(1)
+    xy = np.concatenate([rng.normal(100, 5, (20, 2)), rng.uniform(0, 1000, (19, 2))])
+    chosen = choose_labels(xy, 12, min_sep_px=16.0)
+    assert chosen[0] == 0 and len(chosen) <= 12
+    for i in chosen:
+        for j in chosen:
+            if i < j:
+                assert np.hypot(*(xy[i] - xy[j])) >= 16.0
+    assert len(choose_labels(xy, 0)) == 0
+
+
+def test_default_tile_quicklook_is_legible(default_tile, tmp_path):
+    proc, grid, level, gain, mips, det, coverage = default_tile
+    cfg = proc.products
+    dpi = cfg.quicklook.dpi
+    with_cov = products_png(tmp_path / "a.png", mips, level, gain, det, grid, 0.02, cfg,
+                            "SVSS tile_0000", "test", coverage=coverage)
+    img = matplotlib.image.imread(with_cov)
+    n_views = 2 + sum(0.0 <= d <= 2.0 for d in cfg.quicklook.depth_slices_m)
+    # stacked full-width views: each 2 m axis at least MIN_PANEL_IN high
+    assert img.shape[0] >= n_views * MIN_PANEL_IN * dpi
+    assert img.shape[1] >= 15.0 * dpi                 # about an inch per metre of tile
+    # the unimaged 1.5 m are drawn in the no-data colour, in every view along-track
+    # (1.5 m of ~15 m width, at least MIN_PANEL_IN high, in each)
+    n_no_data = _count(img, NO_DATA_RGBA)
+    assert n_no_data >= 0.9 * n_views * (1.5 * dpi) * (MIN_PANEL_IN * dpi * 0.8)
+    without = matplotlib.image.imread(products_png(
+        tmp_path / "b.png", mips, level, gain, det, grid, 0.02, cfg, "SVSS tile_0000",
+        "test"))
+    assert _count(without, NO_DATA_RGBA) < 0.01 * n_no_data
+    assert DEFAULT_MAX_LABELS < len(det)
