@@ -25,8 +25,13 @@ Pass 1 (:func:`transmit_legs`) evaluates every scatterer's transmit legs. Pass 2
 two implementations that form the same echoes: :func:`accumulate_fast` (the default:
 scatterer-parallel into per-thread complex64 buffers, the receive legs of one scatterer
 vectorised across channels; see the comment above it) and :func:`accumulate` (the
-reference: parallel over channels, so no two threads write the same buffer). Geometry is
-in the tile frame (z down from the interface), float64.
+reference: parallel over channels, so no two threads write the same buffer);
+:mod:`sim_device.synthesis_gpu` runs the fast path's pass 2 on a GPU. Geometry is in the
+tile frame (z down from the interface), float64.
+
+The scalar functions of a leg are defined once, in :func:`build`, and compiled by the
+decorator it is given: ``njit(inline="always")`` here (the module-level names, used by
+the CPU kernels) and ``cuda.jit(device=True)`` in :mod:`sim_device.synthesis_gpu`.
 """
 
 from __future__ import annotations
