@@ -275,8 +275,12 @@ def check_scene(sc: SceneConfig, source: str = "<scene>") -> SceneConfig:
             if s.synthesis == "reference":
                 raise fail("scattering.device", "'cuda' runs the fast synthesis: leave "
                            "scattering.synthesis out or set it to 'fast', not 'reference'")
-            from .synthesis_gpu import cuda_available
-            if not cuda_available():
+            try:
+                from .synthesis_gpu import cuda_available
+                gpu = cuda_available()
+            except ImportError:                  # no numba.cuda at all
+                gpu = False
+            if not gpu:
                 raise fail("scattering.device", "'cuda' asked for, but no CUDA GPU is "
                            "available to numba (install the 'gpu' extra, numba-cuda, on a "
                            "machine with an NVIDIA GPU, or set it to 'cpu')")
