@@ -4,7 +4,7 @@ per run, the ``svss process`` path) and by LocalClusters of 1 and 2 worker proce
 per tile.
 
     python benchmarks/bench_batch.py --out benchmarks/results/bench_batch.json \
-        [--runs 2] [--pings 60] [--voxel 0.02] [--workers 1 2]
+        [--runs 2] [--pings 40] [--voxel 0.02] [--workers 1 2]
 
 Survey: ``--runs`` runs of the demo scene's first ``--pings`` pings (run k starts k*8
 pings later, so every run has its own tile frame), imaged with the demo processing
@@ -17,8 +17,10 @@ Figures (per worker count): ``batch_s`` the batch's wall time (planning, tasks, 
 ``tasks_s`` the tasks' part (submit to last result); ``compute_s`` the sum of the
 tasks' own times; ``overhead_per_tile_s`` = (tasks_s x workers - compute_s) / tiles, the
 worker time per tile not spent in a task (scheduling, transfer, idle at the tail);
-``speedup`` = single-process time / batch_s. Each worker process gets cores/workers
-numba threads; the single process uses all cores. On a 2-core machine 2 workers are the
+``speedup`` = single-process time / batch_s, with the single process (kernels warm)
+timed just before the warm batch, and before the cluster for the cold one (the machine's
+load drifts; the cold figure includes the workers' start-up). Each worker process gets
+cores/workers numba threads; the single process uses all cores. On a 2-core machine 2 workers are the
 most that can help: more workers need more cores or machines (docs/batch.md).
 """
 
@@ -80,7 +82,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="benchmarks/results/bench_batch.json")
     ap.add_argument("--runs", type=int, default=2)
-    ap.add_argument("--pings", type=int, default=60)
+    ap.add_argument("--pings", type=int, default=40)
     ap.add_argument("--voxel", type=float, default=0.02)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     args = ap.parse_args()
@@ -97,17 +99,27 @@ def main() -> int:
                 for k in range(args.runs)]
         # warm this process's kernels (the workers' first batch is timed cold instead)
         process_raw(runs[0], work / "warm", proc)
-        t0 = time.perf_counter()
-        for r in runs:
-            process_raw(r, work / "single" / r.stem, proc)
-        single_s = time.perf_counter() - t0
+
+        def single() -> float:
+            """The survey by svss process, timed (each batch is compared with the one
+            timed just before it: the machine's load drifts)."""
+            t0 = time.perf_counter()
+            for r in runs:
+                process_raw(r, work / "single" / r.stem, proc, force=True)
+            return time.perf_counter() - t0
+
+        single_s = single()
         n_tiles = sum(len(list((work / "single" / r.stem).glob("tile_*.h5"))) for r in runs)
         log.info("single process: %d tiles in %.2f s", n_tiles, single_s)
+        singles = [single_s]
         rows = []
         cores = os.cpu_count() or 1
         for n in args.workers:
             t0 = time.perf_counter()
             threads = str(max(1, cores // n))
+            if n != args.workers[0]:
+                single_s = single()
+                singles.append(single_s)
             with distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                           host="127.0.0.1", dashboard_address=None,
                                           env={"NUMBA_NUM_THREADS": threads}) as cluster, \
@@ -117,6 +129,9 @@ def main() -> int:
                        "cluster_start_s": round(start_s, 3)}
                 for phase in ("cold", "warm"):
                     out = work / f"batch{n}-{phase}"
+                    if phase == "warm":
+                        single_s = single()
+                        singles.append(single_s)
                     t0 = time.perf_counter()
                     s = run_batch(runs, out, proc, client=client)
                     batch_s = time.perf_counter() - t0
@@ -128,6 +143,7 @@ def main() -> int:
                         "tasks_s": s["run_s"], "compute_s": s["compute_s"],
                         "overhead_per_tile_s": round((s["run_s"] * n - s["compute_s"])
                                                      / n_tiles, 4),
+                        "single_process_s": round(single_s, 3),
                         "speedup": round(single_s / batch_s, 3),
                         "identical_to_svss_process": same}
                     log.info("%d worker(s) %s: %.2f s, speed-up %.2f, overhead %.3f s/tile, "
@@ -141,8 +157,8 @@ def main() -> int:
                         "load_average_at_end": os.getloadavg()},
             "survey": {"runs": args.runs, "pings_per_run": args.pings, "voxel_m": args.voxel,
                        "tiles": n_tiles, "tile_m": [3.0, 0.4, 0.3]},
-            "single_process_s": round(single_s, 3),
-            "single_process_per_tile_s": round(single_s / n_tiles, 4),
+            "single_process_s": [round(v, 3) for v in singles],
+            "single_process_per_tile_s": round(min(singles) / n_tiles, 4),
             "local_cluster": rows,
             "utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)

@@ -220,30 +220,47 @@ def _pose_ping(reader: RawRunReader, i: int, meta: dict, zeros: np.ndarray) -> P
                 samples=zeros, nav=reader.nav(i), config_id=reader.hardware.id)
 
 
+def _run_of(path: Path) -> tuple[str, int]:
+    """(run id, segment number) of a raw file: the root attributes ``run_id`` (else the
+    file's stem) and ``segment`` (else 0)."""
+    with RawRunReader(path) as r:
+        run_id, seg = r.attrs.get("run_id"), r.attrs.get("segment", 0)
+    if isinstance(run_id, np.ndarray) and run_id.shape == ():
+        run_id = run_id.item()
+    if isinstance(run_id, bytes):
+        run_id = run_id.decode("utf-8", "replace")
+    try:
+        seg = int(np.asarray(seg).reshape(()))
+    except (TypeError, ValueError):
+        raise RawFileError(f"{path}: root attribute 'segment' is {seg!r}; expected an "
+                           "integer") from None
+    return (run_id if isinstance(run_id, str) and run_id else path.stem), seg
+
+
 def group_runs(paths: list[str | Path]) -> dict[str, list[Path]]:
-    """Raw files grouped into runs, each run's segment files in segment order. A run's
-    id is the root attribute ``run_id`` (else the file's stem) and the segment number
-    the root attribute ``segment`` (else 0), as the catch-up service reads them
-    (:class:`svss_daq.ping_service.RawRunStore`); runs in the order of their first file
-    given. :class:`~svss_daq.rawfile.RawFileError` names a missing or unreadable file."""
-    from svss_daq.ping_service import RawRunStore
+    """Raw files grouped into runs, each run's segment files in segment order, runs in
+    the order of their first file given; as the catch-up service groups them
+    (:class:`svss_daq.ping_service.RawRunStore`). A missing or unreadable file raises
+    :class:`~svss_daq.rawfile.RawFileError` naming it; two files claiming the same
+    segment of one run (two runs of one name) a ValueError naming both."""
     if not paths:
         raise ValueError("svss batch: no raw-run files given")
-    for p in paths:
-        if not Path(p).is_file():
+    runs: dict[str, dict[int, Path]] = {}
+    seen: set[Path] = set()
+    for p in map(Path, paths):
+        if not p.is_file():
             raise RawFileError(f"{p}: no such raw-run file")
-    store = RawRunStore([Path(p) for p in paths])
-    try:
-        runs = {r: store.paths(r) for r in store.run_ids()}
-    finally:
-        store.close()
-    seen: dict[Path, str] = {}
-    for r, ps in runs.items():
-        for p in ps:
-            if p.resolve() in seen:
-                raise ValueError(f"{p}: given twice (runs {seen[p.resolve()]} and {r})")
-            seen[p.resolve()] = r
-    return runs
+        if p.resolve() in seen:
+            raise ValueError(f"{p}: given twice")
+        seen.add(p.resolve())
+        run_id, seg = _run_of(p)
+        segs = runs.setdefault(run_id, {})
+        if seg in segs:
+            raise ValueError(f"{p} and {segs[seg]}: both segment {seg} of run {run_id!r} "
+                             "(two runs of one name? batch them apart, or give them "
+                             "distinct run_id attributes)")
+        segs[seg] = p
+    return {r: [segs[k] for k in sorted(segs)] for r, segs in runs.items()}
 
 
 def plan_run(run_id: str, folder: str, paths: list[Path],

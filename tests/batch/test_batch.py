@@ -60,7 +60,14 @@ def batch(survey, coarse_proc, client, tmp_path_factory) -> dict:
     return {"out": out, "summary": summary, "marker": marker}
 
 
-def test_tiles_equal_svss_process_voxel_for_voxel(batch, reference):
+def _kernel_threads() -> int:
+    import numba
+    return numba.config.NUMBA_NUM_THREADS
+
+
+def test_tiles_equal_svss_process_voxel_for_voxel(batch, reference, client):
+    # the workers' kernels ran on one thread, svss process's on every core
+    assert set(client.run(_kernel_threads).values()) == {1}
     for run in RUNS:
         assert_same_tiles(reference[run], batch["out"] / run)
         for ref in sorted(reference[run].glob("tile_*.h5")):
@@ -172,6 +179,18 @@ def test_missing_or_corrupt_raw_file_is_named(survey, coarse_proc, tmp_path):
     bad.write_bytes(data[: len(data) // 2])
     with pytest.raises(RawFileError, match=str(bad)):
         run_batch([bad], tmp_path / "o2", coarse_proc, workers=1)
+
+
+def test_two_runs_of_one_name_are_refused(survey, coarse_proc, tmp_path):
+    """Files of two days, both 'lineB-whole.h5' without run ids: not merged into one run."""
+    a, b = tmp_path / "day1", tmp_path / "day2"
+    a.mkdir(), b.mkdir()
+    for d in (a, b):
+        shutil.copy(survey["B_whole"], d)
+    with pytest.raises(ValueError, match=r"day2/lineB-whole.h5 and .*day1/lineB-whole.h5: "
+                                         r"both segment 0 of run 'lineB-whole'"):
+        run_batch([a / "lineB-whole.h5", b / "lineB-whole.h5"], tmp_path / "o",
+                  coarse_proc, workers=1)
 
 
 def test_folder_of_other_settings_is_refused(survey, coarse_proc, tmp_path):
