@@ -9,11 +9,13 @@ interface at the sediment speed (``water`` speed throughout for ``delays = "stra
 as the kernel does): a bound good to a few samples for the refracting delay models,
 which matters only at the far end of the window.
 
-Cost: per voxel in the projector cone, the receiver test is made for the corners of the
-receive aperture (its convex hull in the array plane) only: the set of element positions
-whose cone holds a voxel is convex, and so is the (straight-ray) travel time to an
-element, so when every corner passes, every element does. Only voxels at a cone or
-window edge loop over all channels. Without gating (``beam_gating = false``) every
+Cost: the receiver test is made for the corners of the receive aperture (its convex
+hull in the array plane) only: the set of element positions whose cone holds a voxel is
+convex, and so is the (straight-ray) travel time to an element, so when every corner
+passes, every element does; only voxels at a cone or window edge loop over all
+channels. And per voxel column the voxels every channel reaches are one depth interval
+(convex cones cut by a vertical line; a travel time growing with depth): only the
+voxels above and below it are tested, those inside are counted. Without gating (``beam_gating = false``) every
 voxel inside the window counts.
 
 Counts saturate at 65535 (uint16): more than 800 full-array (80-channel) pings per
@@ -71,9 +73,68 @@ def _leg_time(dx, dy, z, h, inv_cw, inv_cs):
     return r * ((1.0 - f) * inv_cw + f * inv_cs)
 
 
+@nb.njit(inline="always", cache=True)
+def _count(x, y, z, xa, yc, h_tx, h_min, rx, corners, b0, b1, b2, cos_tx, cos_rx, gating,
+           t_lo, t_hi, inv_cw, inv_cs):
+    """Channels one ping reaches at one voxel (``x, y``: its offset from the projector,
+    ``xa, yc``: its position, ``z``: its depth), and whether every channel does."""
+    nch = rx.shape[0]
+    vz = z + h_tx
+    r1 = math.sqrt(x * x + y * y + vz * vz)
+    if gating and x * b0 + y * b1 + vz * b2 < r1 * cos_tx:
+        return 0, False
+    t1 = _leg_time(x, y, z, h_tx, inv_cw, inv_cs)
+    if t1 > t_hi:
+        return 0, False
+    # corners first: all of them inside the cone and the window's end, and the nearest
+    # possible element (straight below) not before its start, means every element is
+    ok = t1 + (z + h_min) * min(inv_cw, inv_cs) >= t_lo
+    for k in range(corners.size):
+        if not ok:
+            break
+        e = corners[k]
+        ex = xa - rx[e, 0]
+        ey = yc - rx[e, 1]
+        ez = z - rx[e, 2]
+        if gating:
+            r2 = math.sqrt(ex * ex + ey * ey + ez * ez)
+            if ex * b0 + ey * b1 + ez * b2 < r2 * cos_rx:
+                ok = False
+        if t1 + _leg_time(ex, ey, z, -rx[e, 2], inv_cw, inv_cs) > t_hi:
+            ok = False
+    if ok:
+        return nch, True
+    n = 0
+    for e in range(nch):
+        ex = xa - rx[e, 0]
+        ey = yc - rx[e, 1]
+        ez = z - rx[e, 2]
+        if gating:
+            r2 = math.sqrt(ex * ex + ey * ey + ez * ez)
+            if ex * b0 + ey * b1 + ez * b2 < r2 * cos_rx:
+                continue
+        t = t1 + _leg_time(ex, ey, z, -rx[e, 2], inv_cw, inv_cs)
+        if t_lo <= t <= t_hi:
+            n += 1
+    return n, False
+
+
+@nb.njit(inline="always", cache=True)
+def _add(pings, channels, ia, ic, iz, n):
+    if n > 0:
+        if pings[ia, ic, iz] < 65535:
+            pings[ia, ic, iz] += 1
+        channels[ia, ic, iz] = min(np.int64(channels[ia, ic, iz]) + n, 65535)
+
+
 @nb.njit(parallel=True, cache=True)
 def _accumulate(pings, channels, ax, cy, dz, ia0, ia1, tx, rx, corners, bore, cos_tx,
-                cos_rx, gating, t_lo, t_hi, inv_cw, inv_cs):
+                cos_rx, gating, t_lo, t_hi, inv_cw, inv_cs, rho_max):
+    """Per voxel column, the voxels every channel reaches form one depth interval (the
+    intersection of the beam cones, convex, with a vertical line, and a window on a
+    travel time that grows with depth): it is found by testing from the top down and
+    from the bottom up until a voxel passes; the voxels between are counted without
+    testing."""
     nc, nd, nch = cy.size, dz.size, rx.shape[0]
     h_tx = -tx[2]
     b0, b1, b2 = bore[0], bore[1], bore[2]
@@ -81,54 +142,33 @@ def _accumulate(pings, channels, ax, cy, dz, ia0, ia1, tx, rx, corners, bore, co
     for j in range(nch):
         h_min = min(h_min, -rx[j, 2])
     for ia in nb.prange(ia0, ia1):
-        x = ax[ia] - tx[0]
+        xa = ax[ia]
+        x = xa - tx[0]
         for ic in range(nc):
-            y = cy[ic] - tx[1]
+            yc = cy[ic]
+            y = yc - tx[1]
+            if x * x + y * y > rho_max * rho_max:       # outside the cone at every depth
+                continue
+            first = -1
             for iz in range(nd):
-                z = dz[iz]
-                vz = z + h_tx
-                r1 = math.sqrt(x * x + y * y + vz * vz)
-                if gating and x * b0 + y * b1 + vz * b2 < r1 * cos_tx:
-                    continue
-                t1 = _leg_time(x, y, z, h_tx, inv_cw, inv_cs)
-                if t1 > t_hi:
-                    continue
-                # corners first: all of them inside the cone and the window's end, and
-                # the nearest possible element (straight below) not before its start,
-                # means every element is
-                ok = t1 + (z + h_min) * min(inv_cw, inv_cs) >= t_lo
-                for k in range(corners.size):
-                    if not ok:
-                        break
-                    e = corners[k]
-                    ex = ax[ia] - rx[e, 0]
-                    ey = cy[ic] - rx[e, 1]
-                    ez = z - rx[e, 2]
-                    if gating:
-                        r2 = math.sqrt(ex * ex + ey * ey + ez * ez)
-                        if ex * b0 + ey * b1 + ez * b2 < r2 * cos_rx:
-                            ok = False
-                    if t1 + _leg_time(ex, ey, z, -rx[e, 2], inv_cw, inv_cs) > t_hi:
-                        ok = False
-                n = nch
-                if not ok:
-                    n = 0
-                    for e in range(nch):
-                        ex = ax[ia] - rx[e, 0]
-                        ey = cy[ic] - rx[e, 1]
-                        ez = z - rx[e, 2]
-                        if gating:
-                            r2 = math.sqrt(ex * ex + ey * ey + ez * ez)
-                            if ex * b0 + ey * b1 + ez * b2 < r2 * cos_rx:
-                                continue
-                        t = t1 + _leg_time(ex, ey, z, -rx[e, 2], inv_cw, inv_cs)
-                        if t_lo <= t <= t_hi:
-                            n += 1
-                if n > 0:
-                    if pings[ia, ic, iz] < 65535:
-                        pings[ia, ic, iz] += 1
-                    c = np.int64(channels[ia, ic, iz]) + n
-                    channels[ia, ic, iz] = min(c, 65535)
+                n, full = _count(x, y, dz[iz], xa, yc, h_tx, h_min, rx, corners, b0, b1,
+                                 b2, cos_tx, cos_rx, gating, t_lo, t_hi, inv_cw, inv_cs)
+                _add(pings, channels, ia, ic, iz, n)
+                if full:
+                    first = iz
+                    break
+            if first < 0:
+                continue
+            last = nd - 1
+            while last > first:
+                n, full = _count(x, y, dz[last], xa, yc, h_tx, h_min, rx, corners, b0, b1,
+                                 b2, cos_tx, cos_rx, gating, t_lo, t_hi, inv_cw, inv_cs)
+                _add(pings, channels, ia, ic, last, n)
+                if full:
+                    break
+                last -= 1
+            for iz in range(first + 1, last):
+                _add(pings, channels, ia, ic, iz, nch)
 
 
 def new_coverage(shape: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -149,13 +189,20 @@ def add_ping(pings: np.ndarray, channels: np.ndarray, along: np.ndarray,
     ``half_*_rad``: beam half-angles; ``window_s``: the receive window (first and last
     arrival time the samples hold, s after transmit); speeds in m/s (the sediment speed
     equal to the water's for straight-ray delays)."""
+    # the widest the projector cone gets within the tile: a column further away is
+    # outside it at every depth (its tilt added to the half-angle, as the imager does)
+    b = np.asarray(bore, dtype=np.float64)
+    cone = min(half_tx_rad + math.acos(max(-1.0, min(1.0, float(b[2])))), math.radians(89.0))
+    rho_max = ((max(float(np.max(depth)), 0.0) - float(tx[2])) * math.tan(cone) + 1e-9
+               if gating else math.inf)
     _accumulate(pings, channels, np.ascontiguousarray(along, dtype=np.float64),
                 np.ascontiguousarray(cross, dtype=np.float64),
                 np.ascontiguousarray(depth, dtype=np.float64), int(ia0), int(ia1),
                 np.asarray(tx, dtype=np.float64), np.ascontiguousarray(rx, dtype=np.float64),
                 np.asarray(corners, dtype=np.int64), np.asarray(bore, dtype=np.float64),
                 math.cos(half_tx_rad), math.cos(half_rx_rad), bool(gating),
-                float(window_s[0]), float(window_s[1]), 1.0 / water_m_s, 1.0 / sediment_m_s)
+                float(window_s[0]), float(window_s[1]), 1.0 / water_m_s, 1.0 / sediment_m_s,
+                rho_max)
 
 
 @dataclass

@@ -233,7 +233,7 @@ def products_png(path: str | Path, mips: dict[str, np.ndarray], level: np.ndarra
     tax.text(0.0, 1.0, _detection_lines(detections, 25), va="top", ha="left",
              family="monospace", fontsize=7, transform=tax.transAxes)
     fig.suptitle(f"{title}\n{n_det} detection(s) at {cfg.detection.threshold_db:g} dB re "
-                 f"background (numbered: the strongest {max_labels} on each view); "
+                 f"background (numbered: the strongest {max_labels} on each view)\n"
                  f"{identity}", fontsize=8)
     fig.canvas.draw()                       # the layout is fixed: label in pixels
     for ax, idx, keys in drawn:
