@@ -103,15 +103,11 @@ def _client(scheduler: str | None, workers: int | None):
     if scheduler:
         log.info("batch: connecting to the Dask scheduler at %s", scheduler)
         return distributed.Client(scheduler, timeout=30), None
-    cores = os.cpu_count() or 1
-    n = workers or cores
-    # the cores shared out: each worker's imaging kernel runs numba threads of its own
-    threads = os.environ.get("NUMBA_NUM_THREADS") or str(max(1, cores // n))
+    n = workers or os.cpu_count() or 1
     cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                       host="127.0.0.1", dashboard_address=None,
-                                       env={"NUMBA_NUM_THREADS": threads})
-    log.info("batch: local cluster of %d worker process(es) (%s kernel thread(s) each) "
-             "at %s", n, threads, cluster.scheduler_address)
+                                       host="127.0.0.1", dashboard_address=None)
+    log.info("batch: local cluster of %d worker process(es) at %s", n,
+             cluster.scheduler_address)
     return distributed.Client(cluster), cluster
 
 
@@ -125,12 +121,16 @@ def plan_survey(paths: list[str | Path], processing: Loaded[ProcessingConfig]
 def run_batch(paths: list[str | Path], out: str | Path,
               processing: Loaded[ProcessingConfig], *, scheduler: str | None = None,
               workers: int | None = None, force: bool = False, client=None,
+              kernel_threads: int | None = None,
               task: Callable[..., dict] = image_tile) -> dict:
     """Reprocess the raw runs ``paths`` into ``out``; return the summary (also in
     ``out/batch_state.json``). ``scheduler``: a Dask scheduler's address (default: a
     LocalCluster of ``workers`` processes); ``client``: an existing
-    ``distributed.Client`` instead of either; ``task``: the tile function (the default
-    :func:`~.task.image_tile`; tests wrap it). Raises :class:`BatchError` naming every
+    ``distributed.Client`` instead of either; ``kernel_threads``: numba threads of each
+    task's imaging kernel (default: with a local cluster, the cores shared out among its
+    workers; otherwise the workers' own setting, e.g. ``NUMBA_NUM_THREADS``);
+    ``task``: the tile function (the default :func:`~.task.image_tile`; tests wrap
+    it). Raises :class:`BatchError` naming every
     tile that failed (the others are kept: a rerun makes only the missing ones)."""
     t0 = time.perf_counter()
     out = Path(out)
@@ -158,9 +158,14 @@ def run_batch(paths: list[str | Path], out: str | Path,
         cluster = None
         if own:
             client, cluster = _client(scheduler, workers)
+            if cluster is not None and kernel_threads is None:
+                n = len(cluster.workers)
+                kernel_threads = max(1, (os.cpu_count() or 1) // n)
+                log.info("batch: %d kernel thread(s) per worker", kernel_threads)
         try:
             t_run0 = time.perf_counter()
-            results, errors, n_workers = _dispatch(client, todo, out, processing, task)
+            results, errors, n_workers = _dispatch(client, todo, out, processing, task,
+                                                   kernel_threads)
             t_run = time.perf_counter() - t_run0
         finally:
             if own:
@@ -205,14 +210,14 @@ def run_batch(paths: list[str | Path], out: str | Path,
     return summary
 
 
-def _dispatch(client, todo: list[TilePlan], out: Path, processing, task
-              ) -> tuple[list[dict], list[str], int]:
+def _dispatch(client, todo: list[TilePlan], out: Path, processing, task,
+              kernel_threads: int | None) -> tuple[list[dict], list[str], int]:
     """Submit one task per tile and wait for all; (results, errors, workers seen)."""
     distributed = require_dask()
     token = secrets.token_hex(4)
     n_workers = len(client.scheduler_info().get("workers", {}))
-    futures = {client.submit(task, t, str(out), processing, key=f"{t.key}-{token}",
-                             pure=False): t for t in todo}
+    futures = {client.submit(task, t, str(out), processing, kernel_threads,
+                             key=f"{t.key}-{token}", pure=False): t for t in todo}
     progress = Progress("batch", len(todo), log, unit="tiles")
     results, errors = [], []
     for fut in distributed.as_completed(futures):

@@ -18,6 +18,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numba
+
 from svss_daq.config import Loaded, ProcessingConfig
 from svss_daq.ping_gate import PingRejected
 from svss_daq.rawfile import RawFileError, RawRunReader
@@ -55,13 +57,18 @@ def _result(plan: TilePlan, h5: Path, detections: int, t0: float, skipped: bool)
     return {"key": plan.key, "run_id": plan.run_id, "folder": plan.folder,
             "index": plan.index, "pings": plan.n_pings, "detections": int(detections),
             "compute_s": time.perf_counter() - t0, "skipped": skipped, "file": str(h5),
-            "pid": os.getpid()}
+            "pid": os.getpid(), "kernel_threads": numba.get_num_threads()}
 
 
-def image_tile(plan: TilePlan, out: str, processing: Loaded[ProcessingConfig]) -> dict:
+def image_tile(plan: TilePlan, out: str, processing: Loaded[ProcessingConfig],
+               kernel_threads: int | None = None) -> dict:
     """Image and save one tile; a summary (``pings``, ``detections``, ``compute_s``,
-    ``skipped`` when its committed file was already there, ``pid``)."""
+    ``skipped`` when its committed file was already there, ``pid``, ``kernel_threads``).
+    ``kernel_threads``: numba threads for this task's kernels (at most the process's
+    ``NUMBA_NUM_THREADS``; None: the process's setting)."""
     t0 = time.perf_counter()
+    if kernel_threads is not None:          # per calling thread; launched threads stay
+        numba.set_num_threads(max(1, min(kernel_threads, numba.config.NUMBA_NUM_THREADS)))
     h5, _ = tile_paths(Path(out), plan)
     if h5.is_file():
         return _result(plan, h5, len(read_tile_header(h5)["detections"]), t0, True)

@@ -70,13 +70,10 @@ def reference(survey, coarse_proc, tmp_path_factory) -> dict:
 
 @pytest.fixture(scope="module")
 def cluster():
-    """Two single-threaded worker processes and their scheduler, all on loopback; one
-    kernel thread each, as `svss batch` gives them on 2 cores (`svss process` here runs
-    the kernel on every core: the tiles must not depend on it)."""
+    """Two single-threaded worker processes and their scheduler, all on loopback."""
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                  host="127.0.0.1", dashboard_address=None,
-                                  env={"NUMBA_NUM_THREADS": "1"}) as c:
+                                  host="127.0.0.1", dashboard_address=None) as c:
         yield c
 
 
