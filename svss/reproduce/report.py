@@ -23,6 +23,12 @@ def _depth(r, which, key="depth"):
     return None if f is None else f[key]
 
 
+def _pings(c: dict) -> str:
+    """A case's pings: 'first–last (count)'."""
+    r = c.get("ping_range")
+    return f"{r[0]}–{r[1]} ({c['pings']})" if r else str(c["pings"])
+
+
 def spread(values: list[float]) -> dict:
     """Mean, sample standard deviation (0 for one value), min and max."""
     return {"n": len(values), "mean": statistics.fmean(values),
@@ -147,7 +153,7 @@ def write_report(path: str | Path, s: dict) -> Path:
                   if c["first"] is None or f["depth"] not in (_depth(c, "first"),
                                                               _depth(c, "second"))]
         w(f"| {c['scene']}, {c['array']}, {c['label']} | {c['group']} | {c['n_channels']} | "
-          f"{c['pings'][0]}–{c['pings'][1]} | {c['excess_db']:.1f} | "
+          f"{_pings(c)} | {c['excess_db']:.1f} | "
           f"{c['surround_excess_db']:.1f} | "
           f"{', '.join(f'{x:.2f}' for x in c['peak'])} | "
           f"{_f(_depth(c, 'first'), '.3f')} / {_f(_depth(c, 'first', 'onset'), '.3f')} | "
@@ -209,8 +215,8 @@ def write_report(path: str | Path, s: dict) -> Path:
       f"![profile]({figs['profile']})\n")
     fld = s.get("field")
     if fld:
-        w(f"Sayers-like test field (80-channel array, {fld['n_targets']} objects, pings "
-          f"{fld['pings'][0]}–{fld['pings'][1]}): depth slice at {fld['depth_slice_m']} m "
+        w(f"Sayers-like test field (80-channel array, {fld['n_targets']} objects, "
+          f"{_pings(fld)} pings): depth slice at {fld['depth_slice_m']} m "
           "and cross-track MIP after the products' background normalisation and dynamic "
           f"range compression (circles: true positions):\n\n![field]({fld['figure']})\n")
     path.write_text("\n".join(L) + "\n")

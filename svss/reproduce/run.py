@@ -136,7 +136,7 @@ def measure_case(case: Case, quick: bool) -> tuple[dict, dict]:
     cw, cs = float(src.media.c[0]), float(src.media.c[1])
     res = {"tag": case.tag, "array": case.array, "scene": case.scene,
            "group": case.group, "variant": dataclasses.asdict(case.variant),
-           "label": case.variant.label(), "pings": [pings.start, pings.stop - 1],
+           "label": case.variant.label(), "ping_range": [pings.start, pings.stop - 1],
            "n_channels": int(src.hw.digitiser.n_channels), "water_speed": cw,
            "sediment_speed": cs, "excess_db": exc.excess_db, "peak": exc.peak,
            "surround_excess_db": sur.excess_db,
@@ -184,7 +184,7 @@ def field_case(out: Path, quick: bool) -> dict:
                                 f"cross-track MIP after background normalisation and "
                                 f"compression")
     det = prod.detections
-    return {**times, "figure": path.name, "pings": [pings.start, pings.stop - 1],
+    return {**times, "figure": path.name, "ping_range": [pings.start, pings.stop - 1],
             "n_targets": len(targets), "depth_slice_m": depth_slice,
             "detections": len(det)}
 

@@ -71,7 +71,7 @@ def _summary(tmp_path):
     def case(scene, array, axis, excess, group="main", seed=None):
         return {"tag": f"{array}_{scene}_{axis}", "array": array, "scene": scene,
                 "group": group, "variant": {"axis": axis, "seed": seed},
-                "label": f"axis {axis}", "pings": [46, 87], "n_channels": 32,
+                "label": f"axis {axis}", "ping_range": [46, 87], "pings": 42, "n_channels": 32,
                 "water_speed": 1500.0, "sediment_speed": 1767.0, "excess_db": excess,
                 "surround_excess_db": excess + 4.0,
                 "peak": [10.0, 0.0, 0.85], "first": vars(feats[0]), "second": vars(feats[1]),
@@ -97,6 +97,7 @@ def test_report_states_the_measured_values(tmp_path):
     assert "11.0 ± 0.8 dB" in text
     assert "silt − sand = +13.6 dB" in text
     assert "![profile](profile_sand.png)" in text
+    assert "| 46–87 (42) |" in text
 
 
 def test_figures_write_pngs(tmp_path):
