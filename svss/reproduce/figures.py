@@ -21,10 +21,10 @@ def _edges(x: np.ndarray) -> tuple[float, float]:
 
 
 def _panel(ax, img, x, y, xlabel, ylabel, title, vmin, vmax, cmap="viridis",
-           depth_down=True):
+           depth_down=True, aspect="equal"):
     x0, x1 = _edges(x)
     y0, y1 = _edges(y)
-    h = ax.imshow(img.T, origin="upper" if depth_down else "lower", aspect="equal",
+    h = ax.imshow(img.T, origin="upper" if depth_down else "lower", aspect=aspect,
                   extent=(x0, x1, y1, y0) if depth_down else (x0, x1, y0, y1),
                   vmin=vmin, vmax=vmax, cmap=cmap, interpolation="nearest")
     ax.set_xlabel(xlabel)
@@ -106,13 +106,15 @@ def field_figure(path: str | Path, drc: np.ndarray, mip_cross_u: np.ndarray, axe
     depth); ``targets`` (along, cross, depth, label) marked."""
     a, c, d = (np.asarray(v, dtype=np.float64) for v in axes)
     k = int(np.argmin(np.abs(d - depth_slice_m)))
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(12, 6.5), sharex=True,
-                                   gridspec_kw={"height_ratios": [c.size, d.size]})
+    # metre scale would make an 18 m x 1.3 m view a strip: each panel is stretched
+    # across (the axes are labelled in metres)
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(13, 7), sharex=True, layout="constrained")
     h = _panel(ax1, drc[:, :, k], a, c, "", "cross-track (m, starboard +)",
                f"depth slice at {d[k]:.2f} m below the seabed (normalised, compressed)",
-               0.0, 1.0, cmap="gray", depth_down=False)
+               0.0, 1.0, cmap="gray", depth_down=False, aspect="auto")
     _panel(ax2, mip_cross_u, a, d, "along-track (m)", "depth below the seabed (m)",
-           "cross-track MIP (normalised, compressed)", 0.0, 1.0, cmap="gray")
+           "cross-track MIP (normalised, compressed; vertical scale stretched)", 0.0, 1.0,
+           cmap="gray", aspect="auto")
     for (ta, tc, td, label) in targets:
         ax1.plot([ta], [tc], "o", mfc="none", mec="r", ms=12, mew=0.8)
         ax2.plot([ta], [td], "o", mfc="none", mec="r", ms=12, mew=0.8)
