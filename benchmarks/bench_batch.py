@@ -115,11 +115,11 @@ def main() -> int:
         rows = []
         cores = os.cpu_count() or 1
         for n in args.workers:
-            t0 = time.perf_counter()
             threads = max(1, cores // n)
             if n != args.workers[0]:
                 single_s = single()
                 singles.append(single_s)
+            t0 = time.perf_counter()
             with distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                           host="127.0.0.1", dashboard_address=None
                                           ) as cluster, \
