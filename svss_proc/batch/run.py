@@ -29,7 +29,7 @@ from pathlib import Path
 from svss_daq.config import Loaded, ProcessingConfig
 from svss_daq.progress import Progress
 
-from ..products.run_products import run_products_at_end
+from ..products.run_products import MOSAIC_H5, run_products_at_end
 from ..survey_index import INDEX_NAME, write_survey_index
 from ..worker import remove_temporaries, run_folder_name
 from .plan import RunPlan, TilePlan, group_runs, plan_run
@@ -175,11 +175,13 @@ def run_batch(paths: list[str | Path], out: str | Path,
     t_cluster = time.perf_counter() - t_cluster0 - t_run
     imaged = len(results)
     skipped = len(tiles) - len(todo)
-    # the run products (contacts, mosaic) of every run whose tiles this batch completed,
-    # as the streaming worker writes them at a run's end
+    # the run products (contacts, mosaic) of every run whose tiles are all there, as the
+    # streaming worker writes them at a run's end: when this batch made some of them, or
+    # when an earlier one was stopped before writing them
     touched = {r["folder"] for r in results}
     for p in plans:
-        if p.folder in touched and all(tile_paths(out, t)[0].is_file() for t in p.tiles):
+        if p.tiles and all(tile_paths(out, t)[0].is_file() for t in p.tiles) and (
+                p.folder in touched or not (out / p.folder / MOSAIC_H5).is_file()):
             run_products_at_end(out / p.folder)
     index_tiles = [(t.run_id, tile_paths(out, t)[0]) for t in tiles
                    if tile_paths(out, t)[0].is_file()]
