@@ -58,6 +58,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -65,7 +66,9 @@ import numba  # noqa: E402
 
 from sim_device.environment_source import EnvironmentSource  # noqa: E402
 from sim_device.scene import load_scene  # noqa: E402
-from svss_daq.config import HardwareConfig, config_path, load_with_text  # noqa: E402
+from svss_daq.config import (HardwareConfig, ProcessingConfig, config_path, load,  # noqa: E402
+                             load_with_text)
+from svss_proc.imaging.imager import TileImager  # noqa: E402
 
 log = logging.getLogger("bench_possm")
 
@@ -293,6 +296,132 @@ def fidelity(hw, n: int, quick: bool, only_rows: str | None = None
     return reference, rows
 
 
+IMAGE_TILE_M = 3.0          # image-domain fidelity: tile 3 (9-12 m along) holds the target
+IMAGE_PINGS = (70, 140)     # the pings whose beams reach that tile (7-14 m along)
+
+
+def image_processing(src: EnvironmentSource):
+    """Processing for the image-domain rows: 3 m tiles on the scene's own track line, the
+    exact sediment sound speed (travel-time table), 2 cm voxels."""
+    proc = load(ProcessingConfig, config_path("processing.toml"))
+    tr = src.scene.track
+    return dataclasses.replace(
+        proc, products=None,
+        tile=dataclasses.replace(proc.tile, length_m=IMAGE_TILE_M, close_after_pings=1000),
+        imaging=dataclasses.replace(
+            proc.imaging, track_line="fixed", line_origin_ne_m=tuple(tr.start_ne_m),
+            line_heading_deg=tr.heading_deg, delays="table",
+            water_sound_speed_m_s=float(src.media.c[0]),
+            sediment_sound_speed_m_s=float(src.media.c[1])))
+
+
+def image_tile(hw, src: EnvironmentSource, pings: range):
+    """Simulate ``pings`` of ``src`` (noise included) and image them; returns (tile
+    holding the target, simulation s/ping, simulation CPU s/ping)."""
+    imager = TileImager(hw, image_processing(src))
+    tiles, t_sim, c_sim = [], 0.0, 0.0
+    for i in pings:
+        c0, t0 = time.process_time(), time.perf_counter()
+        ping = src.ping(i)
+        t_sim += time.perf_counter() - t0
+        c_sim += time.process_time() - c0
+        tiles += imager.add(ping)
+    tiles += imager.finish()
+    k = int(src.scene.targets[0].along_m // IMAGE_TILE_M)
+    tile = next(t for t in tiles if t.grid.index == k)
+    return tile, t_sim / len(pings), c_sim / len(pings)
+
+
+def image_measures(tile, target, depth_bin_m: float = 0.1, keep_out_m: float = 0.6) -> dict:
+    """Image-domain measures of one tile: the background's mean level per depth bin
+    (sediment, 0.2 m below the interface down to the tile's bottom, the cross-track
+    margins and the target's surroundings left out), its speckle (scintillation index of
+    the intensity normalised by its local mean: about 1 for Rayleigh speckle) and the
+    target's excess (peak intensity within 0.3 m of the target over the background's
+    median intensity at the target's depth, dB)."""
+    g = tile.grid
+    inten = np.abs(tile.image.astype(np.complex128)) ** 2
+    a, c, d = np.meshgrid(g.along, g.cross, g.depth, indexing="ij")
+    near = ((a - target.along_m) ** 2 + (c - target.cross_m) ** 2
+            + (d - target.depth_m) ** 2) < keep_out_m ** 2
+    bg = (~near) & (d > 0.2) & (np.abs(c) < 0.6) & (inten > 0)
+    edges = np.arange(0.2, g.depth[-1] + depth_bin_m, depth_bin_m)
+    which = np.digitize(d, edges) - 1
+    prof = np.array([inten[bg & (which == j)].mean() if np.any(bg & (which == j))
+                     else np.nan for j in range(edges.size - 1)])
+    # speckle about the local mean level (0.3 m along, 0.2 m across, 0.1 m deep), so that
+    # the beam pattern and the depth decay do not count as speckle
+    v = g.voxel_m
+    local = ndimage.uniform_filter(inten, size=(max(1, round(0.3 / v)), max(1, round(0.2 / v)),
+                                                max(1, round(0.1 / v))), mode="nearest")
+    norm = inten[bg] / local[bg]
+    close = ((a - target.along_m) ** 2 + (c - target.cross_m) ** 2
+             + (d - target.depth_m) ** 2) < 0.3 ** 2
+    band = bg & (np.abs(d - target.depth_m) < 0.1)
+    return {"profile": prof, "mean": float(inten[bg].mean()),
+            "speckle": float(np.mean(norm ** 2) - 1.0),
+            "excess_db": float(10 * np.log10(inten[close].max() / np.median(inten[band])))}
+
+
+def image_fidelity(hw, quick: bool, only_rows: str | None = None
+                   ) -> tuple[dict, list[dict]]:
+    """The fidelity table in the image domain: the sand scene with its cylinder, 70
+    pings imaged into the 3 m tile holding the target, one option lowered per row from
+    the highest fidelity; errors relative to that setting's image."""
+    base = load_scene(config_path("scenes/seed_cylinder_sand.toml"))
+    top = dict(density=2.0, order=2, cutoff=3.0, precision="float64", per_cell=None,
+               below_noise=None)
+    pings = range(*IMAGE_PINGS)
+
+    def run(**opts):
+        sc = with_fidelity(base, **opts)
+        sc = dataclasses.replace(sc, targets=base.targets)
+        src = EnvironmentSource(hw, sc)
+        src.ping(pings[0] - 1)                  # compile / load kernels untimed
+        tile, t, c = image_tile(hw, src, pings)
+        return image_measures(tile, base.targets[0]), t, c, src
+
+    m_ref, t_ref, c_ref, _ = run(**top)
+    reference = {"options": top, "s_per_ping": t_ref, "cpu_s_per_ping": c_ref,
+                 "speckle": m_ref["speckle"], "excess_db": m_ref["excess_db"],
+                 "pings": len(pings), "tile_m": IMAGE_TILE_M}
+    variants = [("per_cell", 4.0), ("per_cell", 2.0), ("per_cell", 1.0),
+                ("per_cell", 0.5), ("order", 1), ("order", 0), ("below_noise", 0.0),
+                ("default", None), ("seed", base.scene.seed + 1)]
+    if quick:
+        variants = [("per_cell", 2.0), ("per_cell", 1.0), ("default", None),
+                    ("seed", base.scene.seed + 1)]
+    if only_rows:
+        variants = [v for v in variants if v[0] in only_rows.split(",")]
+    rows = []
+    for key, value in variants:
+        opts = dict(top)
+        if key == "default":
+            opts = {}
+            label = "scene file (default)"
+        elif key == "seed":
+            opts["seed"] = value
+            label = "other seed (same fidelity)"
+        else:
+            opts[key] = value
+            label = f"{key} = {value}"
+        m, t, c, src = run(**opts)
+        ok = np.isfinite(m["profile"]) & np.isfinite(m_ref["profile"])
+        prof_db = 10 * np.log10(m["profile"][ok] / m_ref["profile"][ok])
+        rows.append({"option": label, "s_per_ping": t, "cpu_s_per_ping": c,
+                     "speedup": t_ref / t,
+                     "mean_db": float(10 * np.log10(m["mean"] / m_ref["mean"])),
+                     "profile_db": float(np.sqrt(np.mean(prof_db ** 2))),
+                     "speckle": m["speckle"],
+                     "speckle_err": m["speckle"] - m_ref["speckle"],
+                     "excess_db": m["excess_db"],
+                     "excess_err_db": m["excess_db"] - m_ref["excess_db"],
+                     "per_cell": (src.fidelity.scatterers_per_resolution_cell
+                                  if src.fidelity is not None else None)})
+        log.info("%s: %.2f s/ping", label, t)
+    return reference, rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True, help="JSON file for the results")
@@ -340,6 +469,8 @@ def main(argv=None) -> int:
         length_section(hw, args, result)
     if "fidelity" in only:
         fidelity_section(hw, args, result)
+    if "image" in only:
+        image_section(hw, args, result)
     result["machine"]["load_avg_end"] = list(os.getloadavg())
     Path(args.out).write_text(json.dumps(result, indent=2))
     log.info("wrote %s", args.out)
@@ -409,6 +540,22 @@ def fidelity_section(hw, args, result) -> None:
               f"{r['profile_err_db']:10.2f} {r['speckle']:7.2f} {r['at_target_db']:10.2f}")
     result["fidelity_reference"] = ref
     result["fidelity"] = rows
+
+
+
+def image_section(hw, args, result) -> None:
+    print("\n== fidelity options in the image domain (sand, 3 m tile with the cylinder) ==")
+    ref, rows = image_fidelity(hw, args.quick, args.rows)
+    print(f"reference {ref['options']}: {ref['s_per_ping']:.2f} s/ping, speckle "
+          f"{ref['speckle']:.2f}, target excess {ref['excess_db']:.1f} dB")
+    print(f"{'option':32s} {'s/ping':>7s} {'speedup':>7s} {'mean dB':>7s} "
+          f"{'prof dB':>7s} {'speckle':>7s} {'excess dB':>9s} {'d excess':>8s}")
+    for r in rows:
+        print(f"{r['option']:32s} {r['s_per_ping']:7.2f} {r['speedup']:7.2f} "
+              f"{r['mean_db']:7.2f} {r['profile_db']:7.2f} {r['speckle']:7.2f} "
+              f"{r['excess_db']:9.1f} {r['excess_err_db']:8.1f}")
+    result["image_fidelity_reference"] = ref
+    result["image_fidelity"] = rows
 
 
 if __name__ == "__main__":

@@ -99,9 +99,13 @@ def test_mean_square_field_follows_the_sonar_equation(hardware):
     # interface reverberation: E p^2(t) = 1/2 sum |A|^2 |s(t - tau)|^2 with
     # |A|^2 = P0^2 b_t^2 b_r^2 sqrt(sigma(theta_t) sigma(theta_r)) dA / (r1 r2)^2
     hw8 = small_hardware(hardware)
-    scene = sand_scene(volume=False, interface_density_per_m2=1000.0)
+    # at the scene file's density (its scatterers per resolution cell)
+    scene = sand_scene(volume=False)
+    assert scene.scattering.scatterers_per_resolution_cell is not None
     ping = 20
-    seeds = range(1, 31)
+    # a few scatterers per resolution cell of this 8-element array (~0.6 x 0.3 m): many
+    # seabeds for the mean square, each cheap
+    seeds = range(1, 161)
     ms, _ = mean_square(hw8, scene, ping, seeds)
     src = EnvironmentSource(hw8, scene)
     g = src.frame(ping)
@@ -162,8 +166,8 @@ def test_volume_scatterers_reproduce_tr9407_volume_backscatter(hardware):
     hw8 = small_hardware(hardware, projector=(-0.182, 0.0, 0.0))
     hw8 = Loaded(dataclasses.replace(hw8.value, digitiser=dataclasses.replace(
         hw8.value.digitiser, window_samples=2000)), hw8.text + "w2000", "test")
-    sc = sand_scene(interface=False, volume=True, volume_density_per_m3=1000.0,
-                    volume_max_depth_m=1.0, cell_m=0.5)
+    # at the scene file's density (its scatterers per resolution cell)
+    sc = sand_scene(interface=False, volume=True, volume_max_depth_m=1.0, cell_m=0.5)
     sc = dataclasses.replace(sc, medium=dataclasses.replace(sc.medium, depth_m=8.5),
                              track=dataclasses.replace(sc.track, altitude_m=8.5))
     ping = 5
