@@ -247,7 +247,7 @@ def group_runs(paths: list[str | Path]) -> dict[str, list[Path]]:
         raise ValueError("svss batch: no raw-run files given")
     runs: dict[str, dict[int, Path]] = {}
     seen: set[Path] = set()
-    for p in map(Path, paths):
+    for p in (Path(q).absolute() for q in paths):      # tasks may run elsewhere
         if not p.is_file():
             raise RawFileError(f"{p}: no such raw-run file")
         if p.resolve() in seen:

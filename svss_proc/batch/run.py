@@ -133,7 +133,7 @@ def run_batch(paths: list[str | Path], out: str | Path,
     it). Raises :class:`BatchError` naming every
     tile that failed (the others are kept: a rerun makes only the missing ones)."""
     t0 = time.perf_counter()
-    out = Path(out)
+    out = Path(out).absolute()              # the tasks may run in another folder
     runs = group_runs(paths)
     prepare_batch_dir(out, runs, processing, force)
     plans = [plan_run(run_id, run_folder_name(run_id), ps, processing)
