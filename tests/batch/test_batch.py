@@ -208,3 +208,20 @@ def test_cli_names_the_extra_without_dask(survey, tmp_path, monkeypatch, caplog)
     assert main(["batch", str(survey["A"]), "--out", str(tmp_path / "o")]) == 2
     assert "svss[distributed]" in caplog.text and "dask" in caplog.text
     assert not (tmp_path / "o").exists()
+
+
+def test_reach_without_beam_gating_is_the_conditioned_window(survey, coarse_proc):
+    """Without gating a ping reaches as far as its conditioned echoes: the plan's end of
+    that window (no samples read) is the conditioner's on the real samples."""
+    from svss_daq.rawfile import RawRunReader
+    from svss_daq.waveform import make_waveform
+    from svss_proc.batch.plan import TilePlanner
+    from svss_proc.conditioning import Conditioner
+    with RawRunReader(survey["A"]) as r:
+        planner = TilePlanner(r.hardware, coarse_proc.value, coarse_proc.source, "test")
+        hw, c = r.hardware.value, coarse_proc.value.conditioning
+        cond = Conditioner(hw.digitiser, make_waveform(hw.waveform), c.decimation,
+                           c.upsample)
+        for i in (0, len(r) - 1):
+            p = r.ping(i)
+            assert planner._echo_end_s(p) == cond.ping(p).axis.end_s
