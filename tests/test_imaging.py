@@ -235,3 +235,21 @@ def test_float32_far_from_the_line_origin_agrees_with_float64(hardware):
     ref = images["float64"]
     err = np.abs(images["float32"] - ref).max() / np.abs(ref).max()
     assert err < 1e-4, err
+
+
+def test_refraction_table_covers_every_ping_whatever_came_first(hardware):
+    """A table cached for a height is lengthened for a ping reaching further, with the
+    same times at the nodes both hold: a batch task imaging a subset of a run's pings
+    gets the times the whole run's imager used."""
+    proc = processing(delays="table", sediment_sound_speed_m_s=SAND)
+    imager = TileImager(hardware, proc)
+    tx = np.array([0.0, 0.0, -2.0])
+    rx = np.array([[0.1, -0.3, -2.0], [-0.2, 0.4, -2.0]])
+    short = imager._table(tx, rx, 0.5)
+    long = imager._table(tx, rx, 4.0)
+    assert (long.time.shape[0] - 2) * long.drho >= 4.0 + proc.tile.width_m
+    n = short.time.shape[0]
+    assert long.time.shape[0] > n
+    np.testing.assert_array_equal(long.time[:n], short.time)
+    np.testing.assert_array_equal(long.eta[:n], short.eta)
+    assert imager._table(tx, rx, 1.0) is long          # long enough: kept

@@ -243,13 +243,18 @@ class TileImager:
         return closed
 
     def _table(self, tx: np.ndarray, rx: np.ndarray, reach: float) -> TravelTimeTable:
-        """Refraction table for this ping's mean element height (cached per mm)."""
+        """Refraction table for this ping's mean element height (cached per mm). A cached
+        table that is too short for this ping is rebuilt longer: its nodes (k x step) and
+        their times do not depend on the extent, so every ping sees the same times
+        whichever pings came before it (a batch task images a subset of a run's pings
+        and must give the same tile as the whole run)."""
         im, tcfg = self.proc.imaging, self.proc.tile
         h = float(-np.mean(np.concatenate([rx[:, 2], tx[2:3]])))
         key = int(round(h * 1000))
-        if key not in self._tables:
-            span = float(np.ptp(rx[:, 0]) + np.ptp(rx[:, 1]) + abs(rx[:, :2] - tx[:2]).max())
-            rho_max = reach + tcfg.width_m + span
+        span = float(np.ptp(rx[:, 0]) + np.ptp(rx[:, 1]) + abs(rx[:, :2] - tx[:2]).max())
+        rho_max = reach + tcfg.width_m + span
+        cached = self._tables.get(key)
+        if cached is None or (cached.time.shape[0] - 2) * cached.drho < rho_max:
             self._tables[key] = build_table(key / 1000, rho_max, tcfg.top_m - im.table_step_m,
                                             tcfg.top_m + tcfg.depth_m + im.table_step_m,
                                             im.table_step_m, im.water_sound_speed_m_s,
