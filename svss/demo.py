@@ -21,6 +21,8 @@ from pathlib import Path
 
 from sim_device.scene import load_scene
 from svss_daq.config import config_path
+from svss_proc.products.run_products import (CONTACTS_CSV, CONTACTS_GEOJSON, MOSAIC_H5,
+                                           MOSAIC_PNG)
 from svss_proc.worker import prepare_output_dir, run_folder_name
 
 log = logging.getLogger(__name__)
@@ -132,4 +134,7 @@ def run_demo(out: Path, scene: str | None = None, hardware: str | None = None,
                     "missing", first.group(1), lead_s)
     folder = tiles / run_folder_name(DEMO_RUN)
     manifest = json.loads((folder / "manifest.json").read_text())
-    return sorted(runs.glob(f"{DEMO_RUN}_*.h5")) + [folder / n for n in manifest["files"]]
+    run_products = [folder / n for n in (CONTACTS_CSV, CONTACTS_GEOJSON, MOSAIC_PNG, MOSAIC_H5)
+                    if (folder / n).exists()]
+    return (sorted(runs.glob(f"{DEMO_RUN}_*.h5")) + [folder / n for n in manifest["files"]]
+            + run_products)
