@@ -68,7 +68,7 @@ def _fmt(v) -> str:
 
 COLUMNS = ("area", "option", "value", "time_s", "tile_s", "error", "on_front",
            "is_default", "is_reference")
-EXTRA = {"imaging": ("rel_rms_db", "peak_db", "peak_shift_m", "error_basis"),
+EXTRA = {"imaging": ("rel_rms_db", "peak_db", "peak_shift_m", "error_basis", "cpu_s"),
          "simulation": ("d_level_db", "d_contrast_db", "d_excess_db", "scintillation",
                         "ks_exponential"),
          "normalisation": ("max_db", "mean_db")}
@@ -79,7 +79,7 @@ def flat_rows(rows: list[dict]) -> list[dict]:
     for r in rows:
         d = {k: r.get(k) for k in COLUMNS}
         for k in EXTRA[r["area"]]:
-            d[k] = r["metrics"].get(k)
+            d[k] = r["metrics"].get(k, r.get(k))
         out.append(d)
     return out
 
@@ -108,7 +108,7 @@ def markdown(result) -> str:
                 "is_reference"] else ""
             lines.append(f"| {r['option']}{tag} | {r['value']} | {_fmt(r['time_s'])} | "
                          f"{_fmt(r['tile_s'])} | {_fmt(r['error'])} | " +
-                         " | ".join(_fmt(r['metrics'].get(k)) for k in extra) +
+                         " | ".join(_fmt(r['metrics'].get(k, r.get(k))) for k in extra) +
                          f" | {'yes' if r['on_front'] else ''} |")
         lines.append("")
     lines += ["### Defaults and recommendation", ""] + [f"- {s}" for s in result.summary]
