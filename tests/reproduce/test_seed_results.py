@@ -47,16 +47,6 @@ def test_sand_first_order_multipath_from_the_image(sand):
     assert abs(sand["first"]["depth"] - 0.6) <= 0.05
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    "the image's second-order feature lies where the path arithmetic puts it, 2.945 m "
-    "(measured 2.944-2.953 m over seabeds and fidelities), 4.4-5.3 cm below the seed's "
-    "'2.9 m' (which reads as 2.945 rounded down): at the edge of the 5 cm asked for, so "
-    "it passes or fails by the seabed; reported to the lead (docs/reproduce.md)"))
-def test_sand_second_order_multipath_within_5_cm_of_the_seeds_value(sand):
-    assert sand["second"] is not None, sand["features"]
-    assert abs(sand["second"]["depth"] - 2.9) <= 0.05
-
-
 def test_sand_second_order_multipath_from_the_image(sand):
     assert sand["second"] is not None, sand["features"]
     # the feature found in the image is the 5 m path's: where the path arithmetic
@@ -64,6 +54,10 @@ def test_sand_second_order_multipath_from_the_image(sand):
     expected = measures.multipath_depth_expected(5.0, sand["water_speed"],
                                                  sand["sediment_speed"])
     assert abs(sand["second"]["depth"] - expected) <= 0.02
+    # and within the 5 cm of the seed's "2.9 m" the issue asks for: on this fixed seabed
+    # 2.945 m; over other seabeds the feature spreads over 2.944-2.953 m, up to 5.3 cm
+    # from 2.9 m, i.e. the seed's figure reads as 2.945 m rounded (docs/reproduce.md)
+    assert abs(sand["second"]["depth"] - 2.9) <= 0.05
 
 
 def test_sand_excess_as_the_seed(sand):
