@@ -56,8 +56,9 @@ def build_refraction(jit):
                 hi = x
             else:
                 lo = x
-            dg = h * h / (cw * rw * rw * rw) + (z * z / (cs * rs * rs * rs) if rs > 0.0
-                                                else 0.0)
+            # (h/r)^2/(c r): r^3 underflowed to 0 for r < 1e-103 m (z ~ 1e-122 m)
+            dg = (h / rw) * (h / rw) / (cw * rw) + ((z / rs) * (z / rs) / (cs * rs)
+                                                    if rs > 0.0 else 0.0)
             xn = x - g / dg
             if not (lo < xn < hi):
                 xn = 0.5 * (lo + hi)

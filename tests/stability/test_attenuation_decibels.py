@@ -60,7 +60,7 @@ def test_water_absorption_finite_positive_and_tends_to_zero_at_low_frequency(f, 
         a = float(model(f, t, s, d, ph))
         assert math.isfinite(a) and a >= 0.0
         # every term goes to zero as f^2 (below its relaxation frequency)
-        assert 0.0 <= float(model(1e-3, t, s, d, ph)) <= 1e-12
+        assert 0.0 <= float(model(1e-3, t, s, d, ph)) <= 1e-9        # dB/m at 1 mHz
         # and it never decreases with frequency (relaxation terms and f^2 water term)
         assert float(model(f * 1.01, t, s, d, ph)) >= a * (1 - 1e-12)
     # fresh water leaves the pure-water f^2 term alone: ~f^2 at every frequency
