@@ -41,6 +41,8 @@ log = logging.getLogger(__name__)
 #: consecutive pings that must stay clear of a tile before it is complete, when the
 #: processing configuration's ``tile.close_after_pings`` is omitted
 CLOSE_AFTER_PINGS = 20
+#: refraction tables are cached per 1 / TABLE_KEYS_PER_M of array height (1 cm)
+TABLE_KEYS_PER_M = 100
 
 
 def receive_apodisation(receivers_body: np.ndarray, kind: str) -> np.ndarray | None:
@@ -243,22 +245,26 @@ class TileImager:
         return closed
 
     def _table(self, tx: np.ndarray, rx: np.ndarray, reach: float) -> TravelTimeTable:
-        """Refraction table for this ping's mean element height (cached per mm). A cached
+        """Refraction table for this ping's mean element height (cached per cm: the
+        kernel corrects each element's height to first order, T(h) = T(h_ref) +
+        (h - h_ref) eta, and the second-order remainder over 5 mm, ~(5 mm)^2 / (2 x 2 m),
+        is 1e-4 of a wavelength; per mm, real navigation's altitude needed a new table
+        almost every ping). A cached
         table that is too short for this ping is rebuilt longer: its nodes (k x step) and
         their times do not depend on the extent, so every ping sees the same times
         whichever pings came before it (a batch task images a subset of a run's pings
         and must give the same tile as the whole run)."""
         im, tcfg = self.proc.imaging, self.proc.tile
         h = float(-np.mean(np.concatenate([rx[:, 2], tx[2:3]])))
-        key = int(round(h * 1000))
+        key = int(round(h * TABLE_KEYS_PER_M))
         span = float(np.ptp(rx[:, 0]) + np.ptp(rx[:, 1]) + abs(rx[:, :2] - tx[:2]).max())
         rho_max = reach + tcfg.width_m + span
         cached = self._tables.get(key)
         if cached is None or (cached.time.shape[0] - 2) * cached.drho < rho_max:
-            self._tables[key] = build_table(key / 1000, rho_max, tcfg.top_m - im.table_step_m,
-                                            tcfg.top_m + tcfg.depth_m + im.table_step_m,
-                                            im.table_step_m, im.water_sound_speed_m_s,
-                                            im.sediment_sound_speed_m_s)
+            self._tables[key] = build_table(
+                key / TABLE_KEYS_PER_M, rho_max, tcfg.top_m - im.table_step_m,
+                tcfg.top_m + tcfg.depth_m + im.table_step_m, im.table_step_m,
+                im.water_sound_speed_m_s, im.sediment_sound_speed_m_s)
         return self._tables[key]
 
     def _close(self, k: int) -> Tile:

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig, ProductsConfig
+from svss_daq.config import (HardwareConfig, ImagingConfig, Loaded, ProcessingConfig,
+                             ProductsConfig)
 
 from . import drc as drc_mod
 from .background import kernel_voxels, median_background
@@ -166,14 +167,27 @@ def tile_title(name: str, tile: Tile) -> str:
     return (f"SVSS {name}: along-track {g.along[0]:.2f}-{g.along[-1]:.2f} m, {pings}")
 
 
-def tile_footprint(tile: Tile, hardware: Loaded[HardwareConfig]) -> Footprint | None:
-    """The sidelobe geometry of a tile: its pings' mean projector height and the
-    projector's half-angle (None without coverage or pings)."""
+def footprint_for(height_m: float, hardware: HardwareConfig,
+                  imaging: ImagingConfig | None = None) -> Footprint:
+    """The sidelobe geometry (:class:`~svss_proc.products.detect.Footprint`) of pings
+    ``height_m`` above the interface: the projector's half-angle, the sediment's
+    water-equivalent range scale c_w / c_sed of the imaging configuration (1 without
+    one) and half the transmitted pulse's length as the range slack."""
+    half = math.radians(hardware.beams.projector_half_angle_deg)
+    c_w = imaging.water_sound_speed_m_s if imaging is not None else 1500.0
+    scale = c_w / imaging.sediment_sound_speed_m_s if imaging is not None else 1.0
+    return Footprint(height_m, math.tan(half), scale,
+                     0.5 * c_w * hardware.waveform.duration_s)
+
+
+def tile_footprint(tile: Tile, hardware: Loaded[HardwareConfig],
+                   imaging: ImagingConfig | None = None) -> Footprint | None:
+    """The sidelobe geometry of a tile: its pings' mean projector height
+    (:func:`footprint_for`; None without coverage or pings)."""
     cov = tile.coverage
     if cov is None or not np.isfinite(cov.mean_height_m):
         return None
-    half = math.radians(hardware.value.beams.projector_half_angle_deg)
-    return Footprint(cov.mean_height_m, math.tan(half))
+    return footprint_for(cov.mean_height_m, hardware.value, imaging)
 
 
 def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
@@ -201,7 +215,8 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
         prods = compute_products(tile.image, (g.along, g.cross, g.depth), voxel, pcfg,
                                  keep_volumes=pcfg.store_volumes,
                                  coverage=None if cov is None else (cov.pings, cov.channels),
-                                 footprint=tile_footprint(tile, hardware))
+                                 footprint=tile_footprint(tile, hardware,
+                                                                  processing.value.imaging))
     tmp_png = temporary_path(png)
     try:
         try:

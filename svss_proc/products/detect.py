@@ -26,6 +26,7 @@ This module never sees the truth of a scene: scoring against ground truth is the
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,12 +64,33 @@ class Footprint:
     interface (m) and the tangent of its cone's half-angle. A ping puts the echo of a
     point onto every voxel at the same two-way range inside its projector cone, so a
     point's sidelobes lie within the horizontal distance over which one ping's cone
-    holds both the point and the voxel: ``(2 h + z_point + z_voxel) tan(half-angle)``."""
+    holds both the point and the voxel: ``(2 h + z_point + z_voxel) tan(half-angle)``.
+    And only at the same two-way range: a ping sees a point at depth z (m below the
+    interface) at ranges from h + s z (nadir) to (h + s z) / cos(half-angle) (cone edge),
+    ``s = depth_scale`` the water-equivalent range per metre of sediment (c_w / c_sed;
+    straight rays), so two points whose range intervals are further apart than
+    ``range_slack_m`` (half the transmitted pulse's length, c T / 2, m) cannot be each
+    other's sidelobes: a target buried under a bright interface is not its sidelobe."""
     height_m: float
     tan_half_angle: float
+    depth_scale: float = 1.0
+    range_slack_m: float = 0.0
 
     def reach_m(self, z_a: float, z_b: float) -> float:
         return (2.0 * self.height_m + max(z_a, 0.0) + max(z_b, 0.0)) * self.tan_half_angle
+
+    def ranges_m(self, z: float) -> tuple[float, float]:
+        """Nearest and furthest range (m, water-equivalent) at which one ping of this
+        footprint's height sees a point at depth ``z`` inside its cone."""
+        near = self.height_m + (z * self.depth_scale if z > 0.0 else z)
+        return near, near * math.sqrt(1.0 + self.tan_half_angle ** 2)
+
+    def may_share_range(self, z_a: float, z_b: float) -> bool:
+        """Whether some ping can see points at depths ``z_a`` and ``z_b`` at one range
+        (within ``range_slack_m``)."""
+        a0, a1 = self.ranges_m(z_a)
+        b0, b1 = self.ranges_m(z_b)
+        return a0 <= b1 + self.range_slack_m and b0 <= a1 + self.range_slack_m
 
 
 def is_sidelobe(weak_pos, weak_peak_db: float, strong_pos, strong_peak_db: float,
@@ -78,13 +100,16 @@ def is_sidelobe(weak_pos, weak_peak_db: float, strong_pos, strong_peak_db: float
     ``weak_peak_db`` (dB re 1 uPa) can be an imaging sidelobe of a contact at
     ``strong_pos`` with ``strong_peak_db``: at least ``sidelobe_db`` weaker, and within
     ``sidelobe_m`` (Euclidean) or, with a ``footprint``, horizontally within the reach
-    of one ping's projector cone. Magnitudes, not excesses, are compared: a sidelobe's
-    amplitude is a fraction of its source's whatever the backgrounds (the background
-    under a strong target is raised by its own sidelobes, so its excess can be smaller
-    than theirs)."""
+    of one ping's projector cone; with a ``footprint``, never when no ping can see the
+    two at one range (:meth:`Footprint.may_share_range`). Magnitudes, not excesses, are
+    compared: a sidelobe's amplitude is a fraction of its source's whatever the
+    backgrounds (the background under a strong target is raised by its own sidelobes, so
+    its excess can be smaller than theirs)."""
     if strong_peak_db - weak_peak_db < sidelobe_db:
         return False
     w, s = np.asarray(weak_pos, dtype=np.float64), np.asarray(strong_pos, dtype=np.float64)
+    if footprint is not None and not footprint.may_share_range(float(w[2]), float(s[2])):
+        return False
     if float(np.linalg.norm(w - s)) <= sidelobe_m:
         return True
     if footprint is None:

@@ -41,6 +41,7 @@ import numpy as np
 from svss_daq.config import (
     ConfigError,
     HardwareConfig,
+    ImagingConfig,
     ProcessingConfig,
     ProductsConfig,
     loads,
@@ -49,7 +50,7 @@ from svss_daq.frames import TrackLine
 from svss_daq.navigation import geodetic_to_ned, ned_to_geodetic
 
 from ..tiles import TileFileError, is_temporary, read_tile_views, temporary_path
-from .chain import DEFAULT_MIN_COVERAGE, coverage_settings
+from .chain import DEFAULT_MIN_COVERAGE, coverage_settings, footprint_for
 from .detect import Footprint, sidelobe_filter
 from .drc import compress
 from .quicklook import save_png
@@ -221,7 +222,8 @@ def tile_corners_ne(view: TileView) -> np.ndarray:
 # ----------------------------------------------------------------------- settings
 
 
-def _configs(view: TileView) -> tuple[ProductsConfig | None, HardwareConfig | None]:
+def _configs(view: TileView) -> tuple[ProductsConfig | None, HardwareConfig | None,
+                                       ImagingConfig | None]:
     out = []
     for key, cls in (("processing_config_toml", ProcessingConfig),
                      ("hardware_config_toml", HardwareConfig)):
@@ -232,7 +234,8 @@ def _configs(view: TileView) -> tuple[ProductsConfig | None, HardwareConfig | No
             log.warning("%s", exc)
             out.append(None)
     proc, hw = out
-    return (None if proc is None else proc.products), hw
+    return ((None if proc is None else proc.products), hw,
+            (None if proc is None else proc.imaging))
 
 
 # ----------------------------------------------------------------------- contacts
@@ -244,7 +247,7 @@ def run_contacts(views: list[TileView],
     summary (settings, origin, counts)."""
     if not views:
         return [], {"tiles": 0}
-    pcfg, hw = _configs(views[0])
+    pcfg, hw, imaging = _configs(views[0])
     if pcfg is None:
         raise TileFileError(f"{views[0].path}: no [products] in its processing "
                             "configuration: the tiles have no detections")
@@ -260,8 +263,7 @@ def run_contacts(views: list[TileView],
                if np.isfinite(float(v.data["attrs"].get("projector_height_m", np.nan)))]
     footprint = None
     if use_footprint and heights and hw is not None:
-        footprint = Footprint(float(np.mean(heights)),
-                              math.tan(math.radians(hw.beams.projector_half_angle_deg)))
+        footprint = footprint_for(float(np.mean(heights)), hw, imaging)
     rows = []
     for v in views:
         table = v.data["detections"]
@@ -464,7 +466,7 @@ def write_run_products(tiles_dir: str | Path, out_dir: str | Path | None = None,
     if not views:
         log.warning("%s: no tiles; no run products", tiles_dir)
         return []
-    pcfg, _ = _configs(views[0])
+    pcfg, _, _ = _configs(views[0])
     if pcfg is None:
         log.warning("%s: tiles without products; no run products", tiles_dir)
         return []

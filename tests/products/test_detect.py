@@ -198,3 +198,20 @@ def test_background_follows_the_coverage(cfg):
     off = replace(cfg, background=replace(cfg.background, coverage_whitening=False))
     q = compute_products(img, AXES, VOXEL, off, coverage=(pings, channels))
     assert np.median(q.level[100:110]) > 5.0                  # the step, unwhitened
+
+
+def test_a_target_buried_under_a_bright_interface_is_not_its_sidelobe():
+    """No ping sees the interface (nadir 2 m, cone edge 2.2 m) and a point 1 m into sand
+    (at least 2 + 0.85 m water-equivalent) at one range, so the buried point stays a
+    contact however much brighter the interface is; a point at the interface's depth
+    within the footprint is still its sidelobe."""
+    from svss_proc.products.detect import Footprint, is_sidelobe
+    fp = Footprint(2.0, np.tan(np.radians(25.0)), 1500.0 / 1767.0, 0.19)
+    bright = (10.0, 0.1, 0.01)
+    assert not fp.may_share_range(1.0, 0.01)
+    assert not is_sidelobe((10.3, 0.0, 1.0), 150.0, bright, 190.0, 15.0, 1.0, fp)
+    assert is_sidelobe((10.9, 0.5, 0.05), 150.0, bright, 190.0, 15.0, 1.0, fp)
+    # ranges that overlap: 0.2 m deeper is within the cone-edge range of the shallower
+    assert fp.may_share_range(0.2, 0.0)
+    # without the range test (no footprint) the 1 m Euclidean rule would drop it
+    assert is_sidelobe((10.3, 0.0, 0.95), 150.0, bright, 190.0, 15.0, 1.0)
