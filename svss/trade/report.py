@@ -168,7 +168,7 @@ def plot(result, out: Path) -> list[Path]:
         ax.legend(fontsize=7)
         fig.tight_layout()
         p = out / f"pareto_{area}.png"
-        fig.savefig(p, dpi=110)
+        fig.savefig(p, dpi=110, bbox_inches="tight")
         plt.close(fig)
         paths.append(p)
     return paths
