@@ -14,7 +14,7 @@ from svss_daq.config import DevicesConfig, load
 
 ROOT = Path(__file__).resolve().parents[2]
 DEMO = ROOT / "config" / "scenes" / "demo.toml"
-STARTUP_S = 30.0
+STARTUP_S = 120.0             # a cold numba cache compiles the synthesis kernels first
 
 
 class SimDeviceProcess:
