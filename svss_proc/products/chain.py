@@ -168,20 +168,19 @@ def tile_title(name: str, tile: Tile) -> str:
 
 
 def footprint_for(height_m: float, hardware: HardwareConfig,
-                  imaging: ImagingConfig | None = None) -> Footprint:
+                  imaging: ImagingConfig) -> Footprint:
     """The sidelobe geometry (:class:`~svss_proc.products.detect.Footprint`) of pings
     ``height_m`` above the interface: the projector's half-angle, the sediment's
-    water-equivalent range scale c_w / c_sed of the imaging configuration (1 without
-    one) and half the transmitted pulse's length as the range slack."""
+    water-equivalent range scale c_w / c_sed of the imaging configuration and half the
+    transmitted pulse's length (at c_w) as the range slack."""
     half = math.radians(hardware.beams.projector_half_angle_deg)
-    c_w = imaging.water_sound_speed_m_s if imaging is not None else 1500.0
-    scale = c_w / imaging.sediment_sound_speed_m_s if imaging is not None else 1.0
-    return Footprint(height_m, math.tan(half), scale,
+    c_w = imaging.water_sound_speed_m_s
+    return Footprint(height_m, math.tan(half), c_w / imaging.sediment_sound_speed_m_s,
                      0.5 * c_w * hardware.waveform.duration_s)
 
 
 def tile_footprint(tile: Tile, hardware: Loaded[HardwareConfig],
-                   imaging: ImagingConfig | None = None) -> Footprint | None:
+                   imaging: ImagingConfig) -> Footprint | None:
     """The sidelobe geometry of a tile: its pings' mean projector height
     (:func:`footprint_for`; None without coverage or pings)."""
     cov = tile.coverage

@@ -262,7 +262,7 @@ def run_contacts(views: list[TileView],
     heights = [float(v.data["attrs"]["projector_height_m"]) for v in views
                if np.isfinite(float(v.data["attrs"].get("projector_height_m", np.nan)))]
     footprint = None
-    if use_footprint and heights and hw is not None:
+    if use_footprint and heights and hw is not None and imaging is not None:
         footprint = footprint_for(float(np.mean(heights)), hw, imaging)
     rows = []
     for v in views:
