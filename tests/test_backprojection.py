@@ -32,9 +32,17 @@ def scene(rng, nch=6, nt=300, dt=16e-6):
     return data, tx, rx
 
 
+#: the default run: every delay model with the default interpolation and precision,
+#: every interpolation once, float64 once; the other combinations (each a kernel
+#: specialisation numba compiles anew on a cold cache) are `extended`
+DEFAULT_CASES = {("linear", "float32", "straight"), ("linear", "float32", "exact"),
+                 ("linear", "float32", "table"), ("nearest", "float32", "straight"),
+                 ("cubic", "float32", "straight"), ("cubic", "float64", "exact")}
 CASES = [(interp, prec, mode) for interp in ("nearest", "linear", "cubic")
          for prec in ("float32", "float64") for mode in ("straight", "exact")]
 CASES += [("linear", "float64", "table"), ("linear", "float32", "table")]
+CASES = [c if c in DEFAULT_CASES else pytest.param(*c, marks=pytest.mark.extended)
+         for c in CASES]
 
 
 @pytest.mark.parametrize("interp, precision, mode", CASES)
@@ -68,8 +76,10 @@ def test_kernel_matches_direct_sum(interp, precision, mode):
     assert err < tol, err
 
 
-@pytest.mark.parametrize("interp, mode", [(i, m) for i in ("nearest", "linear", "cubic")
-                                           for m in ("straight", "table")])
+@pytest.mark.parametrize("interp, mode", [
+    (i, m) if i == "linear" or m == "straight"
+    else pytest.param(i, m, marks=pytest.mark.extended)
+    for i in ("nearest", "linear", "cubic") for m in ("straight", "table")])
 def test_window_path_matches_direct_sum(interp, mode):
     """2 cm depth voxels: 16 consecutive depths read samples within a 32-sample window,
     so the float32 kernel takes the window-permute path (the coarse grids above take the

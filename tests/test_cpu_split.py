@@ -63,7 +63,9 @@ def _ping(rng, nch=12, nt=400, dt=16e-6):
 
 
 @pytest.mark.parametrize("interp, mode, precision", [("linear", "straight", np.float32),
-                                                     ("cubic", "straight", np.float64),
+                                                     pytest.param("cubic", "straight",
+                                                                  np.float64,
+                                                                  marks=pytest.mark.extended),
                                                      ("linear", "exact", np.float32)])
 def test_images_identical_in_any_order_and_thread_count(interp, mode, precision):
     rng = np.random.default_rng(4)

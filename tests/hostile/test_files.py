@@ -41,7 +41,7 @@ from svss_proc.tiles import (
 )
 from tests.test_messages import assert_same
 
-from .conftest import ROOT, copy, fuzz_settings, ping_for, small_tile, write_run
+from .conftest import FUZZ_EXAMPLES, ROOT, copy, fuzz_settings, ping_for, small_tile, write_run
 
 HANG_GUARD_S = 20.0      # generous: only to tell a hang from a refusal, not a speed test
 ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
@@ -606,7 +606,7 @@ def fuzz_tile(tile_path):
     return data, _structure_offsets(len(data), spans)
 
 
-@fuzz_settings()
+@fuzz_settings(max_examples=max(1, FUZZ_EXAMPLES // 2))   # a tile read costs 2x a raw run's
 @given(data=st.data())
 def test_fuzzed_tile_gives_data_or_tile_file_error(fuzz_tile, tmp_path, quick_refusal,
                                                     data):
