@@ -24,7 +24,8 @@ ROOT = Path(__file__).resolve().parents[2]
 def fuzz_settings(**kw) -> settings:
     """Hypothesis settings for fuzzing a reader: :data:`FUZZ_EXAMPLES` examples, no
     per-example deadline (tests bound the time themselves)."""
-    return settings(max_examples=FUZZ_EXAMPLES, deadline=None, derandomize=False,
+    kw.setdefault("max_examples", FUZZ_EXAMPLES)
+    return settings(deadline=None, derandomize=False,
                     suppress_health_check=[HealthCheck.function_scoped_fixture,
                                            HealthCheck.too_slow], **kw)
 
