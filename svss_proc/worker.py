@@ -378,6 +378,8 @@ class _Run:
     worker: Worker | None               # None: a run already finished here (ignored)
     next_seq: int | None
     buffer: dict[int, Ping] = field(default_factory=dict)
+    #: pings fed to the worker in this session (all of a run's: nothing to fetch at its end)
+    fed: int = 0
     gap_since: float | None = None
     retry_at: float = 0.0
     service_failed: bool = False        # the last catch-up of this run failed
@@ -533,6 +535,7 @@ class StreamWorker:
         r.buffer.pop(ping.sequence, None)
         r.next_seq = ping.sequence + 1
         r.gap_since = None
+        r.fed += 1
         r.worker.add(ping)
 
     def _skip_gap(self, r: _Run, why: str) -> None:
@@ -637,7 +640,10 @@ class StreamWorker:
             return
         if r is not None and r.run_id == end.run_id:
             if r.worker is not None:
-                if self.fetcher is not None:
+                # every ping the run's end marker counts came in order: nothing to ask the
+                # service (which may have gone after its linger while this worker imaged)
+                have_all = not r.buffer and r.fed >= end.n_pings
+                if self.fetcher is not None and not have_all:
                     info = {i.run_id: i for i in (self._runs() or [])}.get(end.run_id)
                     last = info.last if info is not None else max(r.buffer, default=-1)
                     deadline = time.monotonic() + END_WAIT_S
