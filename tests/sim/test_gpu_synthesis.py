@@ -165,6 +165,7 @@ def test_scene_option_runs_pass_2_on_the_gpu(simulated):
     assert rel(simulated["wired_gpu"], simulated["wired_cpu"]) < 1e-5
 
 
+@pytest.mark.extended      # 7-9 s of libNVVM compile; the simulator tests above run the kernel
 def test_kernel_compiles_for_a_real_gpu(monkeypatch):
     """The kernel the simulator ran, compiled to PTX for an H100 (sm_90): the simulator
     runs Python, so this is what shows that numba-cuda can compile it. Without a GPU,
