@@ -226,13 +226,28 @@ def target_bin(src: EnvironmentSource, depth: float = 1.0, nbin: int = 25) -> in
     return int((tau - src.pulses.t_first) * src.fs) // nbin
 
 
+#: the highest fidelity both fidelity tables start from: twice the former scene files'
+#: densities, multipath to second order, 3 m of volume, float64, no level cut-off
+TOP = {"density": 2.0, "order": 2, "cutoff": 3.0, "precision": "float64", "per_cell": None,
+       "below_noise": None}
+
+
+def row_options(key: str, value) -> tuple[dict, str]:
+    """The with_fidelity options and the label of a fidelity-table row: one option
+    lowered from :data:`TOP`, the scene file's own setting ("default") or TOP on another
+    seabed ("seed")."""
+    if key == "default":
+        return {}, "scene file (default)"
+    if key == "seed":
+        return dict(TOP, seed=value), "other seed (same fidelity)"
+    return dict(TOP, **{key: value}), f"{key} = {value}"
+
+
 def fidelity(hw, n: int, quick: bool, only_rows: str | None = None
              ) -> tuple[dict, list[dict]]:
     """The fidelity table on ``n`` pings of the sand scene."""
     base = load_scene(config_path("scenes/seed_cylinder_sand.toml"))
-    # highest fidelity: twice the scene file's former densities, no level cut-off
-    top = dict(density=2.0, order=2, cutoff=3.0, precision="float64", per_cell=None,
-               below_noise=None)
+    top = TOP
     pings = list(range(FIRST_PING, FIRST_PING + n))
     ref_src = EnvironmentSource(hw, with_fidelity(base, **top))
     t_ref, s_ref, p_ref = time_pings(ref_src, pings, keep=True)
@@ -263,18 +278,8 @@ def fidelity(hw, n: int, quick: bool, only_rows: str | None = None
         variants = [v for v in variants if v[0] in only_rows.split(",")]
     rows = []
     for key, value in variants:
-        opts = dict(top)
-        if key == "seed":
-            sc = with_fidelity(base, **opts, seed=value)
-            label = "other seed (same fidelity)"
-        elif key == "default":
-            sc = with_fidelity(base)
-            label = "scene file (default)"
-        else:
-            opts[key] = value
-            sc = with_fidelity(base, **opts)
-            label = f"{key} = {value}"
-        src = EnvironmentSource(hw, sc)
+        opts, label = row_options(key, value)
+        src = EnvironmentSource(hw, with_fidelity(base, **opts))
         t, s, p = time_pings(src, pings, keep=True)
         same_seabed = key in ("order", "cutoff", "precision", "below_noise", "synthesis")
         wave = (float(np.sqrt(sum(np.sum((a - b) ** 2) for a, b in zip(p, p_ref))
@@ -369,8 +374,7 @@ def image_fidelity(hw, quick: bool, only_rows: str | None = None
     pings imaged into the 3 m tile holding the target, one option lowered per row from
     the highest fidelity; errors relative to that setting's image."""
     base = load_scene(config_path("scenes/seed_cylinder_sand.toml"))
-    top = dict(density=2.0, order=2, cutoff=3.0, precision="float64", per_cell=None,
-               below_noise=None)
+    top = TOP
     pings = range(*IMAGE_PINGS)
 
     def run(**opts):
@@ -395,16 +399,7 @@ def image_fidelity(hw, quick: bool, only_rows: str | None = None
         variants = [v for v in variants if v[0] in only_rows.split(",")]
     rows = []
     for key, value in variants:
-        opts = dict(top)
-        if key == "default":
-            opts = {}
-            label = "scene file (default)"
-        elif key == "seed":
-            opts["seed"] = value
-            label = "other seed (same fidelity)"
-        else:
-            opts[key] = value
-            label = f"{key} = {value}"
+        opts, label = row_options(key, value)
         m, t, c, src = run(**opts)
         ok = np.isfinite(m["profile"]) & np.isfinite(m_ref["profile"])
         prof_db = 10 * np.log10(m["profile"][ok] / m_ref["profile"][ok])
