@@ -23,7 +23,6 @@ import numpy as np
 from sim_device.scene import load_scene
 from sim_device.track import truth_line
 from svss_daq.config import ConfigError, ProcessingConfig, loads
-from svss_daq.frames import TrackLine
 from svss_proc import tiles
 from svss_proc.products import detect
 from svss_proc.products.run_products import TileView, run_contacts
@@ -103,11 +102,6 @@ def scene_truth(scene) -> list[dict]:
                             "scene_m": [item.along_m, item.cross_m, item.depth_m],
                             "fields": extra})
     return out
-
-
-def _tile_line(attrs: dict) -> TrackLine:
-    return TrackLine((float(attrs["line_origin_north_m"]), float(attrs["line_origin_east_m"])),
-                     float(attrs["line_heading_rad"]), float(attrs["interface_down_m"]))
 
 
 def _radius_from_tile(path: Path, header: dict) -> float | None:
@@ -207,9 +201,8 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
         if kept is not None:
             table = table[[(path.name, i) in kept for i in range(len(table))]] \
                 if len(table) else table
-        line = _tile_line(attrs)
+        line = tiles.tile_line(attrs)
         axes = [header[d] for d in tiles.DIMS]
-        voxel = float(attrs["voxel_m"])
         t_tile = line.ned_to_tile(truth_ned)
         inside = np.ones(len(truth), dtype=bool)
         for k, ax in enumerate(axes):

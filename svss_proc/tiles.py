@@ -103,6 +103,12 @@ class Tile:
         return self
 
 
+def tile_line(attrs: dict) -> TrackLine:
+    """The tile frame (track line) stored in a tile's root attributes."""
+    return TrackLine((float(attrs["line_origin_north_m"]), float(attrs["line_origin_east_m"])),
+                     float(attrs["line_heading_rad"]), float(attrs["interface_down_m"]))
+
+
 def tile_name(index: int) -> str:
     return f"tile_{index:04d}"
 

@@ -209,7 +209,7 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
     # multipath ghost above the seabed); a top face at the interface keeps its
     # contacts (objects resting on the seabed peak there)
     faces = {level.shape[2] - 1}
-    if axes[2].size and axes[2][0] - voxel[2] / 2 < -0.5 * voxel[2]:
+    if axes[2].size and axes[2][0] < 0.0:       # the top voxel's centre in the water
         faces.add(0)
     n_faces = 0
     for lab, peak in zip(keep, peaks):
@@ -237,11 +237,12 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
                 break
         else:
             merged.append(c)
-    keep = sidelobe_filter(np.array([c["pos"] for c in merged]).reshape(-1, 3),
-                           np.array([c["peak_db"] for c in merged]), sidelobe_db,
-                           sidelobe_m, footprint)
-    n_sidelobes = int((~keep).sum())
-    kept = sorted((c for c, k in zip(merged, keep) if k), key=lambda c: -c["excess"])
+    n_regions = keep.size
+    not_sidelobe = sidelobe_filter(np.array([c["pos"] for c in merged]).reshape(-1, 3),
+                                   np.array([c["peak_db"] for c in merged]), sidelobe_db,
+                                   sidelobe_m, footprint)
+    n_sidelobes = int((~not_sidelobe).sum())
+    kept = sorted((c for c, k in zip(merged, not_sidelobe) if k), key=lambda c: -c["excess"])
     kept = kept[:max_detections]
     out = np.zeros(len(kept), dtype=DTYPE)
     for row, c in zip(out, kept):
@@ -257,6 +258,6 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
         row["coverage_fraction"] = (-1.0 if coverage_fraction is None
                                     else float(coverage_fraction[p]))
     log.debug("%d regions above %.1f dB, %d of at least %d voxels, %d peaking on a depth "
-              "face, %d sidelobes, %d contacts", n, threshold_db, keep.size, min_voxels,
+              "face, %d sidelobes, %d contacts", n, threshold_db, n_regions, min_voxels,
               n_faces, n_sidelobes, out.size)
     return out

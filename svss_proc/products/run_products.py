@@ -49,11 +49,12 @@ from svss_daq.config import (
 from svss_daq.frames import TrackLine
 from svss_daq.navigation import geodetic_to_ned, ned_to_geodetic
 
-from ..tiles import TileFileError, is_temporary, read_tile_views, temporary_path
+from ..tiles import (TileFileError, is_temporary, read_tile_views, temporary_path,
+                     tile_line)
 from .chain import DEFAULT_MIN_COVERAGE, coverage_settings, footprint_for
 from .detect import Footprint, sidelobe_filter
 from .drc import compress
-from .quicklook import save_png
+from .quicklook import DEFAULT_MAX_LABELS, choose_labels, save_png
 
 log = logging.getLogger(__name__)
 
@@ -96,9 +97,7 @@ class TileView:
 
     @property
     def line(self) -> TrackLine:
-        a = self.data["attrs"]
-        return TrackLine((float(a["line_origin_north_m"]), float(a["line_origin_east_m"])),
-                         float(a["line_heading_rad"]), float(a["interface_down_m"]))
+        return tile_line(self.data["attrs"])
 
     @property
     def voxel_m(self) -> float:
@@ -408,7 +407,7 @@ def write_mosaic_h5(path: Path, m: dict, origin) -> Path:
 
 
 def write_mosaic_png(path: Path, m: dict, contacts: list[dict], pcfg: ProductsConfig,
-                     title: str, max_labels: int = 20) -> Path:
+                     title: str, max_labels: int = DEFAULT_MAX_LABELS) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -434,7 +433,9 @@ def write_mosaic_png(path: Path, m: dict, contacts: list[dict], pcfg: ProductsCo
     ax.set_xlabel("east (m, survey frame)")
     ax.set_ylabel("north (m, survey frame)")
     ax.set_aspect("equal")
-    for c in contacts[:max_labels]:
+    xy = np.array([[c["east_m"], c["north_m"]] for c in contacts]).reshape(-1, 2)
+    for i in choose_labels(ax.transData.transform(xy), max_labels):
+        c = contacts[i]
         ax.plot(c["east_m"], c["north_m"], "o", mfc="none", mec="cyan", ms=8)
         ax.annotate(str(c["contact"]), (c["east_m"], c["north_m"]), xytext=(4, 4),
                     textcoords="offset points", color="cyan", fontsize=7)
@@ -483,7 +484,8 @@ def write_run_products(tiles_dir: str | Path, out_dir: str | Path | None = None,
                CONTACTS_GEOJSON: lambda p: p.write_text(geojson),
                MOSAIC_H5: lambda p: write_mosaic_h5(p, m, origin),
                MOSAIC_PNG: lambda p: write_mosaic_png(p, m, contacts, pcfg, title,
-                                                      20 if maxl is None else maxl)}
+                                                      DEFAULT_MAX_LABELS if maxl is None
+                                                      else maxl)}
     files = []
     for name, write in writers.items():
         final = out / name
