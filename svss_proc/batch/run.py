@@ -31,8 +31,8 @@ from svss_daq.progress import Progress
 
 from ..products.run_products import MOSAIC_H5, run_products_at_end
 from ..survey_index import INDEX_NAME, write_survey_index
-from ..worker import remove_temporaries, run_folder_name
-from .plan import RunPlan, TilePlan, group_runs, plan_run
+from ..worker import _atomic_json, remove_temporaries, run_folder_name
+from .plan import TilePlan, group_runs, plan_run
 from .task import image_tile, tile_paths
 
 log = logging.getLogger(__name__)
@@ -54,12 +54,6 @@ def require_dask():
     except ImportError as exc:
         raise ImportError(f"{INSTALL_HINT} ({exc})") from None
     return distributed
-
-
-def _atomic_json(path: Path, obj: dict) -> None:
-    tmp = path.with_name(path.name + ".partial")
-    tmp.write_text(json.dumps(obj, indent=2))
-    os.replace(tmp, path)
 
 
 def prepare_batch_dir(out: Path, runs: dict[str, list[Path]],
@@ -111,13 +105,6 @@ def _client(scheduler: str | None, workers: int | None):
     return distributed.Client(cluster), cluster
 
 
-def plan_survey(paths: list[str | Path], processing: Loaded[ProcessingConfig]
-                ) -> list[RunPlan]:
-    """Group the raw files into runs and plan every run's tiles."""
-    return [plan_run(run_id, run_folder_name(run_id), ps, processing)
-            for run_id, ps in group_runs(paths).items()]
-
-
 def run_batch(paths: list[str | Path], out: str | Path,
               processing: Loaded[ProcessingConfig], *, scheduler: str | None = None,
               workers: int | None = None, force: bool = False, client=None,
@@ -137,7 +124,7 @@ def run_batch(paths: list[str | Path], out: str | Path,
     runs = group_runs(paths)
     prepare_batch_dir(out, runs, processing, force)
     plans = [plan_run(run_id, run_folder_name(run_id), ps, processing)
-             for run_id, ps in runs.items()]   # as plan_survey, on the runs checked above
+             for run_id, ps in runs.items()]
     t_plan = time.perf_counter() - t0
     tiles = [t for p in plans for t in p.tiles]
     todo = [t for t in tiles if not tile_paths(out, t)[0].is_file()]

@@ -122,9 +122,9 @@ def _count(x, y, z, xa, yc, h_tx, h_min, rx, corners, b0, b1, b2, cos_tx, cos_rx
 @nb.njit(inline="always", cache=True)
 def _add(pings, channels, ia, ic, iz, n):
     if n > 0:
-        if pings[ia, ic, iz] < 65535:
+        if pings[ia, ic, iz] < SATURATE:
             pings[ia, ic, iz] += 1
-        channels[ia, ic, iz] = min(np.int64(channels[ia, ic, iz]) + n, 65535)
+        channels[ia, ic, iz] = min(np.int64(channels[ia, ic, iz]) + n, SATURATE)
 
 
 @nb.njit(parallel=True, cache=True)

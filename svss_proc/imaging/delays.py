@@ -111,6 +111,12 @@ class TravelTimeTable:
     time: np.ndarray    # (n_rho, n_z) s
     eta: np.ndarray     # (n_rho, n_z) s/m
 
+    @property
+    def rho_max(self) -> float:
+        """The largest offset the table was built for (m; :func:`build_table`'s margin of
+        two nodes beyond it)."""
+        return (self.time.shape[0] - 2) * self.drho
+
 
 @nb.njit(parallel=True, cache=True)
 def _fill_table(h, drho, z0, dz, cw, cs, time, eta):

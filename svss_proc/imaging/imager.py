@@ -260,7 +260,7 @@ class TileImager:
         span = float(np.ptp(rx[:, 0]) + np.ptp(rx[:, 1]) + abs(rx[:, :2] - tx[:2]).max())
         rho_max = reach + tcfg.width_m + span
         cached = self._tables.get(key)
-        if cached is None or (cached.time.shape[0] - 2) * cached.drho < rho_max:
+        if cached is None or cached.rho_max < rho_max:
             self._tables[key] = build_table(
                 key / TABLE_KEYS_PER_M, rho_max, tcfg.top_m - im.table_step_m,
                 tcfg.top_m + tcfg.depth_m + im.table_step_m, im.table_step_m,
