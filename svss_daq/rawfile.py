@@ -870,3 +870,21 @@ class RawRunReader:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def run_of(path: str | Path) -> tuple[str, int]:
+    """(run id, segment number) of a raw file: the root attributes ``run_id`` (else the
+    file's stem) and ``segment`` (else 0)."""
+    path = Path(path)
+    with RawRunReader(path) as r:
+        run_id, seg = r.attrs.get("run_id"), r.attrs.get("segment", 0)
+    if isinstance(run_id, np.ndarray) and run_id.shape == ():
+        run_id = run_id.item()
+    if isinstance(run_id, bytes):
+        run_id = run_id.decode("utf-8", "replace")
+    try:
+        seg = int(np.asarray(seg).reshape(()))
+    except (TypeError, ValueError):
+        raise RawFileError(f"{path}: root attribute 'segment' is {seg!r}; expected an "
+                           "integer") from None
+    return (run_id if isinstance(run_id, str) and run_id else path.stem), seg

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from svss_daq.config import ProcessingConfig, loads
 
-from .tiles import PARTIAL, read_tile_header
+from .tiles import is_temporary, read_tile_header, temporary_path
 
 log = logging.getLogger(__name__)
 
@@ -84,7 +84,7 @@ def find_tiles(folder: Path) -> list[tuple[str, Path]]:
     out = [(folder.name, p) for p in sorted(folder.glob("tile_*.h5"))]
     for d in sorted(p for p in folder.iterdir() if p.is_dir()):
         out += [(d.name, p) for p in sorted(d.glob("tile_*.h5"))]
-    return [(r, p) for r, p in out if PARTIAL not in p.name]
+    return [(r, p) for r, p in out if not is_temporary(p)]
 
 
 def write_survey_index(folder: str | Path, tiles: list[tuple[str, Path]] | None = None
@@ -98,7 +98,7 @@ def write_survey_index(folder: str | Path, tiles: list[tuple[str, Path]] | None 
     rows = sorted((tile_row(Path(p), r, folder, cache) for r, p in tiles),
                   key=lambda row: (row["run_id"], row["tile_index"]))
     path = folder / INDEX_NAME
-    tmp = path.with_name(f".{INDEX_NAME}{PARTIAL}index")
+    tmp = temporary_path(path)          # unique: two writers never share it
     with open(tmp, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=COLUMNS, restval="")
         w.writeheader()

@@ -36,7 +36,7 @@ from svss_daq.ping import Ping
 from svss_daq.ping_gate import PingGate, PingRejected
 from svss_daq.ping_service import PingFetcher, RunInfo, ServiceError
 from svss_daq.progress import Progress
-from svss_daq.rawfile import RawRunReader
+from svss_daq.rawfile import RawRunReader, run_of
 from svss_daq.subscriber import subscribe
 
 from .imaging.imager import TileImager
@@ -360,10 +360,8 @@ def process_raw(path: str | Path, out_dir: str | Path,
     with RawRunReader(path) as run:
         worker = Worker(run.hardware, processing, out_dir, force=force)
         files = worker.run(iter(run), total=len(run))
-        run_id = run.attrs.get("run_id")
-    run_id = run_id.decode() if isinstance(run_id, bytes) else run_id
-    write_survey_index(out_dir, [(str(run_id or Path(path).stem), p) for p in files
-                                 if p.suffix == ".h5"])
+    run_id, _ = run_of(Path(path))          # as svss batch names it in its index
+    write_survey_index(out_dir, [(run_id, p) for p in files if p.suffix == ".h5"])
     return files
 
 

@@ -32,7 +32,7 @@ from svss_daq.frames import TrackLine
 from svss_daq.geometry import array_geometry, place_array
 from svss_daq.ping import Ping, SampleAxis
 from svss_daq.ping_gate import PingGate, PingRejected
-from svss_daq.rawfile import RawFileError, RawRunReader
+from svss_daq.rawfile import RawFileError, RawRunReader, run_of
 from svss_daq.waveform import make_waveform
 
 from ..conditioning import Conditioner
@@ -220,23 +220,6 @@ def _pose_ping(reader: RawRunReader, i: int, meta: dict, zeros: np.ndarray) -> P
                 samples=zeros, nav=reader.nav(i), config_id=reader.hardware.id)
 
 
-def _run_of(path: Path) -> tuple[str, int]:
-    """(run id, segment number) of a raw file: the root attributes ``run_id`` (else the
-    file's stem) and ``segment`` (else 0)."""
-    with RawRunReader(path) as r:
-        run_id, seg = r.attrs.get("run_id"), r.attrs.get("segment", 0)
-    if isinstance(run_id, np.ndarray) and run_id.shape == ():
-        run_id = run_id.item()
-    if isinstance(run_id, bytes):
-        run_id = run_id.decode("utf-8", "replace")
-    try:
-        seg = int(np.asarray(seg).reshape(()))
-    except (TypeError, ValueError):
-        raise RawFileError(f"{path}: root attribute 'segment' is {seg!r}; expected an "
-                           "integer") from None
-    return (run_id if isinstance(run_id, str) and run_id else path.stem), seg
-
-
 def group_runs(paths: list[str | Path]) -> dict[str, list[Path]]:
     """Raw files grouped into runs, each run's segment files in segment order, runs in
     the order of their first file given; as the catch-up service groups them
@@ -253,7 +236,7 @@ def group_runs(paths: list[str | Path]) -> dict[str, list[Path]]:
         if p.resolve() in seen:
             raise ValueError(f"{p}: given twice")
         seen.add(p.resolve())
-        run_id, seg = _run_of(p)
+        run_id, seg = run_of(p)
         segs = runs.setdefault(run_id, {})
         if seg in segs:
             raise ValueError(f"{p} and {segs[seg]}: both segment {seg} of run {run_id!r} "
