@@ -117,3 +117,19 @@ def test_front_and_recommendation_follow_the_rows(trade):
         else:
             assert rec is None
     assert any("Pareto front" in s for s in result["summary"])
+
+
+def test_every_simulation_option_reaches_the_scene():
+    """Each option the simulation area varies is set on the scene it simulates (a dropped
+    option would measure the default twice and show no error)."""
+    from sim_device.scene import load_scene
+    from svss.trade.simulation import scene_defaults, with_options
+    from svss_daq.config import config_path
+
+    sc = load_scene(config_path("scenes/seed_cylinder_sand.toml"))
+    base = scene_defaults(sc)
+    s = dict(base, per_cell=0.5, order=0, below_noise=7.0, tol=1e-3, step=500.0)
+    assert all(s[k] != base[k] for k in s)
+    out = with_options(sc, s, seed=sc.scene.seed + 1)
+    assert scene_defaults(out) == s
+    assert out.scene.seed == sc.scene.seed + 1
