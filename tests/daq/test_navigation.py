@@ -135,7 +135,7 @@ def make_sensors(duration_s=120.0, gps_hz=5.0, dvl_hz=8.0, gps_sigma=0.3, outage
         fixes.append(nav.GpsFix(T0 + int(round(t * 1e9)), lat, lon, h, 1))
     th = np.arange(0.0, duration_s, 1 / gps_hz)  # HDT keeps coming through a position outage
     _, _, _, hd = truth(th)
-    heads = [nav.HeadingSample(T0 + int(round(t * 1e9)), float(nav._wrap(h + rng.normal(0, 0.003))))
+    heads = [nav.HeadingSample(T0 + int(round(t * 1e9)), float(nav.wrap_angle(h + rng.normal(0, 0.003))))
              for t, h in zip(th, hd)]
     td = np.arange(0.0, duration_s, 1 / dvl_hz)
     eps = 1e-4
@@ -157,7 +157,7 @@ def errors(poses, t):
     got = np.array([[s.north_m, s.east_m, s.down_m] for s in poses])
     horiz = np.hypot(*(got[:, :2] - p[:, :2]).T)
     alt = np.array([s.altitude_m for s in poses]) - (BOTTOM_DOWN - p[:, 2])
-    hdg = nav._wrap(np.array([s.heading_rad for s in poses]) - h)
+    hdg = nav.wrap_angle(np.array([s.heading_rad for s in poses]) - h)
     return horiz, alt, hdg
 
 

@@ -53,7 +53,7 @@ def test_beam_coordinates_give_the_body_velocity(convex, angle, align_deg):
     ens = pd0.decode_ensemble(raw)
     d = nav.dvl_sample_from_pd0(ens)
     assert np.allclose(d.velocity_body_m_s, v_body, atol=3e-3)   # 1 mm/s on the wire
-    assert d.heading_rad == pytest.approx(nav._wrap(1.0 - ea), abs=1e-4)
+    assert d.heading_rad == pytest.approx(nav.wrap_angle(1.0 - ea), abs=1e-4)
     # the formulas themselves, unquantised, and a zero error velocity for Janus geometry
     x, y, z, e = nav.beam_to_instrument(beams_by_hand(v_instr, angle, convex),
                                         math.radians(angle), convex)
@@ -183,7 +183,7 @@ def test_gnss_loss_falls_back_to_the_dvl_compass(cfg):
     heads = [h for h in heads if not out[0] * 1e9 <= h.time_ns - T0 <= out[1] * 1e9]
     _, _, _, hd = truth(np.array([(d.time_ns - T0) * 1e-9 for d in dvl]))
     rng = np.random.default_rng(5)
-    dvl_c = [dataclasses.replace(d, heading_rad=float(nav._wrap(h + rng.normal(0, 0.005))))
+    dvl_c = [dataclasses.replace(d, heading_rad=float(nav.wrap_angle(h + rng.normal(0, 0.005))))
              for d, h in zip(dvl, hd)]
     t = np.arange(out[0] + 5.0, out[1] - 1.0, 1.0)
     times = T0 + (t * 1e9).astype(np.int64)

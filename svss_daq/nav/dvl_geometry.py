@@ -1,0 +1,111 @@
+"""Teledyne RDI DVL geometry: beam directions, beam -> instrument -> ship velocities,
+altitude from bottom-track ranges."""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+
+from svss_daq.frames import body_to_ned
+
+from .records import DvlSample
+
+# --------------------------------------------------------------------------- DVL
+
+
+def rdi_beam_vectors(beam_angle_rad: float, convex: bool = True) -> np.ndarray:
+    """Outward unit vectors (4, 3) of beams 1-4 in RDI's instrument frame (X, Y, Z; Z
+    along the head's axis away from the beams, Y toward beam 3), each ``beam_angle_rad``
+    from the axis: the geometry for which :func:`beam_to_instrument` is exact when a beam
+    velocity is the velocity's component toward the transducer, b_i = -v . u_i.
+    Convex: beam 2 at +X, 1 at -X, 3 at +Y, 4 at -Y; concave swaps each pair."""
+    s, c = math.sin(beam_angle_rad), math.cos(beam_angle_rad)
+    k = 1.0 if convex else -1.0
+    return np.array([[-k * s, 0.0, -c], [k * s, 0.0, -c], [0.0, k * s, -c], [0.0, -k * s, -c]])
+
+
+def janus_beam_vectors(beam_angle_rad: float, convex: bool = True) -> np.ndarray:
+    """Unit vectors (4, 3) of beams 1-4 in the body frame for a down-looking DVL with
+    beam 3 forward (instrument X starboard, Y forward, Z up; :func:`rdi_beam_vectors`):
+    convex 1 port, 2 starboard, 3 forward, 4 aft, each ``beam_angle_rad`` from the
+    vertical."""
+    u = rdi_beam_vectors(beam_angle_rad, convex)
+    return np.stack([u[:, 1], u[:, 0], -u[:, 2]], axis=-1)
+
+
+def beam_to_instrument(beam_m_s, beam_angle_rad: float, convex: bool = True) -> np.ndarray:
+    """RDI beam velocities (4,) m/s, positive toward the transducer, to instrument
+    (X, Y, Z, error) m/s (Teledyne RDI, "ADCP Coordinate Transformation"):
+    X = c a (b1 - b2), Y = c a (b4 - b3), Z = b (b1 + b2 + b3 + b4),
+    e = d (b1 + b2 - b3 - b4), a = 1/(2 sin theta), b = 1/(4 cos theta), d = a/sqrt(2),
+    c = +1 convex, -1 concave. NaN in any beam gives NaN (see :func:`three_beam_fill`)."""
+    b1, b2, b3, b4 = (float(x) for x in beam_m_s)
+    a = 1.0 / (2.0 * math.sin(beam_angle_rad))
+    bb = 1.0 / (4.0 * math.cos(beam_angle_rad))
+    c = 1.0 if convex else -1.0
+    d = a / math.sqrt(2.0)
+    return np.array([c * a * (b1 - b2), c * a * (b4 - b3), bb * (b1 + b2 + b3 + b4),
+                     d * (b1 + b2 - b3 - b4)])
+
+
+def three_beam_fill(beam_m_s) -> np.ndarray:
+    """Beam velocities (4,) with one bad (NaN) beam replaced by the value that makes the
+    error velocity zero (RDI's 3-beam solution): b1 + b2 = b3 + b4. Unchanged with no
+    bad beam; all NaN with more than one."""
+    b = np.array(beam_m_s, dtype=np.float64)[:4]
+    bad = ~np.isfinite(b)
+    if not bad.any():
+        return b
+    if bad.sum() > 1:
+        return np.full(4, np.nan)
+    k = int(np.flatnonzero(bad)[0])
+    pair, other = ((0, 1), (2, 3)) if k < 2 else ((2, 3), (0, 1))
+    mate = pair[1] if k == pair[0] else pair[0]
+    b[k] = b[other[0]] + b[other[1]] - b[mate]
+    return b
+
+
+def instrument_to_ship(xyz, heading_alignment_rad: float, up_looking: bool = False
+                       ) -> np.ndarray:
+    """Instrument (X, Y, Z) to ship (X starboard, Y forward, Z up) coordinates: for an
+    up-looking head first a 180 deg roll (X, Z negated, RDI), then the heading alignment
+    EA (beam 3's azimuth clockwise from the bow): X' = cos EA X + sin EA Y,
+    Y' = -sin EA X + cos EA Y. Tilts are not applied (the navigation applies roll and
+    pitch to ship coordinates itself)."""
+    x, y, z = (float(v) for v in xyz[:3])
+    if up_looking:
+        x, z = -x, -z
+    ce, se = math.cos(heading_alignment_rad), math.sin(heading_alignment_rad)
+    return np.array([ce * x + se * y, -se * x + ce * y, z])
+
+
+def altitude_from_ranges(ranges_m, roll_rad: float, pitch_rad: float, beam_angle_rad: float,
+                         dvl_lever_m, min_beams: int = 3,
+                         vertical_range_m: float = float("nan")) -> float:
+    """Height of the body origin above a flat bottom from DVL slant ranges, m; with fewer
+    than ``min_beams`` valid ranges from the vertical beam's range (its axis along body
+    z), else NaN. Heading does not matter."""
+    r = np.asarray(ranges_m, dtype=np.float64)
+    ok = np.isfinite(r) & (r > 0)
+    rot = body_to_ned(roll_rad, pitch_rad, 0.0)
+    if ok.sum() >= min_beams:
+        vert = (janus_beam_vectors(beam_angle_rad) @ rot.T)[:, 2]
+        below_head = float(np.mean(r[ok] * vert[ok]))
+    elif math.isfinite(vertical_range_m) and vertical_range_m > 0:
+        below_head = vertical_range_m * float(rot[2, 2])
+    else:
+        return float("nan")
+    return below_head + float((rot @ np.asarray(dvl_lever_m, dtype=np.float64))[2])
+
+
+@functools.lru_cache(maxsize=8192)
+def _sample_altitude(d: "DvlSample", beam_angle_rad: float, dvl_lever_m: tuple,
+                     min_beams: int) -> float:
+    """:func:`altitude_from_ranges` of one DVL sample, computed once (a navigator poses
+    each ping from the same history of samples)."""
+    return altitude_from_ranges(d.ranges_m, d.roll_rad, d.pitch_rad, beam_angle_rad,
+                                dvl_lever_m, min_beams, d.vertical_range_m)
+
+
