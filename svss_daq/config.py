@@ -617,6 +617,25 @@ class NavigationConfig:
                                        "speed, m/s", lo=0, hi=50)
     gps_max_sigma_m: float = spec("fixes whose GST horizontal sigma (DRMS) exceeds this "
                                   "are rejected, m (no GST: no limit)", lo=0.001, hi=1e4)
+    # the fusion's noise model (docs/navigation.md, "Fusion"): the instruments' specifications
+    dvl_velocity_sigma_m_s: float = spec("DVL bottom-track velocity noise per component and "
+                                         "ensemble, m/s (1 sigma)", lo=1e-5, hi=1.0)
+    dvl_velocity_bias_sigma_m_s: float = spec("DVL long-term velocity accuracy (bias) per "
+                                              "horizontal component, m/s (1 sigma)",
+                                              lo=0.0, hi=1.0)
+    dvl_range_sigma_m: float = spec("DVL bottom-track range noise per beam, m (1 sigma)",
+                                    lo=1e-4, hi=10.0)
+    gps_sigma_m: float = spec("GPS horizontal noise per axis where no GST is sent, m "
+                              "(1 sigma)", lo=1e-3, hi=1e3)
+    gps_height_sigma_m: float = spec("GPS height noise, m (1 sigma)", lo=1e-3, hi=1e3)
+    bottom_depth_rate_sigma_m_s: float = spec("how fast the bottom's depth under the DVL may "
+                                              "change, m/s (random-walk intensity)",
+                                              lo=1e-6, hi=10.0)
+    dvl_gap_velocity_sigma_m_s: float = spec("velocity uncertainty while the DVL has no "
+                                             "bottom lock (last velocity held), m/s",
+                                             lo=1e-3, hi=100.0)
+    fixed_lag_s: float = spec("live smoother's lag: a ping is posed with the records up to "
+                              "this long after it, s (0: causal filter)", lo=0.0, hi=60.0)
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,12 @@ NAV_SIMULATED = 8        # produced by the simulator (truth)
 NAV_HEADING_FROM_COURSE = 16   # heading is the GPS course over ground (no HDT in time)
 NAV_NO_HEADING = 32      # no heading at all (heading 0 used, lever arms unreliable)
 NAV_HEADING_FROM_COMPASS = 64  # heading is the DVL's magnetic compass (no HDT or course in time)
+NAV_HELD = 128           # past the last navigation record: the pose is extrapolated (held)
+NAV_CLOCK_RETIMED = 256  # an instrument's clock disagreed with the ping clock: its records
+                         # were placed on the ping clock by their receive times
+NAV_SMOOTHED = 512       # from the smoother over the whole recording (re-navigation);
+                         # without it a live pose (causal fixed-lag smoother)
+NAV_FUSED = 1024         # position from the DVL/GPS Kalman fusion (not GPS interpolation)
 
 
 @dataclass(frozen=True)
