@@ -1,4 +1,29 @@
-"""The pose of the body origin at given times from every instrument record."""
+"""The pose of the body origin at given times from every instrument record: the DVL's
+velocities and attitude carry the ping-to-ping geometry, GPS and the DVL's altitude only
+bound its slow drift (``docs/navigation.md``, "Fusion").
+
+Three independent two-state Kalman filters (:mod:`svss_daq.nav.kalman`) run on the grid
+of DVL sample times, one per NED axis of the DVL head's position:
+
+* north and east: (head position, DVL velocity bias); the DVL velocity rotated to NED
+  (roll and pitch from the DVL, heading from the heading sources) is the process, the
+  trapezoid of consecutive samples its displacement, noise ``dvl_velocity_sigma_m_s``
+  per sample; the bias is first-order Gauss-Markov (``dvl_velocity_bias_sigma_m_s``,
+  ``dvl_bias_correlation_s``). GPS fixes are measurements of the antenna, moved to the
+  head through the lever arms and to the grid point before them with the DVL's
+  velocity; noise per axis GST sigma / sqrt(2), else ``gps_sigma_m``.
+* down: (head depth, bottom depth under the head); process: the DVL's vertical velocity
+  and a random walk of the bottom (``bottom_depth_rate_sigma_m_s``); measurements: the
+  head's height above the bottom from the beam ranges (bottom depth minus head depth,
+  noise ``dvl_range_sigma_m`` over the beams used) and the GPS height where a fix has one
+  (``gps_height_sigma_m``).
+
+Without bottom lock the last velocity is held with ``dvl_gap_velocity_sigma_m_s`` of
+uncertainty, so the GPS takes over. The RTS smoother gives each pose every record before
+and after it (a recorded run, or the live navigator's history, which the acquisition
+waits to reach ``fixed_lag_s`` past a ping); ``causal=True`` gives the filter alone.
+Without a DVL, positions are interpolated between fixes.
+"""
 
 from __future__ import annotations
 
@@ -7,25 +32,92 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from svss_daq.ping import (NAV_BOTTOM_LOCK, NAV_DEAD_RECKONED, NAV_GPS_FIX,
-                           NAV_HEADING_FROM_COMPASS, NAV_HEADING_FROM_COURSE, NAV_NO_HEADING,
-                           NavSnapshot)
+from svss_daq.ping import (NAV_BOTTOM_LOCK, NAV_DEAD_RECKONED, NAV_FUSED, NAV_GPS_FIX,
+                           NAV_HEADING_FROM_COMPASS, NAV_HEADING_FROM_COURSE, NAV_HELD,
+                           NAV_NO_HEADING, NavSnapshot)
 
 from .dvl_geometry import _sample_altitude
 from .geodesy import geodetic_to_ned, ned_to_geodetic
-from .headings import _headings, _nearest_age, _rotations, _smooth, _fix_weights, wrap_angle
+from .headings import _headings, _nearest_age, _rotations
+from .kalman import filter_smooth
 from .records import DvlSample, GpsFix, HeadingSample
 
-YAW_RATE_HALF_WINDOW_S = 0.5
+__all__ = ["compute_poses", "survey_origin"]
+
+#: prior variance of a position the first measurement fixes, m^2 (100 m: any GPS wins)
+_UNKNOWN_VAR_M2 = 1e4
+#: prior variance of the body's depth without GPS heights (body at the origin's height), m^2
+_NO_HEIGHT_VAR_M2 = 1.0
+#: the lever arm's rate of turn is taken over +-0.5 s of attitude
+ATTITUDE_RATE_HALF_WINDOW_S = 0.5
+_HEADING_FLAG = {0: 0, 1: NAV_HEADING_FROM_COURSE, 2: NAV_NO_HEADING, 3: NAV_HEADING_FROM_COMPASS}
+
+
+def survey_origin(cfg, fixes: Sequence[GpsFix]) -> Optional[tuple[float, float, float]]:
+    """The survey origin (lat deg, lon deg, h m): configured, else the first fix with a
+    height (an RMC carries none), else the first fix at height 0; None without either."""
+    if cfg.origin_latitude_deg is not None and cfg.origin_longitude_deg is not None:
+        return (cfg.origin_latitude_deg, cfg.origin_longitude_deg, cfg.origin_height_m or 0.0)
+    if not fixes:
+        return None
+    first = sorted(fixes, key=lambda f: f.time_ns)
+    with_h = [f for f in first if math.isfinite(f.height_m)]
+    f = with_h[0] if with_h else first[0]
+    return (f.latitude_deg, f.longitude_deg, f.height_m if with_h else 0.0)
+
+
+def _grid_model(td, v_ned, ok, cfg):
+    """Per step of the DVL grid: the displacement (K-1, 3) the velocities integrate to,
+    its variance, whether the DVL carried it, and the velocity to use at each grid
+    point (the last good one held where a sample has none; (K, 3))."""
+    k_n = td.size
+    v_use = v_ned.copy()
+    last = None
+    first_ok = np.flatnonzero(ok)
+    for k in range(k_n):
+        if ok[k]:
+            last = v_ned[k]
+        else:
+            v_use[k] = last if last is not None else (
+                v_ned[first_ok[0]] if first_ok.size else np.zeros(3))
+    dt = np.diff(td)
+    both = ok[:-1] & ok[1:] & (dt <= cfg.dvl_max_gap_s)
+    one = (ok[:-1] ^ ok[1:]) & (dt <= cfg.dvl_max_gap_s)
+    carried = both | one
+    disp = np.where(both[:, None], 0.5 * (v_use[:-1] + v_use[1:]) * dt[:, None],
+                    np.where(ok[:-1, None], v_use[:-1], v_use[1:]) * dt[:, None])
+    held = ~carried
+    disp[held] = v_use[:-1][held] * dt[held, None]
+    sig_v = cfg.dvl_velocity_sigma_m_s
+    var = np.where(both, sig_v ** 2 * dt ** 2, 2.0 * sig_v ** 2 * dt ** 2)
+    var = np.where(held, cfg.dvl_gap_velocity_sigma_m_s ** 2 * dt ** 2, var)
+    return disp, var, carried, v_use
+
+
+def _partial(t_m, td, v_use):
+    """Grid point before each time ``t_m`` (clipped to the grid) and the displacement
+    (.., 3) from it to ``t_m`` with the velocity linear between grid points."""
+    k = np.clip(np.searchsorted(td, t_m, side="right") - 1, 0, td.size - 1)
+    tau = t_m - td[k]
+    k1 = np.minimum(k + 1, td.size - 1)
+    span = td[k1] - td[k]
+    slope = np.where((span > 0)[:, None], (v_use[k1] - v_use[k]) / np.where(span > 0, span, 1.0)[:, None], 0.0)
+    inside = (tau >= 0) & (tau <= span)
+    disp = v_use[k] * tau[:, None] + np.where(inside[:, None], 0.5 * slope * (tau ** 2)[:, None], 0.0)
+    return k, tau, disp
+
 
 def compute_poses(times_ns, fixes: Sequence[GpsFix], headings: Sequence[HeadingSample],
                   dvl: Sequence[DvlSample], cfg, lever_arms,
-                  origin: Optional[tuple[float, float, float]] = None) -> list[NavSnapshot]:
+                  origin: Optional[tuple[float, float, float]] = None, *,
+                  causal: bool = False, flags: int = 0) -> list[NavSnapshot]:
     """The pose of the body origin at each of ``times_ns``.
 
     ``cfg``: :class:`~svss_daq.config.NavigationConfig`; ``lever_arms``:
     :class:`~svss_daq.config.LeverArms`; ``origin`` (lat deg, lon deg, h m) overrides the
-    configured survey origin (default: configured, else the first fix).
+    survey origin (:func:`survey_origin`). ``causal``: the Kalman filter's estimate (the
+    records before each time only, as a live system without lag) instead of the RTS
+    smoother's; ``flags``: quality bits added to every pose (e.g. NAV_SMOOTHED).
     """
     t_ns = np.asarray(times_ns, dtype=np.int64).reshape(-1)
     if t_ns.size == 0:
@@ -35,19 +127,17 @@ def compute_poses(times_ns, fixes: Sequence[GpsFix], headings: Sequence[HeadingS
     t0 = int(t_ns.min())  # times relative to this, s (float64 keeps ns resolution)
     sec = lambda a: (np.asarray(a, dtype=np.int64) - t0).astype(np.float64) * 1e-9  # noqa: E731
     t = sec(t_ns)
-    if origin is None and cfg.origin_latitude_deg is not None and cfg.origin_longitude_deg is not None:
-        origin = (cfg.origin_latitude_deg, cfg.origin_longitude_deg, cfg.origin_height_m or 0.0)
+    configured = cfg.origin_latitude_deg is not None and cfg.origin_longitude_deg is not None
     if origin is None:
-        if not fixes:
-            raise ValueError("navigation: no survey origin configured "
-                             "(navigation.origin_latitude_deg) and no GPS fix to take it from")
-        f = fixes[0]
-        origin = (f.latitude_deg, f.longitude_deg, 0.0 if math.isnan(f.height_m) else f.height_m)
+        origin = survey_origin(cfg, fixes)
+    if origin is None:
+        raise ValueError("navigation: no survey origin configured "
+                         "(navigation.origin_latitude_deg) and no GPS fix to take it from")
     r_gps = np.asarray(lever_arms.gps_antenna_m, dtype=np.float64)
     r_dvl = np.asarray(lever_arms.dvl_m, dtype=np.float64)
     beam = math.radians(cfg.dvl_beam_angle_deg)
 
-    # attitude: roll and pitch from the DVL's sensors, heading from HDT / course
+    # attitude: roll and pitch from the DVL's sensors, heading from the heading sources
     td = sec([d.time_ns for d in dvl]) if dvl else np.zeros(0)
     roll_d = np.array([d.roll_rad for d in dvl], dtype=np.float64)
     pitch_d = np.array([d.pitch_rad for d in dvl], dtype=np.float64)
@@ -61,87 +151,57 @@ def compute_poses(times_ns, fixes: Sequence[GpsFix], headings: Sequence[HeadingS
         h, hflag = _headings(tt, headings, cfg.heading_max_age_s, t0, compass)
         return r, p, h, hflag
 
-    # GPS: body-origin positions at the fixes
+    # GPS: antenna positions at the fixes, their noise
     tf = sec([f.time_ns for f in fixes]) if fixes else np.zeros(0)
+    has_h = np.array([math.isfinite(f.height_m) for f in fixes], dtype=bool)
     if fixes:
-        hgt = np.array([origin[2] if math.isnan(f.height_m) else f.height_m for f in fixes])
+        hgt = np.array([f.height_m if math.isfinite(f.height_m) else origin[2] for f in fixes])
         ant = geodetic_to_ned(np.array([f.latitude_deg for f in fixes]),
                               np.array([f.longitude_deg for f in fixes]), hgt, origin)
-        rf, pf, hf, _ = attitude(tf)
-        pos_f = ant - _rotations(rf, pf, hf) @ r_gps
+        rot_f = _rotations(*attitude(tf)[:3])
+        sig = np.array([f.sigma_m / math.sqrt(2.0) if math.isfinite(f.sigma_m) and f.sigma_m > 0
+                        else cfg.gps_sigma_m for f in fixes])
     else:
-        pos_f = np.zeros((0, 3))
-    w_f = _fix_weights(fixes)
+        ant, rot_f, sig = np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0)
 
-    # DVL: body-origin NED velocity and altitude at the DVL samples
     n = t.size
-    pos = np.full((n, 3), np.nan)
-    vel = np.full((n, 3), np.nan)
-    dr = np.zeros(n, dtype=bool)
+    r, p, h, hflag = attitude(t)
+    rot_t = _rotations(r, p, h)
+    near_fix = _nearest_age(tf, t) <= cfg.gps_fix_max_age_s
     if td.size:
-        vb = np.array([d.velocity_body_m_s for d in dvl], dtype=np.float64)
-        rd, pd, hd, _ = attitude(td)
-        eps = YAW_RATE_HALF_WINDOW_S
-        _, _, h_a, _ = attitude(td - eps)
-        _, _, h_b, _ = attitude(td + eps)
-        yaw_rate = wrap_angle(h_b - h_a) / (2 * eps)
-        omega_x_r = np.stack([-yaw_rate * r_dvl[1], yaw_rate * r_dvl[0], np.zeros_like(td)], -1)
-        rot_d = _rotations(rd, pd, hd)
-        v_ned = np.einsum("kij,kj->ki", rot_d, vb - omega_x_r)
-        lever = tuple(float(v) for v in r_dvl)
-        alt_d = np.array([_sample_altitude(d, beam, lever, cfg.dvl_min_beams) for d in dvl])
-        ok = np.all(np.isfinite(v_ned), axis=1)
-        idx = np.flatnonzero(ok)
-        # runs of valid samples no further apart than dvl_max_gap_s
-        breaks = np.flatnonzero(np.diff(td[idx]) > cfg.dvl_max_gap_s) + 1
-        for run in np.split(idx, breaks):
-            if run.size < 2:
-                continue
-            ts, vs = td[run], v_ned[run]
-            dpos = np.vstack([np.zeros((1, 3)), np.cumsum(0.5 * (vs[1:] + vs[:-1])
-                                                          * np.diff(ts)[:, None], axis=0)])
-            inside = (t >= ts[0]) & (t <= ts[-1])
-            fk = (tf >= ts[0] - cfg.gps_fix_max_age_s) & (tf <= ts[-1] + cfg.gps_fix_max_age_s)
-            if not inside.any() or not fk.any():
-                continue
-            tfk = tf[fk]
-            d_at_f = np.stack([np.interp(tfk, ts, dpos[:, j]) for j in range(3)], -1)
-            off = _smooth(tfk, pos_f[fk] - d_at_f, cfg.gps_smoothing_s,
-                          None if w_f is None else w_f[fk])
-            ti = t[inside]
-            pos[inside] = np.stack([np.interp(ti, ts, dpos[:, j]) + np.interp(ti, tfk, off[:, j])
-                                    for j in range(3)], -1)
-            vel[inside] = np.stack([np.interp(ti, ts, vs[:, j]) for j in range(3)], -1)
-            dr[inside] = True
-        near_d = _nearest_age(td[np.isfinite(alt_d)], t) <= cfg.dvl_max_gap_s
-        good = np.isfinite(alt_d)
-        alt = np.where(near_d, np.interp(t, td[good], alt_d[good]) if good.any() else np.nan, np.nan)
+        pos, vel, alt, dr, held = _fused(t, td, dvl, attitude, tf, ant, rot_f, sig, has_h,
+                                         rot_t, r_gps, r_dvl, beam, cfg, configured, causal)
     else:
-        alt = np.full(n, np.nan)
-
-    # GPS only where dead reckoning did not reach
-    gps_only = ~dr & (tf.size > 0)
+        pos, vel, alt, dr = (np.full((n, 3), np.nan), np.full((n, 3), np.nan),
+                             np.full(n, np.nan), np.zeros(n, dtype=bool))
+        held = np.zeros(n, dtype=bool)
+    # GPS alone where the DVL grid does not reach (no DVL, or beyond it by more than a gap)
+    gps_only = ~np.all(np.isfinite(pos), axis=1) & (tf.size > 0)
     if gps_only.any():
+        pos_f = ant - np.einsum("kij,j->ki", rot_f, r_gps)
         pos[gps_only] = np.stack([np.interp(t[gps_only], tf, pos_f[:, j]) for j in range(3)], -1)
+        held[gps_only] = (t[gps_only] > tf[-1]) | (t[gps_only] < tf[0])
         if tf.size >= 2:
             vf = np.stack([np.gradient(pos_f[:, j], tf) for j in range(3)], -1)
             vel[gps_only] = np.stack([np.interp(t[gps_only], tf, vf[:, j]) for j in range(3)], -1)
+    fused = ~gps_only & np.all(np.isfinite(pos), axis=1)
 
-    r, p, h, hflag = attitude(t)
-    near_fix = _nearest_age(tf, t) <= cfg.gps_fix_max_age_s
     lat, lon, _ = ned_to_geodetic(pos, origin)
     out = []
     for k in range(n):
-        q = 0
+        q = flags
         if np.all(np.isfinite(pos[k])):
             if near_fix[k]:
                 q |= NAV_GPS_FIX
             elif dr[k]:
                 q |= NAV_DEAD_RECKONED
+            if held[k]:
+                q |= NAV_HELD
+            if fused[k]:
+                q |= NAV_FUSED
         if np.isfinite(alt[k]):
             q |= NAV_BOTTOM_LOCK
-        q |= {0: 0, 1: NAV_HEADING_FROM_COURSE, 2: NAV_NO_HEADING,
-              3: NAV_HEADING_FROM_COMPASS}[int(hflag[k])]
+        q |= _HEADING_FLAG[int(hflag[k])]
         out.append(NavSnapshot(int(t_ns[k]), float(pos[k, 0]), float(pos[k, 1]), float(pos[k, 2]),
                                float(vel[k, 0]), float(vel[k, 1]), float(vel[k, 2]),
                                float(r[k]), float(p[k]), float(h[k]), float(alt[k]),
@@ -149,3 +209,101 @@ def compute_poses(times_ns, fixes: Sequence[GpsFix], headings: Sequence[HeadingS
     return out
 
 
+def _fused(t, td, dvl, attitude, tf, ant, rot_f, sig, has_h, rot_t, r_gps, r_dvl, beam, cfg,
+           configured: bool, causal: bool):
+    """Positions, velocities, altitudes and the dead-reckoned and held masks at times t
+    from the Kalman fusion on the DVL grid (module docstring)."""
+    k_n = td.size
+    vb = np.array([d.velocity_body_m_s for d in dvl], dtype=np.float64)
+    rot_d = _rotations(*attitude(td)[:3])
+    v_ned = np.einsum("kij,kj->ki", rot_d, vb)
+    ok = np.all(np.isfinite(v_ned), axis=1)
+    head_h = np.array([_sample_altitude(d, beam, (0.0, 0.0, 0.0), cfg.dvl_min_beams) for d in dvl])
+    n_beams = np.array([max(1, sum(math.isfinite(x) and x > 0 for x in d.ranges_m)) for d in dvl])
+    disp, var, carried, v_use = _grid_model(td, v_ned, ok, cfg)
+    dt = np.diff(td)
+    lever_d = np.einsum("kij,j->ki", rot_d, r_dvl)          # head - body origin at the grid
+
+    # GPS: the head's position at each fix, moved back to the grid point before it
+    in_reach = (tf >= td[0] - cfg.dvl_max_gap_s) & (tf <= td[-1] + cfg.dvl_max_gap_s)
+    head_f = ant - np.einsum("kij,j->ki", rot_f, r_gps - r_dvl)
+    kf, tau, part = _partial(tf, td, v_use)
+    z_f = head_f - part
+    r_extra = (cfg.dvl_velocity_sigma_m_s * tau) ** 2
+    use = in_reach
+
+    # priors at the first grid point
+    have_fix = bool(use.any())
+    if have_fix:
+        j0 = int(np.flatnonzero(use)[0])
+        x_ne = z_f[j0, :2] - disp[:kf[j0], :2].sum(axis=0)
+        p_ne = _UNKNOWN_VAR_M2
+    else:  # dead reckoning from the configured origin: the body there at the first sample
+        x_ne = lever_d[0, :2]
+        p_ne = 0.0 if configured else _UNKNOWN_VAR_M2
+    use_h = use & has_h
+    if use_h.any():
+        j0 = int(np.flatnonzero(use_h)[0])
+        x_d, p_d = z_f[j0, 2] - disp[:kf[j0], 2].sum(), _UNKNOWN_VAR_M2
+    else:
+        x_d, p_d = lever_d[0, 2], _NO_HEIGHT_VAR_M2
+    good_h = np.flatnonzero(np.isfinite(head_h))
+    z_b0 = x_d + (head_h[good_h[0]] if good_h.size else 0.0)
+
+    # north and east: (head position, velocity bias)
+    a = np.exp(-dt / cfg.dvl_bias_correlation_s)
+    sb2 = cfg.dvl_velocity_bias_sigma_m_s ** 2
+    f01 = np.where(carried, dt, 0.0)
+    qc = sb2 * (1.0 - a * a)
+    states = []
+    for ax in (0, 1):
+        m = (kf[use], np.ones(use.sum()), np.zeros(use.sum()), z_f[use, ax],
+             sig[use] ** 2 + r_extra[use])
+        xs, _ = filter_smooth(np.array([x_ne[ax], 0.0]), np.diag([p_ne, sb2]), disp[:, ax],
+                              f01, a, var, qc, m, smooth=not causal)
+        states.append(xs)
+    # down: (head depth, bottom depth)
+    alt_ok = np.isfinite(head_h)
+    m_step = np.concatenate([kf[use_h], np.flatnonzero(alt_ok)])
+    m_h0 = np.concatenate([np.ones(use_h.sum()), -np.ones(alt_ok.sum())])
+    m_h1 = np.concatenate([np.zeros(use_h.sum()), np.ones(alt_ok.sum())])
+    m_z = np.concatenate([z_f[use_h, 2], head_h[alt_ok]])
+    m_r = np.concatenate([np.full(use_h.sum(), cfg.gps_height_sigma_m ** 2) + r_extra[use_h],
+                          cfg.dvl_range_sigma_m ** 2 / n_beams[alt_ok]])
+    xs_d, _ = filter_smooth(np.array([x_d, z_b0]), np.diag([p_d, _UNKNOWN_VAR_M2]), disp[:, 2],
+                            np.zeros(k_n - 1), np.ones(k_n - 1), var,
+                            cfg.bottom_depth_rate_sigma_m_s ** 2 * dt, (m_step, m_h0, m_h1, m_z, m_r),
+                            smooth=not causal)
+    head = np.stack([states[0][:, 0], states[1][:, 0], xs_d[:, 0]], -1)
+    bias = np.stack([states[0][:, 1], states[1][:, 1], np.zeros(k_n)], -1)
+    bottom = xs_d[:, 1]
+
+    # the head at each time t: the grid states and the DVL's displacement between them
+    k, tau, part = _partial(t, td, v_use)
+    k1 = np.minimum(k + 1, k_n - 1)
+    span = np.where(k1 > k, td[k1] - td[k], 1.0)
+    frac = np.clip(np.where(k1 > k, tau / span, 0.0), 0.0, 1.0)
+    # what the states add to the DVL's own displacement over the step (the smoother's
+    # correction), spread linearly over it
+    drift = head[k1] - head[k] - (0.5 * (v_use[k] + v_use[k1]) + bias[k]) * span[:, None]
+    beyond = (t > td[-1]) | (t < td[0])
+    h_t = head[k] + part + bias[k] * tau[:, None] + np.where(beyond[:, None], 0.0,
+                                                             frac[:, None] * drift)
+    pos = h_t - np.einsum("kij,j->ki", rot_t, r_dvl)
+    # the body origin's velocity: the head's less the rate of the rotated lever arm
+    eps = ATTITUDE_RATE_HALF_WINDOW_S
+    rate = (np.einsum("kij,j->ki", _rotations(*attitude(t + eps)[:3]), r_dvl)
+            - np.einsum("kij,j->ki", _rotations(*attitude(t - eps)[:3]), r_dvl)) / (2 * eps)
+    vel = v_use[k] + bias[k] - rate
+    b_t = np.interp(t, td, bottom)
+    near_alt = _nearest_age(td[alt_ok], t) <= cfg.dvl_max_gap_s
+    alt = np.where(near_alt, b_t - pos[:, 2], np.nan)
+    near_lock = _nearest_age(td[ok], t) <= cfg.dvl_max_gap_s
+    near_fix = _nearest_age(tf, t) <= cfg.gps_fix_max_age_s
+    far = (t > td[-1] + cfg.dvl_max_gap_s) | (t < td[0] - cfg.dvl_max_gap_s)
+    held = beyond | (~near_lock & ~near_fix)
+    if tf.size:  # no bottom lock within a gap: GPS interpolation where fixes reach
+        covered = (far | ~near_lock) & (t >= tf[0] - cfg.gps_fix_max_age_s) \
+            & (t <= tf[-1] + cfg.gps_fix_max_age_s)
+        pos[covered] = np.nan
+    return pos, vel, alt, near_lock & ~beyond, held
