@@ -290,6 +290,19 @@ class PingGateConfig:
                                     "track line, m", lo=0.0, hi=1e5)
     reanchor_pings: int = spec("consecutive mutually consistent pings that are taken as "
                                "the new track after a jump", lo=2, hi=1000)
+    # what a pose its navigation flagged may image (svss_daq.ping NAV_*); a pose without
+    # heading or without position never does
+    held: str = spec("a pose extrapolated past the last navigation record (NAV_HELD)",
+                     choices=("image", "refuse"))
+    dead_reckoned: str = spec("a position dead-reckoned on the DVL, no GPS fix at the "
+                              "ping (NAV_DEAD_RECKONED)", choices=("image", "refuse"))
+    clock_retimed: str = spec("a pose from instrument records re-timed by their receive "
+                              "times (clocks in disagreement, NAV_CLOCK_RETIMED)",
+                              choices=("image", "refuse"))
+    heading_from_course: str = spec("a heading from the GPS course over ground "
+                                    "(NAV_HEADING_FROM_COURSE)", choices=("image", "refuse"))
+    heading_from_compass: str = spec("a heading from the DVL's magnetic compass "
+                                     "(NAV_HEADING_FROM_COMPASS)", choices=("image", "refuse"))
 
 
 @dataclass(frozen=True)
@@ -605,6 +618,9 @@ class NavigationConfig:
                                      "(RDI: 20 or 30)", lo=1, hi=60)
     dvl_min_beams: int = spec("valid bottom-track beams needed for velocity and "
                               "altitude", lo=3, hi=4)
+    magnetic_declination_deg: float = spec(
+        "magnetic declination (east positive) added to the DVL compass heading where the "
+        "instrument applies none itself (PD0 heading bias EB 0), deg", lo=-180, hi=180)
     gps_smoothing_s: float = spec("window of the GPS-minus-dead-reckoning offset "
                                   "smoother, s (0: none)", lo=0, hi=600)
     gps_fix_max_age_s: float = spec("a pose further than this from a GPS fix is flagged "
@@ -617,12 +633,20 @@ class NavigationConfig:
                                        "speed, m/s", lo=0, hi=50)
     gps_max_sigma_m: float = spec("fixes whose GST horizontal sigma (DRMS) exceeds this "
                                   "are rejected, m (no GST: no limit)", lo=0.001, hi=1e4)
+    clock_max_offset_s: float = spec("an instrument clock further than this from the ping "
+                                     "clock (median over clock_records records of receive "
+                                     "minus instrument time) is re-timed onto it, s",
+                                     lo=0.1, hi=1e9)
+    clock_records: int = spec("records whose median judges an instrument's clock", lo=1,
+                              hi=1000)
     # the fusion's noise model (docs/navigation.md, "Fusion"): the instruments' specifications
     dvl_velocity_sigma_m_s: float = spec("DVL bottom-track velocity noise per component and "
                                          "ensemble, m/s (1 sigma)", lo=1e-5, hi=1.0)
     dvl_velocity_bias_sigma_m_s: float = spec("DVL long-term velocity accuracy (bias) per "
                                               "horizontal component, m/s (1 sigma)",
                                               lo=0.0, hi=1.0)
+    dvl_bias_correlation_s: float = spec("correlation time of the DVL velocity bias "
+                                         "(first-order Gauss-Markov), s", lo=1.0, hi=1e6)
     dvl_range_sigma_m: float = spec("DVL bottom-track range noise per beam, m (1 sigma)",
                                     lo=1e-4, hi=10.0)
     gps_sigma_m: float = spec("GPS horizontal noise per axis where no GST is sent, m "
@@ -634,6 +658,9 @@ class NavigationConfig:
     dvl_gap_velocity_sigma_m_s: float = spec("velocity uncertainty while the DVL has no "
                                              "bottom lock (last velocity held), m/s",
                                              lo=1e-3, hi=100.0)
+    live_follow_s: float = spec("live poses keep each solution's ping-to-ping geometry and "
+                                "follow its slow corrections over this time, s",
+                                lo=0.01, hi=600.0)
     fixed_lag_s: float = spec("live smoother's lag: a ping is posed with the records up to "
                               "this long after it, s (0: causal filter)", lo=0.0, hi=60.0)
 
