@@ -2,10 +2,10 @@
 
 Inputs are GPS fixes (geodetic, of the antenna; only real fixes: GGA quality 0
 "invalid" and 6 "estimated", RMC status V or mode E/N are rejected and counted; an
-optional GST horizontal sigma), headings (NMEA HDT, or RMC course over ground, or the
-DVL's compass, as flagged fallbacks), and DVL samples (bottom-track velocity of the DVL
-head in the body frame, slant ranges of the four Janus beams and of a vertical beam,
-roll, pitch and compass heading). Output: :class:`svss_daq.ping.NavSnapshot` per
+optional GST horizontal sigma), headings (NMEA HDT; else the DVL's compass; else the
+RMC course over ground; each fallback flagged), and DVL samples (bottom-track velocity
+of the DVL head in the body frame, slant ranges of the four Janus beams and of a
+vertical beam, roll, pitch and compass heading, the head's geometry). Output: :class:`svss_daq.ping.NavSnapshot` per
 requested time; :meth:`Navigator.quality` summarises the solution's state.
 
 Method (``docs/navigation.md``):
@@ -32,7 +32,9 @@ Method (``docs/navigation.md``):
   ``earth`` as sent.
 * Altitude above the bottom: mean over valid beams of range x (vertical component of
   the beam direction rotated by roll and pitch), plus the DVL head's depth below the body
-  origin. Janus beams at ``dvl_beam_angle_deg`` from the vertical, RDI's layout for a
+  origin (:func:`head_height_m`). RDI's bottom-track ranges are vertical (along the
+  beam x cos(beam angle)): samples hold them divided by that cosine. Janus beams at the
+  fixed leader's beam angle (``dvl_beam_angle_deg`` only without one), RDI's layout for a
   down-looking convex head with beam 3 on the bow: 3 forward, 4 aft, 2 starboard, 1
   port (:func:`rdi_beam_vectors`; concave swaps the pairs). With fewer than
   ``dvl_min_beams`` slanted ranges, a vertical (fifth) beam's range is used.
@@ -43,8 +45,9 @@ Angles in radians, distances m, times int ns since the Unix epoch UTC.
 
 from svss_daq.ping import NAV_HEADING_FROM_COMPASS, NAV_HEADING_FROM_COURSE, NAV_NO_HEADING
 
-from .nav.dvl_geometry import (altitude_from_ranges, beam_to_instrument, instrument_to_ship,
-                               janus_beam_vectors, rdi_beam_vectors, three_beam_fill)
+from .nav.dvl_geometry import (altitude_from_ranges, beam_to_instrument, body_beam_vectors,
+                               head_height_m, instrument_to_ship, janus_beam_vectors,
+                               rdi_beam_vectors, three_beam_fill)
 from .nav.fusion import compute_poses
 from .nav.geodesy import (WGS84_A, WGS84_E2, WGS84_F, ecef_to_geodetic, geodetic_to_ecef,
                           geodetic_to_ned, ned_rotation, ned_to_geodetic)
@@ -59,6 +62,7 @@ __all__ = [
     "NAV_NO_HEADING", "GpsFix", "HeadingSample", "DvlSample", "geodetic_to_ecef",
     "ecef_to_geodetic", "ned_rotation", "geodetic_to_ned", "ned_to_geodetic",
     "rdi_beam_vectors", "janus_beam_vectors", "beam_to_instrument", "three_beam_fill",
-    "instrument_to_ship", "altitude_from_ranges", "gst_sigma_m", "dvl_sample_from_pd0",
+    "instrument_to_ship", "altitude_from_ranges", "body_beam_vectors", "head_height_m",
+    "gst_sigma_m", "dvl_sample_from_pd0",
     "samples_from_nmea", "compute_poses", "Navigator", "GGA_NOT_A_FIX", "RMC_MODE_NOT_A_FIX", "wrap_angle",
 ]

@@ -10,10 +10,14 @@ and is sent ``latency_s`` later. Contents:
   plus white noise, sent as RDI does: the bottom's velocity relative to the instrument
   (negated), in ship (X stbd, Y fwd, Z up) or earth coordinates (rotated with the
   *reported* attitude, as the instrument does); the error velocity is noise;
-* ranges: slant range of each Janus beam (1 stbd, 2 port, 3 fwd, 4 aft, ``beam_angle_deg``
-  from vertical, rotated by the attitude) to a flat bottom at the track's depth
-  (``body_down_m + altitude_m``), plus noise; beyond ``max_range_m``: no bottom (0).
-  With fewer than three beams on the bottom the velocity is bad (-32768).
+* ranges: what RDI sends, the *vertical* range per beam: the range along each Janus
+  beam (RDI's convex layout, :func:`~svss_daq.navigation.janus_beam_vectors`: 1 port,
+  2 starboard, 3 forward, 4 aft, ``beam_angle_deg`` from the head's axis, turned by the
+  true attitude) to a flat bottom at the track's depth (``body_down_m + altitude_m``),
+  plus noise, times cos(``beam_angle_deg``), not corrected for pitch and roll (the
+  manual's bottom-track range); a beam whose range along it is beyond ``max_range_m``
+  finds no bottom (0). With fewer than three beams on the bottom the velocity is bad
+  (-32768). The fixed leader carries ``beam_angle_deg``.
 
 Lost bottom lock (:meth:`DvlEmulator.lose_bottom_lock`): what the instrument then sends,
 bad velocities (-32768) and ranges 0 in every beam, ensembles still flowing.
@@ -101,7 +105,8 @@ class DvlEmulator(ScheduledSerialDevice):
             vert = (self.beams @ rot.T)[:, 2]
             ranges = [height / v + c.range_sigma_m * rng.normal() if v > 0 else math.nan
                       for v in vert]
-            ranges = [r if 0 < r <= c.max_range_m else math.nan for r in ranges]
+            cos_beam = math.cos(math.radians(c.beam_angle_deg))
+            ranges = [r * cos_beam if 0 < r <= c.max_range_m else math.nan for r in ranges]
             err = float(rng.normal(0.0, c.velocity_sigma_m_s))
             if sum(math.isfinite(r) for r in ranges) < 3:
                 vel = [math.nan] * 4

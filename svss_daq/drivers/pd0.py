@@ -16,7 +16,9 @@ Layout of one ensemble (all integers little-endian), after the Teledyne RDI
 
 Decoded values are in SI units: m, m/s, s, Pa, radians (angles); temperature in
 degrees Celsius. Times are int64 nanoseconds since the Unix epoch (UTC). Bad-value
-markers (velocity -32768) and "no bottom found" (bottom-track range 0) become NaN.
+markers (velocity -32768) and "no bottom found" (bottom-track range 0) become NaN, the
+missing pressure 0xFFFFFFFF None. Bottom-track ranges are RDI's vertical ranges (beam
+range x cos(beam angle), not corrected for pitch and roll), as sent.
 Array fields are read-only numpy arrays. Raw counts (correlation, echo intensity,
 percent good) stay as uint8 arrays.
 
@@ -51,6 +53,7 @@ import numpy as np
 __all__ = [
     "HEADER_ID",
     "BAD_VELOCITY",
+    "MISSING_U32",
     "MAX_ENSEMBLE_BYTES",
     "Pd0DecodeError",
     "FixedLeader",
@@ -71,6 +74,9 @@ logger = logging.getLogger(__name__)
 HEADER_ID = b"\x7f\x7f"
 #: Velocity value RDI uses for "no data".
 BAD_VELOCITY = -32768
+#: A uint32 field of all ones: RDI's missing value (variable leader pressure and its
+#: variance; 4.29e9 daPa would be 4.3e6 dbar).
+MISSING_U32 = 0xFFFFFFFF
 #: Largest possible ensemble on the wire: 16-bit byte count plus the checksum.
 MAX_ENSEMBLE_BYTES = 0xFFFF + 2
 
@@ -231,8 +237,8 @@ class VariableLeader:
     roll_std_rad: Optional[float]
     adc: Optional[tuple]  #: raw ADC channels 0-7
     error_status: Optional[int]
-    pressure_pa: Optional[float]
-    pressure_variance_pa: Optional[float]
+    pressure_pa: Optional[float]  #: None: not sent, or RDI's missing value 0xFFFFFFFF
+    pressure_variance_pa: Optional[float]  #: None: not sent, or 0xFFFFFFFF
 
 
 @dataclass(frozen=True, eq=False)
@@ -246,7 +252,10 @@ class BottomTrack:
     percent_good_min: int
     mode: int
     error_velocity_max_mps: float
-    range_m: np.ndarray  #: slant range per beam (m), NaN where no bottom was found
+    #: RDI's range per beam (m), NaN where no bottom was found: the *vertical* range,
+    #: the range along the beam times the cosine of the beam angle, not corrected for
+    #: pitch and roll ("Workhorse Commands and Output Data Format", bottom-track range)
+    range_m: np.ndarray
     velocity_mps: np.ndarray  #: in the ensemble's coordinate system, NaN where bad
     correlation: np.ndarray  #: uint8 counts
     amplitude: np.ndarray  #: uint8 evaluation amplitude counts
@@ -498,7 +507,9 @@ def _decode_variable(buf, p: int, length: int, base: int) -> VariableLeader:
         (err_status,) = struct.unpack_from("<I", buf, p + 42)
     if length >= 56:
         pr, prv = struct.unpack_from("<II", buf, p + 48)
-        pres, pres_var = pr * 10.0, prv * 10.0  # decapascal -> Pa
+        # decapascal -> Pa; 0xFFFFFFFF is RDI's "no pressure sensor / no data"
+        pres = None if pr == MISSING_U32 else pr * 10.0
+        pres_var = None if prv == MISSING_U32 else prv * 10.0
     return VariableLeader(
         ensemble_number=ens + (ens_msb << 16),
         time_ns=time_ns,

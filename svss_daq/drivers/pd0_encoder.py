@@ -10,12 +10,17 @@ Inputs in SI units (m, m/s, rad, deg C); resolutions on the wire: time 10 ms, he
 pitch and roll 0.01 deg, velocity 1 mm/s, range 1 cm, sound speed 1 m/s, depth 0.1 m,
 temperature 0.01 deg C. Bottom-track velocity is RDI's: the velocity of the *bottom*
 relative to the instrument, in the ensemble's coordinate system (beam 1-4 or X/Y/Z/error
-for ship, E/N/U/error for earth); NaN is sent as the bad value -32768. A NaN or
-non-positive range is sent as 0 ("no bottom").
+for ship, E/N/U/error for earth); NaN is sent as the bad value -32768. Bottom-track
+ranges are RDI's: the *vertical* range per beam, the range along the beam times the
+cosine of the beam angle, not corrected for pitch and roll (the manual's bottom-track
+range field); a NaN or non-positive range is sent as 0 ("no bottom"). Pressure (daPa on
+the wire) may be sent as RDI's missing value 0xFFFFFFFF.
 
 Beam coordinates (``coordinate_system="beam"``, EX bits 3-4 = 00): the four values are
 the beams' radial velocities, positive toward the transducer (RDI). The beam pattern
-(convex or concave, configuration bit 3) and heading alignment (EA) are written as set.
+(convex or concave, configuration bit 3), heading alignment (EA) and heading bias (EB)
+are written as set; the heading given is sent as it is (an instrument with EB set has
+already added it).
 The five-beam layout (Sentinel V class, ``vertical_beam``) sets configuration bit 12
 and adds the vertical beam's range (ID 0x4100: evaluation and RSSI amplitude, uint32
 range in mm, status); a Sentinel V (firmware 47.x or 66.x) sends its 307.2 kHz as the
@@ -31,8 +36,8 @@ from datetime import datetime, timezone
 from typing import Optional, Sequence
 
 from svss_daq.drivers.pd0 import (BAD_VELOCITY, ID_BEAM5_RANGE, ID_BOTTOM_TRACK,
-                                  ID_FIXED_LEADER, ID_VARIABLE_LEADER, SENTINEL_V_FIRMWARE,
-                                  ensemble_checksum)
+                                  ID_FIXED_LEADER, ID_VARIABLE_LEADER, MISSING_U32,
+                                  SENTINEL_V_FIRMWARE, ensemble_checksum)
 
 __all__ = ["Pd0Setup", "encode_ensemble", "FIXED_LEADER_BYTES", "VARIABLE_LEADER_BYTES",
            "BOTTOM_TRACK_BYTES"]
@@ -62,6 +67,8 @@ class Pd0Setup:
     beam_pattern: str = "convex"  #: convex or concave (configuration bit 3)
     vertical_beam: bool = False  #: five-beam layout (bit 12) with the 0x4100 range
     heading_alignment_deg: float = 0.0  #: EA: beam 3 azimuth from the bow, deg
+    #: EB: heading bias (magnetic declination) the instrument adds to its heading, deg
+    heading_bias_deg: float = 0.0
 
     def frequency_code(self) -> int:
         if self.firmware[0] in SENTINEL_V_FIRMWARE and self.frequency_hz == 307.2e3:
@@ -76,6 +83,9 @@ class Pd0Setup:
         if not -179.99 <= self.heading_alignment_deg <= 180.0:
             raise ValueError(f"PD0 setup heading_alignment_deg: expected -179.99 .. 180, "
                              f"found {self.heading_alignment_deg!r}")
+        if not -179.99 <= self.heading_bias_deg <= 180.0:
+            raise ValueError(f"PD0 setup heading_bias_deg: expected -179.99 .. 180, "
+                             f"found {self.heading_bias_deg!r}")
         if self.frequency_hz not in _FREQ_CODE and not (
                 self.firmware[0] in SENTINEL_V_FIRMWARE and self.frequency_hz == 307.2e3):
             raise ValueError(f"PD0 setup frequency_hz: expected one of "
@@ -114,7 +124,8 @@ def _fixed_leader(s: Pd0Setup) -> bytes:
         1, _u("cell_size_m", s.cell_size_m, 0.01, 1, 65535),
         _u("blank_m", s.blank_m, 0.01, 0, 65535), 1, 64, 5, 0,
         _u("bt_max_error_velocity_m_s", s.bt_max_error_velocity_m_s, 0.001, 0, 65535),
-        0, 0, 20, ex, int(round(s.heading_alignment_deg * 100)), 0, 0x7D, 0x3D, 0, 0, 1, 5,
+        0, 0, 20, ex, int(round(s.heading_alignment_deg * 100)),
+        int(round(s.heading_bias_deg * 100)), 0x7D, 0x3D, 0, 0, 1, 5,
         50, 0, 0)
     body += bytes(8)                                     # CPU board serial
     body += struct.pack("<HBB", 0, 255, 0)               # bandwidth, power, spare
@@ -125,7 +136,8 @@ def _fixed_leader(s: Pd0Setup) -> bytes:
 
 def _variable_leader(number: int, time_ns: int, heading_rad: float, pitch_rad: float,
                      roll_rad: float, sound_speed_m_s: float, depth_m: float,
-                     salinity_ppt: float, temperature_c: float) -> bytes:
+                     salinity_ppt: float, temperature_c: float,
+                     pressure_pa: Optional[float]) -> bytes:
     if not 0 <= number < 2**24:
         raise ValueError(f"PD0 ensemble_number: expected 0 .. 2**24-1, found {number!r}")
     hund = int(round(time_ns / 1e7))  # 10 ms clock
@@ -149,7 +161,9 @@ def _variable_leader(number: int, time_ns: int, heading_rad: float, pitch_rad: f
     body += bytes(3)                              # heading/pitch/roll std
     body += bytes(8)                              # ADC
     body += bytes(4) + bytes(2)                   # error status, spare
-    body += struct.pack("<IIB", 0, 0, 0)          # pressure, variance (daPa), spare
+    pres = MISSING_U32 if pressure_pa is None else \
+        _u("pressure_pa", pressure_pa, 10.0, 0, MISSING_U32 - 1)
+    body += struct.pack("<IIB", pres, 0, 0)       # pressure, variance (daPa), spare
     body += struct.pack("<8B", dt.year // 100, dt.year % 100, dt.month, dt.day, dt.hour,
                         dt.minute, dt.second, hs)
     assert len(body) == VARIABLE_LEADER_BYTES
@@ -201,20 +215,24 @@ def encode_ensemble(setup: Pd0Setup, *, ensemble_number: int, time_ns: int,
                     bt_velocity_m_s: Sequence[float], bt_range_m: Sequence[float],
                     sound_speed_m_s: float = 1500.0, depth_m: float = 0.0,
                     salinity_ppt: float = 35.0, temperature_c: float = 10.0,
+                    pressure_pa: Optional[float] = 0.0,
                     vertical_range_m: Optional[float] = None,
                     extra_blocks: Sequence[bytes] = ()) -> bytes:
     """One PD0 ensemble (header, fixed and variable leader, bottom track, checksum).
 
     ``time_ns``: ns since the Unix epoch UTC (sent to 10 ms); ``bt_velocity_m_s``: 4
     components, RDI's bottom velocity in ``setup.coordinate_system`` (NaN: bad);
-    ``bt_range_m``: slant range of beams 1-4, m (NaN: no bottom); ``vertical_range_m``:
-    the vertical beam's range, m (five-beam setups; None or NaN: no bottom);
+    ``bt_range_m``: RDI's bottom-track range of beams 1-4, m (NaN: no bottom): the
+    vertical range, range along the beam x cos(beam angle), not corrected for pitch and
+    roll; ``vertical_range_m``: the vertical beam's range along its axis, m (five-beam
+    setups; None or NaN: no bottom); ``pressure_pa``: Pa (None: RDI's missing value);
     ``extra_blocks``: further data types (each starting with its uint16 ID), appended
     as sent. Raises ValueError naming a field that PD0 cannot carry."""
     setup.check()
     parts = [_fixed_leader(setup),
              _variable_leader(ensemble_number, int(time_ns), heading_rad, pitch_rad, roll_rad,
-                              sound_speed_m_s, depth_m, salinity_ppt, temperature_c),
+                              sound_speed_m_s, depth_m, salinity_ppt, temperature_c,
+                              pressure_pa),
              _bottom_track(setup, list(bt_velocity_m_s), list(bt_range_m))]
     if setup.vertical_beam:
         parts.append(_vertical_range(vertical_range_m))

@@ -1,5 +1,6 @@
 """Teledyne RDI DVL geometry: beam directions, beam -> instrument -> ship velocities,
-altitude from bottom-track ranges."""
+altitude from bottom-track ranges (slant, along the beams) and the head's height above
+the bottom from a DVL sample."""
 
 from __future__ import annotations
 
@@ -81,17 +82,35 @@ def instrument_to_ship(xyz, heading_alignment_rad: float, up_looking: bool = Fal
     return np.array([ce * x + se * y, -se * x + ce * y, z])
 
 
+def body_beam_vectors(beam_angle_rad: float, alignment_rad: float = 0.0,
+                      convex: bool = True) -> np.ndarray:
+    """Unit vectors (4, 3) of beams 1-4 in the body frame (x forward, y starboard, z
+    down) for a down-looking head whose beam 3 lies at ``alignment_rad`` clockwise from
+    the body x axis (RDI's heading alignment EA, as :func:`instrument_to_ship` applies
+    it): :func:`janus_beam_vectors` turned about body z."""
+    c, s = math.cos(alignment_rad), math.sin(alignment_rad)
+    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return janus_beam_vectors(beam_angle_rad, convex) @ turn.T
+
+
 def altitude_from_ranges(ranges_m, roll_rad: float, pitch_rad: float, beam_angle_rad: float,
                          dvl_lever_m, min_beams: int = 3,
-                         vertical_range_m: float = float("nan")) -> float:
-    """Height of the body origin above a flat bottom from DVL slant ranges, m; with fewer
-    than ``min_beams`` valid ranges from the vertical beam's range (its axis along body
-    z), else NaN. Heading does not matter."""
+                         vertical_range_m: float = float("nan"),
+                         alignment_rad: float = 0.0, convex: bool = True) -> float:
+    """Height of the body origin above a flat bottom from DVL *slant* ranges (along each
+    beam, m; RDI's vertical ranges divided by cos(beam angle) first, as
+    :func:`~svss_daq.nav.pd0_samples.dvl_sample_from_pd0` does): the mean over at least
+    ``min_beams`` valid beams of range x the down component of the beam (at
+    ``beam_angle_rad`` from the head's axis, beam 3 at ``alignment_rad`` from the bow,
+    ``convex`` pattern) turned by roll and pitch; with fewer valid ranges (or no beam
+    angle) from the vertical beam's range along the head's axis (body z) x cos(roll)
+    cos(pitch), else NaN. Plus the head's depth below the body origin (``dvl_lever_m``,
+    body frame). Heading does not matter."""
     r = np.asarray(ranges_m, dtype=np.float64)
     ok = np.isfinite(r) & (r > 0)
     rot = body_to_ned(roll_rad, pitch_rad, 0.0)
-    if ok.sum() >= min_beams:
-        vert = (janus_beam_vectors(beam_angle_rad) @ rot.T)[:, 2]
+    if ok.sum() >= min_beams and math.isfinite(beam_angle_rad):
+        vert = (body_beam_vectors(beam_angle_rad, alignment_rad, convex) @ rot.T)[:, 2]
         below_head = float(np.mean(r[ok] * vert[ok]))
     elif math.isfinite(vertical_range_m) and vertical_range_m > 0:
         below_head = vertical_range_m * float(rot[2, 2])
@@ -100,12 +119,25 @@ def altitude_from_ranges(ranges_m, roll_rad: float, pitch_rad: float, beam_angle
     return below_head + float((rot @ np.asarray(dvl_lever_m, dtype=np.float64))[2])
 
 
+def head_height_m(d: DvlSample, min_beams: int = 3,
+                  beam_angle_rad: float = float("nan")) -> float:
+    """Height of the DVL head above a flat bottom from one :class:`DvlSample`, m (NaN:
+    unknown): its slant ranges, roll, pitch and head geometry (the sample's beam angle,
+    which came from the ensemble's fixed leader; ``beam_angle_rad``, the configured one,
+    only where the sample has none), the vertical beam's range where fewer than
+    ``min_beams`` (pass ``navigation.dvl_min_beams``) ranges are valid."""
+    angle = d.beam_angle_rad if math.isfinite(d.beam_angle_rad) else beam_angle_rad
+    return altitude_from_ranges(d.ranges_m, d.roll_rad, d.pitch_rad, angle, (0.0, 0.0, 0.0),
+                                min_beams, d.vertical_range_m, d.beam_alignment_rad,
+                                d.beams_convex)
+
+
 @functools.lru_cache(maxsize=8192)
 def _sample_altitude(d: "DvlSample", beam_angle_rad: float, dvl_lever_m: tuple,
                      min_beams: int) -> float:
-    """:func:`altitude_from_ranges` of one DVL sample, computed once (a navigator poses
-    each ping from the same history of samples)."""
-    return altitude_from_ranges(d.ranges_m, d.roll_rad, d.pitch_rad, beam_angle_rad,
-                                dvl_lever_m, min_beams, d.vertical_range_m)
-
-
+    """Height of the body origin above the bottom from one DVL sample (its own head
+    geometry; ``beam_angle_rad`` only where it has no beam angle), computed once (a
+    navigator poses each ping from the same history of samples)."""
+    h = head_height_m(d, min_beams, beam_angle_rad)
+    rot = body_to_ned(d.roll_rad, d.pitch_rad, 0.0)
+    return h + float((rot @ np.asarray(dvl_lever_m, dtype=np.float64))[2])

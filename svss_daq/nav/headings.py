@@ -35,7 +35,10 @@ def _interp_angle(t_src, a_src, t):
 def _headings(t: np.ndarray, heads: Sequence[HeadingSample], max_age_s: float, t0_ns: int,
               compass: Sequence = ()):
     """Heading (rad) at times t (s after ``t0_ns``) and a flag: 0 HDT, 1 course, 2 none,
-    3 DVL compass (``compass``: DvlSample with a finite ``heading_rad``)."""
+    3 DVL compass (``compass``: DvlSample with a finite ``heading_rad``). True-heading
+    sensors first: HDT within ``max_age_s``, else the DVL compass within ``max_age_s``,
+    and only where neither is the course over ground (``from_course`` samples, already
+    limited to speeds above ``course_min_speed_m_s``), flagged; none: 0."""
     sec = lambda a: (np.asarray(a, dtype=np.int64) - t0_ns).astype(np.float64) * 1e-9  # noqa: E731
     th = sec([h.time_ns for h in heads if not h.from_course])
     ah = np.array([h.heading_rad for h in heads if not h.from_course], dtype=np.float64)
@@ -46,13 +49,14 @@ def _headings(t: np.ndarray, heads: Sequence[HeadingSample], max_age_s: float, t
     oh, oc, om = np.argsort(th), np.argsort(tc), np.argsort(tm)
     th, ah, tc, ac, tm, am = th[oh], ah[oh], tc[oc], ac[oc], tm[om], am[om]
     use_h = _nearest_age(th, t) <= max_age_s
-    use_c = ~use_h & (_nearest_age(tc, t) <= max_age_s)
-    use_m = ~use_h & ~use_c & (_nearest_age(tm, t) <= max_age_s)
-    out = np.where(use_h, _interp_angle(th, ah, t), _interp_angle(tc, ac, t))
-    if use_m.any():
-        out = np.where(use_m, _interp_angle(tm, am, t), out)
-    flag = np.where(use_h, 0, np.where(use_c, 1, np.where(use_m, 3, 2)))
-    return np.where(flag == 2, 0.0, out), flag
+    use_m = ~use_h & (_nearest_age(tm, t) <= max_age_s)
+    use_c = ~use_h & ~use_m & (_nearest_age(tc, t) <= max_age_s)
+    out = np.zeros(t.shape)
+    for use, ts, a in ((use_h, th, ah), (use_m, tm, am), (use_c, tc, ac)):
+        if use.any():
+            out = np.where(use, _interp_angle(ts, a, t), out)
+    flag = np.where(use_h, 0, np.where(use_m, 3, np.where(use_c, 1, 2)))
+    return out, flag
 
 
 def _rotations(roll, pitch, heading) -> np.ndarray:

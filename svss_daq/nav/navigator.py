@@ -64,7 +64,8 @@ class Navigator:
 
     def add_pd0(self, ensemble) -> None:
         d = dvl_sample_from_pd0(ensemble, self.cfg.dvl_min_beams,
-                                math.radians(self.cfg.dvl_beam_angle_deg))
+                                math.radians(self.cfg.dvl_beam_angle_deg),
+                                math.radians(self.cfg.magnetic_declination_deg))
         if d is not None:
             self.add_dvl(d)
 
@@ -96,8 +97,8 @@ class Navigator:
         """JSON-serialisable state at ``now_ns`` (O(1)): ``mode`` ("gps" within
         ``gps_fix_max_age_s`` of the last fix, "dead_reckoning" with bottom lock within
         ``dvl_max_gap_s`` and a survey origin, else "none"), ``gps_fix_age_s``,
-        ``dvl_age_s`` (s, null: never), ``heading_source`` ("hdt", "course",
-        "dvl_compass" or "none", each within ``heading_max_age_s``), ``bottom_lock``,
+        ``dvl_age_s`` (s, null: never), ``heading_source`` ("hdt", "dvl_compass",
+        "course" or "none": the first within ``heading_max_age_s``), ``bottom_lock``,
         ``gps_sigma_m`` (GST sigma of the last fix, null: not sent) and the counters
         ``gps_fixes``, ``gps_rejected``, ``dvl_samples``, ``dvl_no_lock``."""
         cfg = self.cfg
@@ -118,8 +119,8 @@ class Navigator:
         else:
             mode = "none"
         heading = "none"
-        for name, t in (("hdt", self._last_hdt_ns), ("course", self._last_course_ns),
-                        ("dvl_compass", self._last_compass_ns)):
+        for name, t in (("hdt", self._last_hdt_ns), ("dvl_compass", self._last_compass_ns),
+                        ("course", self._last_course_ns)):
             a = age(t)
             if a is not None and abs(a) <= cfg.heading_max_age_s:
                 heading = name

@@ -28,7 +28,7 @@ from svss_daq.drivers.pd0 import Pd0StreamParser
 from svss_daq.drivers.serial_link import SerialLink
 from svss_daq.frames import body_to_ned
 from svss_daq.navigation import (Navigator, dvl_sample_from_pd0, geodetic_to_ned,
-                                 janus_beam_vectors)
+                                 head_height_m, janus_beam_vectors)
 from svss_daq.ping import (NAV_BOTTOM_LOCK, NAV_DEAD_RECKONED, NAV_GPS_FIX,
                            NAV_HEADING_FROM_COMPASS, NAV_NO_HEADING)
 
@@ -178,8 +178,13 @@ def test_instruments_match_the_true_track_and_navigation_poses_pings(setup, tmp_
                       < 4 * d.velocity_sigma_m_s + 0.002), (smp.velocity_body_m_s, v_body)
         head_h = p.down_m + p.altitude_m - antenna_ned(p, lev.dvl_m)[2]
         rot = body_to_ned(p.roll_rad, p.pitch_rad, p.heading_rad)
-        want = head_h / (janus_beam_vectors(beam) @ rot.T)[:, 2]
+        want = head_h / (janus_beam_vectors(beam) @ rot.T)[:, 2]   # along the beams
+        # on the wire, RDI's vertical ranges: along the beam x cos(beam angle), untilted
+        assert e.fixed.beam_angle_rad == pytest.approx(beam)
+        assert np.all(np.abs(e.bottom_track.range_m - want * math.cos(beam))
+                      < 4 * d.range_sigma_m + 0.006)
         assert np.all(np.abs(np.array(smp.ranges_m) - want) < 4 * d.range_sigma_m + 0.006)
+        assert abs(head_height_m(smp) - head_h) < 4 * d.range_sigma_m + 0.006
     lag = [(t_rx - e.time_ns) * 1e-9 for t_rx, e in rig.pd0]
     assert min(lag) >= d.latency_s - 0.005 and np.median(lag) < d.latency_s + 0.1
 
