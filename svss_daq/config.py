@@ -614,7 +614,8 @@ class NavigationConfig:
         "survey origin longitude, deg (omitted: the first GPS fix)", lo=-180, hi=360)
     origin_height_m: float | None = spec(
         "survey origin ellipsoidal height, m (omitted: the first GPS fix)", lo=-1e4, hi=1e5)
-    dvl_beam_angle_deg: float = spec("DVL Janus beam angle from the vertical, deg "
+    dvl_beam_angle_deg: float = spec("DVL Janus beam angle from the vertical, deg, used "
+                                     "only where the PD0 fixed leader sends none "
                                      "(RDI: 20 or 30)", lo=1, hi=60)
     dvl_min_beams: int = spec("valid bottom-track beams needed for velocity and "
                               "altitude", lo=3, hi=4)
