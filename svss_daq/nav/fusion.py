@@ -219,7 +219,9 @@ def _fused(t, td, dvl, attitude, tf, ant, rot_f, sig, has_h, rot_t, r_gps, r_dvl
     v_ned = np.einsum("kij,kj->ki", rot_d, vb)
     ok = np.all(np.isfinite(v_ned), axis=1)
     head_h = np.array([_sample_altitude(d, beam, (0.0, 0.0, 0.0), cfg.dvl_min_beams) for d in dvl])
-    n_beams = np.array([max(1, sum(math.isfinite(x) and x > 0 for x in d.ranges_m)) for d in dvl])
+    ranges = np.array([d.ranges_m for d in dvl], dtype=np.float64).reshape(k_n, -1)
+    with np.errstate(invalid="ignore"):
+        n_beams = np.maximum(1, np.sum(np.isfinite(ranges) & (ranges > 0), axis=1))
     disp, var, carried, v_use = _grid_model(td, v_ned, ok, cfg)
     dt = np.diff(td)
     lever_d = np.einsum("kij,j->ki", rot_d, r_dvl)          # head - body origin at the grid
