@@ -16,7 +16,7 @@ import pytest
 
 from svss_daq import navigation as nav
 from svss_daq.nav.kalman import filter_smooth
-from svss_daq.ping import NAV_DEAD_RECKONED, NAV_GPS_FIX
+from svss_daq.ping import NAV_DEAD_RECKONED, NAV_GPS_FIX, NAV_HELD
 from svss_daq.frames import body_to_ned
 from tests.daq.test_navigation import (LEVER, ORIGIN, T0, cfg, make_sensors,  # noqa: F401
                                        point_of, truth)
@@ -190,3 +190,34 @@ def test_live_navigator_keeps_the_aperture_geometry(cfg):
           f"{vert.max() * 1e3:.1f} mm; absolute max {absolute.max():.3f} m")
     assert horiz.max() < 0.007 and vert.max() < 0.007
     assert absolute.max() < 0.3
+
+
+def test_pose_past_the_last_records_is_flagged_held(cfg):
+    """A DVL slower than the acquisition's wait: a ping after the last DVL sample and
+    the last fix is extrapolated with the last velocity and flagged NAV_HELD (it used
+    to take the last sample's pose, flagged neither GPS nor dead-reckoned)."""
+    fixes, heads, dvl = make_sensors(duration_s=20.0, dvl_hz=5.0, dvl_sigma=0.003, seed=1)
+    t_end = (max(d.time_ns for d in dvl) - T0) * 1e-9
+    t = np.array([t_end - 1.0, t_end + cfg.gps_fix_max_age_s + 0.5])
+    before, after = nav.compute_poses(T0 + np.round(t * 1e9).astype(np.int64), fixes, heads,
+                                      dvl, cfg, LEVER, ORIGIN)
+    assert not before.quality & NAV_HELD and before.quality & NAV_GPS_FIX
+    assert after.quality & NAV_HELD and not after.quality & (NAV_GPS_FIX | NAV_DEAD_RECKONED)
+    p, *_ = truth(t)
+    moved = math.hypot(after.north_m - before.north_m, after.east_m - before.east_m)
+    assert moved == pytest.approx(math.hypot(*(p[1, :2] - p[0, :2])), abs=0.05)
+
+
+def test_origin_height_from_a_fix_that_has_one(cfg):
+    """A run whose first fixes are RMC (no height) and whose GGA say 170 m: the survey
+    origin takes the first height, so the body's depth does not jump by 170 m."""
+    fixes, heads, dvl = make_sensors(duration_s=20.0, dvl_hz=5.0, dvl_sigma=0.003, seed=1)
+    fixes = [dataclasses.replace(f, height_m=math.nan) if k < 10 else f
+             for k, f in enumerate(fixes)]
+    t = np.arange(0.5, 19.5, 0.4)
+    poses = nav.compute_poses(T0 + np.round(t * 1e9).astype(np.int64), fixes, heads, dvl,
+                              cfg, LEVER)
+    down = np.array([s.down_m for s in poses])
+    p, *_ = truth(t)
+    offset = down - p[:, 2]            # the origin is the first GGA antenna, not ORIGIN
+    assert np.max(np.abs(np.diff(down))) < 0.05 and np.ptp(offset) < 0.1
