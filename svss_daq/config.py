@@ -622,8 +622,6 @@ class NavigationConfig:
     magnetic_declination_deg: float = spec(
         "magnetic declination (east positive) added to the DVL compass heading where the "
         "instrument applies none itself (PD0 heading bias EB 0), deg", lo=-180, hi=180)
-    gps_smoothing_s: float = spec("window of the GPS-minus-dead-reckoning offset "
-                                  "smoother, s (0: none)", lo=0, hi=600)
     gps_fix_max_age_s: float = spec("a pose further than this from a GPS fix is flagged "
                                     "dead-reckoned, s", lo=0.01, hi=600)
     dvl_max_gap_s: float = spec("DVL samples further apart than this break dead "

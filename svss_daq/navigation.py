@@ -12,17 +12,14 @@ Method (``docs/navigation.md``):
 
 * Geodetic to survey NED: exact WGS-84 (geodetic -> ECEF -> rotation into the local
   north-east-down tangent plane at the survey origin); no flat-earth approximation.
-* Lever arms (``config/hardware.toml`` ``lever_arms``): body origin = antenna position
-  minus R(roll, pitch, heading) @ r_gps; DVL velocity at the body origin = velocity at
-  the head minus omega x r_dvl with omega = (0, 0, heading rate) (roll and pitch rates
-  neglected).
-* Dead reckoning: the DVL velocity rotated to NED is integrated (trapezoid) over runs of
-  DVL samples no further apart than ``dvl_max_gap_s``. The offset GPS minus dead
-  reckoning at each fix is smoothed over ``gps_smoothing_s`` and interpolated linearly in
-  time (held beyond the first and last fix): the track has the shape of the DVL and the
-  absolute position of the GPS, and runs on the DVL alone through a GPS outage. Where
-  fixes carry a GST sigma the smoother weights them by 1/sigma^2; fixes whose sigma
-  exceeds ``gps_max_sigma_m`` are rejected. Without DVL, positions are interpolated
+* Lever arms (``config/hardware.toml`` ``lever_arms``): the fusion tracks the DVL head;
+  body origin = head - R(roll, pitch, heading) @ r_dvl; a GPS fix measures the head
+  plus R @ (r_gps - r_dvl).
+* Fusion (:mod:`svss_daq.nav.fusion`): Kalman filters on the DVL's sample times, the
+  DVL's velocities (rotated to NED) the process, GPS fixes (weighted by their GST
+  sigma; those above ``gps_max_sigma_m`` rejected), GPS heights and the DVL's altitude
+  the measurements; an RTS smoother over the records (a recording, or the live history
+  up to ``fixed_lag_s`` past the ping). Without DVL, positions are interpolated
   linearly between fixes.
 * DVL coordinates: PD0 bottom track in ``beam`` coordinates goes beam -> instrument by
   Teledyne RDI's "ADCP Coordinate Transformation" formulas (:func:`beam_to_instrument`,

@@ -3,11 +3,11 @@ fusion shares."""
 
 from __future__ import annotations
 
-from typing import Optional, Sequence
+from typing import Sequence
 
 import numpy as np
 
-from .records import GpsFix, HeadingSample
+from .records import HeadingSample
 
 # --------------------------------------------------------------------------- fusion
 
@@ -74,29 +74,3 @@ def _rotations(roll, pitch, heading) -> np.ndarray:
     out[:, 2, 1] = cp * sr
     out[:, 2, 2] = cp * cr
     return out
-
-
-def _smooth(t: np.ndarray, x: np.ndarray, window_s: float,
-            weights: Optional[np.ndarray] = None) -> np.ndarray:
-    """Moving (weighted) mean of rows of x over |t_i - t_k| <= window/2."""
-    if window_s <= 0 or t.size < 2:
-        return x
-    w = np.ones(t.size) if weights is None else np.asarray(weights, dtype=np.float64)
-    c = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x * w[:, None], axis=0)])
-    cw = np.concatenate([[0.0], np.cumsum(w)])
-    lo = np.searchsorted(t, t - window_s / 2, side="left")
-    hi = np.searchsorted(t, t + window_s / 2, side="right")
-    return (c[hi] - c[lo]) / (cw[hi] - cw[lo])[:, None]
-
-
-def _fix_weights(fixes: Sequence[GpsFix]) -> Optional[np.ndarray]:
-    """1/sigma^2 per fix where GST sigmas are known (fixes without one take the median
-    sigma); None (equal weights) when no fix has one."""
-    sig = np.array([f.sigma_m for f in fixes], dtype=np.float64)
-    known = np.isfinite(sig) & (sig > 0)
-    if not known.any():
-        return None
-    sig = np.where(known, sig, np.median(sig[known]))
-    return 1.0 / sig ** 2
-
-
