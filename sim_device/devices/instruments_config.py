@@ -27,8 +27,9 @@ class DvlSimConfig:
     coordinate_system: str = spec("bottom-track velocity coordinates (PD0 EX): ship "
                                   "(X stbd, Y fwd, Z up) or earth (E, N, U)",
                                   choices=("ship", "earth"))
-    beam_angle_deg: float = spec("Janus beam angle from the vertical, deg (must match "
-                                 "navigation.dvl_beam_angle_deg)", choices=(20.0, 30.0))
+    beam_angle_deg: float = spec("Janus beam angle from the vertical, deg (written to the "
+                                 "fixed leader, which the navigation reads)",
+                                 choices=(20.0, 30.0))
     frequency_khz: float = spec("system frequency written to the fixed leader, kHz",
                                 choices=(75.0, 150.0, 300.0, 600.0, 1200.0, 2400.0))
     max_range_m: float = spec("slant range beyond which a beam finds no bottom, m",
