@@ -36,12 +36,14 @@ from . import messages
 from .acquire_config import AcquireSetup
 from .assembly import AssemblyError, PingAssembler
 from .drivers.digitiser import DigitiserClient
-from .drivers.nmea import HdtHeading, NmeaStreamParser
+from .drivers.nmea import NmeaStreamParser
 from .drivers.pd0 import Pd0StreamParser
 from .drivers.sequencer import SequencerDriver
 from .drivers.serial_link import SerialLink
+from .nav.clocks import describe_offset
 from .navigation import Navigator
-from .ping import NAV_BOTTOM_LOCK, NAV_DEAD_RECKONED, NAV_GPS_FIX, NavSnapshot
+from .ping import (NAV_BOTTOM_LOCK, NAV_CLOCK_RETIMED, NAV_DEAD_RECKONED, NAV_GPS_FIX,
+                   NAV_HELD, NavSnapshot)
 from .protocols import digitiser as dg
 from .protocols.sequencer import PingEvent
 from .publisher import PingPublisher
@@ -90,6 +92,9 @@ class NavTally:
     last_quality: int = 0
     outage: bool = False
     lock_lost: bool = False
+    held: int = 0               # pings posed on the last navigation sample held (NAV_HELD)
+    clock_retimed: int = 0      # pings posed on re-timed instrument clocks
+    holding: bool = False
 
 
 @dataclass
@@ -160,8 +165,6 @@ class AcquisitionDaemon:
         self._tx_lock = threading.Lock()
         self._phase: int | None = None     # projector cycle: order index - sequence
         self._nav_lock = threading.Lock()
-        self._nmea_batch: list = []
-        self._nmea_t: int | None = None
         self._times: collections.deque = collections.deque()
         self._last_seq: int | None = None
         self._seen: set[int] = set()
@@ -266,8 +269,10 @@ class AcquisitionDaemon:
         self.digitiser = DigitiserClient.from_config(dev.digitiser)
         self.digitiser.open(wait_connected_s=wait)
         # the first pings need a pose: wait for the navigation to have data
+        # (any DVL ensemble counts, with bottom track or without: the link is alive)
         for name, link, have in (("GPS fix", dev.gps, lambda: self.navigator.fixes),
-                                 ("DVL ensemble", dev.dvl, lambda: self.navigator.dvl)):
+                                 ("DVL ensemble", dev.dvl,
+                                  lambda: self.navigator.counts["dvl_ensembles"])):
             if link is not None and not self._wait(have, wait):
                 log.warning("no %s within %.0f s: pinging without it", name, wait)
         self.sequencer.configure(hw)
@@ -289,35 +294,24 @@ class AcquisitionDaemon:
     # -- reader-thread callbacks -----------------------------------------------------------
 
     def _on_transmit(self, ev: PingEvent) -> None:
+        now = utc_now_ns()
         with self._tx_lock:
             self._tx[ev.sequence] = ev
+        with self._nav_lock:        # the ping clock as the host sees it (instrument clocks)
+            self.navigator.add_reference(now, ev.transmit_time_ns)
 
     def _on_nmea(self, record) -> None:
-        """Collect one epoch's sentences (GGA, RMC, GST, HDT, ...) and hand them to the
-        navigation together: GST is matched to its fix within a batch, and HDT (which
-        has no time of its own) takes the epoch's time."""
-        t = getattr(record, "time_ns", None)
+        """Each sentence to the navigation as it arrives, with its receive time: GST is
+        paired with its fix by time of day there, HDT timed on the receiver's clock, and
+        the receiver's clock judged against the ping clock."""
+        now = utc_now_ns()
         with self._nav_lock:
-            if t is not None:
-                if self._nmea_batch and t != self._nmea_t:
-                    self._flush_nmea()
-                self._nmea_t = t
-                self._nmea_batch.append(record)
-            elif isinstance(record, HdtHeading):
-                if self._nmea_t is not None:
-                    self._nmea_batch.append((self._nmea_t, record))
-            else:
-                self._nmea_batch.append(record)
-
-    def _flush_nmea(self) -> None:
-        """(Holding the navigation lock.)"""
-        if self._nmea_batch:
-            batch, self._nmea_batch = self._nmea_batch, []
-            self.navigator.add_nmea(batch)
+            self.navigator.add_nmea([(now, record)])
 
     def _on_pd0(self, ensemble) -> None:
+        now = utc_now_ns()
         with self._nav_lock:
-            self.navigator.add_pd0(ensemble)
+            self.navigator.add_pd0(ensemble, receive_ns=now)
 
     # -- the acquisition loop ------------------------------------------------------------
 
@@ -354,6 +348,7 @@ class AcquisitionDaemon:
                 item = None
         self._assemble_due(final=False)
         self._watch_devices()
+        self._nav_notices()
         self._note_requests()
         self._publish_status()
 
@@ -469,10 +464,10 @@ class AcquisitionDaemon:
         samples, not extrapolated past the last one)."""
         nav, dev = self.navigator, self.setup.devices
         with self._nav_lock:
-            if dev.dvl is not None and not (nav.dvl and nav.dvl[-1].time_ns >= t_ns):
-                return False
-            if dev.gps is not None and not (self._nmea_t is not None and self._nmea_t >= t_ns):
-                return False
+            for name, link in (("dvl", dev.dvl), ("gps", dev.gps)):
+                latest = nav.latest_ns(name)     # on the ping clock (re-timed clocks too)
+                if link is not None and not (latest is not None and latest >= t_ns):
+                    return False
         return True
 
     def _poses(self, times_ns: list[int]) -> list[NavSnapshot]:
@@ -480,7 +475,6 @@ class AcquisitionDaemon:
             return [_unknown_pose(t) for t in times_ns]
         try:
             with self._nav_lock:
-                self._flush_nmea()
                 return self.navigator.poses(times_ns)
         except (ValueError, IndexError) as exc:
             before = self.counters.pose_errors
@@ -495,29 +489,68 @@ class AcquisitionDaemon:
         t, q = self.nav_tally, nav.quality
         t.last_quality = q
         gps, dr, lock = bool(q & NAV_GPS_FIX), bool(q & NAV_DEAD_RECKONED), bool(q & NAV_BOTTOM_LOCK)
-        t.mode = "gps" if gps else "dead_reckoning" if dr else "none"
+        held = bool(q & NAV_HELD)
+        t.mode = ("gps" if gps else "dead_reckoning" if dr else "held" if held else "none")
         if not gps:
             t.no_gps_fix += 1
         if dr:
             t.dead_reckoned += 1
+        if held:
+            t.held += 1
+        if q & NAV_CLOCK_RETIMED:
+            t.clock_retimed += 1
         if not lock and self.setup.devices.dvl is not None:
             t.no_bottom_lock += 1
         if not gps and not t.outage and self.setup.devices.gps is not None:
             t.outage = True
             self.event("navigation.gps_outage", "no GPS fix at the ping's time: " + (
-                "dead reckoning on the DVL carries the pose" if dr else "no position"))
+                "dead reckoning on the DVL carries the pose" if dr else
+                "the last navigation sample is held" if held else "no position"))
         elif gps and t.outage:
             t.outage = False
             self.event("navigation.gps_back", "GPS fixes again", logging.INFO)
+        if held and not t.holding:
+            t.holding = True
+            self.event("navigation.held", "pings posed on the last navigation sample held "
+                       "(flag NAV_HELD): no newer DVL or GPS record within acquire "
+                       "navigation.wait_s of the ping (an instrument slower than that, or "
+                       "silent)")
+        elif not held and t.holding:
+            t.holding = False
+            self.event("navigation.held_end", f"pings posed on current navigation again; "
+                       f"{t.held} held in all", logging.INFO)
         if self.setup.devices.dvl is not None:
             if not lock and not t.lock_lost:
                 t.lock_lost = True
-                self.event("navigation.bottom_lock_lost", "no DVL bottom track: altitude "
-                           "unknown, no dead reckoning")
+                self.event("navigation.bottom_lock_lost", self._why_no_lock(nav.time_ns))
             elif lock and t.lock_lost:
                 t.lock_lost = False
                 self.event("navigation.bottom_lock_back", "DVL bottom track again",
                            logging.INFO)
+
+    def _why_no_lock(self, t_ns: int) -> str:
+        """Why a ping has no bottom lock: no DVL ensemble near it (silent, slow, or its
+        clock elsewhere), or ensembles without bottom track."""
+        with self._nav_lock:       # (once per loss: a scan of the samples kept is cheap)
+            nearest = min((d.time_ns - t_ns for d in self.navigator.dvl), key=abs,
+                          default=None)
+        gap_s = self.setup.devices.navigation.dvl_max_gap_s
+        if nearest is None:
+            return "no DVL ensemble yet: altitude unknown, no dead reckoning"
+        if abs(nearest) * 1e-9 > gap_s:
+            return (f"no DVL ensemble within navigation.dvl_max_gap_s {gap_s:g} s of the "
+                    f"ping (the nearest {describe_offset(nearest * 1e-9)} from it: the DVL "
+                    "slow or silent, or its clock elsewhere): altitude unknown, no dead "
+                    "reckoning")
+        return "no DVL bottom track: altitude unknown, no dead reckoning"
+
+    def _nav_notices(self) -> None:
+        """The navigation's notices (instrument clocks, the GPS sigma gate) as events
+        (the navigation logged them already)."""
+        with self._nav_lock:
+            notices = self.navigator.take_notices()
+        for kind, detail, _level in notices:
+            self.event(kind, detail, logging.DEBUG)
 
     # -- device watch ----------------------------------------------------------------------
 
@@ -606,7 +639,8 @@ class AcquisitionDaemon:
         t = self.nav_tally
         nav = {"mode": t.mode, "last_quality": t.last_quality,
                "dead_reckoned": t.dead_reckoned, "no_gps_fix": t.no_gps_fix,
-               "no_bottom_lock": t.no_bottom_lock, "pose_errors": c.pose_errors}
+               "no_bottom_lock": t.no_bottom_lock, "held": t.held,
+               "clock_retimed": t.clock_retimed, "pose_errors": c.pose_errors}
         quality = getattr(self.navigator, "quality", None)
         if callable(quality):
             try:
@@ -670,6 +704,7 @@ class AcquisitionDaemon:
         except Exception as exc:
             self.event("digitiser.stop_failed", str(exc))
         self._watch_devices()
+        self._nav_notices()
         summary = self.summary()
         if self.recorder is not None:
             self.recorder.close(summary)
@@ -721,7 +756,7 @@ class AcquisitionDaemon:
     def summary(self) -> dict:
         return {"run_id": self.run_id, "counters": self.counters.as_dict(),
                 "navigation": {k: v for k, v in self.nav_tally.__dict__.items()
-                               if k not in ("outage", "lock_lost")},
+                               if k not in ("outage", "lock_lost", "holding")},
                 "n_events": self.n_events, "events": dict(self.event_counts),
                 "failure": self.failure,
                 "segments": [p.name for p in self.recorder.segments] if self.recorder else []}

@@ -233,7 +233,9 @@ def test_quality_summary(cfg):
     assert q == {"mode": "gps", "gps_fix_age_s": pytest.approx(0.5),
                  "dvl_age_s": pytest.approx(0.25), "heading_source": "hdt",
                  "bottom_lock": False, "gps_sigma_m": pytest.approx(0.05),
-                 "gps_fixes": 1, "gps_rejected": 1, "dvl_samples": 3, "dvl_no_lock": 1}
+                 "gps_gate": "no_fix", "clock_offset_s": {}, "clock_retimed": [],
+                 "gps_fixes": 1, "gps_rejected": 1, "gps_rejected_sigma": 0,
+                 "gps_gst_missing": 0, "dvl_ensembles": 3, "dvl_samples": 3, "dvl_no_lock": 1}
     json.dumps(q, allow_nan=False)
     # GNSS and HDT gone, the DVL still locked: dead reckoning on the compass
     for k in range(40):
