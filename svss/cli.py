@@ -4,8 +4,9 @@
     svss acquire [--config FILE] [--devices FILE] [--pings N | --duration S]
     svss status [--connect ENDPOINT] [--json] [--follow]
     svss simulate --scene FILE --out RUN.h5
-    svss process RUN.h5 --out DIR
+    svss process RUN.h5 --out DIR [--renavigate | --no-renavigate]
     svss batch RUN.h5 [RUN2.h5 ...] --out DIR [--scheduler ADDRESS] [--workers N]
+               [--renavigate | --no-renavigate]
     svss worker --connect ENDPOINT --out DIR [--service E] [--runs N]
     svss replay RUN.h5 [RUN2.h5 ...] [--endpoint E] [--service E] [--realtime]
     svss inspect FILE [--json]
@@ -73,7 +74,8 @@ def cmd_simulate(args) -> int:
 def cmd_process(args) -> int:
     from svss_proc.worker import process_raw
 
-    files = process_raw(args.run, args.out, _processing(args), force=args.force)
+    files = process_raw(args.run, args.out, _processing(args), force=args.force,
+                        renavigate=args.renavigate)
     for p in files:
         print(p)
     return 0
@@ -86,7 +88,7 @@ def cmd_batch(args) -> int:
         require_dask()                  # before any work; the message names the extra
         summary = run_batch(args.run, args.out, _processing(args),
                             scheduler=args.scheduler, workers=args.workers,
-                            force=args.force)
+                            force=args.force, renavigate=args.renavigate)
     except (ImportError, BatchError) as exc:
         log.error("%s", exc)
         return 2 if isinstance(exc, ImportError) else 1
@@ -356,6 +358,14 @@ def build_parser() -> argparse.ArgumentParser:
         sp.add_argument("--force", action="store_true", help=f"replace {what} (refused "
                         "otherwise)")
 
+    def renavigate(sp):
+        sp.add_argument("--renavigate", action=argparse.BooleanOptionalAction,
+                        default=None, help="recompute every pose from the run's "
+                        "recorded NMEA sentences and PD0 ensembles with the smoother "
+                        "(refused for a run without them), or image with the poses "
+                        "recorded live (--no-renavigate); default: re-navigate where "
+                        "the run records them (docs/navigation.md)")
+
     def common(sp, processing=True):
         sp.add_argument("--hardware", help="hardware TOML (default: config/hardware.toml)")
         if processing:
@@ -410,6 +420,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--out", required=True, help="output folder")
     sp.add_argument("--processing", help="processing TOML (default: config/processing.toml)")
     force(sp, "tiles and manifest of an earlier run in --out")
+    renavigate(sp)
     sp.set_defaults(func=cmd_process)
 
     sp = sub.add_parser("batch", help="reprocess raw runs into tiles on Dask distributed, "
@@ -424,6 +435,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--workers", type=int, default=None, help="worker processes of the "
                     "local cluster (default: the CPU count)")
     force(sp, "tiles of an earlier batch made with another processing configuration")
+    renavigate(sp)
     sp.set_defaults(func=cmd_batch)
 
     sp = sub.add_parser("worker", help="image pings received over ZeroMQ")

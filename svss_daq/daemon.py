@@ -37,7 +37,7 @@ from .acquire_config import AcquireSetup
 from .assembly import AssemblyError, PingAssembler
 from .drivers.digitiser import DigitiserClient
 from .drivers.nmea import NmeaStreamParser
-from .drivers.pd0 import Pd0StreamParser
+from .drivers.pd0 import Pd0Ensemble, Pd0StreamParser
 from .drivers.sequencer import SequencerDriver
 from .drivers.serial_link import SerialLink
 from .nav.clocks import describe_offset
@@ -47,6 +47,8 @@ from .ping import (NAV_BOTTOM_LOCK, NAV_CLOCK_RETIMED, NAV_DEAD_RECKONED, NAV_GP
 from .protocols import digitiser as dg
 from .protocols.sequencer import PingEvent
 from .publisher import PingPublisher
+from .nav.renavigate import navigation_config_text
+from .rawfile import NAV_CONFIG_ATTR
 from .recorder import RecordingStopped, RunRecorder
 from .status import StatusPublisher
 
@@ -125,9 +127,49 @@ class _NmeaTap:
         now = utc_now_ns()
         for line in lines:
             text = line.strip(b"\r\x00 ")
-            if text.startswith((b"$", b"!")):
-                self.raw.append((now, text.decode("ascii", "replace")))
+            # from the last sentence start, as the parser reads it (junk glued in front
+            # of a sentence is dropped there too)
+            start = max(text.rfind(b"$"), text.rfind(b"!"))
+            if start >= 0:
+                self.raw.append((now, text[start:].decode("ascii", "replace")))
         return self.parser.feed(data)
+
+
+class _Pd0Tap(Pd0StreamParser):
+    """The DVL link's parser: :class:`Pd0StreamParser` that also keeps the bytes of
+    every ensemble it decodes (header to checksum, exactly the bytes that decoded) with
+    their receive time, for the recording (re-navigation, :mod:`svss_daq.nav.renavigate`).
+    The ensembles are taken where the parser judges a candidate whole and valid
+    (``_judge``); the one it then accepts is matched by identity."""
+
+    def __init__(self, keep: int = 10000):
+        super().__init__()
+        self.raw: collections.deque = collections.deque(maxlen=keep)
+        self._judged: dict[int, bytes] = {}
+
+    def _judge(self, pos: int, end: int):
+        r = super()._judge(pos, end)
+        if isinstance(r, Pd0Ensemble):
+            self._judged[id(r)] = bytes(self._buf[pos:pos + r.n_bytes])
+        return r
+
+    def _take(self, out: list) -> list:
+        now = utc_now_ns()
+        for ens in out:
+            raw = self._judged.get(id(ens))
+            if raw is None:           # cannot happen while _judge decodes every ensemble
+                log.error("PD0 tap: ensemble %d decoded without its bytes; not recorded",
+                          ens.variable.ensemble_number)
+                continue
+            self.raw.append((now, raw))
+        self._judged.clear()
+        return out
+
+    def feed(self, data) -> list:
+        return self._take(super().feed(data))
+
+    def flush(self) -> list:
+        return self._take(super().flush())
 
 
 class AcquisitionDaemon:
@@ -216,7 +258,8 @@ class AcquisitionDaemon:
             max_file_bytes=acq.rotation.max_file_mib * 2**20,
             max_file_s=acq.rotation.max_file_s,
             min_free_bytes=acq.disk.min_free_mib * 2**20,
-            run_attrs={"acquisition_config": str(s.path)})
+            run_attrs={"acquisition_config": str(s.path),
+                       NAV_CONFIG_ATTR: navigation_config_text(s.devices.navigation)})
         self.publisher = PingPublisher(self._want_endpoints["publisher"],
                                        daq.publisher.send_hwm, curve=self.curve)
         self.endpoints["publisher"] = self.publisher.endpoint
@@ -257,13 +300,17 @@ class AcquisitionDaemon:
                                        on_record=self._on_nmea, name="gps",
                                        reconnect_max_s=1.0).start()
         if dev.dvl is not None:
-            self.dvl_parser = Pd0StreamParser()
+            self.dvl_parser = _Pd0Tap()        # keeps each ensemble's bytes for the recording
             self.dvl_link = SerialLink(dev.dvl.port, self.dvl_parser,
                                        baudrate=dev.dvl.baudrate, on_record=self._on_pd0,
                                        name="dvl", reconnect_max_s=1.0).start()
         if dev.gps is None and dev.dvl is None:
             log.warning("no DVL or GPS link configured: pings are recorded without a pose")
-        self.sequencer = SequencerDriver.from_config(dev.sequencer, on_ping=self._on_transmit,
+        # the ping-clock events as received, for the recording (re-navigation judges the
+        # instrument clocks against the ping clock as the live navigation does)
+        self._clock_tap: collections.deque = collections.deque(maxlen=10000)
+        self.sequencer = SequencerDriver.from_config(dev.sequencer,
+                                                     on_ping=self._transmit_tapped,
                                                      reconnect_max_s=0.5)
         self.sequencer.open(timeout_s=wait)
         self.digitiser = DigitiserClient.from_config(dev.digitiser)
@@ -281,6 +328,12 @@ class AcquisitionDaemon:
         self.sequencer.start()
         log.info("run %s: pinging every %.3f s, schedule %s", self.run_id,
                  hw.sequencer.ping_interval_s, list(hw.sequencer.projector_order))
+
+    def _transmit_tapped(self, ev: PingEvent) -> None:
+        """A transmit record: kept with its receive time for the recording, then
+        handled (:meth:`_on_transmit`)."""
+        self._clock_tap.append((utc_now_ns(), ev.transmit_time_ns))
+        self._on_transmit(ev)
 
     @staticmethod
     def _wait(pred, timeout_s: float) -> bool:
@@ -379,6 +432,8 @@ class AcquisitionDaemon:
         ready: list = []
         pairing = self.setup.acquire.pairing
         nav_wait = self.setup.acquire.navigation.wait_s
+        # the fixed-lag smoother: a ping waits for the records fixed_lag_s past it
+        lag_ns = int(self.setup.devices.navigation.fixed_lag_s * 1e9)
         while self._pending:
             arrived, data = self._pending[0]
             with self._tx_lock:
@@ -386,7 +441,8 @@ class AcquisitionDaemon:
             if not final:
                 if not have_tx and now < arrived + pairing.transmit_wait_s:
                     break
-                if now < arrived + nav_wait and not self._nav_caught_up(data.transmit_time_ns):
+                if now < arrived + nav_wait and not self._nav_caught_up(
+                        data.transmit_time_ns + lag_ns):
                     break
             with self._tx_lock:
                 ev = self._tx.pop(data.ping_number, None)
@@ -597,6 +653,21 @@ class AcquisitionDaemon:
                 t, text = self.gps_tap.raw.popleft()
                 try:
                     self.recorder.append_nmea(t, text)
+                except RecordingStopped:
+                    break
+        if self.dvl_link is not None and self.recorder and not self.recorder.stopped:
+            while self.dvl_parser.raw:
+                t, raw = self.dvl_parser.raw.popleft()
+                try:
+                    self.recorder.append_pd0(t, raw)
+                except RecordingStopped:
+                    break
+        tap = getattr(self, "_clock_tap", None)
+        if tap is not None and self.recorder and not self.recorder.stopped:
+            while tap:
+                rx, tx = tap.popleft()
+                try:
+                    self.recorder.append_clock_reference(rx, tx)
                 except RecordingStopped:
                     break
 

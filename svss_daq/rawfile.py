@@ -8,6 +8,12 @@ Layout (see docs/formats.md)::
                             window_start_ns; attrs sample_rate_hz, ...
     /Platform               time1 (int64 ns) and the navigation snapshot of each ping
     /Platform/NMEA          time (int64 ns), sentence (raw NMEA text)
+    /Platform/PD0           time (int64 ns), offset, n_bytes: each PD0 ensemble as received,
+                            its bytes at ``stream[offset:offset + n_bytes]`` (absent in
+                            files written before it was kept)
+    /Platform/ping_clock    receive_time, transmit_time (int64 ns): the sequencer's
+                            transmit records as received, the ping clock on the host's
+                            (absent in files written before it was kept)
     /Environment            attrs: scene or measured environment
     /Provenance             attrs: software, creation time; hardware configuration text
     /Vendor_specific        hardware configuration text and its id; ``events`` (time,
@@ -57,6 +63,15 @@ FORMAT = "svss-raw"
 FORMAT_VERSION = 1
 BEAM = "Sonar/Beam_group1"
 NMEA_LEN = 96
+#: the instrument records a run keeps for re-navigation (docs/formats.md)
+PD0 = "Platform/PD0"
+#: bytes per chunk of the concatenated PD0 stream
+PD0_CHUNK = 1 << 16
+#: the ping-clock events (the sequencer's transmit records) as received
+PING_CLOCK = "Platform/ping_clock"
+#: root attribute: the navigation configuration (devices [navigation] table) the
+#: acquisition daemon posed the pings with
+NAV_CONFIG_ATTR = "navigation_config_toml"
 EVENT_KIND_LEN = 32
 EVENT_DETAIL_LEN = 200
 EVENTS = "Vendor_specific/events"
@@ -202,7 +217,8 @@ def _appendable(group: h5py.Group, name: str, dtype, shape_tail=(), chunk=1024, 
 
 
 class RawRunWriter:
-    """Append pings (and raw NMEA sentences) to a new raw-run file.
+    """Append pings (and the raw NMEA sentences and PD0 ensembles the navigation used)
+    to a new raw-run file.
 
     Use as a context manager. ``hardware`` is the loaded hardware configuration (its
     text is stored for provenance and reprocessing). An existing file is refused unless
@@ -273,6 +289,25 @@ class RawRunWriter:
         self._nmea_time = _appendable(nmea, "time", "<i8", doc="receive time, ns (UTC)")
         self._nmea_text = _appendable(nmea, "sentence", f"S{NMEA_LEN}",
                                       doc="raw NMEA 0183 sentence")
+        pd0 = plat.create_group("PD0")
+        pd0.attrs["long_name"] = ("Teledyne RDI PD0 ensembles as received from the DVL "
+                                  "(header to checksum), for re-navigation")
+        self._pd0_stream = _appendable(pd0, "stream", "u1", chunk=PD0_CHUNK,
+                                       doc="the ensembles' bytes, concatenated")
+        self._pd0_offset = _appendable(pd0, "offset", "<i8", chunk=256,
+                                       doc="byte offset of the ensemble in 'stream'")
+        self._pd0_size = _appendable(pd0, "n_bytes", "<i4", chunk=256,
+                                     doc="length of the ensemble, bytes")
+        self._pd0_time = _appendable(pd0, "time", "<i8", chunk=256,
+                                     doc="host receive time, ns (UTC)")
+        clock = plat.create_group("ping_clock")
+        clock.attrs["long_name"] = ("ping-clock events as the host received them (the "
+                                    "sequencer's transmit records): instrument clocks are "
+                                    "judged against the ping clock through them")
+        self._clock_ping = _appendable(clock, "transmit_time", "<i8", chunk=256,
+                                       doc="transmit time on the ping clock, ns")
+        self._clock_rx = _appendable(clock, "receive_time", "<i8", chunk=256,
+                                     doc="host receive time of the transmit record, ns")
         env = f.create_group("Environment")
         for k, v in (environment or {}).items():
             env.attrs[k] = v
@@ -361,6 +396,39 @@ class RawRunWriter:
             self._nmea_time[i] = time_ns
         except H5_ERRORS as exc:
             raise self._fail(f"writing NMEA sentence {i}", exc) from None
+
+    def append_pd0(self, time_ns: int, ensemble: bytes) -> None:
+        """Record one PD0 ensemble as received (its bytes, header to checksum) with its
+        host receive time; durable at the next flush."""
+        self._check_usable()
+        data = np.frombuffer(bytes(ensemble), dtype=np.uint8)
+        if data.size == 0:
+            raise ValueError(f"{self.path}: an empty PD0 ensemble")
+        i = self._pd0_time.shape[0]
+        try:
+            # bytes first, time last: a reader takes the shortest index as the count
+            start = self._pd0_stream.shape[0]
+            self._pd0_stream.resize(start + data.size, axis=0)
+            self._pd0_stream[start:] = data
+            for ds, v in ((self._pd0_offset, start), (self._pd0_size, data.size),
+                          (self._pd0_time, int(time_ns))):
+                ds.resize(i + 1, axis=0)
+                ds[i] = v
+        except H5_ERRORS as exc:
+            raise self._fail(f"writing PD0 ensemble {i}", exc) from None
+
+    def append_clock_reference(self, receive_ns: int, transmit_ns: int) -> None:
+        """Record one ping-clock event: a transmit record of ping time ``transmit_ns``
+        received at host time ``receive_ns``; durable at the next flush."""
+        self._check_usable()
+        i = self._clock_rx.shape[0]
+        try:
+            for ds, v in ((self._clock_ping, int(transmit_ns)), (self._clock_rx,
+                                                                  int(receive_ns))):
+                ds.resize(i + 1, axis=0)
+                ds[i] = v
+        except H5_ERRORS as exc:
+            raise self._fail(f"writing ping-clock event {i}", exc) from None
 
     def append_event(self, time_ns: int, kind: str, detail: str) -> None:
         """Record one device event (kind up to 32, detail up to 200 bytes, truncated);
@@ -635,7 +703,8 @@ def _on_disk(ds: h5py.Dataset, n: int, size: int) -> int:
 
 #: what a reader keeps of a run, read in a child process (:func:`in_child`)
 _STATE = ("clean", "sample_rate_hz", "hardware", "n_pings", "environment", "attrs",
-          "_provenance", "_meta", "_nav", "_nmea_list", "_shape", "_events")
+          "_provenance", "_meta", "_nav", "_nmea_list", "_shape", "_events", "_pd0_index",
+          "_clock_list", "_notes")
 
 
 def _read_events(f: h5py.File, path: Path) -> list[tuple[int, str, str]]:
@@ -649,6 +718,48 @@ def _read_events(f: h5py.File, path: Path) -> list[tuple[int, str, str]]:
     n = min(times.shape[0], kinds.shape[0], details.shape[0])
     return [(int(t), k.decode("ascii", "replace"), d.decode("ascii", "replace"))
             for t, k, d in zip(times[:n], kinds[:n], details[:n])]
+
+
+def _read_pd0_index(f: h5py.File, path: Path, notes: list[str]
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(receive times, byte offsets, lengths) of the PD0 ensembles recorded with a run
+    whose bytes lie within the stream on disk; None in files written before they were
+    kept (no ``/Platform/PD0``). What is left out is said in ``notes``."""
+    if PD0 not in f:
+        return None
+    g = group(f, PD0, path)
+    stream = dataset(g, "stream", path, 1, "u", what="the PD0 ensembles' bytes (uint8)")
+    if stream.dtype.itemsize != 1:
+        raise RawFileError(f"{path}: dataset '/{PD0}/stream' has dtype {stream.dtype}; "
+                           "expected uint8")
+    index = [dataset(g, k, path, 1, "iu") for k in ("time", "offset", "n_bytes")]
+    size = path.stat().st_size
+    n = min(d.shape[0] for d in index)
+    n = min([n] + [_on_disk(d, n, size) for d in index])
+    t, o, z = (d[:n].astype(np.int64) for d in index)
+    avail = _on_disk(stream, stream.shape[0], size)
+    bad = np.flatnonzero((o < 0) | (z <= 0) | (o > avail) | (z > avail - o))
+    if bad.size:
+        k = int(bad[0])
+        notes.append(f"{path}: PD0 ensemble {k} of {n} at byte {int(o[k])} ({int(z[k])} "
+                     f"bytes) lies outside the {avail} bytes of '/{PD0}/stream' on disk; "
+                     f"reading the first {k}")
+        t, o, z = t[:k], o[:k], z[:k]
+    return t, o, z
+
+
+def _read_ping_clock(f: h5py.File, path: Path) -> list[tuple[int, int]]:
+    """The ping-clock events recorded with a run (none in files written before they
+    were kept)."""
+    if PING_CLOCK not in f:
+        return []
+    g = group(f, PING_CLOCK, path)
+    rx = dataset(g, "receive_time", path, 1, "iu")
+    tx = dataset(g, "transmit_time", path, 1, "iu")
+    size = path.stat().st_size
+    n = min(rx.shape[0], tx.shape[0])
+    n = min(n, _on_disk(rx, n, size), _on_disk(tx, n, size))
+    return list(zip(rx[:n].tolist(), tx[:n].tolist()))
 
 
 def _read_state(path: Path) -> dict:
@@ -665,6 +776,9 @@ def _read_state(path: Path) -> dict:
                               for t, s in zip(times[:n], text[:n])]
             run._shape = tuple(run._samples.shape[1:])
             run._events = _read_events(run._f, path)
+            run._notes = []
+            run._pd0_index = _read_pd0_index(run._f, path, run._notes)
+            run._clock_list = _read_ping_clock(run._f, path)
             for i in ({0, run.n_pings - 1} if run.n_pings else ()):
                 run._samples[i]
         except H5_ERRORS as exc:
@@ -694,6 +808,8 @@ class RawRunReader:
         if not self.clean:
             log.warning("%s was not closed by its writer; reading up to its last flush "
                         "(%d pings)", self.path, self.n_pings)
+        for note in self._notes:                 # (the child process logs nothing)
+            log.warning("%s", note)
 
     def _open_and_validate(self) -> None:
         self._f, self.clean = _open_for_reading(self.path)
@@ -843,6 +959,52 @@ class RawRunReader:
     def events(self) -> list[tuple[int, str, str]]:
         """The device events recorded with the run: (time ns, kind, detail)."""
         return list(self._events)
+
+    @property
+    def n_nmea(self) -> int:
+        """NMEA sentences recorded with the run."""
+        return len(self._nmea_list)
+
+    @property
+    def keeps_pd0(self) -> bool:
+        """Whether the file has room for the PD0 ensembles the navigation used (False
+        in files written before they were kept: their DVL records are lost)."""
+        return self._pd0_index is not None
+
+    @property
+    def n_pd0(self) -> int:
+        """PD0 ensembles recorded with the run (0 in files written before they were
+        kept)."""
+        return 0 if self._pd0_index is None else int(self._pd0_index[0].size)
+
+    def pd0(self) -> list[tuple[int, bytes]]:
+        """The PD0 ensembles as received from the DVL: (host receive time ns, the
+        ensemble's bytes from its header to its checksum), in the order received; empty
+        in files written before they were kept."""
+        if not self.n_pd0:
+            return []
+        times, offsets, sizes = self._pd0_index
+        end = int((offsets + sizes).max())
+        try:
+            stream = self._f[f"{PD0}/stream"][:end].tobytes()
+        except H5_ERRORS as exc:
+            raise RawFileError(f"{self.path}: cannot read '/{PD0}/stream' "
+                               f"({_cause(exc)})") from None
+        return [(int(t), stream[o:o + z]) for t, o, z in
+                zip(times.tolist(), offsets.tolist(), sizes.tolist())]
+
+    def ping_clock(self) -> list[tuple[int, int]]:
+        """The ping-clock events as the host received them: (receive time ns, transmit
+        time ns on the ping clock) of each sequencer transmit record, in the order
+        received; empty in files written before they were kept."""
+        return list(self._clock_list)
+
+    @property
+    def navigation_config(self) -> str | None:
+        """The navigation configuration (TOML text of the devices configuration's
+        ``[navigation]`` table) the acquisition daemon posed the pings with; None when
+        the run does not record it."""
+        return _text(self.attrs.get(NAV_CONFIG_ATTR))
 
     @property
     def summary(self) -> dict | None:

@@ -98,7 +98,7 @@ class RunRecorder:
         self._opened = time.monotonic()
         self._base_bytes = path.stat().st_size
         held, self._held = self._held, []
-        for method, args in held:               # events and NMEA between two segments
+        for method, args in held:       # events, NMEA, PD0, ping clock between segments
             self._side(method, *args)
         dig = self.hardware.value.digitiser
         self._ping_bytes = 4 * dig.n_channels * dig.window_samples + 256
@@ -170,6 +170,14 @@ class RunRecorder:
     def append_nmea(self, time_ns: int, sentence: str) -> None:
         """Record a raw NMEA sentence (held for the next segment between two)."""
         self._side("append_nmea", time_ns, sentence)
+
+    def append_pd0(self, time_ns: int, ensemble: bytes) -> None:
+        """Record a PD0 ensemble as received (held for the next segment between two)."""
+        self._side("append_pd0", time_ns, ensemble)
+
+    def append_clock_reference(self, receive_ns: int, transmit_ns: int) -> None:
+        """Record a ping-clock event (held for the next segment between two)."""
+        self._side("append_clock_reference", receive_ns, transmit_ns)
 
     def _side(self, method: str, *args) -> None:
         with self.lock:

@@ -86,6 +86,9 @@ class Tile:
     updates: int = 0
     #: which pings and channels reached each voxel (None: not computed)
     coverage: "Coverage | None" = None
+    #: what the pings were posed with (provenance attribute ``poses``), e.g. "recorded
+    #: live poses" or "re-navigated from N NMEA sentences and M PD0 ensembles"
+    poses: str = ""
 
     @functools.cached_property
     def image(self) -> np.ndarray:
@@ -209,6 +212,8 @@ def _write(f: h5py.File, tile: Tile, hardware: Loaded[HardwareConfig],
     prov.attrs.update({"software_name": "svss", "software_version": __version__,
                        "hardware_config_source": hardware.source,
                        "processing_config_source": processing.source})
+    if tile.poses:
+        prov.attrs["poses"] = tile.poses
 
 
 def _write_coverage(f: h5py.File, c: Coverage, keep) -> None:
@@ -368,6 +373,9 @@ def _header(f: h5py.File, path: Path) -> dict:
     for k in ("hardware_config_toml", "processing_config_toml"):
         if f"provenance/{k}" in f:
             out[k] = _text(dataset(f, f"provenance/{k}", path, 0, "SOU", TileFileError)[()])
+    prov = f.get("provenance")
+    out["poses"] = (_text(prov.attrs.get("poses")) if isinstance(prov, h5py.Group)
+                    else None)
     return out
 
 
@@ -375,7 +383,8 @@ def read_tile_header(path: str | Path) -> dict:
     """Everything of a tile file but its volumes: the axes (``along``, ``cross``,
     ``depth``), ``ping_sequence``, ``attrs``, ``detections`` (empty when the tile has
     no ``/detections`` group: see ``products``), the names of the ``products`` it holds,
-    ``background_attrs``, the configuration texts and, for tiles with coverage,
+    ``background_attrs``, the configuration texts, ``poses`` (what the pings were posed
+    with; None in tiles written before it was kept) and, for tiles with coverage,
     ``coverage_full_pings`` (per depth)."""
     return _read(path, _header)
 

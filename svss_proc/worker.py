@@ -15,6 +15,7 @@ the recording), tile files out. See docs/worker.md.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
@@ -32,7 +33,9 @@ from svss_daq import messages
 from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
 from svss_daq.endpoints import check_endpoint
 from svss_daq.frames import TrackLine
-from svss_daq.ping import Ping
+from svss_daq import ping as _ping
+from svss_daq.nav.renavigate import RenavigationError, records_problem, renavigation
+from svss_daq.ping import NavSnapshot, Ping
 from svss_daq.ping_gate import PingGate, PingRejected
 from svss_daq.ping_service import PingFetcher, RunInfo, ServiceError
 from svss_daq.progress import Progress
@@ -40,6 +43,7 @@ from svss_daq.rawfile import RawRunReader, run_of
 from svss_daq.subscriber import subscribe
 
 from .imaging.imager import TileImager
+from .imaging.pose_check import check_pose_flags
 from .preflight import preflight
 from .products.chain import save_tile
 from .products.run_products import run_products_at_end
@@ -57,6 +61,12 @@ OUTPUT_PREFIXES = ("tile_", ".tile_")
 _TILE_FILE = re.compile(r"tile_(-?\d+)\.h5")
 #: at a run's end, how long pings the recording has not flushed yet are waited for, s
 END_WAIT_S = 10.0
+#: the navigation's pose flags counted over the imaged pings (manifest ``pose_flags``)
+POSE_FLAG_NAMES = tuple((getattr(_ping, f"NAV_{n.upper()}"), n) for n in (
+    "gps_fix", "dead_reckoned", "bottom_lock", "simulated", "heading_from_course",
+    "heading_from_compass", "held", "clock_retimed", "smoothed", "fused"))
+#: what a run's pings were posed with, when nothing else is said (manifest ``poses``)
+LIVE_POSES = "recorded live poses"
 #: defaults of daq.toml's [subscriber] gap_wait_s and reorder_pings
 GAP_WAIT_S = 2.0
 REORDER_PINGS = 200
@@ -192,8 +202,12 @@ class Worker:
 
     def __init__(self, hardware: Loaded[HardwareConfig], processing: Loaded[ProcessingConfig],
                  out_dir: str | Path, *, force: bool = False, run_id: str | None = None,
-                 resume: bool = False):
+                 resume: bool = False, poses: str = LIVE_POSES):
         self.hardware, self.processing = hardware, processing
+        #: what the pings are posed with (tile provenance and manifest ``poses``)
+        self.poses = poses
+        #: imaged pings per navigation flag (:data:`POSE_FLAG_NAMES`)
+        self.pose_flags: dict[str, int] = {}
         self.out = Path(out_dir)
         self.run_id = run_id
         self.imager = TileImager(hardware, processing.value, source=processing.source)
@@ -273,10 +287,19 @@ class Worker:
 
     # ------------------------------------------------------------------ imaging
     def add(self, ping: Ping) -> bool:
-        """Gate and image one ping, writing the tiles it completes; False when refused."""
+        """Gate and image one ping, writing the tiles it completes; False when refused.
+        The pose's navigation flags are judged first
+        (:func:`~svss_proc.imaging.pose_check.pose_flags_problem`: a pose without a
+        position would otherwise be refused by the gate for its NaN alone)."""
         tiles = []
         ok = False
-        if self.gate.admit(ping):
+        try:
+            check_pose_flags(ping, self.processing.value.ping_gate)
+            flags_ok = True
+        except PingRejected as exc:
+            self.gate.refuse(exc)
+            flags_ok = False
+        if flags_ok and self.gate.admit(ping):
             try:
                 tiles = self.imager.add(ping)
                 ok = True
@@ -287,6 +310,7 @@ class Worker:
                 log.exception("ping %d: imaging failed; ping skipped", ping.sequence)
         seq = getattr(ping, "sequence", None)
         if ok:
+            self._tally_flags(ping.nav.quality)
             if self.last_sequence is not None and seq != self.last_sequence + 1:
                 self.gaps += 1
                 log.warning("ping sequence jumps from %d to %d: %d ping(s) missing",
@@ -294,11 +318,17 @@ class Worker:
         if type(seq) is int and (self.last_sequence is None or seq > self.last_sequence):
             self.last_sequence = seq
         for tile in tiles:
+            tile.poses = self.poses
             self.written += save_tile(tile, self.out, self.hardware, self.processing)
         if tiles or (self.imager.line is not None and not self._journal_line):
             self._journal_line = True
             self._write_journal()
         return ok
+
+    def _tally_flags(self, quality: int) -> None:
+        for bit, name in POSE_FLAG_NAMES:
+            if quality & bit:
+                self.pose_flags[name] = self.pose_flags.get(name, 0) + 1
 
     def finish(self, complete: bool = True) -> list[Path]:
         """Write every open tile and the manifest; ``complete`` False when stopped early
@@ -309,6 +339,7 @@ class Worker:
         if not complete:
             self._write_journal(stopped_open=open_tiles)    # intent first
         for tile in self.imager.finish():
+            tile.poses = self.poses
             self.written += save_tile(tile, self.out, self.hardware, self.processing)
         refused = dict(self.gate.refused)
         if self.gate.n_refused or self.imaging_errors or self.imager.late_pings:
@@ -324,6 +355,7 @@ class Worker:
     def summary(self, complete: bool) -> dict:
         return {
             "complete": complete, "run_id": self.run_id, "pings": self.imager.n_pings,
+            "poses": self.poses, "pose_flags": dict(sorted(self.pose_flags.items())),
             "pings_refused": self.gate.n_refused, "refused": dict(self.gate.refused),
             "imaging_errors": self.imaging_errors, "late_pings": self.imager.late_pings,
             "malformed_messages": self.malformed_messages,
@@ -352,14 +384,51 @@ class Worker:
         return self.finish(complete=False)
 
 
+def run_poses(readers: list[RawRunReader], renavigate: bool | None
+              ) -> tuple[list[NavSnapshot] | None, str]:
+    """The poses a recorded run (its segment readers, in order) is imaged with: (one
+    pose per ping, or None for the poses recorded with the pings; what they are, for
+    the logs, the tile provenance and the manifest). ``renavigate``: True re-navigates
+    from the run's instrument records (:mod:`svss_daq.nav.renavigate`) and raises
+    :class:`~svss_daq.nav.renavigate.RenavigationError` naming the file when it has
+    none; False keeps the recorded poses; None (the default) re-navigates where the
+    records exist and keeps the recorded poses otherwise (logged)."""
+    where = str(readers[0].path)
+    if renavigate is False:
+        log.info("%s: imaged with its %s (re-navigation not asked for)", where, LIVE_POSES)
+        return None, LIVE_POSES
+    problem = records_problem(readers)
+    if problem is not None:
+        if renavigate:
+            raise RenavigationError(f"cannot re-navigate: {problem}")
+        log.info("%s: imaged with its %s (not re-navigated: %s)", where, LIVE_POSES,
+                 problem)
+        return None, LIVE_POSES
+    try:
+        renav = renavigation(readers)
+    except RenavigationError as exc:
+        if renavigate:
+            raise
+        log.warning("%s; imaged with its %s", exc, LIVE_POSES)
+        return None, LIVE_POSES
+    log.info("%s: imaged with poses %s", where, renav.description)
+    return renav.poses, renav.description
+
+
 def process_raw(path: str | Path, out_dir: str | Path,
-                processing: Loaded[ProcessingConfig], *, force: bool = False) -> list[Path]:
+                processing: Loaded[ProcessingConfig], *, force: bool = False,
+                renavigate: bool | None = None) -> list[Path]:
     """Image a recorded raw run with the hardware configuration it was recorded with,
     into ``out_dir`` directly (the same tiles as the worker's ``OUT/RUN_ID/``), and
-    the folder's survey index (``survey_index.csv``, :mod:`.survey_index`)."""
+    the folder's survey index (``survey_index.csv``, :mod:`.survey_index`). The pings
+    are posed as :func:`run_poses` decides (``renavigate``); the manifest's and the
+    tiles' ``poses`` say with what."""
     with RawRunReader(path) as run:
-        worker = Worker(run.hardware, processing, out_dir, force=force)
-        files = worker.run(iter(run), total=len(run))
+        poses, what = run_poses([run], renavigate)
+        worker = Worker(run.hardware, processing, out_dir, force=force, poses=what)
+        pings = iter(run) if poses is None else (
+            dataclasses.replace(p, nav=nav) for p, nav in zip(run, poses, strict=True))
+        files = worker.run(pings, total=len(run))
     run_id, _ = run_of(Path(path))          # as svss batch names it in its index
     write_survey_index(out_dir, [(run_id, p) for p in files if p.suffix == ".h5"])
     return files

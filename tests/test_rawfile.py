@@ -156,3 +156,83 @@ def test_sigkill_keeps_everything_up_to_last_flush(tmp_path, hardware):
         assert len(r) >= flushed              # nothing flushed is lost
         for i in range(len(r)):               # and everything read back is intact
             assert_same(_ping_for(hardware, i), r.ping(i))
+
+
+def _ensembles(n):
+    from svss_daq.drivers.pd0_encoder import Pd0Setup, encode_ensemble
+    return [encode_ensemble(Pd0Setup(), ensemble_number=k + 1,
+                            time_ns=1_790_000_000_000_000_000 + k * 200_000_000,
+                            heading_rad=0.5, pitch_rad=0.01, roll_rad=-0.02,
+                            bt_velocity_m_s=[0.0, -1.0, 0.0, 0.0], bt_range_m=[2.0 + k] * 4)
+            for k in range(n)]
+
+
+def test_instrument_records_round_trip(tmp_path, hardware):
+    """The PD0 ensembles (exact bytes, receive times), the ping-clock events and the
+    navigation configuration a run keeps for re-navigation, read back as written, also
+    across the records' chunks; and the writer's layout."""
+    from svss_daq.drivers.pd0 import decode_ensemble
+    from svss_daq.rawfile import NAV_CONFIG_ATTR, PD0_CHUNK
+    path = tmp_path / "run.h5"
+    ens = _ensembles(3)
+    big = [bytes(range(256)) * 300] * 5             # 76800 bytes each: across chunks
+    nav_text = "dvl_min_beams = 3\ngps_max_sigma_m = 2.0\n"
+    with RawRunWriter(path, hardware, run_attrs={NAV_CONFIG_ATTR: nav_text}) as w:
+        w.append(_ping_for(hardware, 0))
+        for k, b in enumerate(ens + big):
+            w.append_pd0(1000 + k, b)
+        w.append_clock_reference(77, 70)
+        w.append_clock_reference(88, 80)
+        with pytest.raises(ValueError, match="empty PD0 ensemble"):
+            w.append_pd0(5, b"")
+    assert sum(map(len, big)) > 5 * PD0_CHUNK
+    with RawRunReader(path) as r:
+        assert r.keeps_pd0 and r.n_pd0 == 8
+        assert r.pd0() == [(1000 + k, b) for k, b in enumerate(ens + big)]
+        assert [decode_ensemble(b).bottom_track.range_m[0] for _, b in r.pd0()[:3]] == \
+            pytest.approx([2.0, 3.0, 4.0])
+        assert r.ping_clock() == [(77, 70), (88, 80)]
+        assert r.navigation_config == nav_text
+    with h5py.File(path, "r") as f:
+        g = f["Platform/PD0"]
+        assert g["stream"].dtype == np.uint8 and g["time"].dtype == np.int64
+        assert list(g["offset"][:4]) == [0, len(ens[0]), len(ens[0]) + len(ens[1]),
+                                         sum(map(len, ens))]
+
+
+def test_files_without_the_instrument_records_still_open(tmp_path, hardware):
+    """Files written before the PD0 ensembles and the ping clock were kept (their groups
+    absent) open and read as before, with none."""
+    path = tmp_path / "old.h5"
+    sent = [_ping_for(hardware, i) for i in range(3)]
+    with RawRunWriter(path, hardware) as w:
+        for p in sent:
+            w.append(p)
+        w.append_nmea(5, "$GPHDT,12.5,T*03")
+    with h5py.File(path, "a") as f:
+        del f["Platform/PD0"], f["Platform/ping_clock"]
+    with RawRunReader(path) as r:
+        assert not r.keeps_pd0 and r.n_pd0 == 0 and r.pd0() == []
+        assert r.ping_clock() == [] and r.navigation_config is None
+        assert r.nmea() == [(5, "$GPHDT,12.5,T*03")]
+        for a, b in zip(sent, r):
+            assert_same(a, b)
+
+
+def test_pd0_records_outside_the_stream_are_cut_with_a_warning(tmp_path, hardware, caplog):
+    path = tmp_path / "run.h5"
+    ens = _ensembles(4)
+    with RawRunWriter(path, hardware) as w:
+        w.append(_ping_for(hardware, 0))
+        for k, b in enumerate(ens):
+            w.append_pd0(k, b)
+    with h5py.File(path, "a") as f:                # a damaged index: entry 2 past the end
+        f["Platform/PD0/offset"][2] = 10**6
+    with caplog.at_level("WARNING"), RawRunReader(path) as r:
+        assert r.pd0() == [(0, ens[0]), (1, ens[1])]
+    assert "PD0 ensemble 2 of 4 at byte 1000000" in caplog.text
+    with h5py.File(path, "a") as f:                # a stream of the wrong type
+        del f["Platform/PD0/stream"]
+        f["Platform/PD0"].create_dataset("stream", data=np.zeros(4, np.float32))
+    with pytest.raises(RawFileError, match="'/Platform/PD0/stream' has dtype float32"):
+        RawRunReader(path)

@@ -30,7 +30,7 @@ import numpy as np
 from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
 from svss_daq.frames import TrackLine
 from svss_daq.geometry import array_geometry, place_array
-from svss_daq.ping import Ping, SampleAxis
+from svss_daq.ping import NavSnapshot, Ping, SampleAxis
 from svss_daq.ping_gate import PingGate, PingRejected
 from svss_daq.rawfile import RawFileError, RawRunReader, run_of
 from svss_daq.waveform import make_waveform
@@ -38,8 +38,9 @@ from svss_daq.waveform import make_waveform
 from ..conditioning import Conditioner
 from ..imaging.grid import tile_grid, tile_index
 from ..imaging.imager import CLOSE_AFTER_PINGS, along_reach, line_from_ping, ping_frame
-from ..imaging.pose_check import TrackGuard
+from ..imaging.pose_check import TrackGuard, check_pose_flags
 from ..preflight import preflight
+from ..worker import LIVE_POSES, run_poses
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +66,11 @@ class TilePlan:
     span: tuple[int, int]
     line: tuple[float, float, float, float]
     hardware_id: str
+    #: the pose of each ping of ``sequences`` when the run was re-navigated (None: the
+    #: poses recorded with the pings)
+    poses: tuple[NavSnapshot, ...] | None = None
+    #: what the pings are posed with (tile provenance ``poses``)
+    pose_source: str = LIVE_POSES
 
     @property
     def key(self) -> str:
@@ -96,6 +102,8 @@ class RunPlan:
     tiles: list[TilePlan] = field(default_factory=list)
     refused: dict[str, int] = field(default_factory=dict)
     late_pings: int = 0
+    #: what the pings are posed with
+    poses: str = LIVE_POSES
 
 
 def _ranges(refs: list[tuple[int, int]], paths: list[Path]) -> tuple:
@@ -145,6 +153,11 @@ class TilePlanner:
 
     def add(self, ping: Ping, ref) -> None:
         """One ping (``ref``: where it lies, kept in the plan)."""
+        try:
+            check_pose_flags(ping, self.proc.ping_gate)     # as the worker, first
+        except PingRejected as exc:
+            self.gate.refuse(exc)
+            return
         if not self.gate.admit(ping):
             return
         try:
@@ -209,15 +222,18 @@ class TilePlanner:
         self.active.pop(k)
 
 
-def _pose_ping(reader: RawRunReader, i: int, meta: dict, zeros: np.ndarray) -> Ping:
-    """Ping ``i`` of ``reader`` with its records and pose but no samples (a read-only
-    zero view of the right shape: nothing is read or allocated)."""
+def _pose_ping(reader: RawRunReader, i: int, meta: dict, zeros: np.ndarray,
+               nav: NavSnapshot | None = None) -> Ping:
+    """Ping ``i`` of ``reader`` with its records and pose (``nav``, else the recorded
+    one) but no samples (a read-only zero view of the right shape: nothing is read or
+    allocated)."""
     return Ping(sequence=int(meta["ping_sequence"][i]),
                 projector=int(meta["transmit_projector"][i]),
                 transmit_time_ns=int(meta["ping_time"][i]),
                 sample_rate_hz=reader.sample_rate_hz,
                 window_start_ns=int(meta["window_start_ns"][i]),
-                samples=zeros, nav=reader.nav(i), config_id=reader.hardware.id)
+                samples=zeros, nav=reader.nav(i) if nav is None else nav,
+                config_id=reader.hardware.id)
 
 
 def group_runs(paths: list[str | Path]) -> dict[str, list[Path]]:
@@ -247,9 +263,13 @@ def group_runs(paths: list[str | Path]) -> dict[str, list[Path]]:
 
 
 def plan_run(run_id: str, folder: str, paths: list[Path],
-             processing: Loaded[ProcessingConfig]) -> RunPlan:
-    """Plan the tiles of one run (its segment files, in order) for ``processing``."""
+             processing: Loaded[ProcessingConfig], renavigate: bool | None = None
+             ) -> RunPlan:
+    """Plan the tiles of one run (its segment files, in order) for ``processing``, its
+    pings posed as :func:`svss_proc.worker.run_poses` decides (``renavigate``: the
+    whole run, every segment's instrument records together)."""
     readers = []
+    navs: dict[tuple[int, int], NavSnapshot] = {}
     try:
         for p in paths:
             readers.append(RawRunReader(p))
@@ -261,19 +281,24 @@ def plan_run(run_id: str, folder: str, paths: list[Path],
                                    f"{readers[0].path} with {hw.id}; a run has one")
         planner = TilePlanner(hw, processing.value, processing.source,
                               name=f"batch plan of run {run_id}")
+        poses, what = run_poses(readers, renavigate)
         dig = hw.value.digitiser
         zeros = np.broadcast_to(np.zeros((), np.int32), (dig.n_channels, dig.window_samples))
         n = 0
         for s, r in enumerate(readers):
             meta = r.ping_table()         # the reader checked the samples' shape
             for i in range(len(r)):
-                planner.add(_pose_ping(r, i, meta, zeros), (s, i))
+                nav = None if poses is None else poses[n + i]
+                if nav is not None:
+                    navs[(s, i)] = nav
+                planner.add(_pose_ping(r, i, meta, zeros, nav), (s, i))
             n += len(r)
     finally:
         for r in readers:
             r.close()
     plan = RunPlan(run_id, folder, list(paths), hw.id, n,
-                   refused=dict(planner.gate.refused), late_pings=planner.late_pings)
+                   refused=dict(planner.gate.refused), late_pings=planner.late_pings,
+                   poses=what)
     if planner.line is None:
         log.warning("run %s: no ping passed the checks; no tile", run_id)
         return plan
@@ -285,7 +310,8 @@ def plan_run(run_id: str, folder: str, paths: list[Path],
         refs = planner.tiles[k]
         plan.tiles.append(TilePlan(
             run_id, folder, k, _ranges([r for r, _ in refs], paths),
-            tuple(s for _, s in refs), (all_tiles[0], all_tiles[-1]), line, hw.id))
+            tuple(s for _, s in refs), (all_tiles[0], all_tiles[-1]), line, hw.id,
+            poses=tuple(navs[r] for r, _ in refs) if navs else None, pose_source=what))
     log.info("run %s: %d ping(s) in %d file(s) -> %d tile(s) (frame origin N %.2f E %.2f m, "
              "heading %.1f deg)", run_id, n, len(paths), len(plan.tiles), line[0], line[1],
              math.degrees(line[2]))

@@ -109,7 +109,8 @@ def run_batch(paths: list[str | Path], out: str | Path,
               processing: Loaded[ProcessingConfig], *, scheduler: str | None = None,
               workers: int | None = None, force: bool = False, client=None,
               kernel_threads: int | None = None,
-              task: Callable[..., dict] = image_tile) -> dict:
+              task: Callable[..., dict] = image_tile,
+              renavigate: bool | None = None) -> dict:
     """Reprocess the raw runs ``paths`` into ``out``; return the summary (also in
     ``out/batch_state.json``). ``scheduler``: a Dask scheduler's address (default: a
     LocalCluster of ``workers`` processes); ``client``: an existing
@@ -117,13 +118,15 @@ def run_batch(paths: list[str | Path], out: str | Path,
     task's imaging kernel (default: with a local cluster, the cores shared out among its
     workers; otherwise the workers' own setting, e.g. ``NUMBA_NUM_THREADS``);
     ``task``: the tile function (the default :func:`~.task.image_tile`; tests wrap
-    it). Raises :class:`BatchError` naming every
+    it); ``renavigate``: pose each run as :func:`svss_proc.worker.run_poses` decides
+    (default: re-navigated from its instrument records where it has them; the
+    summary's runs say which). Raises :class:`BatchError` naming every
     tile that failed (the others are kept: a rerun makes only the missing ones)."""
     t0 = time.perf_counter()
     out = Path(out).absolute()              # the tasks may run in another folder
     runs = group_runs(paths)
     prepare_batch_dir(out, runs, processing, force)
-    plans = [plan_run(run_id, run_folder_name(run_id), ps, processing)
+    plans = [plan_run(run_id, run_folder_name(run_id), ps, processing, renavigate)
              for run_id, ps in runs.items()]
     t_plan = time.perf_counter() - t0
     tiles = [t for p in plans for t in p.tiles]
@@ -134,7 +137,8 @@ def run_batch(paths: list[str | Path], out: str | Path,
              "processing_source": processing.source,
              "runs": {p.run_id: {"folder": p.folder, "files": [str(f) for f in p.paths],
                                  "pings": p.n_pings, "tiles": len(p.tiles),
-                                 "refused": p.refused, "late_pings": p.late_pings}
+                                 "refused": p.refused, "late_pings": p.late_pings,
+                                 "poses": p.poses}
                       for p in plans}}
     _atomic_json(out / STATE, {**state, "complete": False})
     results, errors = [], []

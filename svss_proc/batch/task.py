@@ -12,6 +12,7 @@ there is not imaged again (resume, or a task rerun after its worker died).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import time
@@ -86,11 +87,16 @@ def image_tile(plan: TilePlan, out: str, processing: Loaded[ProcessingConfig],
         imager.line = plan.track_line()
         imager.done = plan.others
         imager.track = _Judged()
+        k = 0
         for path, start, stop in plan.ranges:
             r = readers[path]
             for i in range(start, stop):
+                ping = r.ping(i)
+                if plan.poses is not None:       # re-navigated: the plan's pose
+                    ping = dataclasses.replace(ping, nav=plan.poses[k])
+                k += 1
                 try:
-                    early = imager.add(r.ping(i))
+                    early = imager.add(ping)
                 except PingRejected as exc:
                     raise PlanMismatch(f"{path}: ping {i} ({exc}) was refused imaging "
                                        f"tile {plan.index} of run {plan.run_id}, though its "
@@ -109,6 +115,7 @@ def image_tile(plan: TilePlan, out: str, processing: Loaded[ProcessingConfig],
         raise PlanMismatch(f"run {plan.run_id} tile {plan.index}: imaged pings "
                            f"{got[:5]}... ({len(got)}), the plan has {plan.sequences[:5]}... "
                            f"({len(plan.sequences)})")
+    tile.poses = plan.pose_source
     save_tile(tile, h5.parent, hardware, processing)
     dets = len(read_tile_header(h5)["detections"])
     log.info("%s: tile %d of run %s, %d pings, %d detections, %.2f s", h5, plan.index,

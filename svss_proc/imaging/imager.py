@@ -34,7 +34,7 @@ from .cpu_kernel import run_ping
 from .delays import TravelTimeTable, build_table
 from .grid import tile_grid, tile_index
 from .kernel_args import DelayModel, prepare
-from .pose_check import TrackGuard
+from .pose_check import TrackGuard, check_pose_flags
 
 log = logging.getLogger(__name__)
 
@@ -151,11 +151,14 @@ class TileImager:
     def add(self, ping: Ping) -> list[Tile]:
         """Image one ping into the tiles it reaches; return tiles now complete.
 
-        Raises :class:`~svss_daq.ping_gate.PingRejected`, changing nothing, for a ping
-        the gate's :func:`~svss_daq.ping_gate.ping_problem` refuses, an implausible pose
+        Raises :class:`~svss_daq.ping_gate.PingRejected`, changing nothing, for a pose
+        its navigation's flags keep from imaging
+        (:func:`~svss_proc.imaging.pose_check.pose_flags_problem`), a ping the gate's
+        :func:`~svss_daq.ping_gate.ping_problem` refuses, an implausible pose
         (:mod:`~svss_proc.imaging.pose_check`) or one that would reach more than
         the tiles that fit in ``limits.memory_gib``. (A stream's
         :class:`~svss_daq.ping_gate.PingGate` also keeps time order and counts.)"""
+        check_pose_flags(ping, self.proc.ping_gate)
         reason = ping_problem(ping, self.hardware)
         if reason is not None:
             raise PingRejected(getattr(ping, "sequence", "?"), reason)

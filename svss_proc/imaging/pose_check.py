@@ -9,6 +9,11 @@ time between them, plus ``jump_slack_m``). A jump is refused; but when
 ``reanchor_pings`` consecutive refused pings agree with one another, the platform has
 truly moved (a gap in the recording, a reacquired fix) and the track follows them.
 Limits come from ``[ping_gate]`` of the processing configuration.
+
+Before any of that, the navigation's own verdict on the pose (its quality flags,
+:data:`svss_daq.ping.NAV_NO_HEADING` ...): :func:`pose_flags_problem` refuses a pose
+without heading or without position, and a held, dead-reckoned, re-timed or
+fallback-heading pose where ``[ping_gate]`` says such a pose may not image.
 """
 
 from __future__ import annotations
@@ -18,10 +23,60 @@ import math
 from dataclasses import dataclass, field
 
 from svss_daq.config import PingGateConfig
-from svss_daq.ping import NavSnapshot
+from svss_daq.ping import (NAV_CLOCK_RETIMED, NAV_DEAD_RECKONED, NAV_GPS_FIX,
+                           NAV_HEADING_FROM_COMPASS, NAV_HEADING_FROM_COURSE, NAV_HELD,
+                           NAV_NO_HEADING, NavSnapshot)
 from svss_daq.ping_gate import PingRejected
 
 log = logging.getLogger(__name__)
+
+#: flag -> (the [ping_gate] key of its policy, the reason a refused pose is given; its
+#: words before the parenthesis are the count's key)
+FLAG_POLICIES = (
+    (NAV_HELD, "held", "held pose (extrapolated past the last navigation record)"),
+    (NAV_DEAD_RECKONED, "dead_reckoned",
+     "dead-reckoned pose (no GPS fix at the ping, position from the DVL)"),
+    (NAV_CLOCK_RETIMED, "clock_retimed",
+     "re-timed pose (instrument clocks disagreed; records placed by receive time)"),
+    (NAV_HEADING_FROM_COURSE, "heading_from_course",
+     "heading from course (GPS course over ground, no heading sensor in time)"),
+    (NAV_HEADING_FROM_COMPASS, "heading_from_compass",
+     "heading from compass (the DVL's magnetic compass)"),
+)
+
+
+def pose_flags_problem(nav: NavSnapshot, cfg: PingGateConfig) -> str | None:
+    """Why the navigation's flags (``nav.quality``) keep a pose from imaging, None when
+    they do not: no heading (NAV_NO_HEADING: lever arms and the array's orientation
+    unknown), no position (north or east NaN: no GPS fix and no dead reckoning), or a
+    flag whose ``[ping_gate]`` policy is "refuse" (:data:`FLAG_POLICIES`). A snapshot
+    that is not one, or a quality that is not an integer, is left to the ping gate."""
+    if not isinstance(nav, NavSnapshot):
+        return None
+    q = nav.quality
+    if isinstance(q, bool) or not isinstance(q, int):
+        return None
+    if q & NAV_NO_HEADING:
+        return (f"pose without heading (NAV_NO_HEADING: no heading sensor, compass or "
+                f"course in time; quality {q})")
+    unknown = [name for name in ("north_m", "east_m")
+               if isinstance(getattr(nav, name), float) and math.isnan(getattr(nav, name))]
+    if unknown:
+        why = ("no GPS fix and no dead reckoning" if not q & (NAV_GPS_FIX | NAV_DEAD_RECKONED)
+               else "flagged positioned but NaN")
+        return f"pose without position ({' and '.join(unknown)} NaN: {why}; quality {q})"
+    for flag, key, reason in FLAG_POLICIES:
+        if q & flag and getattr(cfg, key) == "refuse":
+            return f"{reason}; ping_gate.{key} = \"refuse\""
+    return None
+
+
+def check_pose_flags(ping, cfg: PingGateConfig) -> None:
+    """Raise :class:`~svss_daq.ping_gate.PingRejected` when :func:`pose_flags_problem`
+    refuses the ping's pose."""
+    reason = pose_flags_problem(getattr(ping, "nav", None), cfg)
+    if reason is not None:
+        raise PingRejected(getattr(ping, "sequence", "?"), reason)
 
 
 def attitude_height_offset_problem(nav: NavSnapshot, tx_tile, cfg: PingGateConfig
