@@ -638,6 +638,9 @@ class NavigationConfig:
                                      lo=0.1, hi=1e9)
     clock_records: int = spec("records whose median judges an instrument's clock", lo=1,
                               hi=1000)
+    held_clear_s: float = spec("the acquisition says pings are no longer posed on held "
+                               "navigation once none was for this long (ping time), s",
+                               lo=0.0, hi=3600)
     # the fusion's noise model (docs/navigation.md, "Fusion"): the instruments' specifications
     dvl_velocity_sigma_m_s: float = spec("DVL bottom-track velocity noise per component and "
                                          "ensemble, m/s (1 sigma)", lo=1e-5, hi=1.0)

@@ -97,6 +97,7 @@ class NavTally:
     held: int = 0               # pings posed on the last navigation sample held (NAV_HELD)
     clock_retimed: int = 0      # pings posed on re-timed instrument clocks
     holding: bool = False
+    last_held_ns: int = 0
 
 
 @dataclass
@@ -553,6 +554,7 @@ class AcquisitionDaemon:
             t.dead_reckoned += 1
         if held:
             t.held += 1
+            t.last_held_ns = nav.time_ns
         if q & NAV_CLOCK_RETIMED:
             t.clock_retimed += 1
         if not lock and self.setup.devices.dvl is not None:
@@ -571,10 +573,12 @@ class AcquisitionDaemon:
                        "(flag NAV_HELD): no newer DVL or GPS record within acquire "
                        "navigation.wait_s of the ping (an instrument slower than that, or "
                        "silent)")
-        elif not held and t.holding:
+        elif not held and t.holding and (nav.time_ns - t.last_held_ns) * 1e-9 \
+                > self.setup.devices.navigation.held_clear_s:
             t.holding = False
-            self.event("navigation.held_end", f"pings posed on current navigation again; "
-                       f"{t.held} held in all", logging.INFO)
+            self.event("navigation.held_end", "pings posed on current navigation again "
+                       f"(none held for navigation.held_clear_s); {t.held} held in all",
+                       logging.INFO)
         if self.setup.devices.dvl is not None:
             if not lock and not t.lock_lost:
                 t.lock_lost = True
@@ -592,7 +596,11 @@ class AcquisitionDaemon:
                           default=None)
         gap_s = self.setup.devices.navigation.dvl_max_gap_s
         if nearest is None:
-            return "no DVL ensemble yet: altitude unknown, no dead reckoning"
+            n = self.navigator.counts["dvl_ensembles"]
+            return ("no DVL ensemble yet" if n == 0 else
+                    f"no DVL ensemble near the ping ({n} received, none within the "
+                    "navigation's history of it: the DVL's clock elsewhere?)") + \
+                ": altitude unknown, no dead reckoning"
         if abs(nearest) * 1e-9 > gap_s:
             return (f"no DVL ensemble within navigation.dvl_max_gap_s {gap_s:g} s of the "
                     f"ping (the nearest {describe_offset(nearest * 1e-9)} from it: the DVL "
@@ -827,7 +835,8 @@ class AcquisitionDaemon:
     def summary(self) -> dict:
         return {"run_id": self.run_id, "counters": self.counters.as_dict(),
                 "navigation": {k: v for k, v in self.nav_tally.__dict__.items()
-                               if k not in ("outage", "lock_lost", "holding")},
+                               if k not in ("outage", "lock_lost", "holding",
+                                            "last_held_ns")},
                 "n_events": self.n_events, "events": dict(self.event_counts),
                 "failure": self.failure,
                 "segments": [p.name for p in self.recorder.segments] if self.recorder else []}

@@ -119,7 +119,16 @@ def format_status(s: dict) -> str:
              + (f"  STOPPED: {r['stopped']}" if r.get("stopped") else ""),
              f"navigation: {nav.get('mode')}  dead-reckoned pings "
              f"{nav.get('dead_reckoned', 0)}  without bottom lock "
-             f"{nav.get('no_bottom_lock', 0)}"]
+             f"{nav.get('no_bottom_lock', 0)}  held {nav.get('held', 0)}"]
+    sol = nav.get("solution") or {}
+    if sol.get("clock_retimed") or sol.get("gps_gate") not in (None, "accepting"):
+        off = sol.get("clock_offset_s", {})
+        lines.append("  " + "  ".join(
+            [f"clock offset {n} {off.get(n, float('nan')):+.3f} s (re-timed)"
+             for n in sol.get("clock_retimed", [])]
+            + ([f"GPS fixes rejected ({sol['gps_gate']}): {sol.get('gps_rejected', 0)}, "
+                f"by sigma {sol.get('gps_rejected_sigma', 0)}"]
+               if sol.get("gps_gate") not in (None, "accepting") else [])))
     for name, d in s.get("devices", {}).items():
         state = "connected" if d.get("connected") else "DISCONNECTED"
         extra = ", ".join(f"{k} {v}" for k, v in d.items() if k != "connected" and v)
