@@ -225,3 +225,78 @@ def test_reach_without_beam_gating_is_the_conditioned_window(survey, coarse_proc
         for i in (0, len(r) - 1):
             p = r.ping(i)
             assert planner._echo_end_s(p) == cond.ping(p).axis.end_s
+
+
+def _segments_with_records(whole: Path, out_dir: Path, run_id: str, split: int):
+    """``whole`` as two segment files as the daemon writes them: pings split at
+    ``split``, each instrument record (NMEA, PD0, ping clock) in the segment open when it
+    was received (before the second segment's first ping: the first)."""
+    from svss_daq.rawfile import NAV_CONFIG_ATTR, RawRunReader, RawRunWriter
+    paths = []
+    with RawRunReader(whole) as r:
+        cut = r.nav(split).time_ns
+        for seg, (a, b) in enumerate(((0, split), (split, len(r)))):
+            first = (lambda t: t < cut) if seg == 0 else (lambda t: t >= cut)
+            p = out_dir / f"{run_id}_{seg:03d}.h5"
+            with RawRunWriter(p, r.hardware, run_attrs={
+                    "run_id": run_id, "segment": seg,
+                    NAV_CONFIG_ATTR: r.navigation_config}) as w:
+                for i in range(a, b):
+                    w.append(r.ping(i))
+                for t, s in r.nmea():
+                    if first(t):
+                        w.append_nmea(t, s)
+                for t, e in r.pd0():
+                    if first(t):
+                        w.append_pd0(t, e)
+                for rx, tx in r.ping_clock():
+                    if first(rx):
+                        w.append_clock_reference(rx, tx)
+            paths.append(p)
+    return paths
+
+
+def test_runs_with_instrument_records_are_renavigated_and_say_so(client, coarse_proc,
+                                                                   hardware, tmp_path):
+    """A run the daemon recorded with its instrument records: batch re-navigates it
+    (every segment's records together), images with those poses, equal voxel for voxel
+    to svss process, and says which poses in the batch state and the tiles."""
+    from svss_daq.nav.renavigate import renavigation
+    from tests.test_renavigate import write_instrumented_run
+    whole = write_instrumented_run(tmp_path / "inst.h5", hardware, 30)
+    segs = _segments_with_records(whole, tmp_path, "inst", 12)
+    renav = renavigation(whole)
+    # the plan of the segments poses every ping as the whole run's re-navigation
+    seg_plan, whole_plan = (plan_run("inst", "inst", p, coarse_proc) for p in
+                            (segs, [whole]))
+    assert seg_plan.poses == whole_plan.poses == renav.description
+    by_seq = dict(zip(range(30), renav.poses))
+    for a, b in zip(seg_plan.tiles, whole_plan.tiles):
+        assert a.sequences == b.sequences and a.poses == b.poses
+        assert list(a.poses) == [by_seq[s] for s in a.sequences]
+    out = tmp_path / "out"
+    run_batch(segs, out, coarse_proc, client=client, kernel_threads=1)
+    state = json.loads((out / STATE).read_text())
+    assert state["runs"]["inst"]["poses"] == renav.description
+    from svss_proc.worker import process_raw
+    ref = tmp_path / "ref"
+    process_raw(whole, ref, coarse_proc)
+    assert_same_tiles(ref, out / "inst")
+    for t in sorted((out / "inst").glob("tile_*.h5")):
+        h = read_tile_header(t)
+        assert h["poses"] == renav.description
+        assert h["attrs"]["line_origin_north_m"] == pytest.approx(renav.poses[0].north_m)
+    # --no-renavigate: the recorded poses (7 m off north in this recording)
+    live = run_batch(segs, tmp_path / "live", coarse_proc, client=client, kernel_threads=1,
+                     renavigate=False)
+    assert live["tiles"] >= 1
+    state = json.loads((tmp_path / "live" / STATE).read_text())
+    assert state["runs"]["inst"]["poses"] == "recorded live poses"
+
+
+def test_renavigate_is_refused_for_a_run_without_records(survey, coarse_proc, tmp_path):
+    from svss_daq.nav.renavigate import RenavigationError
+    with pytest.raises(RenavigationError, match=r"cannot re-navigate: .*lineA\.h5: records "
+                       "no NMEA sentence and no PD0 ensemble"):
+        run_batch([survey["A"]], tmp_path / "o", coarse_proc, workers=1, renavigate=True)
+    assert not list((tmp_path / "o").glob("*/tile_*.h5"))
