@@ -14,6 +14,7 @@ import numpy as np
 
 from svss_daq import rawfile
 from svss_daq.decibels import amplitude_to_db
+from svss_daq.nav.renavigate import records_problem
 from svss_proc import tiles
 
 
@@ -153,6 +154,9 @@ def summarise_raw(path: str | Path) -> dict:
             "navigation": _nav_summary(nav, n),
             "environment": {k: _plain(v) for k, v in run.environment.items()},
             "nmea_sentences": len(run.nmea()),
+            "pd0_ensembles": run.n_pd0, "ping_clock_events": len(run.ping_clock()),
+            # why svss process cannot re-navigate the run (None: it can)
+            "renavigation_problem": records_problem(run),
         }
         if n:
             s = run.ping(0).samples
@@ -273,6 +277,9 @@ def _format_raw(s: dict) -> str:
     lines.append("  environment " + (", ".join(f"{k} = {v}" for k, v in
                                                 s["environment"].items()) or "-"))
     lines.append(f"  NMEA       {s['nmea_sentences']} sentence(s)")
+    lines.append(f"  PD0        {s['pd0_ensembles']} ensemble(s), "
+                 f"{s['ping_clock_events']} ping-clock event(s); re-navigation: "
+                 f"{s['renavigation_problem'] or 'possible'}")
     if "provenance" in s:
         lines.append("  provenance " + ", ".join(f"{k} = {v}"
                                                 for k, v in s["provenance"].items()))

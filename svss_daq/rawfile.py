@@ -66,7 +66,7 @@ NMEA_LEN = 96
 #: the instrument records a run keeps for re-navigation (docs/formats.md)
 PD0 = "Platform/PD0"
 #: bytes per chunk of the concatenated PD0 stream
-PD0_CHUNK = 1 << 16
+PD0_CHUNK = 1 << 12
 #: the ping-clock events (the sequencer's transmit records) as received
 PING_CLOCK = "Platform/ping_clock"
 #: root attribute: the navigation configuration (devices [navigation] table) the
@@ -254,6 +254,10 @@ class RawRunWriter:
             self.path.unlink(missing_ok=True)       # nothing in it worth keeping
             raise RawFileError(f"{self.path}: writing the run's header failed "
                                f"({_cause(exc)}); no file written") from None
+        except BaseException:                   # a signal mid-header: no half-made file
+            abandon(self._f)
+            self.path.unlink(missing_ok=True)
+            raise
         self._last_flush = time.monotonic()
 
     def _create(self, hardware, environment, run_attrs) -> None:

@@ -78,6 +78,9 @@ def test_inspect_raw_run(tmp_path, hardware):
     assert nav["track_length_m"] == pytest.approx(0.5)
     assert nav["mean_speed_m_s"] == pytest.approx(1.0)
     assert nav["heading_deg"] == pytest.approx([30.0, 30.0])
+    # instrument records for re-navigation: NMEA only (a run without a DVL link)
+    assert s["nmea_sentences"] == 2 and s["pd0_ensembles"] == 0
+    assert s["ping_clock_events"] == 0 and s["renavigation_problem"] is None
     assert nav["quality_flags"] == [12]
     assert s["environment"] == {"sound_speed_indicative": 1490.0}
     assert s["nmea_sentences"] == 2
@@ -86,6 +89,7 @@ def test_inspect_raw_run(tmp_path, hardware):
     assert fp["rms_counts"] == pytest.approx(np.sqrt(np.mean(first.astype(float) ** 2)))
     text = svss("inspect", str(path)).stdout
     assert "SVSS raw run" in text and "6 (sequence 10 .. 16, 1 gap(s))" in text
+    assert "PD0        0 ensemble(s), 0 ping-clock event(s); re-navigation: possible" in text
 
 
 def test_inspect_tile(tmp_path, hardware, demo_processing):
