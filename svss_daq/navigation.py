@@ -53,6 +53,8 @@ from .nav.navigator import Navigator
 from .nav.nmea_samples import GGA_NOT_A_FIX, RMC_MODE_NOT_A_FIX, gst_sigma_m, samples_from_nmea
 from .nav.pd0_samples import dvl_sample_from_pd0
 from .nav.records import DvlSample, GpsFix, HeadingSample
+from .nav.renavigate import (Renavigation, RenavigationError, records_problem, renavigate,
+                             renavigation)
 
 __all__ = [
     "WGS84_A", "WGS84_F", "WGS84_E2", "NAV_HEADING_FROM_COURSE", "NAV_HEADING_FROM_COMPASS",
@@ -61,5 +63,6 @@ __all__ = [
     "rdi_beam_vectors", "janus_beam_vectors", "beam_to_instrument", "three_beam_fill",
     "instrument_to_ship", "altitude_from_ranges", "body_beam_vectors", "head_height_m",
     "gst_sigma_m", "dvl_sample_from_pd0",
-    "samples_from_nmea", "compute_poses", "Navigator", "GGA_NOT_A_FIX", "RMC_MODE_NOT_A_FIX", "wrap_angle",
+    "samples_from_nmea", "compute_poses", "Navigator", "renavigate", "renavigation",
+    "Renavigation", "RenavigationError", "records_problem", "GGA_NOT_A_FIX", "RMC_MODE_NOT_A_FIX", "wrap_angle",
 ]
