@@ -364,7 +364,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "recorded NMEA sentences and PD0 ensembles with the smoother "
                         "(refused for a run without them), or image with the poses "
                         "recorded live (--no-renavigate); default: re-navigate where "
-                        "the run records them (docs/worker.md, "Poses")")
+                        "the run records them (docs/worker.md, Poses)")
 
     def common(sp, processing=True):
         sp.add_argument("--hardware", help="hardware TOML (default: config/hardware.toml)")
