@@ -638,6 +638,9 @@ class NavigationConfig:
                                      lo=0.1, hi=1e9)
     clock_records: int = spec("records whose median judges an instrument's clock", lo=1,
                               hi=1000)
+    clock_window_s: float = spec("an instrument's clock is judged on its records of this "
+                                 "long (instrument time; at least clock_records), every "
+                                 "one of which must be off, s", lo=0.0, hi=3600)
     held_clear_s: float = spec("the acquisition says pings are no longer posed on held "
                                "navigation once none was for this long (ping time), s",
                                lo=0.0, hi=3600)

@@ -6,11 +6,19 @@ GPS receiver's UTC from its date and time of day); pings are posed on the ping c
 it receives records at: :class:`PingClock` learns the ping clock on the host's receive
 clock from ping-clock events (the sequencer's transmit records, which leave the
 sequencer at transmit), and :class:`InstrumentClock` keeps, for one instrument, the
-median over its latest records of (receive time on the ping clock - instrument time).
-When that offset exceeds ``navigation.clock_max_offset_s`` the instrument's clock is
-wrong (a DVL real-time clock never set, a GPS date a week rollover off, GPS time
-instead of UTC); its records are then re-timed onto the ping clock by that one frozen
-offset, so that the spacing of the instrument's own clock is kept.
+offsets (receive time on the ping clock - instrument time) of its latest records. When
+every record of the latest ``clock_window_s`` (and at least ``clock_records`` records)
+lies beyond ``clock_max_offset_s`` on the same side, the instrument's clock is wrong (a
+DVL real-time clock never set, a GPS date a week rollover off, GPS time instead of UTC);
+its records are then re-timed onto the ping clock by the median of those offsets, frozen,
+so that the spacing of the instrument's own clock is kept.
+
+Receive times are only ever late: transport, and the host itself (a thread waiting
+for the interpreter, a compile, a loaded machine) delays them, and a stalled reader
+then takes a burst of old records at once. So the ping clock is the upper envelope of
+its events (the least delayed one rules) and a clock is judged wrong only when even
+its least delayed record of the window is off: a stall shorter than the window cannot
+make a right clock look wrong.
 """
 
 from __future__ import annotations
@@ -30,68 +38,91 @@ REFERENCES_KEPT = 64
 
 class PingClock:
     """The ping clock read on the receive clock: :meth:`add` a ping-clock event
-    (``ping_ns``, received at ``receive_ns``); :meth:`ping_time` is the ping-clock
-    time at a receive time, from the latest event and the rate between the oldest
-    and latest kept (None before the first event)."""
+    (``ping_ns``, received at ``receive_ns``); :meth:`ping_time` is the ping-clock time
+    at a receive time: the upper envelope of the kept events (each extended at the
+    rate), the rate the median over pairs of events at least ``RATE_MIN_SPAN_S``
+    apart (1 without such pairs). None before the first event."""
 
     def __init__(self) -> None:
         self.events: collections.deque = collections.deque(maxlen=REFERENCES_KEPT)
+        self.rate = 1.0
+        self._c_ns = 0.0     # envelope: ping = p_last + c + rate * (receive - r_last)
 
     def add(self, receive_ns: int, ping_ns: int) -> None:
         self.events.append((int(receive_ns), int(ping_ns)))
+        ev = self.events
+        span = RATE_MIN_SPAN_S * 1e9
+        slopes = []
+        j = 0
+        for i in range(len(ev)):
+            while j < len(ev) and ev[j][0] - ev[i][0] < span:
+                j += 1
+            if j == len(ev):
+                break
+            if ev[j][1] > ev[i][1]:
+                slopes.append((ev[j][1] - ev[i][1]) / (ev[j][0] - ev[i][0]))
+        self.rate = statistics.median(slopes) if slopes else 1.0
+        r1, p1 = ev[-1]
+        self._c_ns = max((p - p1) - self.rate * (r - r1) for r, p in ev)
 
     def ping_time(self, receive_ns: int) -> Optional[int]:
         if not self.events:
             return None
         r1, p1 = self.events[-1]
-        r0, p0 = self.events[0]
-        rate = 1.0
-        if r1 - r0 >= RATE_MIN_SPAN_S * 1e9 and p1 > p0:
-            rate = (p1 - p0) / (r1 - r0)
-        return p1 + int(round((int(receive_ns) - r1) * rate))
+        return p1 + int(round(self._c_ns + self.rate * (int(receive_ns) - r1)))
 
 
 class InstrumentClock:
     """One instrument's clock against the ping clock.
 
-    :meth:`observe` one record's offset (ping-clock receive time - instrument time, ns)
-    with a ``mark`` (what the caller needs to find the records stored since); once
-    ``n_records`` offsets are in, their median is :attr:`offset_ns`. :attr:`applied_ns`
-    is added to the instrument's times: 0 while the median is within ``max_offset_ns``
-    of the ping clock; when the median departs from the applied offset by more than
-    that, the applied offset becomes the median (0 if the median is back within
-    ``max_offset_ns``), and :meth:`observe` returns ``(old, new, since)``: ``since`` the
-    mark of the first record to move (None: every record so far, the clock never
-    having been seen right)."""
+    :meth:`observe` one record: its ``offset_ns`` (ping-clock receive time - instrument
+    time), its ``instrument_ns`` and a ``mark`` (what the caller needs to find the
+    records stored since). The window holds the records of the latest ``window_ns``
+    of instrument time (at least ``n_records``); a jump of the instrument's time by more
+    than ``window_ns`` starts it afresh. Once it spans ``window_ns`` with ``n_records``
+    records, :attr:`offset_ns` is their median and the clock is judged:
+    :attr:`applied_ns` (added to the instrument's times) stays while some record of the
+    window lies within ``max_offset_ns`` of it; when every one lies beyond, on the same
+    side, it becomes the median (0 if the median is within ``max_offset_ns`` of the
+    ping clock), and :meth:`observe` returns ``(old, new, since)``: ``since`` the mark
+    of the window's first record (None: every record so far, the clock never having
+    been seen right)."""
 
-    def __init__(self, name: str, max_offset_ns: int, n_records: int) -> None:
+    def __init__(self, name: str, max_offset_ns: int, n_records: int,
+                 window_ns: int) -> None:
         self.name = name
         self.max_offset_ns = int(max_offset_ns)
-        self.window: collections.deque = collections.deque(maxlen=max(1, int(n_records)))
+        self.n_records = max(1, int(n_records))
+        self.window_ns = int(window_ns)
+        self.window: collections.deque = collections.deque()   # (instrument, offset, mark)
         self.offset_ns: Optional[int] = None
         self.applied_ns = 0
         self.seen_right = False
+        self._start_ns: Optional[int] = None     # instrument time the window's stretch began
 
-    def observe(self, offset_ns: int, mark) -> Optional[tuple]:
-        self.window.append((int(offset_ns), mark))
-        if len(self.window) < self.window.maxlen:
+    def observe(self, offset_ns: int, instrument_ns: int, mark) -> Optional[tuple]:
+        t = int(instrument_ns)
+        w = self.window
+        if w and abs(t - w[-1][0]) > self.window_ns:       # the clock jumped (or a gap)
+            w.clear()
+        if not w:
+            self._start_ns = t
+        w.append((t, int(offset_ns), mark))
+        while len(w) > self.n_records and w[0][0] < t - self.window_ns:
+            w.popleft()
+        if len(w) < self.n_records or t - self._start_ns < self.window_ns:
             return None
-        med = int(statistics.median(o for o, _ in self.window))
+        offs = [o for _, o, _ in w]
+        med = int(statistics.median(offs))
         self.offset_ns = med
-        if abs(med - self.applied_ns) <= self.max_offset_ns:
+        lo, hi = min(offs) - self.applied_ns, max(offs) - self.applied_ns
+        if lo <= self.max_offset_ns and hi >= -self.max_offset_ns:
             if self.applied_ns == 0:
                 self.seen_right = True
             return None
         old = self.applied_ns
         self.applied_ns = med if abs(med) > self.max_offset_ns else 0
-        since = None
-        if self.seen_right or old != 0:
-            # the records from the first of the latest run that agrees with the median
-            since = self.window[-1][1]
-            for o, m in reversed(self.window):
-                if abs(o - med) > self.max_offset_ns:
-                    break
-                since = m
+        since = w[0][2] if (self.seen_right or old != 0) else None
         if self.applied_ns == 0:
             self.seen_right = True
         return old, self.applied_ns, since

@@ -46,12 +46,13 @@ class Navigator:
     take their height from it); None until then (the fusion's own fallback applies).
 
     Clocks (:mod:`svss_daq.nav.clocks`): given receive times and ping-clock events,
-    each instrument's offset from the ping clock is the median over its latest
-    ``clock_records`` records of (receive time on the ping clock - instrument time).
-    Beyond ``clock_max_offset_s`` the instrument is named (notice
-    ``navigation.clock_offset``), listed in :attr:`retimed` and its records re-timed
-    onto the ping clock: instrument time + that median, frozen, so the spacing of its
-    own clock is kept (records kept so far included). Without ping-clock events
+    each instrument's offset from the ping clock is the median over its records of the
+    latest ``clock_window_s`` (at least ``clock_records``) of (receive time on the ping
+    clock - instrument time). When every one of them is beyond ``clock_max_offset_s``
+    the instrument is named (notice ``navigation.clock_offset``), listed in
+    :attr:`retimed` and its records re-timed onto the ping clock: instrument time +
+    that median, frozen, so the spacing of its own clock is kept (records kept so far
+    included). Without ping-clock events
     nothing is judged (the ping clock is unknown): records keep their own times.
     """
 
@@ -72,7 +73,8 @@ class Navigator:
         self.retimed: set[str] = set()
         self.ping_clock = PingClock()
         max_ns = int(round(cfg.clock_max_offset_s * 1e9))
-        self.clocks = {name: InstrumentClock(name, max_ns, cfg.clock_records)
+        window_ns = int(round(cfg.clock_window_s * 1e9))
+        self.clocks = {name: InstrumentClock(name, max_ns, cfg.clock_records, window_ns)
                        for name in CLOCK_LISTS}
         self._nmea = NmeaSampler(cfg.course_min_speed_m_s, cfg.gps_max_sigma_m,
                                  cfg.gps_fix_max_age_s, self.counts)
@@ -195,7 +197,7 @@ class Navigator:
             return
         clock = self.clocks[name]
         mark = {k: self._appended[k] for k in CLOCK_LISTS[name]}
-        change = clock.observe(rx - int(instrument_ns), mark)
+        change = clock.observe(rx - int(instrument_ns), instrument_ns, mark)
         if change is not None:
             self._retime(clock, *change)
 
@@ -228,14 +230,15 @@ class Navigator:
                 setattr(self, a, None if v is None else v + delta)
         limit = self.cfg.clock_max_offset_s
         n = len(clock.window)
+        span = (clock.window[-1][0] - clock.window[0][0]) * 1e-9
         if new:
             self.retimed.add(name)
             off_s = -new * 1e-9                       # instrument minus ping clock
             kind, level = "navigation.clock_offset", logging.WARNING
             detail = (f"{name} clock {describe_offset(off_s)} ({off_s:+.3f} s) off the ping "
-                      f"clock (instrument minus ping clock, median of {n} records; "
-                      f"navigation.clock_max_offset_s {limit:g} s): its records are re-timed "
-                      "onto the ping clock")
+                      f"clock (instrument minus ping clock, median of {n} records over "
+                      f"{span:.1f} s, every one beyond navigation.clock_max_offset_s "
+                      f"{limit:g} s): its records are re-timed onto the ping clock")
         else:
             self.retimed.discard(name)
             off_s = -(clock.offset_ns or 0) * 1e-9

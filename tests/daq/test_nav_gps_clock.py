@@ -355,9 +355,9 @@ def test_a_clock_set_right_mid_run_stops_the_retiming():
     navr.add_reference(t_now, t_now)
     setup = Pd0Setup()
     rx = []
-    for k in range(30):
+    for k in range(60):                 # 2 Hz: 15 s fast, 15 s right (judged over 10 s)
         t = t_now + k * 500_000_000
-        t_clock = t + (3600 * 10**9 if k < 15 else 0)
+        t_clock = t + (3600 * 10**9 if k < 30 else 0)
         raw = encode_ensemble(setup, ensemble_number=k, time_ns=t_clock, heading_rad=0.3,
                               pitch_rad=0.0, roll_rad=0.0, bt_velocity_m_s=(0, -1, 0, 0),
                               bt_range_m=(5, 5, 5, 5))
@@ -369,6 +369,32 @@ def test_a_clock_set_right_mid_run_stops_the_retiming():
     got = np.array([d.time_ns for d in navr.dvl])
     want = np.array(rx) - 100_000_000
     assert np.all(np.abs(got - want) < 200_000_000), (got - want) * 1e-9
+
+
+def test_a_stalled_host_does_not_make_a_right_clock_look_wrong():
+    """The host stops reading for 4 s (a compile holding the interpreter, a loaded
+    machine): the sequencer's transmit records and the GPS's sentences of those 4 s
+    then arrive in one burst, up to 4 s late. Less than clock_window_s: no clock is
+    judged wrong, and the ping clock read through it stays right."""
+    t_now = now_ns()
+    navr = nav.Navigator(nav_cfg(), LEVER)
+    stall = (t_now + 8 * 10**9, t_now + 12 * 10**9)
+
+    def received(t):                    # when the host reads what arrived at t
+        return stall[1] + (t - stall[0]) // 1000 if stall[0] <= t < stall[1] else t
+
+    events = [(received(t_now + k * 10**8), ("ping", t_now + k * 10**8)) for k in range(300)]
+    events += [(received(rx), line) for rx, line in gps_stream(t_now, 30.0)]
+    p = nmea.NmeaStreamParser()
+    for rx, item in sorted(events, key=lambda e: e[0]):
+        if isinstance(item, tuple):
+            navr.add_reference(rx, item[1])
+        else:
+            for rec in p.feed(item):
+                navr.add_nmea([(rx, rec)])
+    assert navr.retimed == set() and navr.take_notices() == []
+    assert abs(navr.quality(t_now)["clock_offset_s"]["gps"]) < 0.1
+    assert abs(navr.ping_clock.ping_time(t_now + 31 * 10**9) - (t_now + 31 * 10**9)) < 10**6
 
 
 def test_nothing_is_judged_without_the_ping_clock(real_ensembles):
