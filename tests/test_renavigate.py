@@ -267,6 +267,22 @@ def test_instrument_clocks_are_judged_against_the_recorded_ping_clock(tmp_path, 
     assert err < 3 * GPS_SIGMA
 
 
+def test_a_recorded_configuration_today_refuses_is_a_renavigation_error(tmp_path, hardware):
+    run = write_instrumented_run(tmp_path / "cfg.h5", hardware, 3)
+    with h5py.File(run, "a") as f:
+        f.attrs[NAV_CONFIG_ATTR] = f.attrs[NAV_CONFIG_ATTR].replace("dvl_min_beams = 3",
+                                                                    "dvl_min_beams = 9")
+    with pytest.raises(RenavigationError, match="cfg.h5:/navigation_config_toml: key "
+                       "'dvl_min_beams'"):
+        renavigate(run)
+    # svss process then images with the recorded poses (by default), logged
+    from svss_proc.worker import run_poses
+    with RawRunReader(run) as r:
+        assert run_poses([r], None) == (None, "recorded live poses")
+        with pytest.raises(RenavigationError):
+            run_poses([r], True)
+
+
 def test_a_given_configuration_replaces_the_recorded_one(instrumented):
     shifted = dataclasses.replace(nav_config(), origin_latitude_deg=ORIGIN[0] + 1e-4)
     base = renavigate(instrumented)

@@ -177,7 +177,12 @@ def _config(readers: list[RawRunReader], nav_cfg) -> tuple[NavigationConfig, str
                     NAV_CONFIG_ATTR)
         return current_navigation_config(), str(config_path("devices.toml"))
     source = f"{r.path}:/{NAV_CONFIG_ATTR}"
-    return navigation_config_from_text(text, source), source
+    try:
+        return navigation_config_from_text(text, source), source
+    except ConfigError as exc:
+        raise RenavigationError(f"the recorded navigation configuration is not one this "
+                                f"software reads ({exc}); give one, or image with the "
+                                "recorded poses") from None
 
 
 def _feed(navigator: Navigator, nmea: list[tuple[int, str]], pd0: list[tuple[int, bytes]],
