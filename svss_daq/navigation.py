@@ -50,7 +50,9 @@ from .nav.geodesy import (WGS84_A, WGS84_E2, WGS84_F, ecef_to_geodetic, geodetic
                           geodetic_to_ned, ned_rotation, ned_to_geodetic)
 from .nav.headings import wrap_angle
 from .nav.navigator import Navigator
-from .nav.nmea_samples import GGA_NOT_A_FIX, RMC_MODE_NOT_A_FIX, gst_sigma_m, samples_from_nmea
+from .nav.clocks import InstrumentClock, PingClock
+from .nav.nmea_samples import (GGA_NOT_A_FIX, RMC_MODE_NOT_A_FIX, NmeaSampler, gst_sigma_m,
+                               samples_from_nmea)
 from .nav.pd0_samples import dvl_sample_from_pd0
 from .nav.records import DvlSample, GpsFix, HeadingSample
 from .nav.renavigate import (Renavigation, RenavigationError, records_problem, renavigate,
@@ -63,6 +65,7 @@ __all__ = [
     "rdi_beam_vectors", "janus_beam_vectors", "beam_to_instrument", "three_beam_fill",
     "instrument_to_ship", "altitude_from_ranges", "body_beam_vectors", "head_height_m",
     "gst_sigma_m", "dvl_sample_from_pd0",
-    "samples_from_nmea", "compute_poses", "Navigator", "renavigate", "renavigation",
+    "samples_from_nmea", "NmeaSampler", "PingClock", "InstrumentClock", "compute_poses",
+    "Navigator", "renavigate", "renavigation",
     "Renavigation", "RenavigationError", "records_problem", "GGA_NOT_A_FIX", "RMC_MODE_NOT_A_FIX", "wrap_angle",
 ]
