@@ -286,12 +286,10 @@ def test_runs_with_instrument_records_are_renavigated_and_say_so(client, coarse_
         h = read_tile_header(t)
         assert h["poses"] == renav.description
         assert h["attrs"]["line_origin_north_m"] == pytest.approx(renav.poses[0].north_m)
-    # --no-renavigate: the recorded poses (7 m off north in this recording)
-    live = run_batch(segs, tmp_path / "live", coarse_proc, client=client, kernel_threads=1,
-                     renavigate=False)
-    assert live["tiles"] >= 1
-    state = json.loads((tmp_path / "live" / STATE).read_text())
-    assert state["runs"]["inst"]["poses"] == "recorded live poses"
+    # --no-renavigate: the recorded poses (7 m off north in this recording), as planned
+    live = plan_run("inst", "inst", segs, coarse_proc, renavigate=False)
+    assert live.poses == "recorded live poses"
+    assert all(t.poses is None and t.pose_source == live.poses for t in live.tiles)
 
 
 def test_renavigate_is_refused_for_a_run_without_records(survey, coarse_proc, tmp_path):
