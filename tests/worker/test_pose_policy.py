@@ -22,7 +22,7 @@ from svss_proc.batch.plan import plan_run
 from svss_proc.worker import Worker, process_raw
 
 from .conftest import small_processing_text
-from .test_tile_closing import hw, pings  # noqa: F401  (hw: the module's fixture)
+from .test_tile_closing import pings
 
 OK = NAV_GPS_FIX | NAV_BOTTOM_LOCK
 #: ping index -> (quality, north NaN): the flags each test ping carries
@@ -41,9 +41,9 @@ def processing(**policy):
     return loaded_from_text(ProcessingConfig, text, "small-processing")
 
 
-def flagged_pings(hw):
+def flagged_pings(hardware):
     out = []
-    for i, p in enumerate(pings(hw, [0.1 * i for i in range(N_PINGS)])):
+    for i, p in enumerate(pings(hardware, [0.1 * i for i in range(N_PINGS)])):
         q, nan = FLAGGED.get(i, (OK, False))
         nav = dataclasses.replace(p.nav, quality=q,
                                   north_m=math.nan if nan else p.nav.north_m)
@@ -51,15 +51,15 @@ def flagged_pings(hw):
     return out
 
 
-def run_worker(hw, proc, out):
-    w = Worker(hw, proc, out)
-    w.run(flagged_pings(hw))
+def run_worker(hardware, proc, out):
+    w = Worker(hardware, proc, out)
+    w.run(flagged_pings(hardware))
     return json.loads((out / "manifest.json").read_text())
 
 
-def test_default_policy_refuses_no_heading_no_position_and_held(hw, tmp_path, caplog):
+def test_default_policy_refuses_no_heading_no_position_and_held(hardware, tmp_path, caplog):
     with caplog.at_level(logging.WARNING):
-        m = run_worker(hw, processing(), tmp_path / "default")
+        m = run_worker(hardware, processing(), tmp_path / "default")
     assert m["refused"] == {"pose without heading": 1, "pose without position": 1,
                             "held pose": 1}
     assert m["pings"] == N_PINGS - 3 and m["pings_refused"] == 3
@@ -74,8 +74,8 @@ def test_default_policy_refuses_no_heading_no_position_and_held(hw, tmp_path, ca
            'ping_gate.held = "refuse"' in caplog.text
 
 
-def test_the_policy_says_what_flagged_poses_may_image(hw, tmp_path):
-    m = run_worker(hw, processing(held="image", dead_reckoned="refuse",
+def test_the_policy_says_what_flagged_poses_may_image(hardware, tmp_path):
+    m = run_worker(hardware, processing(held="image", dead_reckoned="refuse",
                                   clock_retimed="refuse", heading_from_course="refuse",
                                   heading_from_compass="refuse"), tmp_path / "strict")
     assert m["refused"] == {"pose without heading": 1, "pose without position": 1,
@@ -84,10 +84,10 @@ def test_the_policy_says_what_flagged_poses_may_image(hw, tmp_path):
     assert m["pose_flags"]["held"] == 1 and m["pings"] == N_PINGS - 6
 
 
-def test_svss_process_and_the_batch_plan_refuse_the_same(hw, tmp_path):
+def test_svss_process_and_the_batch_plan_refuse_the_same(hardware, tmp_path):
     raw = tmp_path / "flagged.h5"
-    with RawRunWriter(raw, hw) as w:
-        for p in flagged_pings(hw):
+    with RawRunWriter(raw, hardware) as w:
+        for p in flagged_pings(hardware):
             w.append(p)
     proc = processing()
     process_raw(raw, tmp_path / "processed", proc)
