@@ -10,12 +10,13 @@ from typing import Iterable, Optional
 
 import numpy as np
 
-from .fusion import compute_poses
+from svss_daq.ping import NAV_CLOCK_RETIMED, NAV_SMOOTHED, NavSnapshot
+
 from .clocks import InstrumentClock, PingClock, describe_offset
+from .fusion import compute_poses
+from .live import follow
 from .nmea_samples import NmeaSampler
 from .pd0_samples import dvl_sample_from_pd0
-from svss_daq.ping import NavSnapshot
-
 from .records import DvlSample, GpsFix, HeadingSample
 
 logger = logging.getLogger(__name__)
@@ -65,6 +66,7 @@ class Navigator:
         if None not in (cfg.origin_latitude_deg, cfg.origin_longitude_deg, cfg.origin_height_m):
             self.origin = (cfg.origin_latitude_deg, cfg.origin_longitude_deg,
                            cfg.origin_height_m)
+        self._live_last: Optional[NavSnapshot] = None   # the last live pose given (poses())
         self.counts = {"gps_fixes": 0, "gps_rejected": 0, "gps_rejected_sigma": 0,
                        "gps_gst_missing": 0, "dvl_ensembles": 0, "dvl_samples": 0,
                        "dvl_no_lock": 0}
@@ -268,12 +270,41 @@ class Navigator:
         self.headings = [h for h in self.headings if h.time_ns >= before_ns]
         self.dvl = [d for d in self.dvl if d.time_ns >= before_ns]
 
-    def poses(self, times_ns) -> list[NavSnapshot]:
+    def poses(self, times_ns, smooth: bool = False) -> list[NavSnapshot]:
+        """Poses at ``times_ns`` from the records collected.
+
+        Live (``smooth`` False): the records of the last ``history_s`` (older ones are
+        dropped) through the Kalman filter and RTS smoother; the acquisition poses a ping
+        once the records reach ``fixed_lag_s`` past it, so this is a fixed-lag smoother.
+        ``smooth``: every record kept, the whole recording smoothed (re-navigation;
+        poses flagged NAV_SMOOTHED). Poses built on re-timed instrument clocks carry
+        NAV_CLOCK_RETIMED."""
         times = np.asarray(times_ns, dtype=np.int64).reshape(-1)
-        if times.size:
+        if times.size and not smooth:
             self.prune(int(times.min()) - self.history_ns)
-        return compute_poses(times, self.fixes, self.headings, self.dvl, self.cfg,
-                             self.lever_arms, self.origin)
+        flags = NAV_SMOOTHED if smooth else 0
+        if getattr(self, "retimed", None):
+            flags |= NAV_CLOCK_RETIMED
+        prev = None if smooth else self._live_last
+        chain = prev is not None and times.size and int(times.min()) > prev.time_ns
+        query = np.concatenate([[prev.time_ns], times]) if chain else times
+        fused = compute_poses(query, self.fixes, self.headings, self.dvl, self.cfg,
+                              self.lever_arms, self.origin, flags=flags)
+        if smooth or not times.size:
+            return fused
+        # live: each ping placed from the one before it (svss_daq.nav.live)
+        prev_now = fused[0] if chain else None
+        fused = fused[1:] if chain else fused
+        order = np.argsort(times, kind="stable")
+        live = follow(prev if chain else None, prev_now, [fused[i] for i in order],
+                      self.cfg.live_follow_s, self.cfg.dvl_max_gap_s + self.cfg.fixed_lag_s)
+        out = [None] * len(fused)
+        for i, pose in zip(order, live):
+            out[i] = pose
+        last = live[-1]
+        if self._live_last is None or last.time_ns > self._live_last.time_ns:
+            self._live_last = last
+        return out
 
     def quality(self, now_ns: int) -> dict:
         """JSON-serialisable state at ``now_ns`` (O(1)): ``mode`` ("gps" within
