@@ -51,7 +51,6 @@ import math
 import os
 import platform
 import re
-import signal
 import subprocess
 import sys
 import tempfile
@@ -72,6 +71,7 @@ from svss_daq.ping_gate import PingGate, PingRejected  # noqa: E402
 from svss_daq.rawfile import RawRunReader  # noqa: E402
 from svss_proc.imaging.imager import TileImager, along_reach, ping_frame  # noqa: E402
 from svss_proc.imaging.kernel_args import DelayModel, prepare  # noqa: E402
+from svss.demo import stop_process  # noqa: E402
 
 log = logging.getLogger("bench_focus")
 
@@ -164,17 +164,6 @@ def _env() -> dict:
     return env
 
 
-def _stop(proc: subprocess.Popen | None, timeout_s: float = 20.0) -> None:
-    if proc is None or proc.poll() is not None:
-        return
-    proc.send_signal(signal.SIGTERM)
-    try:
-        proc.wait(timeout_s)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-
-
 def record(scene_path: Path, sim_config: Path, folder: Path, hardware: Path,
            lead_s: float) -> dict:
     """``svss sim-device`` -> ``svss acquire`` into ``folder``; the recording's files and
@@ -209,7 +198,7 @@ def record(scene_path: Path, sim_config: Path, folder: Path, hardware: Path,
             raise RuntimeError(f"svss acquire failed with exit code {rc}; see "
                                f"{logs / 'acquire.log'}")
     finally:
-        _stop(sim)
+        stop_process(sim)
     sim_log = (logs / "sim-device.log").read_text(errors="replace")
     first = re.search(r"first ping is track ping (\d+)", sim_log)
     late = re.search(r"'late': (\d+)", sim_log)

@@ -51,7 +51,8 @@ def _wait_for_file(path: Path, proc: subprocess.Popen, what: str, log_path: Path
         time.sleep(0.05)
 
 
-def _stop(proc: subprocess.Popen | None, timeout_s: float = 20.0) -> None:
+def stop_process(proc: subprocess.Popen | None, timeout_s: float = 20.0) -> None:
+    """SIGTERM a child process and wait for it (SIGKILL after ``timeout_s``)."""
     if proc is None or proc.poll() is not None:
         return
     proc.send_signal(signal.SIGTERM)
@@ -118,14 +119,14 @@ def run_demo(out: Path, scene: str | None = None, hardware: str | None = None,
             raise RuntimeError(f"the worker process failed with exit code {rc}")
         # the run is over (the worker saw its end); the daemon may still be keeping its
         # catch-up service up for late workers: stop it
-        _stop(procs["acquire"])
+        stop_process(procs["acquire"])
         rc = procs["acquire"].returncode
         if rc not in (0, 130):                  # 130: stopped while closing, all flushed
             raise RuntimeError(f"svss acquire failed with exit code {rc}; see "
                                f"{logs / 'acquire.log'}")
     finally:
         for name in ("worker", "acquire", "sim-device"):
-            _stop(procs.get(name))
+            stop_process(procs.get(name))
     first = re.search(r"first ping is track ping (\d+)",
                       (logs / "sim-device.log").read_text(errors="replace"))
     if first and int(first.group(1)) != 0:
