@@ -53,6 +53,10 @@ class StatusSection:
 class DiskSection:
     min_free_mib: float = spec("stop recording (cleanly) when free space falls below "
                                "this, MiB", lo=0, hi=1e9)
+    reserve_mib: float | None = spec(
+        "disk space held from the run's start to its close, released for the closing "
+        "summaries (room for them on a full disk), MiB (omitted: 1; 0: none)", lo=0,
+        hi=1024)
 
 
 @dataclass(frozen=True)

@@ -11,9 +11,12 @@ for every ping the digitiser delivers:
    flagged per ping);
 3. records it (:class:`~svss_daq.recorder.RunRecorder`: rotating SWMR raw-run files);
 4. publishes it on the best-effort ping stream (:class:`~svss_daq.publisher.PingPublisher`,
-   never blocking), after the recording, so that the catch-up service
+   never blocking) once it is recorded, i.e. flushed (``daq.toml [recorder]``; held at
+   most ``flush_interval_s``), so that the catch-up service
    (:class:`~svss_daq.ping_service.PingService`, the reliable path) can always serve
-   what a subscriber missed.
+   what a subscriber missed, and a write that fails (a full disk) leaves the stream,
+   the recording and the summary in agreement: a ping lost with the failed write is
+   neither recorded nor published (counted, ``not_recorded``).
 
 Device faults are logged, counted, written to the raw file's ``events`` and shown in
 the status stream (:mod:`svss_daq.status`); none stops the run. Recording that cannot
@@ -49,7 +52,7 @@ from .protocols.sequencer import PingEvent
 from .publisher import PingPublisher
 from .nav.renavigate import navigation_config_text
 from .rawfile import NAV_CONFIG_ATTR
-from .recorder import RecordingStopped, RunRecorder
+from .recorder import RESERVE_MIB, RecordingStopped, RunRecorder
 from .status import StatusPublisher
 
 log = logging.getLogger(__name__)
@@ -73,7 +76,9 @@ class Counters:
     delivered: int = 0          # complete pings from the digitiser
     incomplete: int = 0         # pings the digitiser closed with channels missing
     never_delivered: int = 0    # ping numbers the digitiser skipped (no frame at all)
-    recorded: int = 0
+    recorded: int = 0           # pings on disk (flushed)
+    not_recorded: int = 0       # assembled, lost with a failed write or after recording
+                                # stopped (a full disk): neither recorded nor published
     published: int = 0
     publish_dropped: int = 0    # refused by a full subscriber queue (best-effort stream)
     transmit_missing: int = 0   # no sequencer record: assembled from the digitiser's
@@ -212,6 +217,9 @@ class AcquisitionDaemon:
         self._last_seq: int | None = None
         self._seen: set[int] = set()
         self._pending: collections.deque = collections.deque()   # (arrival, CompletePing)
+        # pings appended to the recording, published once flushed: (index in the run,
+        # Ping, monotonic time appended); at most a flush's worth (daq.toml [recorder])
+        self._unflushed: collections.deque = collections.deque()
         self.recorder: RunRecorder | None = None
         self.publisher: PingPublisher | None = None
         self.status_pub: StatusPublisher | None = None
@@ -259,6 +267,8 @@ class AcquisitionDaemon:
             max_file_bytes=acq.rotation.max_file_mib * 2**20,
             max_file_s=acq.rotation.max_file_s,
             min_free_bytes=acq.disk.min_free_mib * 2**20,
+            reserve_bytes=(RESERVE_MIB if acq.disk.reserve_mib is None
+                           else acq.disk.reserve_mib) * 2**20,
             run_attrs={"acquisition_config": str(s.path),
                        NAV_CONFIG_ATTR: navigation_config_text(s.devices.navigation)})
         self.publisher = PingPublisher(self._want_endpoints["publisher"],
@@ -401,10 +411,40 @@ class AcquisitionDaemon:
             except queue.Empty:
                 item = None
         self._assemble_due(final=False)
+        self._flush_due()
         self._watch_devices()
         self._nav_notices()
         self._note_requests()
         self._publish_status()
+
+    def _flush_due(self) -> None:
+        """Flush the recording when a ping has waited ``flush_interval_s`` for it (no
+        ping came to flush it), then publish what it made recorded."""
+        if self._unflushed and time.monotonic() - self._unflushed[0][2] >= \
+                self.setup.daq.recorder.flush_interval_s:
+            try:
+                self.recorder.flush()
+            except RecordingStopped as exc:
+                self._recording_failed(exc)
+            self._publish_recorded()
+
+    def _recording_failed(self, exc: RecordingStopped) -> None:
+        if self.failure is None:
+            log.error("recording stopped: %s", exc)
+        self.failure = self.failure or str(exc)
+        self.state = "failed"
+
+    def _publish_recorded(self) -> None:
+        """Publish the pings the recording holds now (flushed), in order."""
+        n = self.recorder.n_flushed
+        while self._unflushed and self._unflushed[0][0] < n:
+            _, ping, _ = self._unflushed.popleft()
+            self.counters.recorded += 1
+            self._times.append(time.monotonic())
+            if self.publisher.publish(ping):
+                self.counters.published += 1
+            else:
+                self.counters.publish_dropped += 1
 
     def _note_requests(self) -> None:
         if self.service is not None and self.service.requests != self._requests_seen:
@@ -502,19 +542,16 @@ class AcquisitionDaemon:
                        f"before {seq} never delivered")
         self._last_seq = seq if self._last_seq is None else max(seq, self._last_seq)
         self._tally_nav(nav)
+        index = self.recorder.n_recorded
         try:
             self.recorder.append(ping)
         except RecordingStopped as exc:
-            self.failure = str(exc)
-            self.state = "failed"
-            log.error("recording stopped: %s", exc)
-            return
-        self.counters.recorded += 1
-        self._times.append(time.monotonic())
-        if self.publisher.publish(ping):
-            self.counters.published += 1
+            self._recording_failed(exc)
+        if self.recorder.n_recorded > index:     # appended: published once flushed
+            self._unflushed.append((index, ping, time.monotonic()))
         else:
-            self.counters.publish_dropped += 1
+            self.counters.not_recorded += 1
+        self._publish_recorded()
 
     def _nav_caught_up(self, t_ns: int) -> bool:
         """Whether every navigation link has data at or after ``t_ns`` (a pose between
@@ -784,6 +821,19 @@ class AcquisitionDaemon:
             self.event("digitiser.stop_failed", str(exc))
         self._watch_devices()
         self._nav_notices()
+        if self.recorder is not None:
+            # the last pings are recorded (or lost with a failed write) before the
+            # summary counts them; what is recorded is published before the end marker
+            self.recorder.close_files()
+            if self.recorder.stopped:
+                self.failure = self.failure or self.recorder.stopped
+            if self.publisher is not None:
+                self._publish_recorded()
+            # delivered, never recorded: lost with a failed write, or waiting for their
+            # pose when recording stopped
+            self.counters.not_recorded += len(self._unflushed) + len(self._pending)
+            self._unflushed.clear()
+            self._pending.clear()
         summary = self.summary()
         if self.recorder is not None:
             self.recorder.close(summary)

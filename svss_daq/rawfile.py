@@ -516,6 +516,36 @@ def write_summary(path: str | Path, summary: dict) -> None:
                            f"({_cause(exc)})") from None
 
 
+#: the largest summary file beside a raw run a reader reads, bytes
+MAX_SUMMARY_BYTES = 1 << 20
+
+
+def summary_path(path: str | Path) -> Path:
+    """Where the acquisition summary of the raw run ``path`` lies when its file could
+    not take it (a writer stopped by a full disk): ``<stem>.summary.json`` beside it."""
+    path = Path(path)
+    return path.with_name(path.stem + ".summary.json")
+
+
+def write_summary_beside(path: str | Path, summary: dict) -> Path:
+    """Store ``summary`` (JSON) in :func:`summary_path` of ``path`` (atomically: a
+    temporary file renamed); its path. :class:`RawFileError` naming it on failure."""
+    import json
+    side = summary_path(path)
+    tmp = side.with_name(side.name + ".partial")
+    try:
+        with open(tmp, "w") as fh:
+            fh.write(json.dumps(summary, sort_keys=True))
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, side)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise RawFileError(f"{side}: writing the acquisition summary of {Path(path).name} "
+                           f"failed ({exc.strerror or exc})") from None
+    return side
+
+
 #: seconds HDF5 may take reading a file's structure before the file is refused
 PROBE_TIMEOUT_S = 10.0
 _in_probe = False
@@ -708,7 +738,7 @@ def _on_disk(ds: h5py.Dataset, n: int, size: int) -> int:
 #: what a reader keeps of a run, read in a child process (:func:`in_child`)
 _STATE = ("clean", "sample_rate_hz", "hardware", "n_pings", "environment", "attrs",
           "_provenance", "_meta", "_nav", "_nmea_list", "_shape", "_events", "_pd0_index",
-          "_clock_list", "_notes")
+          "_clock_list", "_notes", "truncated")
 
 
 def _read_events(f: h5py.File, path: Path) -> list[tuple[int, str, str]]:
@@ -771,6 +801,7 @@ def _read_state(path: Path) -> dict:
     last pings' samples) and close it: the reader's state."""
     run = RawRunReader.__new__(RawRunReader)
     run.path = path
+    run._notes = []
     run._open_and_validate()
     try:
         try:
@@ -780,7 +811,6 @@ def _read_state(path: Path) -> dict:
                               for t, s in zip(times[:n], text[:n])]
             run._shape = tuple(run._samples.shape[1:])
             run._events = _read_events(run._f, path)
-            run._notes = []
             run._pd0_index = _read_pd0_index(run._f, path, run._notes)
             run._clock_list = _read_ping_clock(run._f, path)
             for i in ({0, run.n_pings - 1} if run.n_pings else ()):
@@ -864,27 +894,15 @@ class RawRunReader:
                 f"{path}: dataset '/{BEAM}/backscatter_r' has shape {samples.shape}; the "
                 f"stored hardware configuration records {dig.n_channels} channels x "
                 f"{dig.window_samples} samples per ping")
-        lengths = [samples.shape[0]]
         per_ping = {k: dataset(self.beam, k, path, 1, "iu") for k in _PER_PING}
-        lengths += [d.shape[0] for d in per_ping.values()]
         plat = group(f, "Platform", path)
         nav = {k: dataset(plat, k, path, 1, "iu" if k in ("time1", "quality") else "fiu")
                for k in _NAV}
-        lengths += [d.shape[0] for d in nav.values()]
-        self.n_pings = min(lengths)
-        if max(lengths) != self.n_pings:
-            log.warning("%s: per-ping datasets have lengths %s; reading the first %d pings",
-                        path, sorted(set(lengths)), self.n_pings)
+        lengths = {f"/{BEAM}/backscatter_r": samples.shape[0],
+                   **{f"/{BEAM}/{k}": d.shape[0] for k, d in per_ping.items()},
+                   **{f"/Platform/{k}": d.shape[0] for k, d in nav.items()}}
+        self.n_pings = self._ping_count(lengths)
         counted = "pings_flushed" in self.beam   # absent in files written before it
-        if counted:
-            flushed = dataset(self.beam, "pings_flushed", path, 1, "iu")
-            if flushed.shape != (1,) or flushed[0] < 0:
-                raise RawFileError(f"{path}: dataset '/{FLUSHED}' holds "
-                                   f"{shown(flushed[()])}; expected one count >= 0")
-            if int(flushed[0]) < self.n_pings:
-                log.warning("%s: %d pings recorded, %d known flushed; reading %d", path,
-                            self.n_pings, int(flushed[0]), int(flushed[0]))
-                self.n_pings = int(flushed[0])
         size = path.stat().st_size
         on_disk = min(_on_disk(d, self.n_pings, size)
                       for d in (samples, *per_ping.values(), *nav.values()))
@@ -893,8 +911,9 @@ class RawRunReader:
                 raise RawFileError(
                     f"{path}: truncated or damaged: ping {on_disk} of the {self.n_pings} "
                     f"recorded as flushed is not within its {size} bytes")
-            log.warning("%s: only the first %d of %d pings lie within the file's %d bytes; "
-                        "reading those", path, on_disk, self.n_pings, size)
+            self._notes.append(f"{path}: only the first {on_disk} of {self.n_pings} pings "
+                               f"lie within the file's {size} bytes; reading those")
+            self.truncated += self.n_pings - on_disk
             self.n_pings = on_disk
         nmea = group(plat, "NMEA", path)
         self._nmea = (dataset(nmea, "time", path, 1, "iu"),
@@ -905,6 +924,47 @@ class RawRunReader:
         self._nav = {k: d[: self.n_pings] for k, d in nav.items()}
         self.attrs = dict(f.attrs)
         self._provenance = dict(f["Provenance"].attrs) if "Provenance" in f else {}
+
+    def _ping_count(self, lengths: dict[str, int]) -> int:
+        """The number of pings the per-ping datasets (``lengths``: path -> entries) hold
+        together. Every one holds every ping of a closed file, and at least the pings
+        flushed (``pings_flushed``) of any file: a shorter one is a damaged file,
+        :class:`RawFileError` naming it. A file written before ``pings_flushed`` was
+        kept and left open by its writer is read up to its shortest dataset, said in a
+        warning (:attr:`_notes`)."""
+        path = self.path
+        self.truncated = 0          # pings left out of a file read to its shortest dataset
+        short = min(lengths, key=lengths.get)
+        n_min, n_max = lengths[short], max(lengths.values())
+        others = sorted({n for k, n in lengths.items() if n != n_min})
+        if "pings_flushed" in self.beam:
+            flushed = dataset(self.beam, "pings_flushed", path, 1, "iu")
+            if flushed.shape != (1,) or flushed[0] < 0:
+                raise RawFileError(f"{path}: dataset '/{FLUSHED}' holds "
+                                   f"{shown(flushed[()])}; expected one count >= 0")
+            n = int(flushed[0])
+            if n_min < n:
+                raise RawFileError(
+                    f"{path}: damaged: dataset '{short}' has {n_min} entries, the run "
+                    f"records {n} pings flushed ('/{FLUSHED}'); the other per-ping "
+                    f"datasets have {others or [n_min]}")
+            if self.clean and n_max != n:
+                long = max(lengths, key=lengths.get)
+                raise RawFileError(
+                    f"{path}: damaged: dataset '{long}' has {n_max} entries, the run "
+                    f"was closed with {n} pings ('/{FLUSHED}')")
+            return n
+        if n_max != n_min:
+            if self.clean:
+                raise RawFileError(
+                    f"{path}: damaged: dataset '{short}' has {n_min} entries; the other "
+                    f"per-ping datasets have {others} (a closed file has one length)")
+            self._notes.append(
+                f"{path}: its writer did not close it; dataset '{short}' has {n_min} "
+                f"entries, the other per-ping datasets up to {n_max}: reading "
+                f"{n_min} pings, {n_max - n_min} left out")
+            self.truncated = n_max - n_min
+        return n_min
 
     def __len__(self) -> int:
         return self.n_pings
@@ -1012,20 +1072,32 @@ class RawRunReader:
 
     @property
     def summary(self) -> dict | None:
-        """The acquisition daemon's closing counters (None when the run has none, e.g.
-        a daemon killed before it closed the file)."""
+        """The acquisition daemon's closing counters: the root attribute
+        ``acquisition_summary``, else the file beside the run
+        (:func:`summary_path`, written when the file could not take it); None when the
+        run has none (e.g. a daemon killed before it closed the file)."""
         import json
         text = _text(self.attrs.get("acquisition_summary"))
+        where = "root attribute 'acquisition_summary'"
         if text is None:
-            return None
+            side = summary_path(self.path)
+            if not side.is_file():
+                return None
+            where = f"{side}"
+            try:
+                if side.stat().st_size > MAX_SUMMARY_BYTES:
+                    raise RawFileError(f"{self.path}: {side} has {side.stat().st_size} "
+                                       f"bytes; a summary has at most {MAX_SUMMARY_BYTES}")
+                text = side.read_text(encoding="utf-8")
+            except (OSError, UnicodeDecodeError) as exc:
+                raise RawFileError(f"{self.path}: cannot read its summary {side} "
+                                   f"({exc})") from None
         try:
             out = json.loads(text)
-        except ValueError:
-            raise RawFileError(f"{self.path}: root attribute 'acquisition_summary' is not "
-                               "JSON") from None
+        except (ValueError, RecursionError):
+            raise RawFileError(f"{self.path}: {where} is not JSON") from None
         if not isinstance(out, dict):
-            raise RawFileError(f"{self.path}: root attribute 'acquisition_summary' is not "
-                               "a JSON object")
+            raise RawFileError(f"{self.path}: {where} is not a JSON object")
         return out
 
     def close(self) -> None:

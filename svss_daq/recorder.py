@@ -9,12 +9,26 @@ so that the catch-up service (:mod:`svss_daq.ping_service`) can read any recorde
 back while the run goes on. Free disk space is checked after every flush: below
 ``min_free_bytes`` recording stops with :class:`RecordingStopped` (and a write that
 fails for a full disk stops it the same way), leaving every flushed ping readable.
+
+A ping counts as recorded once it is flushed (:attr:`RunRecorder.n_flushed`: the
+recorded pings are a prefix of those appended); the catch-up service's view
+(:meth:`RunRecorder.info`, :meth:`RunRecorder.recorded`) holds those only, and the
+daemon publishes a ping only once it is recorded, so that a write that fails (a full
+disk) leaves the stream, the recording and the run's summary in agreement. A reserve
+file (``.<run id>.reserve``, ``reserve_bytes``) holds disk space from the start of the
+run to its close: released before the summaries are written, it leaves them room on a
+full disk. A segment whose file cannot take its summary (its writer stopped on a failed
+write) gets it beside it, ``<segment>.summary.json``
+(:func:`~svss_daq.rawfile.summary_path`), where :class:`~svss_daq.rawfile.RawRunReader`
+reads it.
 """
 
 from __future__ import annotations
 
 import bisect
+import errno
 import logging
+import os
 import shutil
 import threading
 import time
@@ -22,9 +36,14 @@ from pathlib import Path
 
 from .config import HardwareConfig, Loaded
 from .ping import Ping
-from .rawfile import RawFileError, RawRunReader, RawRunWriter, write_summary
+from .rawfile import (RawFileError, RawRunReader, RawRunWriter, write_summary,
+                      write_summary_beside)
 
 log = logging.getLogger(__name__)
+
+#: disk space a run holds in reserve for its closing summaries, MiB (acquire.toml
+#: ``disk.reserve_mib`` when given)
+RESERVE_MIB = 1.0
 
 
 class RecordingStopped(RuntimeError):
@@ -35,12 +54,18 @@ def segment_path(out_dir: Path, run_id: str, segment: int) -> Path:
     return out_dir / f"{run_id}_{segment:03d}.h5"
 
 
+def reserve_path(out_dir: Path, run_id: str) -> Path:
+    """The file holding a run's disk reserve while it records."""
+    return out_dir / f".{run_id}.reserve"
+
+
 class RunRecorder:
     """Records run ``run_id`` into ``out_dir``; thread-safe (one lock)."""
 
     def __init__(self, out_dir: str | Path, run_id: str, hardware: Loaded[HardwareConfig],
                  *, flush_every_pings: int, flush_interval_s: float, max_file_bytes: float,
                  max_file_s: float, min_free_bytes: float = 0.0,
+                 reserve_bytes: float = RESERVE_MIB * 2**20,
                  environment: dict | None = None, run_attrs: dict | None = None):
         self.out_dir = Path(out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)
@@ -60,8 +85,13 @@ class RunRecorder:
         self._held: list = []
         self.stopped: str | None = None
         self.ended = False
+        self._durable = 0                        # pings flushed: a prefix of `sequences`
+        self._dmin = self._dmax = -1             # ... their lowest and highest sequence
+        self._failed_segments: set[int] = set()  # segments whose writer stopped failing
         self.free_bytes = self._free()
         self._check_free()
+        self._reserve = reserve_path(self.out_dir, run_id)
+        self._hold_reserve(int(reserve_bytes))
         # the first segment opens with the first ping: a run that never pinged (devices
         # that did not open) leaves no file
 
@@ -69,6 +99,47 @@ class RunRecorder:
 
     def _free(self) -> int:
         return shutil.disk_usage(self.out_dir).free
+
+    def _hold_reserve(self, n: int) -> None:
+        """Take ``n`` bytes of disk for the run's closing summaries (released at
+        :meth:`close`); a disk that cannot give them stops recording now."""
+        if n <= 0:
+            return
+        try:
+            fd = os.open(self._reserve, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+            try:
+                try:
+                    os.posix_fallocate(fd, 0, n)
+                except OSError as exc:            # a filesystem without fallocate
+                    if exc.errno not in (errno.EOPNOTSUPP, errno.EINVAL):
+                        raise
+                    os.write(fd, bytes(n))
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+        except OSError as exc:
+            self._reserve.unlink(missing_ok=True)
+            raise self._stop(f"{self._reserve}: cannot hold {n / 2**20:.2f} MiB in reserve "
+                             f"for the run's summary (disk.reserve_mib): "
+                             f"{os.strerror(exc.errno) if exc.errno else exc}") from None
+
+    def _release_reserve(self) -> None:
+        self._reserve.unlink(missing_ok=True)
+
+    def _durable_upto(self, n: int) -> None:
+        """The first ``n`` pings appended are on disk."""
+        if n <= self._durable:
+            return
+        new = self.sequences[self._durable:n]
+        self._dmin = min(new) if self._dmin < 0 else min(self._dmin, min(new))
+        self._dmax = max(self._dmax, max(new))
+        self._durable = n
+
+    def _writer_failed(self, w: RawRunWriter, exc: RawFileError) -> RecordingStopped:
+        """A write of the current segment failed: what it had flushed stays recorded."""
+        self._failed_segments.add(len(self.segments) - 1)
+        self._durable_upto(self._seg_first[-1] + w.n_flushed)
+        return self._stop(str(exc))
 
     def _check_free(self) -> None:
         if self.free_bytes < self.min_free:
@@ -121,20 +192,18 @@ class RunRecorder:
         try:
             w.close()
         except RawFileError as exc:
-            raise self._stop(str(exc)) from None
+            raise self._writer_failed(w, exc) from None
+        self._durable_upto(len(self.sequences))
 
     @property
     def n_recorded(self) -> int:
+        """Pings appended (recorded once flushed: :attr:`n_flushed`)."""
         return len(self.sequences)
 
     @property
     def n_flushed(self) -> int:
-        """Pings of the run known to be on disk."""
-        if self.writer is not None:
-            return self._seg_first[-1] + self.writer.n_flushed
-        if self.stopped and self._seg_first:    # a segment that could not be opened
-            return self._seg_first[-1]
-        return len(self.sequences)              # between segments, or closed
+        """Pings of the run known to be on disk: the first ``n_flushed`` appended."""
+        return self._durable
 
     def append(self, ping: Ping) -> None:
         """Record one ping (raises :class:`RecordingStopped` when recording cannot go
@@ -149,12 +218,13 @@ class RunRecorder:
             try:
                 w.append(ping)
             except RawFileError as exc:
-                raise self._stop(str(exc)) from None
+                raise self._writer_failed(w, exc) from None
             seg = len(self.segments) - 1
             if self.sequences and ping.sequence <= self.sequences[-1]:
                 self._sorted = False
             self._where[ping.sequence] = (seg, w.n_pings - 1)
             self.sequences.append(ping.sequence)
+            self._durable_upto(self._seg_first[-1] + w.n_flushed)
             if w.n_flushed != flushed:          # a flush happened: check the disk
                 self.free_bytes = self._free()
                 self._check_free()
@@ -189,19 +259,23 @@ class RunRecorder:
             try:
                 getattr(self.writer, method)(*args)
             except RawFileError as exc:
-                raise self._stop(str(exc)) from None
+                raise self._writer_failed(self.writer, exc) from None
 
     def flush(self) -> None:
+        """Flush the open segment (what was appended is then recorded)."""
         with self.lock:
             if self.writer is not None and not self.stopped:
+                w = self.writer
                 try:
-                    self.writer.flush()
+                    w.flush()
                 except RawFileError as exc:
-                    raise self._stop(str(exc)) from None
+                    raise self._writer_failed(w, exc) from None
+                self._durable_upto(self._seg_first[-1] + w.n_flushed)
                 self.free_bytes = self._free()
 
-    def close(self, summary: dict | None = None) -> None:
-        """Close the current segment; store ``summary`` in every segment of the run."""
+    def close_files(self) -> None:
+        """Close the current segment (flushing it): every ping appended is then
+        recorded, unless a write fails (then :attr:`stopped` says why). Idempotent."""
         with self.lock:
             self.ended = True
             if self.writer is not None:
@@ -209,31 +283,56 @@ class RunRecorder:
                 try:
                     w.close()
                 except RawFileError as exc:
-                    self._stop(str(exc))
+                    self._writer_failed(w, exc)
+                else:
+                    if len(self.segments) - 1 not in self._failed_segments:
+                        self._durable_upto(len(self.sequences))
             for r in self._readers.values():
                 r.close()
             self._readers.clear()
+
+    def close(self, summary: dict | None = None) -> None:
+        """Close the current segment; store ``summary`` in every segment of the run (in
+        the file; beside it, ``<segment>.summary.json``, for a segment whose writer
+        stopped on a failed write or whose file cannot take it); release the reserve."""
+        with self.lock:
+            self.close_files()
+            self._release_reserve()              # room for the summaries on a full disk
             if summary is not None:
-                for path in self.segments:
-                    if path.exists():
-                        try:
-                            write_summary(path, summary)
-                        except RawFileError as exc:
-                            log.error("%s", exc)
+                for k, path in enumerate(self.segments):
+                    if not path.exists():
+                        continue
+                    try:
+                        if k in self._failed_segments:
+                            raise RawFileError(f"{path}: its writer stopped on a failed "
+                                               "write; the file is left as it was")
+                        write_summary(path, summary)
+                        continue
+                    except RawFileError as exc:
+                        why = exc
+                    try:
+                        side = write_summary_beside(path, summary)
+                        log.warning("the acquisition summary of %s is in %s (%s)", path,
+                                    side, why)
+                    except RawFileError as exc:
+                        log.error("%s; %s", why, exc)
 
     # -- reading back (the catch-up service's store) -----------------------------------
 
     def info(self) -> dict:
+        """The run as recorded so far (flushed pings only)."""
         with self.lock:
-            seqs = self.sequences
-            return {"run_id": self.run_id, "first": min(seqs) if seqs else -1,
-                    "last": max(seqs) if seqs else -1, "n_pings": len(seqs),
-                    "ended": self.ended}
+            return {"run_id": self.run_id, "first": self._dmin, "last": self._dmax,
+                    "n_pings": self._durable, "ended": self.ended}
 
     def recorded(self, first: int, last: int) -> list[int]:
-        """Recorded sequences within [first, last], ascending."""
+        """Recorded (flushed) sequences within [first, last], ascending."""
         with self.lock:
-            s = self.sequences if self._sorted else sorted(self._where)
+            n = self._durable
+            if self._sorted:
+                s = self.sequences
+                return s[bisect.bisect_left(s, first, 0, n):bisect.bisect_right(s, last, 0, n)]
+            s = sorted(self.sequences[:n])
             return s[bisect.bisect_left(s, first):bisect.bisect_right(s, last)]
 
     def read(self, sequence: int) -> Ping | None:
