@@ -97,7 +97,7 @@ def cmd_batch(args) -> int:
 
 
 def cmd_worker(args) -> int:
-    from svss_proc.worker import GAP_WAIT_S, REORDER_PINGS, serve
+    from svss_proc.worker import GAP_WAIT_S, MAX_SEQUENCE_JUMP, REORDER_PINGS, serve
 
     daq = load(DaqConfig, config_path("daq.toml"))
     sub = daq.subscriber
@@ -108,7 +108,10 @@ def cmd_worker(args) -> int:
                   idle_timeout_s=args.idle_timeout, receive_hwm=sub.receive_hwm,
                   force=args.force, service=args.service, service_timeout_s=timeout,
                   curve=daq.security, runs=args.runs, gap_wait_s=gap_wait,
-                  reorder_pings=sub.reorder_pings or REORDER_PINGS)
+                  reorder_pings=sub.reorder_pings or REORDER_PINGS,
+                  max_sequence_jump=sub.max_sequence_jump or MAX_SEQUENCE_JUMP,
+                  **({"max_pings_per_reply": daq.service.max_pings_per_reply}
+                     if daq.service is not None else {}))
     for p in files:
         print(p)
     return 0
@@ -120,7 +123,8 @@ def cmd_replay(args) -> int:
 
     from svss_daq.acquisition import acquire
     from svss_daq.ping_gate import PingGate
-    from svss_daq.ping_service import PingService, RawRunStore, ReplayStore
+    from svss_daq.ping_service import (PingService, RawRunStore, ReplayStore,
+                                       service_options)
     from svss_daq.publisher import PingPublisher
     from svss_daq.rawfile import RawRunReader
 
@@ -136,7 +140,7 @@ def cmd_replay(args) -> int:
         if service_endpoint:
             service = stack.enter_context(PingService(
                 service_endpoint, replay, curve=daq.security,
-                max_pings_per_reply=daq.service.max_pings_per_reply if daq.service else 64))
+                **service_options(daq.service)))
         n_total = sum(store.info(r, refresh=False).n_pings for r in store.run_ids())
         print(f"replaying {', '.join(args.run)} ({n_total} pings) on {pub.endpoint}",
               flush=True)

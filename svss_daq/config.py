@@ -344,6 +344,10 @@ class SubscriberConfig:
                                     "(omitted: 2.0)", lo=0.0, hi=3600)
     reorder_pings: int | None = spec("tile worker: pings held at most in its reorder "
                                      "buffer (480 kB each; omitted: 200)", lo=1, hi=100000)
+    max_sequence_jump: int | None = spec(
+        "tile worker: a ping more than this many sequences past the run's expected one "
+        "(plus the pings sent since that last moved) is refused and counted unless the "
+        "catch-up service's recording holds it (omitted: 1000)", lo=1, hi=10**9)
 
 
 @dataclass(frozen=True)
@@ -354,6 +358,16 @@ class ServiceConfig:
                                     lo=0.01, hi=3600)
     max_pings_per_reply: int = spec("pings in one catch-up reply at most (480 kB each)",
                                     lo=1, hi=10000)
+    max_clients: int = spec("clients a reply is sent to at once; a fetch beyond them is "
+                            "answered busy (the client asks again), and as many stalled "
+                            "clients are remembered (their requests refused)", lo=1,
+                            hi=1000)
+    client_queue: int = spec("messages ZeroMQ queues for each client, each way (a ping is "
+                             "one message, 480 kB): the most a client that does not read "
+                             "costs the service", lo=1, hi=10000)
+    stall_s: float = spec("a reply that could send nothing to its client for this long "
+                          "is abandoned and that client refused from then on, s",
+                          lo=0.01, hi=3600)
 
 
 @dataclass(frozen=True)

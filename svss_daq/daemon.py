@@ -294,12 +294,12 @@ class AcquisitionDaemon:
         return self
 
     def _start_service(self, endpoint: str) -> None:
-        from .ping_service import PingService
+        from .ping_service import PingService, service_options
         from .recorder import RecordingStore
         store = RecordingStore(self.recorder)
         cfg = self.setup.daq.service
         self.service = PingService(endpoint, store, curve=self.curve,
-                                   max_pings_per_reply=cfg.max_pings_per_reply)
+                                   **service_options(cfg))
         self.endpoints["service"] = self.service.endpoint
 
     def _open_devices(self) -> None:
@@ -447,8 +447,9 @@ class AcquisitionDaemon:
                 self.counters.publish_dropped += 1
 
     def _note_requests(self) -> None:
-        if self.service is not None and self.service.requests != self._requests_seen:
-            self._requests_seen = self.service.requests
+        # replies sent whole: a client that does not read keeps nothing up
+        if self.service is not None and self.service.replies != self._requests_seen:
+            self._requests_seen = self.service.replies
             self._last_request = time.monotonic()
 
     def _take(self, item) -> None:
@@ -862,19 +863,20 @@ class AcquisitionDaemon:
 
     def _linger(self) -> None:
         """Keep the catch-up service up after the run while workers still fetch from it
-        (``catch_up.linger_s`` without a request ends it; SIGINT/SIGTERM too)."""
+        (``catch_up.linger_s`` without a reply sent whole ends it: a client that does
+        not read keeps it no longer; SIGINT/SIGTERM too)."""
         cfg = self.setup.acquire.catch_up
         if cfg.linger_s <= 0:
             return
         self._note_requests()
         end = time.monotonic() + cfg.max_linger_s
-        seen, quiet_since = self.service.requests, self._last_request
+        seen, quiet_since = self.service.replies, self._last_request
         logged = False
         try:
             while time.monotonic() < min(end, quiet_since + cfg.linger_s):
                 time.sleep(0.1)
-                if self.service.requests != seen:
-                    seen, quiet_since = self.service.requests, time.monotonic()
+                if self.service.replies != seen:
+                    seen, quiet_since = self.service.replies, time.monotonic()
                     if not logged:
                         log.info("run %s ended; serving catch-up requests until none "
                                  "comes for %.0f s", self.run_id, cfg.linger_s)

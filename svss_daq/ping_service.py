@@ -9,30 +9,37 @@ sequence exists. (A recording on disk answers for what is flushed; the service s
 Protocol (docs/worker.md): a ROUTER socket (:class:`PingService`) answers JSON requests,
 never pickle, from DEALER clients (:class:`PingFetcher`):
 
-- ``{"schema": "svss.fetch", "version": 1, "run_id": R, "first": a, "last": b}``: every
+- ``{"schema": "svss.fetch", "version": 1, "run_id": R, "first": a, "last": b}``
+  (optionally ``"max_pings": m``, the most pings the client takes in one reply): every
   recorded ping of run R in [a, b], each a message framed exactly like the ping stream
   (:func:`svss_daq.messages.encode_ping`), then one single-frame JSON
   ``{"schema": "svss.fetched", "version": 1, "run_id", "first", "last", "found": n,
   "missing": [[a0, b0], ...], "next": s or null, "pending": bool}``. ``missing`` lists the
   ranges of sequences definitively absent (never recorded), up to the reply's end; a
-  reply holds at most ``max_pings_per_reply`` pings and ``next`` says where to continue
-  (null: [a, b] is answered); ``pending`` says ``next`` is past the run's last recorded
-  ping and the run is still being recorded (ask again later).
+  reply holds at most ``max_pings_per_reply`` (and ``m``) pings and ``next`` says where
+  to continue (null: [a, b] is answered); ``pending`` says ``next`` is past the run's
+  last recorded ping and the run is still being recorded (ask again later).
 - ``{"schema": "svss.runs", "version": 1}``: ``{"schema": "svss.runs", "version": 1,
   "runs": [RunInfo as an object, ...]}``, oldest first.
 - anything else: ``{"schema": "svss.error", "version": 1, "error": "..."}``, counted in
-  :attr:`PingService.errors`; the serving thread never stops on a request.
+  :attr:`PingService.errors`; the serving thread never stops on a request. A fetch
+  while ``max_clients`` replies are being sent is answered ``{"schema": "svss.error",
+  "version": 1, "busy": true, "error": "..."}``: ask again.
+
+The service's memory and time per client are bounded and a client that does not read
+blocks nothing (:class:`PingService`); the client keeps ``missing`` as ranges.
 """
 
 from __future__ import annotations
 
+import collections
 import json
 import logging
 import threading
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Iterable, Protocol
+from typing import Iterable, Iterator, Protocol
 
 import numpy as np
 import zmq
@@ -45,12 +52,30 @@ from .rawfile import RawFileError, RawRunReader
 log = logging.getLogger(__name__)
 
 VERSION = 1
+# defaults of daq.toml's [service] for a service or client made without a configuration
 #: pings in one reply when the service is not told otherwise
 MAX_PINGS_PER_REPLY = 64
+#: clients served at once (a reply being sent), and stalled clients remembered
+MAX_CLIENTS = 8
+#: messages ZeroMQ queues per client, each way (a ping is one message)
+CLIENT_QUEUE = 16
+#: a reply that could send nothing to its client for this long is abandoned, s
+STALL_S = 10.0
+#: a client's first pause before asking a busy service again (doubling to 1 s), s
+POLL_BUSY_S = 0.05
+# protocol limits (docs/worker.md)
 _MAX_REQUEST_BYTES = 4096
+_MAX_FRAME_BYTES = 65536     # a client's larger frame: ZeroMQ drops its connection
 _MAX_SPAN = 10**9            # sequences one fetch may ask about
 _INT = (0, 2**63 - 1)
 
+
+def _log_count(n: int, level: int, msg: str, *args) -> None:
+    """Log the ``n``-th occurrence of something counted only when ``n`` is 1, 10, 100,
+    ...: a flood is counted in full, never logged in full."""
+    if n > 0 and str(n).rstrip("0") == "1":
+        log.log(level, msg + " (%d in all%s)", *args, n,
+                "" if n == 1 else "; logged at every power of 10")
 
 @dataclass(frozen=True)
 class RunInfo:
@@ -309,29 +334,57 @@ def _int_field(req: dict, name: str) -> int:
     return v
 
 
+@dataclass
+class _Reply:
+    """A fetch reply being sent to one client: its messages (made as they are sent),
+    the one that found the client's queue full, and when a message last went out."""
+    ident: bytes
+    messages: Iterator[list]
+    since: float
+    head: list | None = None
+
+
 class PingService:
     """Serves a :class:`PingStore` on ``endpoint`` (a ROUTER socket bound now, checked by
     :func:`~svss_daq.endpoints.check_endpoint`; ``tcp://127.0.0.1:*`` picks a free port,
     :attr:`endpoint` says which) from a thread, until :meth:`close`. ``curve``: a
     :class:`~svss_daq.security.CurveConfig` (None or disabled: plain). Malformed
-    requests are answered with ``svss.error``, logged and counted (:attr:`errors`)."""
+    requests are answered with ``svss.error``, logged and counted (:attr:`errors`).
+
+    Nothing a client does blocks the serving thread or grows the service without bound
+    (docs/worker.md, "Catch-up service limits"): every send is non-blocking; ZeroMQ
+    queues at most ``client_queue`` messages to each client (each way); a fetch reply
+    is sent as the client's queue takes it, at most ``max_clients`` replies at once
+    (beyond: ``svss.error`` with ``"busy": true``, counted in :attr:`busy`); a reply
+    that could send nothing for ``stall_s`` is abandoned (:attr:`stalled`) and that
+    client's later requests are refused unanswered (:attr:`refused`, the last
+    ``max_clients`` such clients remembered); :attr:`replies` counts replies sent
+    whole (what keeps a daemon lingering)."""
 
     def __init__(self, endpoint: str, store: PingStore, *, curve=None,
                  max_pings_per_reply: int = MAX_PINGS_PER_REPLY,
-                 ctx: zmq.Context | None = None, send_timeout_s: float = 10.0):
+                 max_clients: int = MAX_CLIENTS, client_queue: int = CLIENT_QUEUE,
+                 stall_s: float = STALL_S, ctx: zmq.Context | None = None):
         check_endpoint(endpoint, bind=True)
-        if type(max_pings_per_reply) is not int or max_pings_per_reply < 1:
-            raise ValueError(f"max_pings_per_reply: expected an integer >= 1, got "
-                             f"{max_pings_per_reply!r}")
+        for name, v in (("max_pings_per_reply", max_pings_per_reply),
+                        ("max_clients", max_clients), ("client_queue", client_queue)):
+            if type(v) is not int or v < 1:
+                raise ValueError(f"{name}: expected an integer >= 1, got {v!r}")
+        if not stall_s > 0:
+            raise ValueError(f"stall_s: expected seconds > 0, got {stall_s!r}")
         self.store = store
         self.max_pings = max_pings_per_reply
+        self.max_clients = max_clients
+        self.stall_s = float(stall_s)
         self.ctx = ctx or zmq.Context.instance()
         self.sock = self.ctx.socket(zmq.ROUTER)
         try:
             from .security import secure_server
             secure_server(self.sock, curve)
-            self.sock.setsockopt(zmq.ROUTER_MANDATORY, 1)   # never drop a reply silently
-            self.sock.setsockopt(zmq.SNDTIMEO, int(send_timeout_s * 1000))
+            self.sock.setsockopt(zmq.ROUTER_MANDATORY, 1)   # a full queue says so (EAGAIN)
+            self.sock.setsockopt(zmq.SNDHWM, client_queue)
+            self.sock.setsockopt(zmq.RCVHWM, client_queue)
+            self.sock.setsockopt(zmq.MAXMSGSIZE, _MAX_FRAME_BYTES)
             self.sock.setsockopt(zmq.LINGER, 0)
             self.sock.bind(endpoint)
         except zmq.ZMQError as exc:
@@ -342,50 +395,134 @@ class PingService:
             raise
         self.endpoint = self.sock.getsockopt_string(zmq.LAST_ENDPOINT)
         self.requests = 0
+        self.replies = 0            # replies sent whole
         self.errors = 0
         self.pings_served = 0
+        self.busy = 0               # fetches refused: max_clients replies being sent
+        self.stalled = 0            # replies abandoned: nothing sent for stall_s
+        self.refused = 0            # requests of a stalled client, or during its reply
+        self.dropped = 0            # short replies (errors, runs) to a full client queue
+        self.gone = 0               # replies to clients that disconnected
+        self._replies: dict[bytes, _Reply] = {}
+        self._stalled: collections.OrderedDict[bytes, None] = collections.OrderedDict()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, name="ping-service", daemon=True)
         self._thread.start()
-        log.info("catch-up service on %s (at most %d pings per reply)", self.endpoint,
-                 self.max_pings)
+        log.info("catch-up service on %s (at most %d pings per reply, %d clients at once, "
+                 "%d messages queued per client)", self.endpoint, self.max_pings,
+                 self.max_clients, client_queue)
+
+    @property
+    def clients(self) -> int:
+        """Clients a reply is being sent to."""
+        return len(self._replies)
 
     def _serve(self) -> None:
+        wait_ms = 100
         try:
             while not self._stop.is_set():
-                if not self.sock.poll(100):
-                    continue
-                try:
-                    frames = self.sock.recv_multipart(zmq.NOBLOCK)
-                except zmq.Again:
-                    continue
-                try:
-                    self._handle(frames[0], frames[1:])
-                except zmq.ZMQError as exc:
-                    log.warning("catch-up service: reply not sent (%s)", exc)
-                except Exception:                     # never lose the service
-                    self.errors += 1
-                    log.exception("catch-up service: request failed")
-                    self._reply(frames[0], {"schema": "svss.error", "version": VERSION,
-                                            "error": "internal error (logged)"}, quiet=True)
+                busy = False
+                if self.sock.poll(wait_ms, zmq.POLLIN):
+                    try:
+                        frames = self.sock.recv_multipart(zmq.NOBLOCK)
+                    except zmq.Again:
+                        frames = None
+                    if frames:
+                        busy = True
+                        try:
+                            self._handle(frames[0], frames[1:])
+                        except Exception:                 # never lose the service
+                            self.errors += 1
+                            log.exception("catch-up service: request failed")
+                            self._send_short(frames[0], {
+                                "schema": "svss.error", "version": VERSION,
+                                "error": "internal error (logged)"})
+                busy |= self._send_replies()
+                # while replies wait for room in their clients' queues, look again soon
+                # (sooner after something was sent)
+                wait_ms = (0 if busy else min(max(2 * wait_ms, 1), 50) if self._replies
+                           else 100)
         finally:
             self.sock.close(linger=0)
 
-    def _reply(self, ident: bytes, body: dict, quiet: bool = False) -> None:
+    # -- sending ---------------------------------------------------------------------
+
+    def _send_short(self, ident: bytes, body: dict) -> bool:
+        """One JSON message, never waiting: dropped (counted) when the client's queue is
+        full (the client is then taken as stalled) or the client is gone."""
         try:
-            self.sock.send_multipart([ident, json.dumps(body).encode()])
-        except zmq.ZMQError:
-            if not quiet:
-                raise
+            self.sock.send_multipart([ident, json.dumps(body).encode()], zmq.NOBLOCK)
+            return True
+        except zmq.ZMQError as exc:
+            self.dropped += 1
+            _log_count(self.dropped, logging.WARNING, "catch-up service: a reply was "
+                       "dropped: the client's queue is full or it is gone (%s)", exc)
+            if isinstance(exc, zmq.Again):
+                self._remember_stalled(ident)
+            return False
+
+    def _send_replies(self) -> bool:
+        """Send what each reply's client queue takes now, one client after the other;
+        abandon stalled replies. Whether anything was sent."""
+        sent_any = False
+        now = time.monotonic()
+        for ident, rep in list(self._replies.items()):
+            try:
+                while True:
+                    if rep.head is None:
+                        rep.head = next(rep.messages, None)
+                        if rep.head is None:             # the closing JSON went out
+                            del self._replies[ident]
+                            self.replies += 1
+                            break
+                    self.sock.send_multipart([ident, *rep.head], zmq.NOBLOCK, copy=False)
+                    if len(rep.head) > 1:
+                        self.pings_served += 1
+                    rep.head, rep.since, sent_any = None, now, True
+            except zmq.Again:                            # the client's queue is full
+                if now - rep.since > self.stall_s:
+                    self._abandon(ident, f"nothing could be sent to it for "
+                                  f"{now - rep.since:.1f} s (it does not read)")
+            except zmq.ZMQError as exc:                  # the client disconnected
+                del self._replies[ident]
+                self.gone += 1
+                _log_count(self.gone, logging.INFO, "catch-up service: a client left "
+                           "during its reply (%s)", exc)
+            except Exception:                            # reading the store failed
+                del self._replies[ident]
+                self.errors += 1
+                log.exception("catch-up service: a reply failed part-way")
+                self._send_short(ident, {"schema": "svss.error", "version": VERSION,
+                                         "error": "internal error (logged)"})
+        return sent_any
+
+    def _abandon(self, ident: bytes, why: str) -> None:
+        del self._replies[ident]
+        self.stalled += 1
+        self._remember_stalled(ident)
+        _log_count(self.stalled, logging.WARNING, "catch-up service: reply abandoned, "
+                   "%s; that client's requests are refused from now on", why)
+
+    def _remember_stalled(self, ident: bytes) -> None:
+        self._stalled[ident] = None
+        while len(self._stalled) > self.max_clients:
+            self._stalled.popitem(last=False)
 
     def _error(self, ident: bytes, msg: str) -> None:
         self.errors += 1
         log.warning("catch-up service: refused a request: %s", msg)
-        self._reply(ident, {"schema": "svss.error", "version": VERSION, "error": msg},
-                    quiet=True)
+        self._send_short(ident, {"schema": "svss.error", "version": VERSION, "error": msg})
+
+    # -- requests --------------------------------------------------------------------
 
     def _handle(self, ident: bytes, body: list) -> None:
         self.requests += 1
+        if ident in self._stalled or ident in self._replies:
+            self.refused += 1
+            _log_count(self.refused, logging.WARNING, "catch-up service: request "
+                       "refused unanswered: %s", "its client stalled a reply" if ident
+                       in self._stalled else "a reply to its client is still being sent")
+            return
         if len(body) != 1:
             return self._error(ident, f"request has {len(body)} frames; expected one JSON "
                                "frame")
@@ -408,8 +545,10 @@ class PingService:
         try:
             if schema == "svss.runs":
                 runs = self.store.runs()
-                return self._reply(ident, {"schema": "svss.runs", "version": VERSION,
-                                           "runs": [r.to_dict() for r in runs]})
+                if self._send_short(ident, {"schema": "svss.runs", "version": VERSION,
+                                            "runs": [r.to_dict() for r in runs]}):
+                    self.replies += 1
+                return
             if schema == "svss.fetch":
                 return self._fetch(ident, req)
         except RequestError as exc:
@@ -426,42 +565,64 @@ class PingService:
         if last < first or last - first > _MAX_SPAN:
             raise RequestError(f"fields 'first' {first} and 'last' {last}: expected first <= "
                                f"last and at most {_MAX_SPAN} sequences")
+        cap = self.max_pings
+        if "max_pings" in req:
+            cap = min(cap, _int_field(req, "max_pings"))
+            if cap < 1:
+                raise RequestError("field 'max_pings' expected an integer >= 1, got 0")
+        if len(self._replies) >= self.max_clients:
+            self.busy += 1
+            _log_count(self.busy, logging.WARNING, "catch-up service: busy, %d clients "
+                       "being served (daq.toml service.max_clients); a fetch refused",
+                       len(self._replies))
+            self._send_short(ident, {"schema": "svss.error", "version": VERSION,
+                                     "busy": True, "error": f"busy: {len(self._replies)} "
+                                     "clients being served; ask again"})
+            return
         info = {r.run_id: r for r in self.store.runs()}.get(run_id)
         if info is None:
             raise RequestError(f"unknown run {messages._show(run_id)}")
         present = self.store.sequences(run_id, first, last)
         pending = False
-        if len(present) > self.max_pings:
-            nxt = present[self.max_pings]
+        if len(present) > cap:
+            nxt = present[cap]
             upto = nxt - 1
-            present = present[:self.max_pings]
+            present = present[:cap]
         elif not info.ended and last > info.last:
             nxt = max(first, info.last + 1)
             upto = nxt - 1
             pending = True
         else:
             nxt, upto = None, last
-        sent = []
-        for q in present:
-            ping = self.store.read(run_id, q)
-            if ping is None:                 # vanished between the two calls: say missing
-                continue
-            self.sock.send_multipart([ident, *messages.encode_ping(ping)], copy=False)
-            sent.append(q)
-        found = len(sent)
-        missing = _absent(first, upto, sent) if upto >= first else []
-        self.pings_served += found
-        self._reply(ident, {"schema": "svss.fetched", "version": VERSION, "run_id": run_id,
-                            "first": first, "last": last, "found": found,
-                            "missing": missing, "next": nxt, "pending": pending})
+        head = {"schema": "svss.fetched", "version": VERSION, "run_id": run_id,
+                "first": first, "last": last}
+        tail = {"next": nxt, "pending": pending}
+
+        def replies() -> Iterator[list]:
+            sent = []
+            for q in present:
+                ping = self.store.read(run_id, q)
+                if ping is None:             # vanished between the two calls: say missing
+                    continue
+                yield messages.encode_ping(ping)
+                sent.append(q)
+            missing = _absent(first, upto, sent) if upto >= first else []
+            yield [json.dumps({**head, "found": len(sent), "missing": missing,
+                               **tail}).encode()]
+
+        self._replies[ident] = _Reply(ident, replies(), time.monotonic())
+        self._send_replies()
 
     def close(self) -> None:
         """Stop the serving thread and close the socket."""
         self._stop.set()
         self._thread.join(timeout=10)
         if self.requests:
-            log.info("catch-up service %s: %d request(s), %d ping(s) served, %d refused",
-                     self.endpoint, self.requests, self.pings_served, self.errors)
+            log.info("catch-up service %s: %d request(s), %d ping(s) served, %d refused "
+                     "as malformed, %d busy, %d reply(ies) abandoned to stalled clients, "
+                     "%d request(s) of such clients refused, %d short reply(ies) dropped",
+                     self.endpoint, self.requests, self.pings_served, self.errors,
+                     self.busy, self.stalled, self.refused, self.dropped)
 
     def __enter__(self) -> PingService:
         return self
@@ -470,18 +631,33 @@ class PingService:
         self.close()
 
 
+def service_options(cfg) -> dict:
+    """:class:`PingService` keyword arguments from daq.toml's ``[service]`` table (a
+    :class:`~svss_daq.config.ServiceConfig`; None: the defaults)."""
+    if cfg is None:
+        return {}
+    return {"max_pings_per_reply": cfg.max_pings_per_reply,
+            "max_clients": cfg.max_clients, "client_queue": cfg.client_queue,
+            "stall_s": cfg.stall_s}
+
+
 # --------------------------------------------------------------------------- client
 
 
 @dataclass
 class Fetched:
-    """One reply: the pings (ascending), the ranges definitively missing, where to
-    continue (None: the request is answered) and whether ``next`` waits on a run still
-    being recorded."""
+    """One reply: the pings (ascending), the ranges of sequences definitively missing
+    ((first, last) pairs, ascending, disjoint), where to continue (None: the request is
+    answered) and whether ``next`` waits on a run still being recorded."""
     pings: list[Ping]
-    missing: list[int]
+    missing: list[tuple[int, int]]
     next: int | None
     pending: bool
+
+
+def count_missing(ranges: Iterable[tuple[int, int]]) -> int:
+    """How many sequences ``(first, last)`` ranges hold."""
+    return sum(b - a + 1 for a, b in ranges)
 
 
 class ServiceError(RuntimeError):
@@ -492,17 +668,25 @@ class PingFetcher:
     """A DEALER client of a :class:`PingService` at ``endpoint``. Every wait for a
     reply message is at most ``timeout_s``; a timeout raises TimeoutError naming the
     endpoint (the socket is then replaced, so a late reply cannot be taken for the next
-    one's)."""
+    one's). A reply holds at most ``max_pings_per_reply`` pings (asked of the service;
+    more is a :class:`ServiceError`), ZeroMQ queues at most that many messages for it,
+    and a busy service is asked again until ``timeout_s`` has passed."""
 
     def __init__(self, endpoint: str, *, curve=None, timeout_s: float = 10.0,
+                 max_pings_per_reply: int = MAX_PINGS_PER_REPLY,
                  ctx: zmq.Context | None = None):
         check_endpoint(endpoint, bind=False)
+        if type(max_pings_per_reply) is not int or max_pings_per_reply < 1:
+            raise ValueError(f"max_pings_per_reply: expected an integer >= 1, got "
+                             f"{max_pings_per_reply!r}")
         self.endpoint = endpoint
         self.curve = curve
         self.timeout_s = float(timeout_s)
+        self.max_pings = max_pings_per_reply
         self.ctx = ctx or zmq.Context.instance()
         self.sock: zmq.Socket | None = None
         self.requests = 0
+        self.busy = 0                  # busy answers asked again
         self._connect()
 
     def _connect(self) -> None:
@@ -511,6 +695,7 @@ class PingFetcher:
             from .security import secure_client
             secure_client(sock, self.curve)
             sock.setsockopt(zmq.LINGER, 0)
+            sock.setsockopt(zmq.RCVHWM, self.max_pings + 1)     # one reply
             sock.connect(self.endpoint)
         except zmq.ZMQError as exc:
             sock.close(linger=0)
@@ -530,15 +715,29 @@ class PingFetcher:
         return self.sock.recv_multipart(copy=False)
 
     def _request(self, req: dict) -> tuple[list[Ping], dict]:
-        self.requests += 1
-        self.sock.send(json.dumps({**req, "version": VERSION}).encode())
-        try:
-            return self._reply()
-        except ServiceError:
-            # the rest of a reply that failed part-way would be taken for the next one's
-            self.sock.close(linger=0)
-            self._connect()
-            raise
+        deadline = time.monotonic() + self.timeout_s
+        pause = POLL_BUSY_S
+        while True:
+            self.requests += 1
+            self.sock.send(json.dumps({**req, "version": VERSION}).encode())
+            try:
+                pings, reply = self._reply()
+            except ServiceError:
+                # the rest of a reply that failed part-way would be taken for the next one's
+                self.sock.close(linger=0)
+                self._connect()
+                raise
+            if not (reply.get("schema") == "svss.error" and reply.get("busy") is True):
+                if reply.get("schema") == "svss.error":
+                    raise ServiceError(f"catch-up service {self.endpoint}: "
+                                       f"{reply.get('error')}")
+                return pings, reply
+            self.busy += 1
+            if time.monotonic() + pause > deadline:
+                raise ServiceError(f"catch-up service {self.endpoint}: still busy after "
+                                   f"{self.timeout_s:g} s ({reply.get('error')})")
+            time.sleep(pause)
+            pause = min(2 * pause, 1.0)
 
     def _reply(self) -> tuple[list[Ping], dict]:
         pings = []
@@ -553,10 +752,10 @@ class PingFetcher:
                 if not isinstance(reply, dict):
                     raise ServiceError(f"catch-up service {self.endpoint}: reply is not a "
                                        "JSON object")
-                if reply.get("schema") == "svss.error":
-                    raise ServiceError(f"catch-up service {self.endpoint}: "
-                                       f"{reply.get('error')}")
                 return pings, reply
+            if len(pings) >= self.max_pings:
+                raise ServiceError(f"catch-up service {self.endpoint}: more than "
+                                   f"{self.max_pings} pings in one reply")
             try:
                 msg = messages.decode(frames)
             except messages.MessageError as exc:
@@ -578,20 +777,24 @@ class PingFetcher:
             raise ServiceError(f"catch-up service {self.endpoint}: {exc}") from None
 
     def fetch_once(self, run_id: str, first: int, last: int) -> Fetched:
-        """One request: at most the service's ``max_pings_per_reply`` pings of [first,
-        last]."""
+        """One request: at most ``max_pings_per_reply`` pings of [first, last] (and of
+        the service's own cap). The missing sequences stay ranges: the work is that of
+        the reply's length, never of the numbers in it."""
         pings, reply = self._request({"schema": "svss.fetch", "run_id": run_id,
-                                      "first": int(first), "last": int(last)})
+                                      "first": int(first), "last": int(last),
+                                      "max_pings": self.max_pings})
         if reply.get("schema") != "svss.fetched" or reply.get("found") != len(pings):
             raise ServiceError(f"catch-up service {self.endpoint}: reply to fetch "
                                f"{run_id} {first}..{last} announced "
                                f"{reply.get('found')!r} pings, {len(pings)} arrived")
-        missing = []
+        missing: list[tuple[int, int]] = []
         try:
+            at = first
             for a, b in reply["missing"]:
-                if not (type(a) is int and type(b) is int and first <= a <= b <= last):
+                if not (type(a) is int and type(b) is int and at <= a <= b <= last):
                     raise ValueError
-                missing.extend(range(a, b + 1))
+                missing.append((a, b))
+                at = b + 1
             nxt = reply["next"]
             if nxt is not None and not (type(nxt) is int and first <= nxt <= last + 1):
                 raise ValueError
@@ -600,16 +803,22 @@ class PingFetcher:
                                f"{str(reply)[:200]}") from None
         return Fetched(pings, missing, nxt, bool(reply.get("pending")))
 
-    def fetch(self, run_id: str, first: int, last: int) -> tuple[list[Ping], list[int]]:
+    def fetch(self, run_id: str, first: int, last: int
+              ) -> tuple[list[Ping], list[tuple[int, int]]]:
         """Every recorded ping of ``run_id`` in [first, last] (over as many capped replies
-        as it takes) and the sequences definitively missing. Sequences in neither are
-        not recorded yet (a run still being recorded)."""
+        as it takes) and the ranges of sequences definitively missing ((first, last)
+        pairs, adjacent ones joined). Sequences in neither are not recorded yet (a run
+        still being recorded)."""
         pings: list[Ping] = []
-        missing: list[int] = []
+        missing: list[tuple[int, int]] = []
         while first <= last:
             got = self.fetch_once(run_id, first, last)
             pings += got.pings
-            missing += got.missing
+            for a, b in got.missing:
+                if missing and missing[-1][1] + 1 == a:
+                    missing[-1] = (missing[-1][0], b)
+                else:
+                    missing.append((a, b))
             if got.next is None or got.pending or got.next <= first:
                 break
             first = got.next

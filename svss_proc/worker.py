@@ -15,6 +15,7 @@ the recording), tile files out. See docs/worker.md.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import hashlib
 import json
@@ -37,7 +38,7 @@ from svss_daq import ping as _ping
 from svss_daq.nav.renavigate import RenavigationError, records_problem, renavigation
 from svss_daq.ping import NavSnapshot, Ping
 from svss_daq.ping_gate import PingGate, PingRejected
-from svss_daq.ping_service import PingFetcher, RunInfo, ServiceError
+from svss_daq.ping_service import MAX_PINGS_PER_REPLY, PingFetcher, RunInfo, ServiceError
 from svss_daq.progress import Progress
 from svss_daq.rawfile import RawRunReader, run_of
 from svss_daq.subscriber import subscribe
@@ -67,9 +68,10 @@ POSE_FLAG_NAMES = tuple((getattr(_ping, f"NAV_{n.upper()}"), n) for n in (
     "heading_from_compass", "held", "clock_retimed", "smoothed", "fused"))
 #: what a run's pings were posed with, when nothing else is said (manifest ``poses``)
 LIVE_POSES = "recorded live poses"
-#: defaults of daq.toml's [subscriber] gap_wait_s and reorder_pings
+#: defaults of daq.toml's [subscriber] gap_wait_s, reorder_pings and max_sequence_jump
 GAP_WAIT_S = 2.0
 REORDER_PINGS = 200
+MAX_SEQUENCE_JUMP = 1000
 
 
 def _atomic_json(path: Path, obj: dict) -> None:
@@ -450,6 +452,11 @@ class _Run:
     gap_since: float | None = None
     retry_at: float = 0.0
     service_failed: bool = False        # the last catch-up of this run failed
+    #: when ``next_seq`` last moved (monotonic): how far ahead a ping may plausibly be
+    progress_at: float = field(default_factory=time.monotonic)
+    #: the run's last sequence the recording held when last asked, and when (monotonic)
+    recorded_last: int | None = None
+    recorded_at: float = -float("inf")
 
 
 class StreamWorker:
@@ -464,12 +471,14 @@ class StreamWorker:
     def __init__(self, out: str | Path, hardware: Loaded[HardwareConfig],
                  processing: Loaded[ProcessingConfig], *, fetcher: PingFetcher | None = None,
                  gap_wait_s: float = GAP_WAIT_S, reorder_pings: int = REORDER_PINGS,
-                 force: bool = False):
+                 max_sequence_jump: int = MAX_SEQUENCE_JUMP, force: bool = False):
         preflight(processing.value, processing.source)     # before anything is written
         self.out = Path(out)
         self.hardware, self.processing = hardware, processing
         self.fetcher = fetcher
         self.gap_wait_s, self.reorder_pings = gap_wait_s, reorder_pings
+        self.max_sequence_jump = max_sequence_jump
+        self.ping_interval_s = hardware.value.sequencer.ping_interval_s
         prepare_output_dir(self.out, force, resume=True)
         self.run: _Run | None = None
         self.finished: dict[str, dict] = {}        # run folder -> summary (this session)
@@ -480,6 +489,7 @@ class StreamWorker:
         self.missing = 0                 # sequences the recording does not hold
         self.fetched = 0
         self.overflow = 0
+        self.implausible = 0             # pings refused: sequence implausibly far ahead
         self.fetch_errors = 0
         self.fetch_time_s = 0.0
 
@@ -590,6 +600,8 @@ class StreamWorker:
             self.duplicates += 1
             log.debug("ping %d: duplicate or already imaged; dropped", seq)
             return
+        if not self._plausible(r, seq):
+            return
         if len(r.buffer) >= self.reorder_pings:
             if self.fetcher is not None and seq > max(r.buffer):
                 self.overflow += 1                # fetched from the recording later
@@ -598,10 +610,44 @@ class StreamWorker:
         r.buffer[seq] = ping
         self.drain()
 
+    def _plausible(self, r: _Run, seq: int) -> bool:
+        """Whether ``seq`` may be a ping of run ``r``: at most ``max_sequence_jump``
+        past the run's expected sequence plus the pings the sequencer sent since that
+        last moved, or held by the recording (asked of the catch-up service at most
+        every POLL_SLICE_S; a ping is recorded before it is published). Past that it is
+        refused, counted (manifest ``implausible_sequences``) and logged (the 1st, 10th,
+        100th...): taken as the run's new frontier it would skip, or ask the service
+        for, everything before it."""
+        now = time.monotonic()
+        allowed = self.max_sequence_jump + int((now - r.progress_at) / self.ping_interval_s)
+        if seq - r.next_seq <= allowed or (r.recorded_last is not None
+                                           and seq <= r.recorded_last):
+            return True
+        if self.fetcher is not None and r.run_id is not None \
+                and now - r.recorded_at >= POLL_SLICE_S:
+            r.recorded_at = now
+            info = {i.run_id: i for i in (self._runs() or [])}.get(r.run_id)
+            if info is not None:
+                r.recorded_last = info.last
+                if seq <= info.last:
+                    return True
+        self.implausible += 1
+        if str(self.implausible).rstrip("0") == "1":
+            log.warning("run %s: ping %d refused: %d ahead of the expected sequence %d "
+                        "(subscriber.max_sequence_jump %d plus the pings of the %.1f s "
+                        "since it moved)%s (%d refused in all; logged at every power of "
+                        "10)", r.run_id or "(unnamed)", seq, seq - r.next_seq, r.next_seq,
+                        self.max_sequence_jump, now - r.progress_at,
+                        "" if r.recorded_last is None else
+                        f" and past the recording's last ping {r.recorded_last}",
+                        self.implausible)
+        return False
+
     def _feed(self, r: _Run, ping: Ping) -> None:
         r.buffer.pop(ping.sequence, None)
         r.next_seq = ping.sequence + 1
         r.gap_since = None
+        r.progress_at = time.monotonic()
         r.fed += 1
         r.worker.add(ping)
 
@@ -613,6 +659,7 @@ class StreamWorker:
                     r.next_seq, nxt - 1, why)
         r.next_seq = nxt
         r.gap_since = None
+        r.progress_at = time.monotonic()
 
     def drain(self, final: bool = False) -> None:
         """Feed the buffered pings that are next in sequence; fill or skip gaps."""
@@ -654,20 +701,27 @@ class StreamWorker:
             while r.next_seq <= last:
                 got = self.fetcher.fetch_once(r.run_id, r.next_seq, last)
                 by_seq = {p.sequence: p for p in got.pings}
-                missing = set(got.missing)
+                missing = collections.deque(got.missing)    # ranges, ascending
                 upto = last if got.next is None else got.next - 1
                 while r.next_seq <= upto:
                     q = r.next_seq
+                    while missing and missing[0][1] < q:
+                        missing.popleft()
                     p = by_seq.get(q)
                     p = r.buffer.get(q) if p is None else p
                     if p is not None:
                         n += q in by_seq
                         self._feed(r, p)
-                    elif q in missing:
-                        self.missing += 1
-                        log.warning("run %s: ping %d is not in the recording; skipped",
-                                    r.run_id, q)
-                        r.next_seq = q + 1
+                    elif missing and missing[0][0] <= q:
+                        # a range the recording lacks: skipped in one step (up to a
+                        # ping the stream brought inside it), one log line
+                        end = min(missing[0][1], upto)
+                        end = min((s - 1 for s in r.buffer if q < s <= end), default=end)
+                        self.missing += end - q + 1
+                        log.warning("run %s: ping(s) %d..%d (%d) not in the recording; "
+                                    "skipped", r.run_id, q, end, end - q + 1)
+                        r.next_seq = end + 1
+                        r.progress_at = time.monotonic()
                     else:                     # neither: should not happen; ask again
                         break
                 if got.next is None or got.pending or r.next_seq < (got.next or 0):
@@ -773,6 +827,7 @@ class StreamWorker:
             "duplicate_pings": self.duplicates, "skipped_pings": self.skipped,
             "missing_in_recording": self.missing, "fetched_pings": self.fetched,
             "fetch_errors": self.fetch_errors, "dropped_reorder_full": self.overflow,
+            "implausible_sequences": self.implausible,
             "runs": {name: {"run_id": s["run_id"], "complete": s["complete"],
                             "pings": s["pings"],
                             "tiles": sum(f.endswith(".h5") for f in s["files"])}
@@ -792,8 +847,9 @@ def serve(endpoint: str, out_dir: str | Path, hardware: Loaded[HardwareConfig],
           processing: Loaded[ProcessingConfig], idle_timeout_s: float | None = None, *,
           receive_hwm: int = 500, force: bool = False, service: str | None = None,
           service_timeout_s: float = 10.0, curve=None, runs: int | None = None,
-          gap_wait_s: float = GAP_WAIT_S, reorder_pings: int = REORDER_PINGS
-          ) -> list[Path]:
+          gap_wait_s: float = GAP_WAIT_S, reorder_pings: int = REORDER_PINGS,
+          max_sequence_jump: int = MAX_SEQUENCE_JUMP,
+          max_pings_per_reply: int = MAX_PINGS_PER_REPLY) -> list[Path]:
     """Receive pings from ``endpoint`` and image them run by run into ``out_dir/RUN_ID/``
     until ``runs`` end-of-run messages (None: no limit) or ``idle_timeout_s`` without a
     message. ``service``: the catch-up service's endpoint (gaps are fetched from the
@@ -803,12 +859,14 @@ def serve(endpoint: str, out_dir: str | Path, hardware: Loaded[HardwareConfig],
     check_endpoint(endpoint, bind=False)            # before anything is written
     if service is not None:
         check_endpoint(service, bind=False)
-    fetcher = (PingFetcher(service, curve=curve, timeout_s=service_timeout_s)
+    fetcher = (PingFetcher(service, curve=curve, timeout_s=service_timeout_s,
+                           max_pings_per_reply=max_pings_per_reply)
                if service is not None else None)
     sock = None
     try:
         sw = StreamWorker(out_dir, hardware, processing, fetcher=fetcher, force=force,
-                          gap_wait_s=gap_wait_s, reorder_pings=reorder_pings)
+                          gap_wait_s=gap_wait_s, reorder_pings=reorder_pings,
+                          max_sequence_jump=max_sequence_jump)
         sock = subscribe(endpoint, receive_hwm, curve=curve)
         log.info("worker: waiting for pings from %s%s", endpoint,
                  f" (catch-up service {service})" if service else "")

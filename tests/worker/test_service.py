@@ -46,17 +46,17 @@ def test_fetch_found_missing_and_capped(holed):
             ("holed", 0, 11, 9, True)
         one = f.fetch_once("holed", 0, 11)            # capped at 4 pings
         assert [p.sequence for p in one.pings] == [0, 1, 2, 5]
-        assert one.missing == [3, 4] and one.next == 6 and not one.pending
+        assert one.missing == [(3, 4)] and one.next == 6 and not one.pending
         pings, missing = f.fetch("holed", 0, 20)      # loops over capped replies
         assert [p.sequence for p in pings] == [q for q in range(12) if q not in HOLES]
-        assert missing == [3, 4, 9] + list(range(12, 21))   # past the end of an ended run
+        assert missing == [(3, 4), (9, 9), (12, 20)]   # past the end of an ended run
         with RawRunReader(holed) as r:                # the same pings, bit for bit
             rec = {p.sequence: p for p in r}
         for p in pings:
             np.testing.assert_array_equal(p.samples, rec[p.sequence].samples)
             assert json.dumps(p.nav.to_dict()) == json.dumps(rec[p.sequence].nav.to_dict())
             assert p.transmit_time_ns == rec[p.sequence].transmit_time_ns
-        assert f.fetch("holed", 3, 4) == ([], [3, 4])
+        assert f.fetch("holed", 3, 4) == ([], [(3, 4)])
         assert svc.errors == 0 and svc.pings_served == 4 + 9
 
 
