@@ -255,10 +255,11 @@ def test_renavigation_recovers_the_track_the_records_were_made_from(instrumented
 def test_instrument_clocks_are_judged_against_the_recorded_ping_clock(tmp_path, hardware):
     """A DVL whose clock is 3 years off: the recorded transmit records give the ping
     clock, the DVL's records are re-timed onto it as live, and the poses say so."""
-    run = write_instrumented_run(tmp_path / "clock.h5", hardware, 20,
+    n = 150       # 15 s: a clock is judged over navigation.clock_window_s (10 s) of records
+    run = write_instrumented_run(tmp_path / "clock.h5", hardware, n,
                                  dvl_clock_s=3 * 365 * 86400.0)
     with RawRunReader(run) as r:
-        assert len(r.ping_clock()) == 20 and r.ping_clock()[0][1] == r.nav(0).time_ns
+        assert len(r.ping_clock()) == n and r.ping_clock()[0][1] == r.nav(0).time_ns
         poses = renavigate(r)
     assert all(p.quality & NAV_CLOCK_RETIMED and p.quality & NAV_BOTTOM_LOCK
                for p in poses)

@@ -42,7 +42,7 @@ from .headings import _headings, _nearest_age, _rotations
 from .kalman import filter_smooth
 from .records import DvlSample, GpsFix, HeadingSample
 
-__all__ = ["compute_poses", "survey_origin"]
+__all__ = ["compute_poses", "survey_origin", "prior_at"]
 
 #: prior variance of a position the first measurement fixes, m^2 (100 m: any GPS wins)
 _UNKNOWN_VAR_M2 = 1e4
@@ -50,7 +50,22 @@ _UNKNOWN_VAR_M2 = 1e4
 _NO_HEIGHT_VAR_M2 = 1.0
 #: the lever arm's rate of turn is taken over +-0.5 s of attitude
 ATTITUDE_RATE_HALF_WINDOW_S = 0.5
+#: heading flags of _headings without a true heading: 1 course over ground, 2 none
+_NO_TRUE_HEADING = (1, 2)
 _HEADING_FLAG = {0: 0, 1: NAV_HEADING_FROM_COURSE, 2: NAV_NO_HEADING, 3: NAV_HEADING_FROM_COMPASS}
+
+
+def prior_at(state: Optional[dict], time_ns: int) -> Optional[dict]:
+    """The filter's state at the DVL sample of ``time_ns`` from a previous call's
+    ``state_out`` (None where it has no sample at exactly that time)."""
+    if not state or "time_ns" not in state:
+        return None
+    times = state["time_ns"]
+    k = int(np.searchsorted(times, time_ns))
+    if k >= times.size or int(times[k]) != int(time_ns):
+        return None
+    return {"time_ns": int(time_ns), **{ax: (state[ax][0][k].copy(), state[ax][1][k].copy())
+                                        for ax in ("n", "e", "d")}}
 
 
 def survey_origin(cfg, fixes: Sequence[GpsFix]) -> Optional[tuple[float, float, float]]:
@@ -110,7 +125,8 @@ def _partial(t_m, td, v_use):
 def compute_poses(times_ns, fixes: Sequence[GpsFix], headings: Sequence[HeadingSample],
                   dvl: Sequence[DvlSample], cfg, lever_arms,
                   origin: Optional[tuple[float, float, float]] = None, *,
-                  causal: bool = False, flags: int = 0) -> list[NavSnapshot]:
+                  causal: bool = False, flags: int = 0, prior: Optional[dict] = None,
+                  state_out: Optional[dict] = None) -> list[NavSnapshot]:
     """The pose of the body origin at each of ``times_ns``.
 
     ``cfg``: :class:`~svss_daq.config.NavigationConfig`; ``lever_arms``:
@@ -118,6 +134,13 @@ def compute_poses(times_ns, fixes: Sequence[GpsFix], headings: Sequence[HeadingS
     survey origin (:func:`survey_origin`). ``causal``: the Kalman filter's estimate (the
     records before each time only, as a live system without lag) instead of the RTS
     smoother's; ``flags``: quality bits added to every pose (e.g. NAV_SMOOTHED).
+
+    A sliding window (the live navigator) carries what it dropped in ``prior``: the
+    filter's state at the first DVL sample before that sample's measurements, as
+    ``state_out`` of the previous call gave it (``state_out``, a dict, receives the
+    filter's predicted state and covariance per axis at every DVL sample: keys
+    ``time_ns``, ``n``, ``e``, ``d``; see :func:`prior_at`). Without a dropped record
+    the prior is the previous call's own, so a window that did not move poses alike.
     """
     t_ns = np.asarray(times_ns, dtype=np.int64).reshape(-1)
     if t_ns.size == 0:
@@ -158,9 +181,13 @@ def compute_poses(times_ns, fixes: Sequence[GpsFix], headings: Sequence[HeadingS
         hgt = np.array([f.height_m if math.isfinite(f.height_m) else origin[2] for f in fixes])
         ant = geodetic_to_ned(np.array([f.latitude_deg for f in fixes]),
                               np.array([f.longitude_deg for f in fixes]), hgt, origin)
-        rot_f = _rotations(*attitude(tf)[:3])
+        att_f = attitude(tf)
+        rot_f = _rotations(*att_f[:3])
         sig = np.array([f.sigma_m / math.sqrt(2.0) if math.isfinite(f.sigma_m) and f.sigma_m > 0
                         else cfg.gps_sigma_m for f in fixes])
+        # without a true heading the lever arm to the antenna is unknown in azimuth
+        arm = float(np.hypot(*(r_gps - r_dvl)[:2]))
+        sig = np.where(np.isin(att_f[3], _NO_TRUE_HEADING), np.hypot(sig, arm), sig)
     else:
         ant, rot_f, sig = np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0)
 
@@ -170,7 +197,8 @@ def compute_poses(times_ns, fixes: Sequence[GpsFix], headings: Sequence[HeadingS
     near_fix = _nearest_age(tf, t) <= cfg.gps_fix_max_age_s
     if td.size:
         pos, vel, alt, dr, held = _fused(t, td, dvl, attitude, tf, ant, rot_f, sig, has_h,
-                                         rot_t, r_gps, r_dvl, beam, cfg, configured, causal)
+                                         rot_t, r_gps, r_dvl, beam, cfg, configured, causal,
+                                         prior, state_out)
     else:
         pos, vel, alt, dr = (np.full((n, 3), np.nan), np.full((n, 3), np.nan),
                              np.full(n, np.nan), np.zeros(n, dtype=bool))
@@ -180,7 +208,8 @@ def compute_poses(times_ns, fixes: Sequence[GpsFix], headings: Sequence[HeadingS
     if gps_only.any():
         pos_f = ant - np.einsum("kij,j->ki", rot_f, r_gps)
         pos[gps_only] = np.stack([np.interp(t[gps_only], tf, pos_f[:, j]) for j in range(3)], -1)
-        held[gps_only] = (t[gps_only] > tf[-1]) | (t[gps_only] < tf[0])
+        held[gps_only] = ((t[gps_only] > tf[-1]) | (t[gps_only] < tf[0])
+                          | ~near_fix[gps_only])   # interpolated across an outage
         if tf.size >= 2:
             vf = np.stack([np.gradient(pos_f[:, j], tf) for j in range(3)], -1)
             vel[gps_only] = np.stack([np.interp(t[gps_only], tf, vf[:, j]) for j in range(3)], -1)
@@ -210,14 +239,16 @@ def compute_poses(times_ns, fixes: Sequence[GpsFix], headings: Sequence[HeadingS
 
 
 def _fused(t, td, dvl, attitude, tf, ant, rot_f, sig, has_h, rot_t, r_gps, r_dvl, beam, cfg,
-           configured: bool, causal: bool):
+           configured: bool, causal: bool, prior: Optional[dict], state_out: Optional[dict]):
     """Positions, velocities, altitudes and the dead-reckoned and held masks at times t
     from the Kalman fusion on the DVL grid (module docstring)."""
     k_n = td.size
     vb = np.array([d.velocity_body_m_s for d in dvl], dtype=np.float64)
-    rot_d = _rotations(*attitude(td)[:3])
+    att_d = attitude(td)
+    rot_d = _rotations(*att_d[:3])
     v_ned = np.einsum("kij,kj->ki", rot_d, vb)
-    ok = np.all(np.isfinite(v_ned), axis=1)
+    # a velocity carries the track only with a true heading to turn it (HDT, compass)
+    ok = np.all(np.isfinite(v_ned), axis=1) & ~np.isin(att_d[3], _NO_TRUE_HEADING)
     head_h = np.array([_sample_altitude(d, beam, (0.0, 0.0, 0.0), cfg.dvl_min_beams) for d in dvl])
     ranges = np.array([d.ranges_m for d in dvl], dtype=np.float64).reshape(k_n, -1)
     with np.errstate(invalid="ignore"):
@@ -251,6 +282,16 @@ def _fused(t, td, dvl, attitude, tf, ant, rot_f, sig, has_h, rot_t, r_gps, r_dvl
         x_d, p_d = lever_d[0, 2], _NO_HEIGHT_VAR_M2
     good_h = np.flatnonzero(np.isfinite(head_h))
     z_b0 = x_d + (head_h[good_h[0]] if good_h.size else 0.0)
+    priors = {"n": (np.array([x_ne[0], 0.0]), np.diag([p_ne, cfg.dvl_velocity_bias_sigma_m_s ** 2])),
+              "e": (np.array([x_ne[1], 0.0]), np.diag([p_ne, cfg.dvl_velocity_bias_sigma_m_s ** 2])),
+              "d": (np.array([x_d, z_b0]), np.diag([p_d, _UNKNOWN_VAR_M2]))}
+    td_ns = np.array([d.time_ns for d in dvl], dtype=np.int64)
+    if prior is not None and int(prior["time_ns"]) == int(td_ns[0]):
+        # what a window dropped: the state before its first sample's measurements, from
+        # every earlier record (fixes before that sample are in it already)
+        priors = {ax: prior[ax] for ax in ("n", "e", "d")}
+        use = use & (tf >= td[0])
+        use_h = use & has_h
 
     # north and east: (head position, velocity bias)
     a = np.exp(-dt / cfg.dvl_bias_correlation_s)
@@ -258,12 +299,14 @@ def _fused(t, td, dvl, attitude, tf, ant, rot_f, sig, has_h, rot_t, r_gps, r_dvl
     f01 = np.where(carried, dt, 0.0)
     qc = sb2 * (1.0 - a * a)
     states = []
-    for ax in (0, 1):
+    for ax, name in ((0, "n"), (1, "e")):
         m = (kf[use], np.ones(use.sum()), np.zeros(use.sum()), z_f[use, ax],
              sig[use] ** 2 + r_extra[use])
-        xs, _ = filter_smooth(np.array([x_ne[ax], 0.0]), np.diag([p_ne, sb2]), disp[:, ax],
-                              f01, a, var, qc, m, smooth=not causal)
+        xs, _, xf, pf = filter_smooth(*priors[name], disp[:, ax], f01, a, var, qc, m,
+                                      smooth=not causal, predicted=True)
         states.append(xs)
+        if state_out is not None:
+            state_out[name] = (xf, pf)
     # down: (head depth, bottom depth)
     alt_ok = np.isfinite(head_h)
     m_step = np.concatenate([kf[use_h], np.flatnonzero(alt_ok)])
@@ -272,10 +315,14 @@ def _fused(t, td, dvl, attitude, tf, ant, rot_f, sig, has_h, rot_t, r_gps, r_dvl
     m_z = np.concatenate([z_f[use_h, 2], head_h[alt_ok]])
     m_r = np.concatenate([np.full(use_h.sum(), cfg.gps_height_sigma_m ** 2) + r_extra[use_h],
                           cfg.dvl_range_sigma_m ** 2 / n_beams[alt_ok]])
-    xs_d, _ = filter_smooth(np.array([x_d, z_b0]), np.diag([p_d, _UNKNOWN_VAR_M2]), disp[:, 2],
-                            np.zeros(k_n - 1), np.ones(k_n - 1), var,
-                            cfg.bottom_depth_rate_sigma_m_s ** 2 * dt, (m_step, m_h0, m_h1, m_z, m_r),
-                            smooth=not causal)
+    xs_d, _, xf, pf = filter_smooth(*priors["d"], disp[:, 2], np.zeros(k_n - 1),
+                                    np.ones(k_n - 1), var,
+                                    cfg.bottom_depth_rate_sigma_m_s ** 2 * dt,
+                                    (m_step, m_h0, m_h1, m_z, m_r), smooth=not causal,
+                                    predicted=True)
+    if state_out is not None:
+        state_out["d"] = (xf, pf)
+        state_out["time_ns"] = td_ns
     head = np.stack([states[0][:, 0], states[1][:, 0], xs_d[:, 0]], -1)
     bias = np.stack([states[0][:, 1], states[1][:, 1], np.zeros(k_n)], -1)
     bottom = xs_d[:, 1]
@@ -303,7 +350,9 @@ def _fused(t, td, dvl, attitude, tf, ant, rot_f, sig, has_h, rot_t, r_gps, r_dvl
     near_lock = _nearest_age(td[ok], t) <= cfg.dvl_max_gap_s
     near_fix = _nearest_age(tf, t) <= cfg.gps_fix_max_age_s
     far = (t > td[-1] + cfg.dvl_max_gap_s) | (t < td[0] - cfg.dvl_max_gap_s)
-    held = beyond | (~near_lock & ~near_fix)
+    # held: past the last DVL sample (extrapolated), before the first one without a fix
+    # near, or with neither bottom lock nor a fix near (the velocity held)
+    held = (t > td[-1]) | ((t < td[0]) & ~near_fix) | (~near_lock & ~near_fix)
     if tf.size:  # no bottom lock within a gap: GPS interpolation where fixes reach
         covered = (far | ~near_lock) & (t >= tf[0] - cfg.gps_fix_max_age_s) \
             & (t <= tf[-1] + cfg.gps_fix_max_age_s)

@@ -30,7 +30,8 @@ __all__ = ["filter_smooth"]
 @nb.njit(cache=True)
 def _run(x0, p0, u, f01, f11, qp, qc, m_step, m_h0, m_h1, m_z, m_r, smooth):
     """Forward filter (and, with ``smooth``, the RTS pass); returns the states (K, 2)
-    and covariances (K, 2, 2) at the grid points: filtered, or smoothed."""
+    and covariances (K, 2, 2) at the grid points, filtered or smoothed, and the
+    predicted ones (before each point's measurements; the first is the prior)."""
     k_n = u.shape[0] + 1
     xf = np.empty((k_n, 2))
     pf = np.empty((k_n, 2, 2))
@@ -82,7 +83,7 @@ def _run(x0, p0, u, f01, f11, qp, qc, m_step, m_h0, m_h1, m_z, m_r, smooth):
         xp[k + 1] = x
         pp[k + 1] = p
     if not smooth:
-        return xf, pf
+        return xf, pf, xp, pp
     xs = xf.copy()
     ps = pf.copy()
     for k in range(k_n - 2, -1, -1):
@@ -120,11 +121,14 @@ def _run(x0, p0, u, f01, f11, qp, qc, m_step, m_h0, m_h1, m_z, m_r, smooth):
         ps[k, 0, 1] = pf[k, 0, 1] + t00 * c10 + t01 * c11
         ps[k, 1, 0] = ps[k, 0, 1]
         ps[k, 1, 1] = pf[k, 1, 1] + t10 * c10 + t11 * c11
-    return xs, ps
+    return xs, ps, xp, pp
 
 
-def filter_smooth(x0, p0, u, f01, f11, qp, qc, measurements, smooth: bool = True):
-    """States (K, 2) and covariances (K, 2, 2) of one axis at its K grid points.
+def filter_smooth(x0, p0, u, f01, f11, qp, qc, measurements, smooth: bool = True,
+                  predicted: bool = False):
+    """States (K, 2) and covariances (K, 2, 2) of one axis at its K grid points (and,
+    with ``predicted``, the filter's before each point's measurements, everything
+    earlier taken in: ``(xs, ps, xp, pp)``).
 
     ``x0`` (2,), ``p0`` (2, 2): the prior at grid point 0; ``u``, ``f01``, ``f11``,
     ``qp``, ``qc``: (K - 1,) arrays of the model from each point to the next (module
@@ -133,6 +137,7 @@ def filter_smooth(x0, p0, u, f01, f11, qp, qc, measurements, smooth: bool = True
     m_step, m_h0, m_h1, m_z, m_r = (np.asarray(a) for a in measurements)
     order = np.argsort(m_step, kind="stable")
     f = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
-    return _run(f(x0), f(p0), f(u), f(f01), f(f11), f(qp), f(qc),
-                np.ascontiguousarray(m_step[order], dtype=np.int64), f(m_h0[order]),
-                f(m_h1[order]), f(m_z[order]), f(m_r[order]), bool(smooth))
+    out = _run(f(x0), f(p0), f(u), f(f01), f(f11), f(qp), f(qc),
+               np.ascontiguousarray(m_step[order], dtype=np.int64), f(m_h0[order]),
+               f(m_h1[order]), f(m_z[order]), f(m_r[order]), bool(smooth))
+    return out if predicted else out[:2]

@@ -13,7 +13,8 @@ import numpy as np
 from svss_daq.ping import NAV_CLOCK_RETIMED, NAV_SMOOTHED, NavSnapshot
 
 from .clocks import InstrumentClock, PingClock, describe_offset
-from .fusion import compute_poses
+from .fusion import compute_poses, prior_at
+from .geodesy import ned_to_geodetic
 from .live import follow
 from .nmea_samples import NmeaSampler
 from .pd0_samples import dvl_sample_from_pd0
@@ -67,6 +68,8 @@ class Navigator:
             self.origin = (cfg.origin_latitude_deg, cfg.origin_longitude_deg,
                            cfg.origin_height_m)
         self._live_last: Optional[NavSnapshot] = None   # the last live pose given (poses())
+        self._first_latlon: Optional[tuple[float, float]] = None
+        self._state: dict = {}    # the live filter's states at the DVL samples (a window's prior)
         self.counts = {"gps_fixes": 0, "gps_rejected": 0, "gps_rejected_sigma": 0,
                        "gps_gst_missing": 0, "dvl_ensembles": 0, "dvl_samples": 0,
                        "dvl_no_lock": 0}
@@ -93,6 +96,10 @@ class Navigator:
 
     def add_fix(self, f: GpsFix) -> None:
         """A gated GPS fix, on the ping clock."""
+        if self.origin is None and self._first_latlon is None:
+            # the horizontal origin is fixed by the first fix (an RMC has no height: the
+            # height comes from the first fix with one, the plane stays where it was)
+            self._first_latlon = (f.latitude_deg, f.longitude_deg)
         if self.origin is None and math.isfinite(f.height_m):
             cfg = self.cfg
             if cfg.origin_latitude_deg is not None and cfg.origin_longitude_deg is not None:
@@ -100,9 +107,9 @@ class Navigator:
                 logger.info("navigation: survey origin height %.3f m from the first fix "
                             "with a height (configured latitude and longitude)", f.height_m)
             else:
-                self.origin = (f.latitude_deg, f.longitude_deg, f.height_m)
-                logger.info("navigation: survey origin set to the first fix with a height: "
-                            "%.8f, %.8f, %.3f m", f.latitude_deg, f.longitude_deg, f.height_m)
+                self.origin = (*self._first_latlon, f.height_m)
+                logger.info("navigation: survey origin %.8f, %.8f (the first fix), height "
+                            "%.3f m (the first fix with a height)", *self.origin)
         self.fixes.append(f)
         self._appended["fixes"] += 1
         self.counts["gps_fixes"] += 1
@@ -270,6 +277,19 @@ class Navigator:
         self.headings = [h for h in self.headings if h.time_ns >= before_ns]
         self.dvl = [d for d in self.dvl if d.time_ns >= before_ns]
 
+    def survey_origin(self) -> Optional[tuple[float, float, float]]:
+        """The survey origin the poses use: :attr:`origin`, else (no fix with a height
+        yet, or an RMC-only receiver) the first fix's latitude and longitude at height 0;
+        None without a fix or a configured origin (the fusion's own rule then)."""
+        if self.origin is not None:
+            return self.origin
+        cfg = self.cfg
+        if cfg.origin_latitude_deg is not None and cfg.origin_longitude_deg is not None:
+            return (cfg.origin_latitude_deg, cfg.origin_longitude_deg, cfg.origin_height_m or 0.0)
+        if self._first_latlon is not None:
+            return (*self._first_latlon, 0.0)
+        return None
+
     def poses(self, times_ns, smooth: bool = False) -> list[NavSnapshot]:
         """Poses at ``times_ns`` from the records collected.
 
@@ -285,12 +305,22 @@ class Navigator:
         flags = NAV_SMOOTHED if smooth else 0
         if getattr(self, "retimed", None):
             flags |= NAV_CLOCK_RETIMED
-        prev = None if smooth else self._live_last
+        origin = self.survey_origin()
+        if smooth:
+            return compute_poses(times, self.fixes, self.headings, self.dvl, self.cfg,
+                                 self.lever_arms, origin, flags=flags)
+        prev = self._live_last
         chain = prev is not None and times.size and int(times.min()) > prev.time_ns
         query = np.concatenate([[prev.time_ns], times]) if chain else times
+        # the window's first DVL sample starts from the state the previous window had
+        # there (what the prune dropped is carried, not forgotten)
+        prior = prior_at(self._state, min(d.time_ns for d in self.dvl)) if self.dvl else None
+        state: dict = {}
         fused = compute_poses(query, self.fixes, self.headings, self.dvl, self.cfg,
-                              self.lever_arms, self.origin, flags=flags)
-        if smooth or not times.size:
+                              self.lever_arms, origin, flags=flags, prior=prior,
+                              state_out=state)
+        self._state = state
+        if not times.size:
             return fused
         # live: each ping placed from the one before it (svss_daq.nav.live)
         prev_now = fused[0] if chain else None
@@ -301,6 +331,11 @@ class Navigator:
         out = [None] * len(fused)
         for i, pose in zip(order, live):
             out[i] = pose
+        if origin is not None:        # the chained positions' own latitude and longitude
+            ned = np.array([[p.north_m, p.east_m, p.down_m] for p in out])
+            lat, lon, _ = ned_to_geodetic(ned, origin)
+            out = [dataclasses.replace(p, latitude_deg=float(la), longitude_deg=float(lo))
+                   for p, la, lo in zip(out, lat, lon)]
         last = live[-1]
         if self._live_last is None or last.time_ns > self._live_last.time_ns:
             self._live_last = last
