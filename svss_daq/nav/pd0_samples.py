@@ -119,7 +119,11 @@ def dvl_sample_from_pd0(ens, min_beams: int = 3, beam_angle_rad: Optional[float]
         else:  # earth
             v = -np.asarray(bt.velocity_mps[:3], dtype=np.float64)
             ned = np.array([v[1], v[0], -v[2]])
-            body = body_to_ned(roll, pitch, float(ens.variable.heading_rad)).T @ ned
+            # the body's heading is the instrument's less its alignment EA, as for the
+            # compass below (the earth velocity turned back with the instrument's own
+            # heading would come out EA off the body axes)
+            hdg = float(ens.variable.heading_rad) - fx.heading_alignment_rad
+            body = body_to_ned(roll, pitch, hdg).T @ ned
         if angle is not None:
             rr = np.asarray(bt.range_m, dtype=np.float64)[:4]
             rng[:len(rr)] = rr / math.cos(angle)  # RDI's vertical range -> along the beam

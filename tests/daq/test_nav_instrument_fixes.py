@@ -436,3 +436,20 @@ def test_missing_pressure_decodes_as_missing():
                                ).variable.pressure_pa is None
     assert pd0.decode_ensemble(encode_ensemble(Pd0Setup(), pressure_pa=2.1547e6, **args)
                                ).variable.pressure_pa == pytest.approx(2.1547e6)
+
+
+@pytest.mark.parametrize("alignment_deg", [0.0, 45.0, -30.0])
+def test_earth_coordinates_and_the_compass_agree_on_the_body_axes(alignment_deg):
+    """A head mounted with beam 3 ``alignment_deg`` off the bow (EA), the bow due north,
+    moving 1 m/s forward: in earth coordinates the instrument sends the bottom moving
+    south; turned back into the body frame it must be 1 m/s along body x whatever EA is,
+    and the compass's body heading 0 (the earth branch once used the instrument's
+    heading, EA off the body axes)."""
+    setup = Pd0Setup(coordinate_system="earth", heading_alignment_deg=alignment_deg)
+    raw = encode_ensemble(setup, ensemble_number=1, time_ns=1_780_000_000_000_000_000,
+                          heading_rad=math.radians(alignment_deg), pitch_rad=0.0,
+                          roll_rad=0.0, bt_velocity_m_s=[0.0, -1.0, 0.0, 0.0],
+                          bt_range_m=[2.0] * 4)
+    d = nav.dvl_sample_from_pd0(pd0.decode_ensemble(raw))
+    assert d.velocity_body_m_s == pytest.approx((1.0, 0.0, 0.0), abs=2e-3)
+    assert nav.wrap_angle(d.heading_rad) == pytest.approx(0.0, abs=1e-3)
