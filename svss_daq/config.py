@@ -348,6 +348,10 @@ class SubscriberConfig:
         "tile worker: a ping more than this many sequences past the run's expected one "
         "(plus the pings sent since that last moved) is refused and counted unless the "
         "catch-up service's recording holds it (omitted: 1000)", lo=1, hi=10**9)
+    max_listed_gaps: int | None = spec(
+        "tile worker: ranges of skipped pings (never imaged) listed in a run's journal "
+        "and manifest at most; beyond, their pings are counted (omitted: 100)", lo=1,
+        hi=10**6)
 
 
 @dataclass(frozen=True)
@@ -368,6 +372,15 @@ class ServiceConfig:
     stall_s: float = spec("a reply that could send nothing to its client for this long "
                           "is abandoned and that client refused from then on, s",
                           lo=0.01, hi=3600)
+    max_workers: int = spec("tile workers whose progress (svss.progress: the run, the "
+                            "first ping each still lacks) the service keeps; a worker "
+                            "beyond them is refused, counted and logged", lo=1, hi=1000)
+    worker_silence_s: float = spec("a worker whose progress has not come for this long is "
+                                   "forgotten (a killed worker keeps no daemon up), s",
+                                   lo=0.1, hi=3600)
+    progress_interval_s: float = spec("a tile worker tells the service its progress this "
+                                      "often (well within worker_silence_s), s", lo=0.01,
+                                      hi=600)
 
 
 @dataclass(frozen=True)
@@ -623,11 +636,11 @@ class GpsLinkConfig:
 @dataclass(frozen=True)
 class NavigationConfig:
     origin_latitude_deg: float | None = spec(
-        "survey origin geodetic latitude, deg (omitted: the first GPS fix)", lo=-90, hi=90)
+        "survey origin geodetic latitude, deg (omitted: the first GPS fix's)", lo=-90, hi=90)
     origin_longitude_deg: float | None = spec(
-        "survey origin longitude, deg (omitted: the first GPS fix)", lo=-180, hi=360)
+        "survey origin longitude, deg (omitted: the first GPS fix's)", lo=-180, hi=360)
     origin_height_m: float | None = spec(
-        "survey origin ellipsoidal height, m (omitted: the first GPS fix)", lo=-1e4, hi=1e5)
+        "survey origin ellipsoidal height, m (omitted: the first fix that has one)", lo=-1e4, hi=1e5)
     dvl_beam_angle_deg: float = spec("DVL Janus beam angle from the vertical, deg, used "
                                      "only where the PD0 fixed leader sends none "
                                      "(RDI: 20 or 30)", lo=1, hi=60)
@@ -640,8 +653,9 @@ class NavigationConfig:
                                     "dead-reckoned, s", lo=0.01, hi=600)
     dvl_max_gap_s: float = spec("DVL samples further apart than this break dead "
                                 "reckoning, s", lo=0.01, hi=600)
-    heading_max_age_s: float = spec("HDT heading older than this falls back to the RMC "
-                                    "course, s", lo=0.01, hi=600)
+    heading_max_age_s: float = spec("a heading source older than this is not used (HDT, "
+                                    "then the DVL compass, then the RMC course), s",
+                                    lo=0.01, hi=600)
     course_min_speed_m_s: float = spec("RMC course is used as heading only above this "
                                        "speed, m/s", lo=0, hi=50)
     gps_max_sigma_m: float = spec("fixes whose GST horizontal sigma (DRMS) exceeds this "
@@ -681,7 +695,7 @@ class NavigationConfig:
                                 "follow its slow corrections over this time, s",
                                 lo=0.01, hi=600.0)
     fixed_lag_s: float = spec("live smoother's lag: a ping is posed with the records up to "
-                              "this long after it, s (0: causal filter)", lo=0.0, hi=60.0)
+                              "this long after it, s (0: with the records that are there)", lo=0.0, hi=60.0)
 
 
 @dataclass(frozen=True)
