@@ -35,6 +35,7 @@ from __future__ import annotations
 import collections
 import json
 import logging
+import re
 import threading
 import time
 from dataclasses import asdict, dataclass
@@ -47,7 +48,7 @@ import zmq
 from . import messages
 from .endpoints import check_endpoint
 from .ping import Ping
-from .rawfile import RawFileError, RawRunReader
+from .rawfile import RawFileError, RawRunReader, summary_path
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +64,13 @@ CLIENT_QUEUE = 16
 STALL_S = 10.0
 #: a client's first pause before asking a busy service again (doubling to 1 s), s
 POLL_BUSY_S = 0.05
+#: workers whose progress (svss.progress) the service keeps at most
+MAX_WORKERS = 16
+#: a worker whose progress has not come for this long is forgotten, s
+WORKER_SILENCE_S = 30.0
+#: how often a worker says where it is (a fraction of the silence above), s
+PROGRESS_INTERVAL_S = 1.0
+_CLIENT_ID = re.compile(r"[A-Za-z0-9._:-]{1,64}")
 # protocol limits (docs/worker.md)
 _MAX_REQUEST_BYTES = 4096
 _MAX_FRAME_BYTES = 65536     # a client's larger frame: ZeroMQ drops its connection
@@ -133,6 +141,10 @@ class _Segment:
     @property
     def clean(self) -> bool:
         return bool(self.reader.clean)
+
+
+def _summarised(s: _Segment) -> bool:
+    return "acquisition_summary" in s.reader.attrs or summary_path(s.path).is_file()
 
 
 def _attr_text(v) -> str | None:
@@ -229,7 +241,11 @@ class RawRunStore:
             seqs = [q for s in segs for q in s.index]
             flags = [bool(np.asarray(s.reader.attrs["run_ended"]).reshape(()))
                      for s in segs if "run_ended" in s.reader.attrs]
-            ended = all(s.clean for s in segs) and (not flags or any(flags))
+            # a segment with its run's summary (in it, or beside it when its writer
+            # stopped on a failed write) is closed: a daemon closed the run, or found it
+            # interrupted and marked it so (svss_daq.recorder.close_interrupted_runs)
+            ended = all(s.clean or _summarised(s) for s in segs) \
+                and (not flags or any(flags))
             return RunInfo(run_id, min(seqs) if seqs else 0, max(seqs) if seqs else -1,
                            len(seqs), ended)
 
@@ -335,6 +351,16 @@ def _int_field(req: dict, name: str) -> int:
 
 
 @dataclass
+class _Progress:
+    """A worker's latest progress message: its run, the first sequence it lacks,
+    whether it needs nothing more, when it came (monotonic)."""
+    run_id: str
+    next: int
+    done: bool
+    at: float
+
+
+@dataclass
 class _Reply:
     """A fetch reply being sent to one client: its messages (made as they are sent),
     the one that found the client's queue full, and when a message last went out."""
@@ -364,8 +390,20 @@ class PingService:
     def __init__(self, endpoint: str, store: PingStore, *, curve=None,
                  max_pings_per_reply: int = MAX_PINGS_PER_REPLY,
                  max_clients: int = MAX_CLIENTS, client_queue: int = CLIENT_QUEUE,
-                 stall_s: float = STALL_S, ctx: zmq.Context | None = None):
+                 stall_s: float = STALL_S, max_workers: int = MAX_WORKERS,
+                 worker_silence_s: float = WORKER_SILENCE_S,
+                 ctx: zmq.Context | None = None):
         check_endpoint(endpoint, bind=True)
+        if type(max_workers) is not int or max_workers < 1 or not worker_silence_s > 0:
+            raise ValueError(f"max_workers {max_workers!r}, worker_silence_s "
+                             f"{worker_silence_s!r}: expected an integer >= 1 and seconds "
+                             "> 0")
+        self.max_workers, self.worker_silence_s = max_workers, float(worker_silence_s)
+        # worker id -> its latest progress (svss.progress); at most max_workers
+        self._workers: collections.OrderedDict[str, _Progress] = collections.OrderedDict()
+        self._workers_lock = threading.Lock()
+        self.progress = 0           # progress messages taken
+        self.progress_refused = 0   # ... refused (malformed, or max_workers tracked)
         for name, v in (("max_pings_per_reply", max_pings_per_reply),
                         ("max_clients", max_clients), ("client_queue", client_queue)):
             if type(v) is not int or v < 1:
@@ -405,6 +443,7 @@ class PingService:
         self.gone = 0               # replies to clients that disconnected
         self._replies: dict[bytes, _Reply] = {}
         self._stalled: collections.OrderedDict[bytes, None] = collections.OrderedDict()
+        self._refusals: collections.Counter = collections.Counter()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, name="ping-service", daemon=True)
         self._thread.start()
@@ -518,10 +557,12 @@ class PingService:
     def _handle(self, ident: bytes, body: list) -> None:
         self.requests += 1
         if ident in self._stalled or ident in self._replies:
+            why = ("its client stalled a reply" if ident in self._stalled
+                   else "a reply to its client is still being sent")
             self.refused += 1
-            _log_count(self.refused, logging.WARNING, "catch-up service: request "
-                       "refused unanswered: %s", "its client stalled a reply" if ident
-                       in self._stalled else "a reply to its client is still being sent")
+            self._refusals[why] += 1
+            _log_count(self._refusals[why], logging.WARNING, "catch-up service: request "
+                       "refused unanswered: %s", why)
             return
         if len(body) != 1:
             return self._error(ident, f"request has {len(body)} frames; expected one JSON "
@@ -546,15 +587,65 @@ class PingService:
             if schema == "svss.runs":
                 runs = self.store.runs()
                 if self._send_short(ident, {"schema": "svss.runs", "version": VERSION,
-                                            "runs": [r.to_dict() for r in runs]}):
+                                            "runs": [r.to_dict() for r in runs],
+                                            "progress": True}):
                     self.replies += 1
                 return
             if schema == "svss.fetch":
                 return self._fetch(ident, req)
+            if schema == "svss.progress":
+                return self._progress(req)
         except RequestError as exc:
             return self._error(ident, str(exc))
         return self._error(ident, f"field 'schema' is {messages._show(schema)}; expected "
-                           "'svss.fetch' or 'svss.runs'")
+                           "'svss.fetch' or 'svss.runs' (or a worker's 'svss.progress')")
+
+    def _progress(self, req: dict) -> None:
+        """A worker says where it is in a run (never answered): ``client`` (its id),
+        ``run_id``, ``next`` (the first sequence it still lacks) and ``done`` (it needs
+        nothing more of that run). Kept for at most ``max_workers`` workers, each
+        forgotten after ``worker_silence_s`` without one; a new worker beyond them, or a
+        malformed message, is refused (counted, logged at every power of 10)."""
+        client, run_id, done = req.get("client"), req.get("run_id"), req.get("done")
+        try:
+            nxt = _int_field(req, "next")
+            if not (isinstance(client, str) and _CLIENT_ID.fullmatch(client)
+                    and isinstance(run_id, str) and isinstance(done, bool)):
+                raise RequestError("expected 'client' (1 to 64 of A-Z a-z 0-9 . _ : -), "
+                                   "'run_id' (a string) and 'done' (true or false)")
+        except RequestError as exc:
+            self.progress_refused += 1
+            _log_count(self.progress_refused, logging.WARNING, "catch-up service: a "
+                       "progress message refused: %s", exc)
+            return
+        now = time.monotonic()
+        with self._workers_lock:
+            known = client in self._workers
+            if not known:
+                for k in [k for k, w in self._workers.items()
+                          if now - w.at > self.worker_silence_s]:
+                    del self._workers[k]
+                if len(self._workers) >= self.max_workers:
+                    self.progress_refused += 1
+                    _log_count(self.progress_refused, logging.WARNING, "catch-up "
+                               "service: worker %s not tracked: %d are (daq.toml "
+                               "service.max_workers)", client, len(self._workers))
+                    return
+            self._workers[client] = _Progress(run_id, nxt, done, now)
+            self._workers.move_to_end(client)
+        self.progress += 1
+        if not known:
+            log.info("catch-up service: worker %s is imaging run %s (at ping %d)", client,
+                     run_id, nxt)
+
+    def waiting(self, run_id: str) -> dict[str, int]:
+        """The workers of run ``run_id`` that still lack pings of it (not ``done``, heard
+        from within ``worker_silence_s``): {worker id: the first sequence it lacks}."""
+        now = time.monotonic()
+        with self._workers_lock:
+            return {k: w.next for k, w in self._workers.items()
+                    if w.run_id == run_id and not w.done
+                    and now - w.at <= self.worker_silence_s}
 
     def _fetch(self, ident: bytes, req: dict) -> None:
         run_id = req.get("run_id")
@@ -638,7 +729,8 @@ def service_options(cfg) -> dict:
         return {}
     return {"max_pings_per_reply": cfg.max_pings_per_reply,
             "max_clients": cfg.max_clients, "client_queue": cfg.client_queue,
-            "stall_s": cfg.stall_s}
+            "stall_s": cfg.stall_s, "max_workers": cfg.max_workers,
+            "worker_silence_s": cfg.worker_silence_s}
 
 
 # --------------------------------------------------------------------------- client
@@ -687,6 +779,8 @@ class PingFetcher:
         self.sock: zmq.Socket | None = None
         self.requests = 0
         self.busy = 0                  # busy answers asked again
+        #: the service takes progress messages (:meth:`progress`; said in svss.runs)
+        self.takes_progress = False
         self._connect()
 
     def _connect(self) -> None:
@@ -771,10 +865,28 @@ class PingFetcher:
         if reply.get("schema") != "svss.runs" or not isinstance(reply.get("runs"), list):
             raise ServiceError(f"catch-up service {self.endpoint}: expected svss.runs, got "
                                f"{str(reply)[:200]}")
+        self.takes_progress = reply.get("progress") is True
         try:
             return [RunInfo.from_dict(r) for r in reply["runs"]]
         except ValueError as exc:
             raise ServiceError(f"catch-up service {self.endpoint}: {exc}") from None
+
+    def progress(self, client: str, run_id: str, next_seq: int, done: bool) -> bool:
+        """Tell the service where this worker is in run ``run_id`` (``next_seq``: the
+        first sequence it still lacks; ``done``: it needs nothing more of the run), so
+        that a daemon keeps its service up while the worker lacks pings. Never waits and
+        never answered; sent only to a service that said it takes them (:meth:`runs`).
+        Whether it was sent."""
+        if not self.takes_progress or self.sock is None:
+            return False
+        try:
+            self.sock.send(json.dumps({
+                "schema": "svss.progress", "version": VERSION, "client": client,
+                "run_id": run_id, "next": int(next_seq), "done": bool(done)}).encode(),
+                zmq.NOBLOCK)
+        except zmq.ZMQError:             # the queue to a gone service is full
+            return False
+        return True
 
     def fetch_once(self, run_id: str, first: int, last: int) -> Fetched:
         """One request: at most ``max_pings_per_reply`` pings of [first, last] (and of
