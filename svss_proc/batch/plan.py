@@ -14,8 +14,10 @@ ranges of the run's segment files: a task images exactly those (and checks that 
 imager took exactly those), so that its tile equals ``svss process``'s voxel for voxel.
 
 The one check the plan cannot make without the samples is the ADC-code range of
-:func:`~svss_daq.ping_gate.ping_problem`; a ping refused for it is found by the task,
-which then fails naming the file and the ping (:class:`PlanMismatch`).
+:func:`~svss_daq.ping_gate.ping_problem`; a ping refused for it is found by the tasks
+of its tiles (:class:`~.task.PingsRefused`), and the run is planned again with it
+refused (``exclude``), as ``svss process`` refuses it, and counted in the run's
+``refused`` (:mod:`.run`).
 """
 
 from __future__ import annotations
@@ -263,11 +265,14 @@ def group_runs(paths: list[str | Path]) -> dict[str, list[Path]]:
 
 
 def plan_run(run_id: str, folder: str, paths: list[Path],
-             processing: Loaded[ProcessingConfig], renavigate: bool | None = None
-             ) -> RunPlan:
+             processing: Loaded[ProcessingConfig], renavigate: bool | None = None,
+             exclude: dict[tuple[str, int], str] | None = None) -> RunPlan:
     """Plan the tiles of one run (its segment files, in order) for ``processing``, its
     pings posed as :func:`svss_proc.worker.run_poses` decides (``renavigate``: the
-    whole run, every segment's instrument records together)."""
+    whole run, every segment's instrument records together). ``exclude``: pings found
+    refused for their samples, (raw file, index) -> reason: refused here as the
+    streaming worker's gate refuses them (counted in ``refused``)."""
+    exclude = exclude or {}
     readers = []
     navs: dict[tuple[int, int], NavSnapshot] = {}
     try:
@@ -289,6 +294,10 @@ def plan_run(run_id: str, folder: str, paths: list[Path],
             meta = r.ping_table()         # the reader checked the samples' shape
             for i in range(len(r)):
                 nav = None if poses is None else poses[n + i]
+                why = exclude.get((str(paths[s]), i))
+                if why is not None:
+                    planner.gate.refuse(PingRejected(int(meta["ping_sequence"][i]), why))
+                    continue
                 if nav is not None:
                     navs[(s, i)] = nav
                 planner.add(_pose_ping(r, i, meta, zeros, nav), (s, i))

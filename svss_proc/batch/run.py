@@ -30,10 +30,10 @@ from svss_daq.config import Loaded, ProcessingConfig
 from svss_daq.progress import Progress
 
 from ..products.run_products import MOSAIC_H5, run_products_at_end
-from ..survey_index import INDEX_NAME, write_survey_index
+from ..survey_index import INDEX_NAME, find_tiles, write_survey_index
 from ..worker import _atomic_json, remove_temporaries, run_folder_name
 from .plan import TilePlan, group_runs, plan_run
-from .task import image_tile, tile_paths
+from .task import PingsRefused, image_tile, tile_paths
 
 log = logging.getLogger(__name__)
 
@@ -57,16 +57,23 @@ def require_dask():
 
 
 def prepare_batch_dir(out: Path, runs: dict[str, list[Path]],
-                      processing: Loaded[ProcessingConfig], force: bool) -> None:
+                      processing: Loaded[ProcessingConfig], force: bool) -> dict:
     """Make ``out``; refuse one a batch with another processing configuration wrote
-    (unless ``force``, which removes its run folders and index); remove temporaries."""
+    (unless ``force``, which removes its run folders and index); remove temporaries.
+    Returns the runs an earlier batch with this configuration recorded there
+    (``batch_state.json``'s ``runs``; empty when none): a batch over some of them keeps
+    the others in its state and index."""
     out.mkdir(parents=True, exist_ok=True)
     state_path = out / STATE
+    old_runs: dict = {}
     if state_path.is_file():
         try:
             state = json.loads(state_path.read_text())
             old = state["processing_config_id"]
             old_runs = dict(state.get("runs", {}))
+            for info in old_runs.values():
+                if not isinstance(info, dict) or not isinstance(info.get("folder"), str):
+                    raise TypeError("a run without its folder")
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise ValueError(f"{state_path}: not a batch state file ({exc}); choose "
                              "another --out or remove it") from None
@@ -81,11 +88,41 @@ def prepare_batch_dir(out: Path, runs: dict[str, list[Path]],
             (out / INDEX_NAME).unlink(missing_ok=True)
             log.warning("%s: removed the tiles of %d run(s) made with processing %s "
                         "(--force)", out, len(old_runs), old)
+            old_runs = {}
     remove_temporaries(out)
     for run_id in runs:
         d = out / run_folder_name(run_id)
         if d.is_dir():
             remove_temporaries(d)
+    return old_runs
+
+
+def _exclusions(earlier: dict | None, paths: list[Path]) -> dict[tuple[str, int], str]:
+    """The pings an earlier batch found refused for their samples in these files:
+    (raw file, index) -> reason."""
+    names = {str(p) for p in paths}
+    out = {}
+    for e in (earlier or {}).get("excluded_pings", []):
+        try:
+            if e["file"] in names:
+                out[(e["file"], int(e["index"]))] = str(e["reason"])
+        except (KeyError, TypeError, ValueError):
+            continue
+    return out
+
+
+#: task failures that a rerun may not meet again (a worker process lost, the disk or
+#: the network); any other is the input's or the code's and recurs on every rerun
+def _transient(exc: BaseException) -> bool:
+    if isinstance(exc, (OSError, MemoryError)):       # also TimeoutError, disk full
+        return True
+    names = {c.__name__ for c in type(exc).__mro__}
+    return bool(names & {"KilledWorker", "CommClosedError", "FutureCancelledError"})
+
+
+def _signature(t: TilePlan) -> tuple:
+    """What a tile's content depends on in its plan."""
+    return (t.sequences, t.ranges, t.span, t.line, t.pose_source)
 
 
 def _client(scheduler: str | None, workers: int | None):
@@ -105,6 +142,13 @@ def _client(scheduler: str | None, workers: int | None):
     return distributed.Client(cluster), cluster
 
 
+def _close_client(client, cluster) -> None:
+    """Close a client and the LocalCluster made for it."""
+    client.close()
+    if cluster is not None:
+        cluster.close()
+
+
 def run_batch(paths: list[str | Path], out: str | Path,
               processing: Loaded[ProcessingConfig], *, scheduler: str | None = None,
               workers: int | None = None, force: bool = False, client=None,
@@ -120,70 +164,118 @@ def run_batch(paths: list[str | Path], out: str | Path,
     ``task``: the tile function (the default :func:`~.task.image_tile`; tests wrap
     it); ``renavigate``: pose each run as :func:`svss_proc.worker.run_poses` decides
     (default: re-navigated from its instrument records where it has them; the
-    summary's runs say which). Raises :class:`BatchError` naming every
-    tile that failed (the others are kept: a rerun makes only the missing ones)."""
+    summary's runs say which).
+
+    A ping a task finds refused for its samples (:class:`~.task.PingsRefused`) is left
+    out of its run's plan, which is made again (tiles whose plan changed are imaged
+    again) and recorded in the state (``excluded_pings``), as ``svss process`` refuses
+    it. Runs of an earlier batch into ``out`` that this one does not name stay in the
+    state and the survey index. Raises :class:`BatchError` naming every tile that
+    failed and whether a rerun can make it (the others are kept)."""
     t0 = time.perf_counter()
     out = Path(out).absolute()              # the tasks may run in another folder
     runs = group_runs(paths)
-    prepare_batch_dir(out, runs, processing, force)
-    plans = [plan_run(run_id, run_folder_name(run_id), ps, processing, renavigate)
-             for run_id, ps in runs.items()]
+    earlier = prepare_batch_dir(out, runs, processing, force)
+    excluded = {run_id: _exclusions(earlier.get(run_id), ps) for run_id, ps in runs.items()}
+    plans = {run_id: plan_run(run_id, run_folder_name(run_id), ps, processing, renavigate,
+                              excluded[run_id])
+             for run_id, ps in runs.items()}
     t_plan = time.perf_counter() - t0
-    tiles = [t for p in plans for t in p.tiles]
+    tiles = [t for p in plans.values() for t in p.tiles]
     todo = [t for t in tiles if not tile_paths(out, t)[0].is_file()]
+    n_todo = len(todo)
     log.info("batch: %d run(s), %d tile(s) planned in %.2f s; %d to image, %d done already",
              len(plans), len(tiles), t_plan, len(todo), len(tiles) - len(todo))
-    state = {"schema": STATE_SCHEMA, "version": 1, "processing_config_id": processing.id,
-             "processing_source": processing.source,
-             "runs": {p.run_id: {"folder": p.folder, "files": [str(f) for f in p.paths],
-                                 "pings": p.n_pings, "tiles": len(p.tiles),
-                                 "refused": p.refused, "late_pings": p.late_pings,
-                                 "poses": p.poses}
-                      for p in plans}}
-    _atomic_json(out / STATE, {**state, "complete": False})
-    results, errors = [], []
+
+    def state_of() -> dict:
+        mine = {p.run_id: {"folder": p.folder, "files": [str(f) for f in p.paths],
+                           "pings": p.n_pings, "tiles": len(p.tiles),
+                           "refused": p.refused, "late_pings": p.late_pings,
+                           "poses": p.poses,
+                           "excluded_pings": [
+                               {"file": f, "index": i, "reason": why}
+                               for (f, i), why in sorted(excluded[p.run_id].items())]}
+                for p in plans.values()}
+        kept = {r: info for r, info in earlier.items()
+                if r not in mine and (out / info["folder"]).is_dir()}
+        return {"schema": STATE_SCHEMA, "version": 1,
+                "processing_config_id": processing.id,
+                "processing_source": processing.source, "runs": {**kept, **mine}}
+
+    _atomic_json(out / STATE, {**state_of(), "complete": False})
+    results: list[dict] = []
+    errors: list[tuple[TilePlan, BaseException]] = []
     t_cluster0 = time.perf_counter()
     n_workers, t_run = 0, 0.0
-    if todo:
-        own = client is None
-        cluster = None
-        if own:
-            client, cluster = _client(scheduler, workers)
-            if cluster is not None and kernel_threads is None:
-                n = len(cluster.workers)
-                kernel_threads = max(1, (os.cpu_count() or 1) // n)
-                log.info("batch: %d kernel thread(s) per worker", kernel_threads)
-        try:
+    own = client is None
+    cluster = None
+    try:
+        while todo:
+            if client is None:
+                client, cluster = _client(scheduler, workers)
+                if cluster is not None and kernel_threads is None:
+                    n = len(cluster.workers)
+                    kernel_threads = max(1, (os.cpu_count() or 1) // n)
+                    log.info("batch: %d kernel thread(s) per worker", kernel_threads)
             t_run0 = time.perf_counter()
-            results, errors, n_workers = _dispatch(client, todo, out, processing, task,
-                                                   kernel_threads)
-            t_run = time.perf_counter() - t_run0
-        finally:
-            if own:
-                client.close()
-                if cluster is not None:
-                    cluster.close()
+            made, failed, n_workers = _dispatch(client, todo, out, processing, task,
+                                                kernel_threads)
+            t_run += time.perf_counter() - t_run0
+            results += made
+            todo = []
+            refused: dict[str, dict[tuple[str, int], str]] = {}
+            for t, exc in failed:
+                if isinstance(exc, PingsRefused):
+                    for f, i, _seq, why in exc.pings:
+                        refused.setdefault(t.run_id, {})[(f, int(i))] = why
+                else:
+                    errors.append((t, exc))
+            for run_id, new in refused.items():       # plan the run again without them
+                new = {k: v for k, v in new.items() if k not in excluded[run_id]}
+                if not new:
+                    continue
+                excluded[run_id].update(new)
+                log.warning("batch: run %s: %d ping(s) refused for their samples (e.g. %s "
+                            "index %d: %s); planning the run again without them, as svss "
+                            "process images it", run_id, len(new), *next(iter(new)),
+                            next(iter(new.values())))
+                old = plans[run_id]
+                plans[run_id] = plan_run(run_id, old.folder, old.paths, processing,
+                                         renavigate, excluded[run_id])
+                todo += _replanned(out, old, plans[run_id])
+            if todo:
+                _atomic_json(out / STATE, {**state_of(), "complete": False})
+                n_todo += len(todo)
+    finally:
+        if own and client is not None:
+            _close_client(client, cluster)
+    tiles = [t for p in plans.values() for t in p.tiles]
     t_cluster = time.perf_counter() - t_cluster0 - t_run
-    imaged = len(results)
-    skipped = len(tiles) - len(todo)
+    made = {r["key"] for r in results}          # (a tile imaged again counts once)
+    imaged = len(made)
+    skipped = sum(t.key not in made for t in tiles)
     # the run products (contacts, mosaic) of every run whose tiles are all there, as the
     # streaming worker writes them at a run's end: when this batch made some of them, or
     # when an earlier one was stopped before writing them
     touched = {r["folder"] for r in results}
-    for p in plans:
+    for p in plans.values():
         if p.tiles and all(tile_paths(out, t)[0].is_file() for t in p.tiles) and (
                 p.folder in touched or not (out / p.folder / MOSAIC_H5).is_file()):
             run_products_at_end(out / p.folder)
     index_tiles = [(t.run_id, tile_paths(out, t)[0]) for t in tiles
                    if tile_paths(out, t)[0].is_file()]
-    index, rows = write_survey_index(out, index_tiles)
-    dets = sum(r["n_detections"] for r in rows)
+    state = state_of()
+    others = [(run_id, p) for run_id, info in state["runs"].items() if run_id not in plans
+              for _, p in find_tiles(out / info["folder"])]
+    index, rows = write_survey_index(out, index_tiles + others)
+    dets = sum(r["n_detections"] for r in rows if r["run_id"] in plans)
     summary = {
         "runs": len(plans), "tiles": len(tiles), "imaged": imaged,
         "skipped": skipped, "failed": len(errors),
         # tasks run again after their worker died that found their tile committed
         "found_committed": sum(r["skipped"] for r in results),
-        "pings": sum(p.n_pings for p in plans),
+        "pings": sum(p.n_pings for p in plans.values()),
+        "excluded_pings": sum(len(v) for v in excluded.values()),
         # run_s: from the first task submitted to the last result; cluster_s: starting,
         # connecting and closing (0 with a client given)
         "detections": dets, "plan_s": round(t_plan, 4), "run_s": round(t_run, 4),
@@ -191,21 +283,66 @@ def run_batch(paths: list[str | Path], out: str | Path,
         "total_s": round(time.perf_counter() - t0, 4),
         "compute_s": round(sum(r["compute_s"] for r in results), 4),
         "workers": n_workers, "index": str(index),
+        "index_runs": len({r["run_id"] for r in rows}),
         "task_pids": sorted({r["pid"] for r in results}),
         "results": sorted(results, key=lambda r: r["key"]),
     }
     _atomic_json(out / STATE, {**state, "complete": not errors, "summary": summary})
     if errors:
-        raise BatchError(f"{len(errors)} of {len(todo)} tile(s) failed (the {imaged} "
-                         "made are kept; a rerun makes the rest): " + "; ".join(errors))
+        raise BatchError(_failure_report(errors, n_todo, imaged))
     log.info("batch: %d tile(s) (%d imaged, %d skipped), %d detection(s), %.1f s",
              len(tiles), imaged, skipped, dets, summary["total_s"])
     return summary
 
 
+def _replanned(out: Path, old, new) -> list[TilePlan]:
+    """The tiles of a run planned again (``new``) to image: those not on disk, and those
+    on disk made under the old plan that changed (removed here)."""
+    before = {t.index: _signature(t) for t in old.tiles}
+    now = {t.index for t in new.tiles}
+    for t in old.tiles:                         # gone from the plan
+        if t.index not in now:
+            for f in tile_paths(out, t):
+                f.unlink(missing_ok=True)
+    todo = []
+    for t in new.tiles:
+        h5, png = tile_paths(out, t)
+        if h5.is_file() and before.get(t.index) != _signature(t):
+            h5.unlink()
+            png.unlink(missing_ok=True)
+            log.info("batch: %s was made with pings now refused: imaged again", h5)
+        if not h5.is_file():
+            todo.append(t)
+    return todo
+
+
+def _failure_report(errors: list[tuple[TilePlan, BaseException]], n_todo: int,
+                    imaged: int) -> str:
+    """The BatchError message: each failed tile with its error, and whether a rerun
+    can make it."""
+    def line(t: TilePlan, exc: BaseException) -> str:
+        files = sorted({r[0] for r in t.ranges})
+        return (f"run {t.run_id} tile {t.index} ({', '.join(files)}): "
+                f"{type(exc).__name__}: {exc}")
+    again = [line(t, e) for t, e in errors if _transient(e)]
+    fixed = [line(t, e) for t, e in errors if not _transient(e)]
+    parts = [f"{len(errors)} of {n_todo} tile(s) failed (the {imaged} made are kept)."]
+    if fixed:
+        parts.append(f"{len(fixed)} fail the same way on every rerun: the file or the "
+                     "ping named is at fault (svss inspect FILE says more), or the "
+                     "software: " + "; ".join(fixed) + ".")
+    if again:
+        parts.append(f"{len(again)} failed for a cause outside the input (a worker "
+                     "process lost, the disk, the network): a rerun, once it is fixed, "
+                     "makes only the missing tiles: " + "; ".join(again) + ".")
+    return " ".join(parts)
+
+
 def _dispatch(client, todo: list[TilePlan], out: Path, processing, task,
-              kernel_threads: int | None) -> tuple[list[dict], list[str], int]:
-    """Submit one task per tile and wait for all; (results, errors, workers seen)."""
+              kernel_threads: int | None
+              ) -> tuple[list[dict], list[tuple[TilePlan, BaseException]], int]:
+    """Submit one task per tile and wait for all; (results, failures (the tile, its
+    exception), workers seen)."""
     distributed = require_dask()
     token = secrets.token_hex(4)
     n_workers = len(client.scheduler_info().get("workers", {}))
@@ -218,10 +355,10 @@ def _dispatch(client, todo: list[TilePlan], out: Path, processing, task,
         try:
             results.append(fut.result())
         except Exception as exc:                  # noqa: BLE001 - reported per tile
-            files = sorted({r[0] for r in t.ranges})
-            errors.append(f"run {t.run_id} tile {t.index} ({', '.join(files)}): "
-                          f"{type(exc).__name__}: {exc}")
-            log.error("batch: %s", errors[-1])
+            errors.append((t, exc))
+            if not isinstance(exc, PingsRefused):     # (planned again: logged there)
+                log.error("batch: run %s tile %d: %s: %s", t.run_id, t.index,
+                          type(exc).__name__, exc)
         progress.update()
         fut.release()
     return results, errors, n_workers

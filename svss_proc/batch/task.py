@@ -8,6 +8,11 @@ frame and with the run's other tiles closed, so that only this tile is formed, a
 saves it with :func:`~svss_proc.products.chain.save_tile` (products, quicklook, the
 atomic ``tile_NNNN.h5`` rename as commit point). A tile whose ``.h5`` is already
 there is not imaged again (resume, or a task rerun after its worker died).
+
+A ping the imager refuses for its samples (the one check the plan cannot make: ADC codes
+out of range, a corrupted ping) is skipped; the task then raises :class:`PingsRefused`
+naming every such ping of its tile, without saving it: the batch plans the run again
+without them, as ``svss process`` images it (:mod:`.run`).
 """
 
 from __future__ import annotations
@@ -45,6 +50,22 @@ class _Judged:
 
     def commit(self, fix) -> None:
         pass
+
+
+class PingsRefused(RuntimeError):
+    """Pings of a tile refused for their samples: ``pings`` lists (raw file, index in
+    it, sequence, reason). Deterministic: the plan must leave them out."""
+
+    def __init__(self, pings: list[tuple[str, int, int, str]], where: str = ""):
+        self.pings = [tuple(p) for p in pings]
+        self.where = where
+        first = self.pings[0]
+        super().__init__(f"{where}{len(self.pings)} ping(s) refused for their samples, "
+                         f"e.g. {first[0]}: ping {first[1]} (sequence {first[2]}): "
+                         f"{first[3]}")
+
+    def __reduce__(self):                 # across processes (Dask) with its pings
+        return (PingsRefused, (self.pings, self.where))
 
 
 def tile_paths(out: Path, plan: TilePlan) -> tuple[Path, Path]:
@@ -88,6 +109,7 @@ def image_tile(plan: TilePlan, out: str, processing: Loaded[ProcessingConfig],
         imager.done = plan.others
         imager.track = _Judged()
         k = 0
+        refused: list[tuple[str, int, int, str]] = []
         for path, start, stop in plan.ranges:
             r = readers[path]
             for i in range(start, stop):
@@ -97,17 +119,20 @@ def image_tile(plan: TilePlan, out: str, processing: Loaded[ProcessingConfig],
                 k += 1
                 try:
                     early = imager.add(ping)
-                except PingRejected as exc:
-                    raise PlanMismatch(f"{path}: ping {i} ({exc}) was refused imaging "
-                                       f"tile {plan.index} of run {plan.run_id}, though its "
-                                       "records and pose passed the plan; process this "
-                                       "run with svss process") from None
+                except PingRejected as exc:      # its samples: the plan did not see them
+                    log.warning("%s: ping %d (sequence %d) refused imaging tile %d of run "
+                                "%s: %s", path, i, ping.sequence, plan.index, plan.run_id,
+                                exc.reason)
+                    refused.append((path, i, ping.sequence, exc.reason))
+                    continue
                 if early:
                     raise PlanMismatch(f"{path}: tile(s) {[t.grid.index for t in early]} "
                                        f"closed early imaging tile {plan.index}")
     finally:
         for r in readers.values():
             r.close()
+    if refused:
+        raise PingsRefused(refused, f"run {plan.run_id} tile {plan.index}: ")
     tiles = {t.grid.index: t for t in imager.finish()}
     tile = tiles.get(plan.index)
     got = tuple(tile.pings) if tile is not None else ()

@@ -156,6 +156,23 @@ def test_rerun_skips_finished_tiles_and_redoes_a_half_written_one(batch, referen
     assert "svss.batch_state" in (out / STATE).read_text()
 
 
+def test_a_batch_over_some_runs_keeps_the_others_in_the_index(batch, survey, coarse_proc,
+                                                               client, tmp_path):
+    """A rerun over run A alone (issue 27, item 10): the survey index and the batch
+    state still hold run B (they were rewritten to run A's tiles only)."""
+    import pandas as pd
+    out = tmp_path / "out"
+    shutil.copytree(batch["out"], out)
+    before = pd.read_csv(out / INDEX_NAME)
+    s = run_batch([survey["A"]], out, coarse_proc, client=client, kernel_threads=1)
+    assert (s["runs"], s["imaged"], s["index_runs"]) == (1, 0, 2)
+    after = pd.read_csv(out / INDEX_NAME)
+    pd.testing.assert_frame_equal(before, after)
+    state = json.loads((out / STATE).read_text())
+    assert set(state["runs"]) == set(RUNS) and state["complete"]
+    assert state["runs"]["lineB"]["tiles"] == int((before["run_id"] == "lineB").sum())
+
+
 def test_segments_plan_as_the_whole_run(survey, coarse_proc):
     whole = plan_run("w", "w", [survey["B_whole"]], coarse_proc)
     segs = plan_run("s", "s", survey["B_segments"], coarse_proc)
