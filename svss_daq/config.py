@@ -619,6 +619,9 @@ class DigitiserLinkConfig:
                                  "incomplete, s", lo=0.01, hi=60)
     max_payload_bytes: int = spec("largest frame payload accepted, bytes",
                                   lo=1024, hi=1 << 30)
+    queue_pings: int = spec("pings (and gaps) the driver holds for the daemon at most; "
+                            "beyond, one is dropped, counted and logged (480 kB each)",
+                            lo=1, hi=100000)
 
 
 @dataclass(frozen=True)

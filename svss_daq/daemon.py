@@ -455,7 +455,7 @@ class AcquisitionDaemon:
     def _take(self, item) -> None:
         if isinstance(item, dg.IncompletePing):
             if item.frames_received == 0:       # never sent: a gap in the ping numbers
-                self.counters.never_delivered += 1
+                self.counters.never_delivered += item.n_pings     # one item per gap
                 return
             self.counters.incomplete += 1
             self.event("digitiser.incomplete_ping",
@@ -666,6 +666,11 @@ class AcquisitionDaemon:
             if w.delta("dig.connects", dig.connects) > 0 and dig.connects > 1:
                 self.event("digitiser.reconnected", f"{dig.host}:{dig.port} connected "
                            "again; streaming restarted", logging.INFO)
+            n = w.delta("dig.dropped", dig.dropped)
+            if n > 0:
+                self.event("digitiser.queue_full", f"{n} ping(s) dropped: the driver's "
+                           f"queue (devices.toml digitiser.queue_pings) was full; "
+                           f"{dig.dropped} in all")
             st = dig.decoder.frames.stats
             bad = w.delta("dig.bad", st.bad_headers + st.corrupt_payloads)
             junk = w.delta("dig.discarded", st.bytes_discarded)

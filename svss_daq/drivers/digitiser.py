@@ -46,13 +46,17 @@ class DigitiserClient:
     """TCP client of the digitiser at ``host:port``.
 
     ``on_ping(item)`` (reader thread) and/or ``ping_queue`` receive CompletePing and
-    IncompletePing objects. ``stats``-like counters: ``connects``, ``disconnects``.
+    IncompletePing objects (a gap in the ping numbers is one IncompletePing carrying its
+    range). ``stats``-like counters: ``connects``, ``disconnects``, ``dropped`` (items
+    the queue, at most ``queue_pings`` long, had no room for: logged at the 1st, 10th,
+    100th...).
     """
 
     def __init__(self, host: str, port: int, *, connect_timeout_s: float = 2.0,
                  reply_timeout_s: float = 1.0, reconnect_initial_s: float = 0.1,
                  reconnect_max_s: float = 5.0, ping_timeout_s: float = 0.5,
                  max_payload_bytes: int = proto.DEFAULT_MAX_PAYLOAD,
+                 queue_pings: int = 1000,
                  on_ping: Optional[Callable[[Any], None]] = None,
                  ping_queue: Optional[queue_mod.Queue] = None) -> None:
         self.host, self.port = host, port
@@ -62,10 +66,12 @@ class DigitiserClient:
         self.reconnect_max_s = reconnect_max_s
         self.ping_timeout_s = ping_timeout_s
         self.on_ping = on_ping
-        self.ping_queue = ping_queue if ping_queue is not None else queue_mod.Queue(maxsize=1000)
+        self.ping_queue = ping_queue if ping_queue is not None else \
+            queue_mod.Queue(maxsize=queue_pings)
         self.decoder = proto.DigitiserStreamDecoder(max_payload_bytes)
         self.connects = 0
         self.disconnects = 0
+        self.dropped = 0
         self.last_error: Optional[BaseException] = None
         self._sock: Optional[socket.socket] = None
         self._send_lock = threading.Lock()
@@ -85,7 +91,8 @@ class DigitiserClient:
                    reply_timeout_s=cfg.reply_timeout_s,
                    reconnect_initial_s=cfg.reconnect_initial_s,
                    reconnect_max_s=cfg.reconnect_max_s, ping_timeout_s=cfg.ping_timeout_s,
-                   max_payload_bytes=cfg.max_payload_bytes, **kw)
+                   max_payload_bytes=cfg.max_payload_bytes, queue_pings=cfg.queue_pings,
+                   **kw)
 
     @property
     def connected(self) -> bool:
@@ -208,7 +215,11 @@ class DigitiserClient:
             try:
                 self.ping_queue.put_nowait(it)
             except queue_mod.Full:
-                logger.warning("digitiser: ping queue full, ping %d dropped", it.ping_number)
+                self.dropped += 1
+                if str(self.dropped).rstrip("0") == "1":
+                    logger.warning("digitiser: ping queue full (%d items), ping %d dropped "
+                                   "(%d in all; logged at every power of 10)",
+                                   self.ping_queue.maxsize, it.ping_number, self.dropped)
 
     def _resume(self) -> None:
         """After a reconnection: restore gain and streaming (in a helper thread, since

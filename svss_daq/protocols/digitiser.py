@@ -375,12 +375,23 @@ class CompletePing:
 @dataclass(frozen=True)
 class IncompletePing:
     """A ping that could not be completed: frames missing, corrupt or inconsistent.
-    ``missing_frames``: indices never received (empty when not known); ``reason`` says why."""
+    ``missing_frames``: indices never received (empty when not known); ``reason`` says why.
+
+    Ping numbers skipped entirely (no frame at all) are one item for the whole gap:
+    ``frames_received`` 0, ``ping_number`` the first missing and ``last_ping_number``
+    the last (:attr:`n_pings` of them), however long the gap."""
     ping_number: int
     frames_received: int
     frame_count: int
     missing_frames: tuple[int, ...]
     reason: str
+    last_ping_number: Optional[int] = None
+
+    @property
+    def n_pings(self) -> int:
+        """How many ping numbers this item stands for (1 unless a gap)."""
+        last = self.ping_number if self.last_ping_number is None else self.last_ping_number
+        return last - self.ping_number + 1
 
 
 @dataclass
@@ -398,8 +409,9 @@ class FrameReassembler:
     The frames of a ping are sent together (in any order among themselves) before the
     next ping's. A frame of another ping closes the open one: complete if every frame
     arrived intact, else reported as :class:`IncompletePing`. Ping numbers skipped
-    entirely are reported as incomplete pings with no frames. ``flush()`` closes the open
-    ping (end of stream, or no frame for a while).
+    entirely are reported as one incomplete ping with no frames carrying the gap's range
+    (never one item per missing number: a gap's length comes from the wire).
+    ``flush()`` closes the open ping (end of stream, or no frame for a while).
     """
 
     def __init__(self) -> None:
@@ -407,6 +419,7 @@ class FrameReassembler:
         self._last_closed: Optional[int] = None
         self.complete = 0
         self.incomplete = 0
+        self.skipped = 0      # ping numbers with no frame at all
 
     @property
     def open_ping(self) -> Optional[int]:
@@ -429,9 +442,9 @@ class FrameReassembler:
             if self._last_closed is not None and h.ping_number > self._last_closed + 1:
                 gap = h.ping_number - self._last_closed - 1
                 logger.warning("digitiser: %d ping(s) missing before ping %d", gap, h.ping_number)
-                for p in range(self._last_closed + 1, h.ping_number)[:1000]:
-                    out.append(IncompletePing(p, 0, 0, (), "no frame received"))
-                    self.incomplete += 1
+                out.append(IncompletePing(self._last_closed + 1, 0, 0, (), "no frame received",
+                                          last_ping_number=h.ping_number - 1))
+                self.skipped += gap
             self._open = _Open(h, np.zeros((h.n_channels, h.n_samples), np.int32))
         o = self._open
         f0 = o.first
