@@ -605,6 +605,10 @@ class SequencerLinkConfig:
     reply_timeout_s: float = spec("wait for a command's reply, s", lo=0.01, hi=60)
     retries: int = spec("re-sends of a command after a reply timeout", lo=0, hi=20)
     open_timeout_s: float = spec("wait for the port to open, s", lo=0.01, hi=600)
+    queue_records: int = spec("transmit records the driver queues for a reader at most "
+                              "(none when it hands them to a callback, as the daemon's); "
+                              "beyond, one is dropped, counted and logged", lo=1,
+                              hi=10**6)
 
 
 @dataclass(frozen=True)

@@ -60,7 +60,9 @@ class SequencerDriver:
     """Drive the transmit sequencer on ``port``.
 
     Ping events (:class:`~svss_daq.protocols.sequencer.PingEvent`) go to ``on_ping``
-    (called in the reader thread) and/or ``ping_queue``. Commands block until the
+    (called in the reader thread) or, without one, to ``ping_queue`` (at most
+    ``queue_records`` events; beyond, an event is dropped, counted in ``dropped`` and
+    logged at the 1st, 10th, 100th...); both when both are given. Commands block until the
     reply arrives and raise :class:`SequencerError` (NAK, naming the code and text) or
     :class:`SequencerTimeout` (naming the command, id, port and what was expected).
     """
@@ -69,13 +71,17 @@ class SequencerDriver:
                  retries: int = 2, on_ping: Optional[Callable[[proto.PingEvent], None]] = None,
                  ping_queue: Optional[queue_mod.Queue] = None, read_timeout_s: float = 0.02,
                  reconnect_initial_s: float = 0.05, reconnect_max_s: float = 2.0,
-                 open_timeout_s: float = 5.0) -> None:
+                 open_timeout_s: float = 5.0, queue_records: int = 1000) -> None:
         self.port = port
         self.open_timeout_s = open_timeout_s
         self.reply_timeout_s = reply_timeout_s
         self.retries = retries
         self.on_ping = on_ping
-        self.ping_queue = ping_queue if ping_queue is not None else queue_mod.Queue(maxsize=100000)
+        # with a callback and no queue given, nothing is queued (a queue nobody reads
+        # filled up after its 100000th event and then warned at every ping)
+        self.ping_queue: Optional[queue_mod.Queue] = ping_queue if ping_queue is not None \
+            else None if on_ping is not None else queue_mod.Queue(maxsize=queue_records)
+        self.dropped = 0
         # ids start at a random point: the device answers a repeated id from its cache
         # of recent replies without executing it (a host retry), so a new session that
         # began at 1 again would have its first commands taken for the last session's
@@ -95,7 +101,8 @@ class SequencerDriver:
     def from_config(cls, cfg, **kw: Any) -> "SequencerDriver":
         """From a :class:`~svss_daq.config.SequencerLinkConfig`."""
         return cls(cfg.port, baudrate=cfg.baudrate, reply_timeout_s=cfg.reply_timeout_s,
-                   retries=cfg.retries, open_timeout_s=cfg.open_timeout_s, **kw)
+                   retries=cfg.retries, open_timeout_s=cfg.open_timeout_s,
+                   queue_records=cfg.queue_records, **kw)
 
     # -- life cycle ------------------------------------------------------------------
 
@@ -125,10 +132,16 @@ class SequencerDriver:
             self._last_sequence = msg.sequence
             if self.on_ping is not None:
                 self.on_ping(msg)
+            if self.ping_queue is None:
+                return
             try:
                 self.ping_queue.put_nowait(msg)
             except queue_mod.Full:
-                logger.warning("sequencer: ping queue full, event %d dropped", msg.sequence)
+                self.dropped += 1
+                if str(self.dropped).rstrip("0") == "1":
+                    logger.warning("sequencer: ping queue full (%d events), event %d dropped "
+                                   "(%d in all; logged at every power of 10)",
+                                   self.ping_queue.maxsize, msg.sequence, self.dropped)
         elif isinstance(msg, (proto.Ack, proto.Nak, proto.Status)):
             self._replies.put(msg)
         else:
