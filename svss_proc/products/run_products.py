@@ -165,8 +165,8 @@ def filter_contacts(rows: list[dict], full_pings: np.ndarray | None, depth_axis:
     for r in kept:
         for m in merged:
             if r["tile"] != m["tile"] and np.all(np.abs(r["run_m"] - m["run_m"]) <= merge):
-                m["lo"] = np.minimum(m["lo"], r["lo"])
-                m["hi"] = np.maximum(m["hi"], r["hi"])
+                m["lo"] = np.minimum(m["lo"], r["run_m"] - r["half"])
+                m["hi"] = np.maximum(m["hi"], r["run_m"] + r["half"])
                 m["n_tiles"] += 1
                 break
         else:
