@@ -88,6 +88,28 @@ class NavigationSection:
 
 
 @dataclass(frozen=True)
+class LimitsSection:
+    pending_pings: int = spec("pings waiting for their transmit record or navigation at "
+                              "most (480 kB each); beyond, the oldest is posed and "
+                              "recorded at once (counted, event daemon.pending_full)",
+                              lo=1, hi=100000)
+    transmit_records: int = spec("sequencer transmit records waiting for their ping at "
+                                 "most; beyond, the oldest is dropped (counted)", lo=1,
+                                 hi=10**6)
+    duplicate_window: int = spec("latest ping numbers remembered to refuse a ping "
+                                 "delivered twice", lo=1, hi=10**7)
+    records_waiting: int = spec("NMEA sentences, PD0 ensembles and ping-clock records "
+                                "each waiting to be written at most; beyond, the oldest "
+                                "is dropped (counted, event daemon.records_dropped)",
+                                lo=1, hi=10**7)
+
+
+#: [limits] when the acquisition TOML has none (config/acquire.toml holds the same)
+DEFAULT_LIMITS = LimitsSection(pending_pings=200, transmit_records=1000,
+                               duplicate_window=100000, records_waiting=10000)
+
+
+@dataclass(frozen=True)
 class AcquireConfig:
     run: RunSection = spec("what is run and where it is recorded")
     rotation: RotationSection = spec("raw-run file rotation")
@@ -96,6 +118,8 @@ class AcquireConfig:
     pairing: PairingSection = spec("digitiser/sequencer pairing and start/stop")
     navigation: NavigationSection = spec("navigation solution of the daemon")
     catch_up: CatchUpSection = spec("the catch-up service after the run")
+    limits: LimitsSection | None = spec("bounds of the daemon's queues (omitted: "
+                                        "DEFAULT_LIMITS)")
 
 
 @dataclass(frozen=True)

@@ -36,7 +36,7 @@ import time
 from dataclasses import dataclass, field
 
 from . import messages
-from .acquire_config import AcquireSetup
+from .acquire_config import DEFAULT_LIMITS, AcquireSetup
 from .assembly import AssemblyError, PingAssembler
 from .drivers.digitiser import DigitiserClient
 from .drivers.nmea import NmeaStreamParser
@@ -85,6 +85,10 @@ class Counters:
     duplicates: int = 0         # a sequence delivered twice (the second is not recorded)
     assembly_errors: int = 0
     pose_errors: int = 0        # no navigation solution at all (pose left NaN)
+    # past the bounds of acquire.toml [limits] (docs/acquisition.md, "Limits")
+    pending_full: int = 0       # pings posed before their wait ended: too many waiting
+    transmit_unclaimed: int = 0  # transmit records dropped: too many waiting for a ping
+    records_dropped: int = 0    # NMEA / PD0 / clock records dropped before being written
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -116,14 +120,39 @@ class _Watch:
         return value - old
 
 
+class _RecordQueue:
+    """Records waiting to be written (appended by a reader thread, taken by the loop):
+    at most ``limit``; past it the oldest is dropped and counted (:attr:`dropped`)."""
+
+    def __init__(self, limit: int):
+        self.limit = limit
+        self.items: collections.deque = collections.deque()
+        self.dropped = 0
+
+    def append(self, item) -> None:
+        if len(self.items) >= self.limit:
+            try:
+                self.items.popleft()
+                self.dropped += 1
+            except IndexError:              # taken meanwhile by the loop
+                pass
+        self.items.append(item)
+
+    def popleft(self):
+        return self.items.popleft()
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+
 class _NmeaTap:
     """The GPS link's parser: decodes with :class:`NmeaStreamParser` and keeps each raw
     sentence (receive time, text) for the recording."""
 
-    def __init__(self, parser: NmeaStreamParser, keep: int = 10000):
+    def __init__(self, parser: NmeaStreamParser, keep: int):
         self.parser = parser
         self.stats = parser.stats
-        self.raw: collections.deque = collections.deque(maxlen=keep)
+        self.raw = _RecordQueue(keep)
         self._buf = bytearray()
 
     def feed(self, data: bytes):
@@ -148,9 +177,9 @@ class _Pd0Tap(Pd0StreamParser):
     The ensembles are taken where the parser judges a candidate whole and valid
     (``_judge``); the one it then accepts is matched by identity."""
 
-    def __init__(self, keep: int = 10000):
+    def __init__(self, keep: int):
         super().__init__()
-        self.raw: collections.deque = collections.deque(maxlen=keep)
+        self.raw = _RecordQueue(keep)
         self._judged: dict[int, bytes] = {}
 
     def _judge(self, pos: int, end: int):
@@ -215,7 +244,10 @@ class AcquisitionDaemon:
         self._nav_lock = threading.Lock()
         self._times: collections.deque = collections.deque()
         self._last_seq: int | None = None
+        self.limits = acq.limits or DEFAULT_LIMITS
+        # the latest ping numbers (duplicate_window of them), to refuse a duplicate
         self._seen: set[int] = set()
+        self._seen_order: collections.deque = collections.deque()
         self._pending: collections.deque = collections.deque()   # (arrival, CompletePing)
         # pings appended to the recording, published once flushed: (index in the run,
         # Ping, monotonic time appended); at most a flush's worth (daq.toml [recorder])
@@ -306,12 +338,13 @@ class AcquisitionDaemon:
         dev, hw = self.setup.devices, self.hardware.value
         wait = self.setup.acquire.pairing.start_timeout_s
         if dev.gps is not None:
-            self.gps_tap = _NmeaTap(NmeaStreamParser())
+            self.gps_tap = _NmeaTap(NmeaStreamParser(), self.limits.records_waiting)
             self.gps_link = SerialLink(dev.gps.port, self.gps_tap, baudrate=dev.gps.baudrate,
                                        on_record=self._on_nmea, name="gps",
                                        reconnect_max_s=1.0).start()
         if dev.dvl is not None:
-            self.dvl_parser = _Pd0Tap()        # keeps each ensemble's bytes for the recording
+            # keeps each ensemble's bytes for the recording
+            self.dvl_parser = _Pd0Tap(self.limits.records_waiting)
             self.dvl_link = SerialLink(dev.dvl.port, self.dvl_parser,
                                        baudrate=dev.dvl.baudrate, on_record=self._on_pd0,
                                        name="dvl", reconnect_max_s=1.0).start()
@@ -319,7 +352,7 @@ class AcquisitionDaemon:
             log.warning("no DVL or GPS link configured: pings are recorded without a pose")
         # the ping-clock events as received, for the recording (re-navigation judges the
         # instrument clocks against the ping clock as the live navigation does)
-        self._clock_tap: collections.deque = collections.deque(maxlen=10000)
+        self._clock_tap = _RecordQueue(self.limits.records_waiting)
         self.sequencer = SequencerDriver.from_config(dev.sequencer,
                                                      on_ping=self._transmit_tapped,
                                                      reconnect_max_s=0.5)
@@ -406,6 +439,8 @@ class AcquisitionDaemon:
             item = None
         while item is not None:
             self._take(item)
+            if len(self._pending) > self.limits.pending_pings:
+                self._assemble_due(final=False)
             try:
                 item = self.digitiser.ping_queue.get_nowait()
             except queue.Empty:
@@ -480,21 +515,31 @@ class AcquisitionDaemon:
             arrived, data = self._pending[0]
             with self._tx_lock:
                 have_tx = data.ping_number in self._tx
-            if not final:
-                if not have_tx and now < arrived + pairing.transmit_wait_s:
+            if not final and ((not have_tx and now < arrived + pairing.transmit_wait_s)
+                              or (now < arrived + nav_wait and not self._nav_caught_up(
+                                  data.transmit_time_ns + lag_ns))):
+                if len(self._pending) <= self.limits.pending_pings:
                     break
-                if now < arrived + nav_wait and not self._nav_caught_up(
-                        data.transmit_time_ns + lag_ns):
-                    break
+                # too many waiting (acquire.toml limits.pending_pings): posed now
+                self.counters.pending_full += 1
+                if str(self.counters.pending_full).rstrip("0") == "1":
+                    self.event("daemon.pending_full", f"ping {data.ping_number} posed "
+                               f"before its wait ended: {len(self._pending)} pings were "
+                               f"waiting (limits.pending_pings "
+                               f"{self.limits.pending_pings}); "
+                               f"{self.counters.pending_full} in all (an event at every "
+                               "power of 10)")
             with self._tx_lock:
                 ev = self._tx.pop(data.ping_number, None)
             self._pending.popleft()
             ready.append((data, ev))
         self._handle_all(ready)
         with self._tx_lock:        # transmit records nobody will claim
-            if len(self._tx) > 1000:
-                for k in sorted(self._tx)[:-100]:
+            excess = len(self._tx) - self.limits.transmit_records
+            if excess > 0:
+                for k in sorted(self._tx)[:excess]:
                     del self._tx[k]
+                self.counters.transmit_unclaimed += excess
 
     def _handle_all(self, ready: list) -> None:
         """Pose the pings of ``ready`` ((CompletePing, PingEvent or None) pairs) in one
@@ -536,8 +581,9 @@ class AcquisitionDaemon:
             self.event("assembly.error", str(exc), logging.ERROR)
             return
         self._seen.add(seq)
-        if len(self._seen) > 100000:
-            self._seen = set(sorted(self._seen)[-50000:])
+        self._seen_order.append(seq)
+        while len(self._seen_order) > self.limits.duplicate_window:
+            self._seen.discard(self._seen_order.popleft())
         if self._last_seq is not None and seq > self._last_seq + 1:
             self.event("digitiser.pings_missing", f"{seq - self._last_seq - 1} ping(s) "
                        f"before {seq} never delivered")
@@ -721,6 +767,16 @@ class AcquisitionDaemon:
                     self.recorder.append_clock_reference(rx, tx)
                 except RecordingStopped:
                     break
+        queues = [q for q in (getattr(self.gps_tap, "raw", None),
+                              getattr(self.dvl_parser, "raw", None), tap)
+                  if isinstance(q, _RecordQueue)]
+        dropped = sum(q.dropped for q in queues)
+        old, self.counters.records_dropped = self.counters.records_dropped, dropped
+        if dropped > old and (old == 0 or len(str(dropped)) > len(str(old))):
+            self.event("daemon.records_dropped", f"{dropped} navigation / clock record(s) "
+                       f"dropped unwritten: more than limits.records_waiting "
+                       f"{self.limits.records_waiting} waited (an event at every power of "
+                       "10)")
 
     # -- status --------------------------------------------------------------------------
 
