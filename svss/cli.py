@@ -227,10 +227,14 @@ def cmd_status(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    from svss.demo import run_demo
+    from svss.demo import DemoError, run_demo
 
-    files = run_demo(Path(args.out), scene=args.scene, hardware=args.hardware,
-                     processing=args.processing, force=args.force)
+    try:
+        files = run_demo(Path(args.out), scene=args.scene, hardware=args.hardware,
+                         processing=args.processing, force=args.force)
+    except DemoError as exc:
+        log.error("%s", exc)
+        return 1
     print("svss demo wrote:")
     for p in files:
         print(f"  {p}")

@@ -16,6 +16,7 @@ the recording), tile files out. See docs/worker.md.
 from __future__ import annotations
 
 import collections
+import contextlib
 import dataclasses
 import hashlib
 import json
@@ -41,8 +42,10 @@ from svss_daq.ping_gate import PingGate, PingRejected
 from svss_daq.ping_service import MAX_PINGS_PER_REPLY, PingFetcher, RunInfo, ServiceError
 from svss_daq.progress import Progress
 from svss_daq.rawfile import RawRunReader, run_of
+from svss_daq.signals import stop_once
 from svss_daq.subscriber import subscribe
 
+from .folder_lock import FolderLock
 from .imaging.imager import TileImager
 from .imaging.pose_check import check_pose_flags
 from .preflight import preflight
@@ -855,7 +858,9 @@ def serve(endpoint: str, out_dir: str | Path, hardware: Loaded[HardwareConfig],
     message. ``service``: the catch-up service's endpoint (gaps are fetched from the
     recording; a journal lets a killed worker resume). Returns the files written. SIGINT
     (KeyboardInterrupt, also while idle) writes the open tiles and the manifest, marked
-    incomplete, and re-raises."""
+    incomplete, and re-raises; a later SIGINT or SIGTERM does not interrupt that
+    (:func:`~svss_daq.signals.stop_once`). A folder another worker writes is refused
+    (:class:`~.folder_lock.FolderInUse`, naming its pid)."""
     check_endpoint(endpoint, bind=False)            # before anything is written
     if service is not None:
         check_endpoint(service, bind=False)
@@ -863,7 +868,10 @@ def serve(endpoint: str, out_dir: str | Path, hardware: Loaded[HardwareConfig],
                            max_pings_per_reply=max_pings_per_reply)
                if service is not None else None)
     sock = None
+    guards = contextlib.ExitStack()
     try:
+        guards.enter_context(stop_once("writing the open tiles and the manifest"))
+        guards.enter_context(FolderLock(out_dir))     # before anything is written there
         sw = StreamWorker(out_dir, hardware, processing, fetcher=fetcher, force=force,
                           gap_wait_s=gap_wait_s, reorder_pings=reorder_pings,
                           max_sequence_jump=max_sequence_jump)
@@ -883,6 +891,7 @@ def serve(endpoint: str, out_dir: str | Path, hardware: Loaded[HardwareConfig],
             sock.close(linger=0)
         if fetcher is not None:
             fetcher.close()
+        guards.close()
 
 
 def _loop(sw: StreamWorker, sock: zmq.Socket, endpoint: str, idle_timeout_s: float | None,
