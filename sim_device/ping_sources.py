@@ -236,6 +236,9 @@ class PoolSynthesis(_AheadSource):
             samples = f.result(timeout=max(0.0, timeout_s))
         except cf.TimeoutError:
             return None
+        except cf.CancelledError:     # dropped by want(): the sequencer is past it, late
+            log.debug("track ping %d: its synthesis was dropped (late)", k)
+            return None
         except Exception:
             log.exception("synthesis of track ping %d failed in a worker", k)
             return None
