@@ -142,8 +142,23 @@ def _client(scheduler: str | None, workers: int | None):
     return distributed.Client(cluster), cluster
 
 
+def _stop_heartbeat(dask_worker) -> None:
+    """In a worker: stop its heartbeats to the scheduler (the batch is over)."""
+    pc = dask_worker.periodic_callbacks.get("heartbeat")
+    if pc is not None:
+        pc.stop()
+
+
 def _close_client(client, cluster) -> None:
-    """Close a client and the LocalCluster made for it."""
+    """Close a client and the LocalCluster made for it. With a cluster, the workers'
+    heartbeats stop first: a worker process the machine's load holds up while the
+    cluster closes would otherwise wake into a heartbeat to the scheduler just closed
+    and log it with a traceback (one per worker, after a successful batch)."""
+    if cluster is not None:
+        try:
+            client.run(_stop_heartbeat)
+        except Exception as exc:                  # noqa: BLE001 - closing regardless
+            log.debug("batch: the workers' heartbeats were not stopped (%s)", exc)
     client.close()
     if cluster is not None:
         cluster.close()
