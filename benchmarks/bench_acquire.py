@@ -106,10 +106,10 @@ def run_trial(rate_hz: float | None, n: int, tmp: Path, run_id: str) -> dict:
     sent: dict[int, int] = {}
     publish = daemon.publisher.publish
 
-    def timed(msg):
+    def timed(msg, **kw):
         if hasattr(msg, "sequence"):
             sent[msg.sequence] = time.time_ns()
-        return publish(msg)
+        return publish(msg, **kw)
     daemon.publisher.publish = timed
     ws = round(dig.window_start_s * 1e9)
     t_start = time.perf_counter()
