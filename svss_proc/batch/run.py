@@ -240,15 +240,14 @@ def run_batch(paths: list[str | Path], out: str | Path,
             todo = []
             refused: dict[str, dict[tuple[str, int], str]] = {}
             for t, exc in failed:
-                if isinstance(exc, PingsRefused):
-                    for f, i, _seq, why in exc.pings:
-                        refused.setdefault(t.run_id, {})[(f, int(i))] = why
-                else:
+                new = {} if not isinstance(exc, PingsRefused) else {
+                    (f, int(i)): why for f, i, _seq, why in exc.pings
+                    if (f, int(i)) not in excluded[t.run_id]}
+                if new:
+                    refused.setdefault(t.run_id, {}).update(new)
+                else:                   # (refused again though planned out: a defect)
                     errors.append((t, exc))
             for run_id, new in refused.items():       # plan the run again without them
-                new = {k: v for k, v in new.items() if k not in excluded[run_id]}
-                if not new:
-                    continue
                 excluded[run_id].update(new)
                 log.warning("batch: run %s: %d ping(s) refused for their samples (e.g. %s "
                             "index %d: %s); planning the run again without them, as svss "
