@@ -97,7 +97,8 @@ def cmd_batch(args) -> int:
 
 
 def cmd_worker(args) -> int:
-    from svss_proc.worker import GAP_WAIT_S, MAX_SEQUENCE_JUMP, REORDER_PINGS, serve
+    from svss_proc.worker import (GAP_WAIT_S, MAX_LISTED_GAPS, MAX_SEQUENCE_JUMP,
+                                  REORDER_PINGS, serve)
 
     daq = load(DaqConfig, config_path("daq.toml"))
     sub = daq.subscriber
@@ -110,7 +111,9 @@ def cmd_worker(args) -> int:
                   curve=daq.security, runs=args.runs, gap_wait_s=gap_wait,
                   reorder_pings=sub.reorder_pings or REORDER_PINGS,
                   max_sequence_jump=sub.max_sequence_jump or MAX_SEQUENCE_JUMP,
-                  **({"max_pings_per_reply": daq.service.max_pings_per_reply}
+                  max_listed_gaps=sub.max_listed_gaps or MAX_LISTED_GAPS,
+                  **({"max_pings_per_reply": daq.service.max_pings_per_reply,
+                      "progress_interval_s": daq.service.progress_interval_s}
                      if daq.service is not None else {}))
     for p in files:
         print(p)

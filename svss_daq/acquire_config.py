@@ -74,7 +74,9 @@ class PairingSection:
 class CatchUpSection:
     linger_s: float = spec("after the run ends, keep the catch-up service up while "
                            "workers still fetch from it, until none has asked for this "
-                           "long, s (0: close with the run)", lo=0, hi=3600)
+                           "long, s (0: close with the run); a worker that tells the "
+                           "service its progress keeps it up while it lacks pings",
+                           lo=0, hi=3600)
     max_linger_s: float = spec("... but no longer than this after the run's end, s",
                                lo=0, hi=86400)
 

@@ -24,16 +24,17 @@ def acquire(pings: Iterable[Ping], recorder: RawRunWriter | None,
     Returns the number of pings handled.
     """
     progress = Progress("acquisition", total, log)
-    n = 0
+    n, last = 0, None
     for ping in pings:
+        last = ping.sequence if last is None else max(last, ping.sequence)
         if recorder is not None:
             recorder.append(ping)
         if publisher is not None:
-            publisher.publish(ping)
+            publisher.publish(ping, run_id=run_id)
         n += 1
         progress.update()
     if recorder is not None:
         recorder.flush()
     if publisher is not None:
-        publisher.publish(RunEnd(run_id, n))
+        publisher.publish(RunEnd(run_id, n, last))
     return n

@@ -52,7 +52,8 @@ from .protocols.sequencer import PingEvent
 from .publisher import PingPublisher
 from .nav.renavigate import navigation_config_text
 from .rawfile import NAV_CONFIG_ATTR
-from .recorder import RESERVE_MIB, RecordingStopped, RunRecorder
+from .recorder import (RESERVE_MIB, RecordingStopped, RunRecorder,
+                       close_interrupted_runs, free_run_id)
 from .status import StatusPublisher
 
 log = logging.getLogger(__name__)
@@ -219,7 +220,9 @@ class AcquisitionDaemon:
         self.setup = setup
         acq = setup.acquire
         self.hardware = setup.hardware
-        self.run_id = run_id or run_id_now(acq.run.name)
+        # a run of its own: a daemon restarted within its predecessor's second gets
+        # NAME-...-2 (an explicit run id recorded there already is refused at bind)
+        self.run_id = run_id or free_run_id(setup.out_dir, run_id_now(acq.run.name))
         self.assembler = PingAssembler(setup.hardware)
         want = {"publisher": setup.daq.publisher.endpoint,
                 "status": acq.status.endpoint}
@@ -292,6 +295,10 @@ class AcquisitionDaemon:
         daq = s.daq
         if self.recorder is not None:
             return self.endpoints
+        # runs in the folder whose daemon died mid-run (killed, crashed): closed and
+        # marked interrupted before this run takes its lock and the catch-up service
+        # lists them (as ended)
+        interrupted = close_interrupted_runs(s.out_dir, self.run_id)
         self.recorder = RunRecorder(
             s.out_dir, self.run_id, s.hardware,
             flush_every_pings=daq.recorder.flush_every_pings,
@@ -303,6 +310,10 @@ class AcquisitionDaemon:
                            else acq.disk.reserve_mib) * 2**20,
             run_attrs={"acquisition_config": str(s.path),
                        NAV_CONFIG_ATTR: navigation_config_text(s.devices.navigation)})
+        for rid, summ in interrupted.items():        # (events: in this run's file too)
+            self.event("recording.interrupted_run", f"run {rid} in {s.out_dir} was left "
+                       "open by a daemon that stopped without closing it: closed and "
+                       f"marked interrupted ({summ['counters']['recorded']} pings kept)")
         self.publisher = PingPublisher(self._want_endpoints["publisher"],
                                        daq.publisher.send_hwm, curve=self.curve)
         self.endpoints["publisher"] = self.publisher.endpoint
@@ -366,6 +377,14 @@ class AcquisitionDaemon:
                                   lambda: self.navigator.counts["dvl_ensembles"])):
             if link is not None and not self._wait(have, wait):
                 log.warning("no %s within %.0f s: pinging without it", name, wait)
+        # a sequencer still pinging (a daemon killed mid-run never stopped it) refuses to
+        # be configured: stop it first, and say so
+        state = self.sequencer.status()
+        if state.state != "IDLE":
+            self.event("sequencer.was_running", f"the sequencer was {state.state} at start "
+                       f"(next ping {state.next_sequence}; a daemon stopped without "
+                       "stopping it?): stopped before it is configured")
+            self.sequencer.stop()
         self.sequencer.configure(hw)
         self.sequencer.arm()
         self.digitiser.start()
@@ -476,7 +495,7 @@ class AcquisitionDaemon:
             _, ping, _ = self._unflushed.popleft()
             self.counters.recorded += 1
             self._times.append(time.monotonic())
-            if self.publisher.publish(ping):
+            if self.publisher.publish(ping, run_id=self.run_id):
                 self.counters.published += 1
             else:
                 self.counters.publish_dropped += 1
@@ -909,7 +928,9 @@ class AcquisitionDaemon:
             except Exception as exc:
                 log.warning("closing %s: %s", obj, exc)
         if self.publisher is not None:
-            self.publisher.publish(messages.RunEnd(self.run_id, self.counters.recorded))
+            last = self.recorder.info()["last"] if self.recorder is not None else -1
+            self.publisher.publish(messages.RunEnd(self.run_id, self.counters.recorded,
+                                                   last if last >= 0 else None))
             self.publisher.close()
         if self.service is not None:
             self._linger()
@@ -923,22 +944,41 @@ class AcquisitionDaemon:
                  self.counters.published, self.counters.publish_dropped, self.n_events)
 
     def _linger(self) -> None:
-        """Keep the catch-up service up after the run while workers still fetch from it
-        (``catch_up.linger_s`` without a reply sent whole ends it: a client that does
-        not read keeps it no longer; SIGINT/SIGTERM too)."""
+        """Keep the catch-up service up after the run while workers still need it: while
+        a worker that tells the service its progress (svss.progress) still lacks pings
+        of this run (:meth:`~svss_daq.ping_service.PingService.waiting`; a worker not
+        heard from for ``service.worker_silence_s`` is forgotten), and until no reply
+        was sent whole for ``catch_up.linger_s`` (a worker that does not say its
+        progress); never longer than ``catch_up.max_linger_s``. SIGINT/SIGTERM end it."""
         cfg = self.setup.acquire.catch_up
-        if cfg.linger_s <= 0:
-            return
         self._note_requests()
         end = time.monotonic() + cfg.max_linger_s
         seen, quiet_since = self.service.replies, self._last_request
-        logged = False
+        logged, said = False, None
         try:
-            while time.monotonic() < min(end, quiet_since + cfg.linger_s):
+            while True:
+                now = time.monotonic()
+                waiting = self.service.waiting(self.run_id)
+                if now >= end:
+                    if waiting:
+                        log.warning("run %s: catch-up service closed after catch_up."
+                                    "max_linger_s (%.0f s) while %d worker(s) still "
+                                    "lacked pings (%s)", self.run_id,
+                                    cfg.max_linger_s, len(waiting),
+                                    "; ".join(sorted(waiting.values())))
+                    break
+                if not waiting and now >= quiet_since + cfg.linger_s:
+                    break
+                if waiting and set(waiting) != said:
+                    said = set(waiting)
+                    log.info("run %s ended; the catch-up service stays up while %d "
+                             "worker(s) still lack pings (%s; at most catch_up."
+                             "max_linger_s %.0f s)", self.run_id, len(waiting),
+                             "; ".join(sorted(waiting.values())), cfg.max_linger_s)
                 time.sleep(0.1)
                 if self.service.replies != seen:
                     seen, quiet_since = self.service.replies, time.monotonic()
-                    if not logged:
+                    if not logged and cfg.linger_s > 0:
                         log.info("run %s ended; serving catch-up requests until none "
                                  "comes for %.0f s", self.run_id, cfg.linger_s)
                         logged = True

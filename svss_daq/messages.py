@@ -31,13 +31,18 @@ class MessageError(ValueError):
 
 @dataclass(frozen=True)
 class RunEnd:
-    """End of a run: no more pings will follow on this stream."""
+    """End of a run: no more pings will follow on this stream. ``n_pings``: the pings
+    recorded; ``last``: the run's last sequence (None: not said), so that a subscriber
+    that cannot ask the recording still knows what it lacks."""
     run_id: str
     n_pings: int
+    last: int | None = None
 
 
-def encode_ping(ping: Ping) -> list:
-    """Frames for one ping: topic, JSON header, the sample buffer (no copy)."""
+def encode_ping(ping: Ping, run_id: str | None = None) -> list:
+    """Frames for one ping: topic, JSON header, the sample buffer (no copy). ``run_id``:
+    the run the ping belongs to (header field ``run_id``; a ping stream carries it so
+    that a subscriber never has to infer a ping's run from its sequence number)."""
     samples = ping.samples
     if samples.dtype != np.dtype(_SAMPLE_DTYPE) or not samples.flags.c_contiguous:
         samples = np.ascontiguousarray(samples, dtype=_SAMPLE_DTYPE)
@@ -51,12 +56,16 @@ def encode_ping(ping: Ping) -> list:
         "config_id": ping.config_id,
         "nav": ping.nav.to_dict(),
     }
+    if run_id is not None:
+        header["run_id"] = str(run_id)
     return [TOPIC_PING, json.dumps(header).encode(), samples.data]
 
 
 def encode_end(end: RunEnd) -> list:
     header = {"schema": "svss.end", "version": SCHEMA_VERSION, "run_id": end.run_id,
               "n_pings": int(end.n_pings)}
+    if end.last is not None:
+        header["last"] = int(end.last)
     return [TOPIC_END, json.dumps(header).encode()]
 
 
@@ -136,7 +145,14 @@ def _field(header: dict, name: str, kind: type, schema: str = "svss.ping", *,
 
 def decode(frames: list) -> Ping | RunEnd:
     """Decode a received multipart message into a :class:`Ping` or :class:`RunEnd`, or
-    raise :class:`MessageError` naming the frame or field at fault.
+    raise :class:`MessageError` naming the frame or field at fault
+    (:func:`decode_tagged` without the ping's run id)."""
+    return decode_tagged(frames)[0]
+
+
+def decode_tagged(frames: list) -> tuple[Ping | RunEnd, str | None]:
+    """:func:`decode`, and the run id a ping's header names (header field ``run_id``,
+    optional: None when absent; a RunEnd's is its own).
 
     Every header field is type- and range-checked and the sample frame's size compared
     with the header's shape before the samples are touched; sample arrays are read-only
@@ -153,8 +169,10 @@ def decode(frames: list) -> Ping | RunEnd:
             raise MessageError(f"svss.end message has {len(frames)} frames; expected 2 "
                                "(topic, header)")
         h = _header(frames, "svss.end")
-        return RunEnd(_field(h, "run_id", str, "svss.end"),
-                      _field(h, "n_pings", int, "svss.end", lo=0))
+        end = RunEnd(_field(h, "run_id", str, "svss.end"),
+                     _field(h, "n_pings", int, "svss.end", lo=0),
+                     _field(h, "last", int, "svss.end", lo=0) if "last" in h else None)
+        return end, end.run_id
     if topic != TOPIC_PING:
         raise MessageError(f"message topic {bytes(topic[:40])!r}; expected "
                            f"{TOPIC_PING!r} or {TOPIC_END!r}")
@@ -189,14 +207,17 @@ def decode(frames: list) -> Ping | RunEnd:
         raise MessageError(f"svss.ping message: sample frame holds {buf.nbytes} bytes; "
                            f"header shape {shape} of int32 needs {expected}")
     samples = np.frombuffer(buf, dtype=_SAMPLE_DTYPE).reshape(shape)
-    return Ping(samples=samples, nav=nav, **fields)
+    run_id = _field(h, "run_id", str) if "run_id" in h else None
+    return Ping(samples=samples, nav=nav, **fields), run_id
 
 
-def send(socket: zmq.Socket, msg: Ping | RunEnd, flags: int = 0) -> None:
-    """Send a ping (zero-copy sample buffer) or an end-of-run marker; ``flags`` as for
-    ``send_multipart`` (``zmq.NOBLOCK``: raise ``zmq.Again`` instead of waiting)."""
+def send(socket: zmq.Socket, msg: Ping | RunEnd, flags: int = 0,
+         run_id: str | None = None) -> None:
+    """Send a ping (zero-copy sample buffer; ``run_id``: the run it belongs to) or an
+    end-of-run marker; ``flags`` as for ``send_multipart`` (``zmq.NOBLOCK``: raise
+    ``zmq.Again`` instead of waiting)."""
     if isinstance(msg, Ping):
-        socket.send_multipart(encode_ping(msg), flags, copy=False)
+        socket.send_multipart(encode_ping(msg, run_id), flags, copy=False)
     else:
         socket.send_multipart(encode_end(msg), flags)
 
@@ -204,3 +225,9 @@ def send(socket: zmq.Socket, msg: Ping | RunEnd, flags: int = 0) -> None:
 def recv(socket: zmq.Socket) -> Ping | RunEnd:
     """Receive and decode one message (zero-copy)."""
     return decode(socket.recv_multipart(copy=False))
+
+
+def recv_tagged(socket: zmq.Socket) -> tuple[Ping | RunEnd, str | None]:
+    """Receive and decode one message (zero-copy) with its run id
+    (:func:`decode_tagged`)."""
+    return decode_tagged(socket.recv_multipart(copy=False))

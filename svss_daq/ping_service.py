@@ -638,13 +638,14 @@ class PingService:
             log.info("catch-up service: worker %s is imaging run %s (at ping %d)", client,
                      run_id, nxt)
 
-    def waiting(self, run_id: str) -> dict[str, int]:
-        """The workers of run ``run_id`` that still lack pings of it (not ``done``, heard
-        from within ``worker_silence_s``): {worker id: the first sequence it lacks}."""
+    def waiting(self, run_id: str) -> dict[str, str]:
+        """The workers heard from within ``worker_silence_s`` that have not said they
+        are done with run ``run_id``: those that still lack pings of it, and those still
+        on an earlier run (they come to this one next): {worker id: "RUN at ping N"}."""
         now = time.monotonic()
         with self._workers_lock:
-            return {k: w.next for k, w in self._workers.items()
-                    if w.run_id == run_id and not w.done
+            return {k: f"{w.run_id} at ping {w.next}" for k, w in self._workers.items()
+                    if not (w.run_id == run_id and w.done)
                     and now - w.at <= self.worker_silence_s}
 
     def _fetch(self, ident: bytes, req: dict) -> None:

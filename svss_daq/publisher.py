@@ -98,8 +98,9 @@ class PingPublisher:
                                    f"{timeout_s:.0f} s")
             self._drain_subscriptions(int(min(left, 0.2) * 1000))
 
-    def publish(self, msg: Ping | messages.RunEnd) -> bool:
-        """Queue ``msg`` without blocking; return False if it was dropped.
+    def publish(self, msg: Ping | messages.RunEnd, run_id: str | None = None) -> bool:
+        """Queue ``msg`` without blocking; return False if it was dropped. ``run_id``:
+        the run a ping belongs to, in its header (subscribers key pings by it).
 
         A ping is dropped when a subscriber's queue is full; an end-of-run marker is
         retried for up to ``end_timeout_s`` first.
@@ -108,7 +109,7 @@ class PingPublisher:
         if isinstance(msg, messages.RunEnd):
             return self._publish_end(msg)
         try:
-            messages.send(self.sock, msg, zmq.NOBLOCK)
+            messages.send(self.sock, msg, zmq.NOBLOCK, run_id=run_id)
         except zmq.Again:
             self._count_drop(msg.sequence)
             return False

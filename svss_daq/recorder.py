@@ -27,8 +27,11 @@ from __future__ import annotations
 
 import bisect
 import errno
+import fcntl
+import glob
 import logging
 import os
+import re
 import shutil
 import threading
 import time
@@ -36,8 +39,8 @@ from pathlib import Path
 
 from .config import HardwareConfig, Loaded
 from .ping import Ping
-from .rawfile import (RawFileError, RawRunReader, RawRunWriter, write_summary,
-                      write_summary_beside)
+from .rawfile import (RawFileError, RawRunReader, RawRunWriter, close_interrupted,
+                      hdf5_superblock, summary_path, write_summary, write_summary_beside)
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +60,170 @@ def segment_path(out_dir: Path, run_id: str, segment: int) -> Path:
 def reserve_path(out_dir: Path, run_id: str) -> Path:
     """The file holding a run's disk reserve while it records."""
     return out_dir / f".{run_id}.reserve"
+
+
+def lock_path(out_dir: Path, run_id: str) -> Path:
+    """The file a recording daemon holds locked (``flock``) while it records run
+    ``run_id``: the kernel releases the lock when the daemon dies, however it dies, so a
+    lock file that can be taken is that of a run whose daemon stopped without closing
+    it."""
+    return out_dir / f".{run_id}.lock"
+
+
+_SEGMENT = re.compile(r"(?P<run>.+)_(?P<segment>\d{3,})\.h5")
+_LOCK = re.compile(r"\.(?P<run>.+)\.lock")
+
+
+def run_segments(out_dir: Path, run_id: str) -> list[Path]:
+    """The segment files of run ``run_id`` in ``out_dir`` (``<run id>_<kkk>.h5``), in
+    segment order."""
+    found = []
+    for p in Path(out_dir).glob(f"{glob.escape(run_id)}_*.h5"):
+        m = _SEGMENT.fullmatch(p.name)
+        if m and m["run"] == run_id:
+            found.append((int(m["segment"]), p))
+    return [p for _, p in sorted(found)]
+
+
+def _try_lock(path: Path) -> int | None:
+    """An open descriptor of ``path`` (created if absent) holding its exclusive lock, or
+    None when another process holds it."""
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        return None
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
+def take_run_lock(out_dir: Path, run_id: str) -> int:
+    """Lock run ``run_id`` in ``out_dir`` for recording (:func:`lock_path`, the daemon's
+    pid written in it); the descriptor holding the lock. FileExistsError when a live
+    daemon records that run, or when the run is recorded there already (a restarted
+    daemon records a new run)."""
+    path = lock_path(out_dir, run_id)
+    existed = path.exists()
+    fd = _try_lock(path)
+    if fd is None:
+        try:
+            who = path.read_text().strip()
+        except OSError:
+            who = "?"
+        raise FileExistsError(f"{out_dir}: run {run_id} is being recorded by another "
+                              f"daemon (pid {who or '?'}; {path} is locked)")
+    old = run_segments(out_dir, run_id)
+    if old:
+        if not existed:
+            path.unlink(missing_ok=True)
+        os.close(fd)
+        raise FileExistsError(f"{out_dir}: run {run_id} is recorded there already "
+                              f"({', '.join(p.name for p in old[:3])}"
+                              f"{', ...' if len(old) > 3 else ''}); a restarted daemon "
+                              "records a new run: give another --run-id (or none)")
+    os.ftruncate(fd, 0)
+    os.write(fd, f"{os.getpid()}\n".encode())
+    return fd
+
+
+def free_run_id(out_dir: Path, run_id: str, tries: int = 1000) -> str:
+    """``run_id``, or ``run_id-2``, ``-3``, ... when a run of that id is already in
+    ``out_dir`` (segments or a lock file): a daemon restarted within the second of its
+    predecessor's start gets a run of its own."""
+    out_dir = Path(out_dir)
+    for k in range(1, tries + 1):
+        rid = run_id if k == 1 else f"{run_id}-{k}"
+        if not run_segments(out_dir, rid) and not lock_path(out_dir, rid).exists():
+            return rid
+    raise FileExistsError(f"{out_dir}: runs {run_id} to {run_id}-{tries} exist already")
+
+
+def _has_summary(reader: RawRunReader) -> bool:
+    return "acquisition_summary" in reader.attrs or summary_path(reader.path).is_file()
+
+
+def close_interrupted_runs(out_dir: str | Path, by_run: str) -> dict[str, dict]:
+    """Close and mark the runs in ``out_dir`` whose recording daemon stopped without
+    closing them (killed, crashed, the machine lost power): a run whose lock file
+    (:func:`lock_path`) nobody holds, or whose segment is still flagged open for
+    writing without a lock file (a daemon from before lock files). Each of its
+    segments without a summary is closed (:func:`~svss_daq.rawfile.close_interrupted`:
+    every flushed ping kept as it was) and gets a summary that says the run was
+    interrupted (``interrupted``: true, the pings it holds, ``closed_by``:
+    ``by_run``, the run of the daemon that found it); its lock and reserve files are
+    removed. Runs of a live daemon (their lock held) are left alone; a daemon calls
+    this before it takes its own run's lock (so that a run id given again after its
+    daemon was killed is closed, then refused as recorded already). Returns {run id:
+    its summary} of the runs closed."""
+    out_dir = Path(out_dir)
+    if not out_dir.is_dir():
+        return {}
+    candidates: set[str] = set()
+    for p in out_dir.iterdir():
+        m = _LOCK.fullmatch(p.name)
+        if m:
+            candidates.add(m["run"])
+            continue
+        m = _SEGMENT.fullmatch(p.name)
+        if m and not lock_path(out_dir, m["run"]).exists():
+            try:
+                if hdf5_superblock(p)["flags"] & 1:
+                    candidates.add(m["run"])
+            except RawFileError as exc:
+                log.warning("%s", exc)
+    closed = {}
+    for run_id in sorted(candidates):
+        fd = _try_lock(lock_path(out_dir, run_id))
+        if fd is None:
+            log.info("%s: run %s is being recorded by a live daemon; left as it is",
+                     out_dir, run_id)
+            continue
+        try:
+            summary = _close_run(out_dir, run_id, by_run)
+            if summary is not None:
+                closed[run_id] = summary
+            reserve_path(out_dir, run_id).unlink(missing_ok=True)
+            lock_path(out_dir, run_id).unlink(missing_ok=True)
+        finally:
+            os.close(fd)
+    return closed
+
+
+def _close_run(out_dir: Path, run_id: str, by_run: str) -> dict | None:
+    """Close and mark the segments of the interrupted run ``run_id`` (those without a
+    summary); its summary, or None when every segment had one."""
+    segs = run_segments(out_dir, run_id)
+    n_pings, todo = 0, []
+    for p in segs:
+        try:
+            with RawRunReader(p) as r:
+                n_pings += len(r)
+                if not _has_summary(r):
+                    todo.append(p)
+        except RawFileError as exc:
+            log.error("run %s: %s; that segment is left as it is", run_id, exc)
+    if not todo:
+        return None
+    summary = {
+        "run_id": run_id, "interrupted": True,
+        "why": "the daemon recording this run stopped without closing it (killed, "
+               "crashed or the power lost); every ping flushed before is kept",
+        "counters": {"recorded": n_pings}, "segments": [p.name for p in segs],
+        "closed_by": by_run,
+        "closed_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+    for p in todo:
+        try:
+            how = close_interrupted(p, summary)
+        except RawFileError as exc:
+            log.error("run %s: %s", run_id, exc)
+            continue
+        log.warning("%s: run %s was interrupted (its daemon stopped without closing "
+                    "it); %s, marked interrupted (%d pings in the run)", p, run_id,
+                    "closed" if how == "closed" else "its summary beside it", n_pings)
+    return summary
 
 
 class RunRecorder:
@@ -88,10 +255,16 @@ class RunRecorder:
         self._durable = 0                        # pings flushed: a prefix of `sequences`
         self._dmin = self._dmax = -1             # ... their lowest and highest sequence
         self._failed_segments: set[int] = set()  # segments whose writer stopped failing
-        self.free_bytes = self._free()
-        self._check_free()
-        self._reserve = reserve_path(self.out_dir, run_id)
-        self._hold_reserve(int(reserve_bytes))
+        # the run's lock, held until close (a run recorded here already is refused)
+        self._lock_fd: int | None = take_run_lock(self.out_dir, run_id)
+        try:
+            self.free_bytes = self._free()
+            self._check_free()
+            self._reserve = reserve_path(self.out_dir, run_id)
+            self._hold_reserve(int(reserve_bytes))
+        except BaseException:
+            self._release_lock()
+            raise
         # the first segment opens with the first ping: a run that never pinged (devices
         # that did not open) leaves no file
 
@@ -125,6 +298,15 @@ class RunRecorder:
 
     def _release_reserve(self) -> None:
         self._reserve.unlink(missing_ok=True)
+
+    def _release_lock(self) -> None:
+        """The run is closed: its lock file goes (a daemon that dies before this leaves
+        it, unlocked: :func:`close_interrupted_runs` then knows the run was
+        interrupted)."""
+        if self._lock_fd is not None:
+            lock_path(self.out_dir, self.run_id).unlink(missing_ok=True)
+            os.close(self._lock_fd)
+            self._lock_fd = None
 
     def _durable_upto(self, n: int) -> None:
         """The first ``n`` pings appended are on disk."""
@@ -294,7 +476,8 @@ class RunRecorder:
     def close(self, summary: dict | None = None) -> None:
         """Close the current segment; store ``summary`` in every segment of the run (in
         the file; beside it, ``<segment>.summary.json``, for a segment whose writer
-        stopped on a failed write or whose file cannot take it); release the reserve."""
+        stopped on a failed write or whose file cannot take it); release the reserve and
+        the run's lock."""
         with self.lock:
             self.close_files()
             self._release_reserve()              # room for the summaries on a full disk
@@ -316,6 +499,7 @@ class RunRecorder:
                                     side, why)
                     except RawFileError as exc:
                         log.error("%s; %s", why, exc)
+            self._release_lock()
 
     # -- reading back (the catch-up service's store) -----------------------------------
 

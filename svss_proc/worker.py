@@ -23,7 +23,9 @@ import json
 import logging
 import os
 import re
+import secrets
 import shutil
+import socket
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,7 +41,8 @@ from svss_daq import ping as _ping
 from svss_daq.nav.renavigate import RenavigationError, records_problem, renavigation
 from svss_daq.ping import NavSnapshot, Ping
 from svss_daq.ping_gate import PingGate, PingRejected
-from svss_daq.ping_service import MAX_PINGS_PER_REPLY, PingFetcher, RunInfo, ServiceError
+from svss_daq.ping_service import (MAX_PINGS_PER_REPLY, PROGRESS_INTERVAL_S, PingFetcher,
+                                   RunInfo, ServiceError)
 from svss_daq.progress import Progress
 from svss_daq.rawfile import RawRunReader, run_of
 from svss_daq.signals import stop_once
@@ -71,10 +74,12 @@ POSE_FLAG_NAMES = tuple((getattr(_ping, f"NAV_{n.upper()}"), n) for n in (
     "heading_from_compass", "held", "clock_retimed", "smoothed", "fused"))
 #: what a run's pings were posed with, when nothing else is said (manifest ``poses``)
 LIVE_POSES = "recorded live poses"
-#: defaults of daq.toml's [subscriber] gap_wait_s, reorder_pings and max_sequence_jump
+#: defaults of daq.toml's [subscriber] gap_wait_s, reorder_pings, max_sequence_jump and
+#: max_listed_gaps
 GAP_WAIT_S = 2.0
 REORDER_PINGS = 200
 MAX_SEQUENCE_JUMP = 1000
+MAX_LISTED_GAPS = 100
 
 
 def _atomic_json(path: Path, obj: dict) -> None:
@@ -207,8 +212,16 @@ class Worker:
 
     def __init__(self, hardware: Loaded[HardwareConfig], processing: Loaded[ProcessingConfig],
                  out_dir: str | Path, *, force: bool = False, run_id: str | None = None,
-                 resume: bool = False, poses: str = LIVE_POSES):
+                 resume: bool = False, poses: str = LIVE_POSES,
+                 max_listed_gaps: int = MAX_LISTED_GAPS):
         self.hardware, self.processing = hardware, processing
+        #: ranges [first, last] of the run's pings skipped (never imaged: lost on the
+        #: stream and not fetched), the first ``max_listed_gaps``; the rest counted
+        self.skipped_ranges: list[list[int]] = []
+        self.skipped_unlisted = 0            # pings in ranges beyond the listed ones
+        self.max_listed_gaps = max_listed_gaps
+        #: why the run is incomplete though it was finished (manifest ``incomplete``)
+        self.incomplete_reason: str | None = None
         #: what the pings are posed with (tile provenance and manifest ``poses``)
         self.poses = poses
         #: imaged pings per navigation flag (:data:`POSE_FLAG_NAMES`)
@@ -252,6 +265,13 @@ class Worker:
             if self.resume_sequence is not None:
                 self.resume_sequence = int(self.resume_sequence)
             self.resumed = int(j.get("resumed", 0)) + 1
+            # pings skipped before the resume point stay skipped (their tiles are
+            # written); those after it are fed again
+            upto = self.resume_sequence if self.resume_sequence is not None else 0
+            for a, b in j.get("skipped", [])[:self.max_listed_gaps]:
+                if int(a) < upto:
+                    self.skipped_ranges.append([int(a), min(int(b), upto - 1)])
+            self.skipped_unlisted = int(j.get("skipped_unlisted", 0))
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{path}: malformed journal ({exc})") from None
         files = tile_files(self.out)
@@ -285,7 +305,8 @@ class Worker:
             "written": sorted(self.imager.done - set(stopped_open)),
             "stopped_open": sorted(stopped_open),
             "resume_sequence": resume, "last_sequence": self.last_sequence,
-            "resumed": self.resumed,
+            "resumed": self.resumed, "skipped": self.skipped_ranges,
+            "skipped_unlisted": self.skipped_unlisted,
             "hardware_config_id": self.hardware.id,
             "processing_config_id": self.processing.id,
             "updated_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})
@@ -330,6 +351,24 @@ class Worker:
             self._write_journal()
         return ok
 
+    def skip(self, first: int, last: int) -> None:
+        """Pings ``first``..``last`` of the run will never be imaged here (lost on the
+        stream and not fetched): listed (the first ``max_listed_gaps`` ranges; beyond,
+        counted) in the journal and the manifest, and the run is not complete."""
+        if last < first:
+            return
+        if self.skipped_ranges and self.skipped_ranges[-1][1] + 1 == first:
+            self.skipped_ranges[-1][1] = last
+        elif len(self.skipped_ranges) < self.max_listed_gaps:
+            self.skipped_ranges.append([first, last])
+        else:
+            self.skipped_unlisted += last - first + 1
+
+    @property
+    def skipped_pings(self) -> int:
+        """Pings of the run skipped (:meth:`skip`)."""
+        return sum(b - a + 1 for a, b in self.skipped_ranges) + self.skipped_unlisted
+
     def _tally_flags(self, quality: int) -> None:
         for bit, name in POSE_FLAG_NAMES:
             if quality & bit:
@@ -366,7 +405,9 @@ class Worker:
             "malformed_messages": self.malformed_messages,
             "track_reanchored": self.imager.track.reanchored,
             "sequence_gaps": self.gaps, "voxel_channel_updates": self.imager.updates,
-            "resumed": self.resumed,
+            "resumed": self.resumed, "incomplete": self.incomplete_reason,
+            "skipped_pings": self.skipped_pings, "skipped": self.skipped_ranges,
+            "skipped_unlisted": self.skipped_unlisted,
             "files": sorted({p.name for p in self.written})}
 
     def run(self, pings: Iterable[Ping], total: int | None = None) -> list[Path]:
@@ -460,6 +501,14 @@ class _Run:
     #: the run's last sequence the recording held when last asked, and when (monotonic)
     recorded_last: int | None = None
     recorded_at: float = -float("inf")
+    #: when this worker last told the service its progress in the run (monotonic)
+    said_at: float = -float("inf")
+    #: why the run's end could not be confirmed (the run is then not complete)
+    end_unconfirmed: str | None = None
+    #: when the stream last brought a ping of the run (monotonic)
+    heard_at: float = field(default_factory=time.monotonic)
+    #: when the service is next asked about the run while the stream is quiet
+    ask_at: float = 0.0
 
 
 class StreamWorker:
@@ -474,8 +523,16 @@ class StreamWorker:
     def __init__(self, out: str | Path, hardware: Loaded[HardwareConfig],
                  processing: Loaded[ProcessingConfig], *, fetcher: PingFetcher | None = None,
                  gap_wait_s: float = GAP_WAIT_S, reorder_pings: int = REORDER_PINGS,
-                 max_sequence_jump: int = MAX_SEQUENCE_JUMP, force: bool = False):
+                 max_sequence_jump: int = MAX_SEQUENCE_JUMP, force: bool = False,
+                 progress_interval_s: float = PROGRESS_INTERVAL_S,
+                 max_listed_gaps: int = MAX_LISTED_GAPS):
         preflight(processing.value, processing.source)     # before anything is written
+        self.progress_interval_s = progress_interval_s
+        self.max_listed_gaps = max_listed_gaps
+        #: this worker's id in its progress messages to the catch-up service
+        self.client_id = re.sub(r"[^A-Za-z0-9._:-]", "_", (
+            f"{socket.gethostname()[:32]}-{os.getpid()}-{secrets.token_hex(4)}"))[:64]
+        self.ends_refused = 0            # end markers the catch-up service contradicted
         self.out = Path(out)
         self.hardware, self.processing = hardware, processing
         self.fetcher = fetcher
@@ -520,10 +577,13 @@ class StreamWorker:
                      self._folder(run_id))
             return _Run(run_id, None, None)
         folder = self._folder(run_id)
-        worker = Worker(self.hardware, self.processing, folder, run_id=run_id, resume=True)
+        worker = Worker(self.hardware, self.processing, folder, run_id=run_id, resume=True,
+                        max_listed_gaps=self.max_listed_gaps)
         start = worker.resume_sequence if worker.resume_sequence is not None else first
+        run = _Run(run_id, worker, start)
+        self._say(run)                     # the service knows at once this worker needs it
         log.info("run %s: imaging into %s from ping %s", run_id, folder, start)
-        return _Run(run_id, worker, start)
+        return run
 
     def _runs(self) -> list[RunInfo] | None:
         try:
@@ -548,7 +608,8 @@ class StreamWorker:
         folder = self.out / f"unnamed-{stamp}-{seq}"
         log.info("a run begins at ping %d: imaging into %s until its end marker names it",
                  seq, folder)
-        return _Run(None, Worker(self.hardware, self.processing, folder), seq)
+        return _Run(None, Worker(self.hardware, self.processing, folder,
+                                 max_listed_gaps=self.max_listed_gaps), seq)
 
     def resume_unfinished(self) -> None:
         """At start: finish (or continue) the runs whose journal says incomplete."""
@@ -587,14 +648,67 @@ class StreamWorker:
         prev, self.run = self.run, r
         try:
             self._catch_up(r, r.next_seq, info.last)
-            self._finish_run(r, complete=True)
+            if r.next_seq <= info.last:           # the service failed part-way
+                r.buffer.clear()
+                self._skip_to(r, info.last + 1, "the catch-up service did not give them")
+            self._finish_run(r, finished=True)
         finally:
             self.run = prev
 
     # ------------------------------------------------------------------ pings
-    def on_ping(self, ping: Ping) -> None:
+    def _run_info(self, run_id: str) -> tuple[RunInfo | None, bool]:
+        """What the catch-up service says of run ``run_id`` (None: it does not know the
+        run, or did not answer) and whether it answered."""
+        runs = self._runs()
+        if runs is None:
+            return None, False
+        return {i.run_id: i for i in runs}.get(run_id), True
+
+    def _open_tagged(self, run_id: str, seq: int) -> _Run:
+        """The run a stream ping names (its header's run id) begins here, at ping
+        ``seq``: imaged from its first recorded ping (or the journal's resume point)."""
+        first = seq
+        if self.fetcher is not None:
+            info, answered = self._run_info(run_id)
+            if info is not None:
+                first = min(info.first, seq)
+            elif answered:
+                log.warning("run %s: unknown to the catch-up service; imaged from ping %d "
+                            "(the stream's), nothing before it fetched", run_id, seq)
+        return self._open(run_id, first)
+
+    def _leave(self, r: _Run, new_run: str) -> None:
+        """The stream carries pings of run ``new_run`` before run ``r``'s end marker (a
+        daemon restarted after a crash; the marker lost): ``r`` is finished from the
+        recording when the service says it has ended; otherwise its open tiles are
+        written and it is left incomplete (a restarted worker resumes it). Its pings
+        never go to another run's tiles."""
+        if r.worker is None:
+            return
+        log.warning("run %s: the stream carries pings of run %s before this run's end "
+                    "marker", r.run_id or "(unnamed)", new_run)
+        info = None
+        if self.fetcher is not None and r.run_id is not None:
+            info = self._run_info(r.run_id)[0]
+        if info is not None and info.ended:
+            self._fetch_rest(r, info)
+            self._finish_run(r, finished=True)
+            return
+        r.end_unconfirmed = (f"the stream moved on to run {new_run} before this run's "
+                             "end marker" + ("" if info is None else "; the catch-up "
+                                             "service says it is still being recorded"))
+        self._finish_run(r, finished=False)
+
+    def on_ping(self, ping: Ping, run_id: str | None = None) -> None:
+        """A ping from the stream; ``run_id``: the run its header names (None: a
+        publisher that does not say, its run is then found from the catch-up service or
+        its end marker)."""
         seq = ping.sequence
-        if self.run is None:
+        if run_id is not None and (self.run is None or self.run.run_id != run_id):
+            if self.run is not None:
+                self._leave(self.run, run_id)
+            self.run = self._open_tagged(run_id, seq)
+        elif self.run is None:
             self.run = self._attribute(seq)
         r = self.run
         if r.worker is None:                      # a run finished here earlier
@@ -611,7 +725,21 @@ class StreamWorker:
                 return
             self._skip_gap(r, "the reorder buffer is full")
         r.buffer[seq] = ping
+        r.heard_at = time.monotonic()
+        self._say(r)                  # (before imaging: a run's first ping says so at once)
         self.drain()
+
+    def _say(self, r: _Run | None, done: bool = False) -> None:
+        """Tell the catch-up service where this worker is in run ``r`` (the first
+        sequence it lacks; ``done``: it needs nothing more of the run), at most every
+        ``progress_interval_s`` unless ``done``: the daemon keeps its service up after the
+        run while this worker lacks pings."""
+        if self.fetcher is None or r is None or r.run_id is None or r.next_seq is None:
+            return
+        now = time.monotonic()
+        if done or now - r.said_at >= self.progress_interval_s:
+            if self.fetcher.progress(self.client_id, r.run_id, r.next_seq, done):
+                r.said_at = now
 
     def _plausible(self, r: _Run, seq: int) -> bool:
         """Whether ``seq`` may be a ping of run ``r``: at most ``max_sequence_jump``
@@ -655,9 +783,16 @@ class StreamWorker:
         r.worker.add(ping)
 
     def _skip_gap(self, r: _Run, why: str) -> None:
-        nxt = min(r.buffer)
+        self._skip_to(r, min(r.buffer), why)
+
+    def _skip_to(self, r: _Run, nxt: int, why: str) -> None:
+        """Pings ``r.next_seq``..``nxt - 1`` will not be imaged: counted, logged and
+        listed in the run's journal and manifest (the run is then not complete)."""
         n = nxt - r.next_seq
+        if n <= 0:
+            return
         self.skipped += n
+        r.worker.skip(r.next_seq, nxt - 1)
         log.warning("run %s: ping(s) %d..%d skipped (%s)", r.run_id or "(unnamed)",
                     r.next_seq, nxt - 1, why)
         r.next_seq = nxt
@@ -682,7 +817,10 @@ class StreamWorker:
                 self._catch_up(r, r.next_seq, min(r.buffer) - 1)
                 if r.next_seq > before:
                     continue
-                r.retry_at = now + 0.25
+                # asked again soon; after a service that did not answer, only once as
+                # long again has passed (a gone service takes at most half the time)
+                r.retry_at = time.monotonic() + (self.fetcher.timeout_s if
+                                                 r.service_failed else 0.25)
             waited = now - r.gap_since
             if final or waited >= self.gap_wait_s and (
                     self.fetcher is None or r.run_id is None or r.service_failed):
@@ -702,6 +840,7 @@ class StreamWorker:
         r.service_failed = False
         try:
             while r.next_seq <= last:
+                self._say(r)
                 got = self.fetcher.fetch_once(r.run_id, r.next_seq, last)
                 by_seq = {p.sequence: p for p in got.pings}
                 missing = collections.deque(got.missing)    # ranges, ascending
@@ -732,6 +871,7 @@ class StreamWorker:
         except (TimeoutError, ServiceError, OSError) as exc:
             self.fetch_errors += 1
             r.service_failed = True
+            r.retry_at = time.monotonic() + self.fetcher.timeout_s
             log.error("run %s: catch-up of %d..%d failed: %s", r.run_id, first, last, exc)
         finally:
             self.fetched += n
@@ -745,9 +885,31 @@ class StreamWorker:
         return len(self.ended)
 
     def on_end(self, end: messages.RunEnd) -> None:
-        """A run's end marker: fetch what is left of it, finish its tiles."""
-        self.ended.add(end.run_id)
+        """A run's end marker: with a catch-up service, believed only once the service
+        says the run has ended (a marker of a run still being recorded -- spoofed, or
+        astray -- is refused, counted and logged, and the run goes on); then what is
+        left of the run is fetched and its tiles finished. A run whose end the service
+        could not confirm (it did not answer, or does not know the run) is finished
+        but not complete."""
         r = self.run
+        info, unconfirmed = None, None
+        if self.fetcher is not None:
+            info, answered = self._run_info(end.run_id)
+            current = r is not None and r.run_id in (end.run_id, None)
+            if (info is not None and not info.ended) or (info is None and answered
+                                                         and not current):
+                self.ends_refused += 1
+                log.warning("end marker of run %s (%d pings) refused: the catch-up "
+                            "service %s (%d end marker(s) refused in all)", end.run_id,
+                            end.n_pings, "knows no such run" if info is None else
+                            f"says it is still being recorded ({info.n_pings} pings so "
+                            "far)", self.ends_refused)
+                return
+            if info is None:
+                unconfirmed = (f"its end marker (which counts {end.n_pings} pings) "
+                               "could not be confirmed: the catch-up service " +
+                               ("does not know the run" if answered else "did not answer"))
+        self.ended.add(end.run_id)
         if r is not None and r.run_id is None:          # named by its end marker
             self.drain(final=True)
             folder = self._folder(end.run_id)
@@ -759,50 +921,110 @@ class StreamWorker:
                 r.worker.written = [folder / p.name for p in r.worker.written]
                 r.worker.out = folder
             r.worker.run_id = end.run_id
-            self._finish_run(r, complete=True)
+            r.end_unconfirmed = unconfirmed
+            self._skip_tail(r, end)
+            self._finish_run(r, finished=True)
             self.run = None
             return
         if r is not None and r.run_id == end.run_id:
             if r.worker is not None:
-                # every ping the run's end marker counts came in order: nothing to ask the
-                # service (which may have gone after its linger while this worker imaged)
-                have_all = not r.buffer and r.fed >= end.n_pings
-                if self.fetcher is not None and not have_all:
-                    info = {i.run_id: i for i in (self._runs() or [])}.get(end.run_id)
-                    last = info.last if info is not None else max(r.buffer, default=-1)
-                    deadline = time.monotonic() + END_WAIT_S
-                    self._catch_up(r, r.next_seq, last)
-                    while (r.next_seq <= last and not r.service_failed
-                           and time.monotonic() < deadline):      # not flushed yet
-                        time.sleep(POLL_SLICE_S)
-                        self._catch_up(r, r.next_seq, last)
-                self.drain(final=True)
-                self._finish_run(r, complete=True)
+                r.end_unconfirmed = unconfirmed
+                if info is not None:
+                    self._fetch_rest(r, info)
+                else:
+                    self.drain(final=True)
+                    self._skip_tail(r, end)
+                self._finish_run(r, finished=True)
             self.run = None
             return
         if r is not None:
             log.warning("end marker of run %s while imaging run %s", end.run_id, r.run_id)
-        if self.fetcher is not None and not self._done_here(end.run_id):
-            info = {i.run_id: i for i in (self._runs() or [])}.get(end.run_id)
-            if info is not None:
-                log.info("run %s ended; imaging what this worker missed of it from the "
-                         "recording", end.run_id)
-                self._catch_up_whole(info)
-                return
+        if info is not None and not self._done_here(end.run_id):
+            log.info("run %s ended; imaging what this worker missed of it from the "
+                     "recording", end.run_id)
+            self._catch_up_whole(info)
+            return
         log.info("end of run %s (%d pings)", end.run_id, end.n_pings)
 
-    def tick(self) -> None:
-        """Between messages: retry or skip gaps whose time has come."""
-        self.drain()
+    def _skip_tail(self, r: _Run, end: messages.RunEnd) -> None:
+        """A run ended that the recording cannot be asked about: the pings between the
+        last one fed and the run's last (the end marker's ``last``) were never imaged."""
+        if end.last is not None and r.next_seq is not None and r.next_seq <= end.last:
+            self._skip_to(r, end.last + 1, "after the last ping received; the end marker "
+                          "says the run's last is %d" % end.last)
 
-    def _finish_run(self, r: _Run, complete: bool) -> None:
-        files = r.worker.finish(complete=complete)
-        if complete and r.run_id is not None:
+    def _fetch_rest(self, r: _Run, info: RunInfo) -> None:
+        """Fetch what run ``r`` lacks up to the last ping the service says it recorded
+        (waiting up to END_WAIT_S for what is not flushed yet) and feed what is
+        buffered; what the service could not give is skipped: listed, and the run not
+        complete."""
+        last = info.last
+        if r.next_seq <= last:
+            deadline = time.monotonic() + END_WAIT_S
+            self._catch_up(r, r.next_seq, last)
+            while (r.next_seq <= last and not r.service_failed
+                   and time.monotonic() < deadline):      # not flushed yet
+                time.sleep(POLL_SLICE_S)
+                self._catch_up(r, r.next_seq, last)
+        self.drain(final=True)
+        if r.next_seq <= last:
+            self._skip_to(r, last + 1, "the catch-up service did not give them")
+
+    def tick(self) -> None:
+        """Between messages: retry or skip gaps whose time has come; tell the service
+        where this worker is; when the stream has brought nothing of the open run for
+        ``gap_wait_s``, ask the service about it (the stream drops pings, and end
+        markers, a slow worker did not take): what it recorded since is fetched, and a
+        run it says has ended is finished."""
+        self.drain()
+        r = self.run
+        self._say(r)
+        now = time.monotonic()
+        if (self.fetcher is None or r is None or r.worker is None or r.run_id is None
+                or r.buffer or now - r.heard_at < self.gap_wait_s or now < r.ask_at):
+            return
+        info, answered = self._run_info(r.run_id)
+        r.ask_at = time.monotonic() + (self.gap_wait_s if answered
+                                       else self.fetcher.timeout_s)
+        if info is None:
+            return
+        if info.ended:
+            log.warning("run %s: ended, says the catch-up service (its end marker has "
+                        "not reached this worker); finishing it from the recording",
+                        r.run_id)
+            self._fetch_rest(r, info)
+            self._finish_run(r, finished=True)
+            self.run = None
+        elif info.last >= r.next_seq:
+            self._catch_up(r, r.next_seq, info.last)
+
+    def _finish_run(self, r: _Run, finished: bool) -> None:
+        """Write run ``r``'s open tiles and its manifest. ``finished``: the run ended
+        (False: this worker stopped, or left the run before its end). The run is
+        complete only when finished with every recorded ping imaged (none skipped) and,
+        with a service, its end confirmed; the manifest says why not."""
+        w = r.worker
+        why = []
+        if w.skipped_pings:
+            why.append(f"{w.skipped_pings} ping(s) not imaged: lost on the stream and "
+                       "not fetched from the recording" + (
+                           "" if self.fetcher is not None else " (no catch-up service)"))
+        if r.end_unconfirmed:
+            why.append(r.end_unconfirmed)
+        if not finished and not r.end_unconfirmed:
+            why.append("stopped before the run's end")
+        w.incomplete_reason = "; ".join(why) or None
+        complete = finished and not why
+        if finished:
+            self._say(r, done=True)             # the service is not needed any more
+        files = w.finish(complete=complete)
+        if finished and r.run_id is not None:
             self.ended.add(r.run_id)
-        summary = r.worker.summary(complete)
-        self.finished[r.worker.out.name] = summary
+        summary = w.summary(complete)
+        self.finished[w.out.name] = summary
         log.info("run %s: %d tile(s) in %s (%s)", r.run_id, sum(p.suffix == ".h5"
-                 for p in files), r.worker.out, "complete" if complete else "incomplete")
+                 for p in files), w.out, "complete" if complete else
+                 f"incomplete: {w.incomplete_reason}")
         self.write_manifest(complete=True)
 
     def stop(self) -> None:
@@ -811,7 +1033,8 @@ class StreamWorker:
         r = self.run
         if r is not None and r.worker is not None:
             log.warning("stopped: writing %d open tile(s)", len(r.worker.imager.active))
-            self._finish_run(r, complete=False)
+            self._say(r, done=True)
+            self._finish_run(r, finished=False)
         self.write_manifest(complete=False)
 
     def write_manifest(self, complete: bool) -> None:
@@ -824,6 +1047,8 @@ class StreamWorker:
         for s in runs.values():
             for k, v in s["refused"].items():
                 refused[k] = refused.get(k, 0) + v
+        # complete: the session ended normally and every run in it is complete
+        complete = complete and all(s["complete"] for s in runs.values())
         _atomic_json(self.out / MANIFEST, {
             "complete": complete, **tot, "refused": refused,
             "malformed_messages": self.malformed_messages,
@@ -831,8 +1056,10 @@ class StreamWorker:
             "missing_in_recording": self.missing, "fetched_pings": self.fetched,
             "fetch_errors": self.fetch_errors, "dropped_reorder_full": self.overflow,
             "implausible_sequences": self.implausible,
+            "end_markers_refused": self.ends_refused,
             "runs": {name: {"run_id": s["run_id"], "complete": s["complete"],
-                            "pings": s["pings"],
+                            "incomplete": s["incomplete"], "pings": s["pings"],
+                            "skipped_pings": s["skipped_pings"], "skipped": s["skipped"],
                             "tiles": sum(f.endswith(".h5") for f in s["files"])}
                      for name, s in runs.items()},
             "files": [f"{name}/{f}" for name, s in runs.items() for f in s["files"]]})
@@ -852,7 +1079,9 @@ def serve(endpoint: str, out_dir: str | Path, hardware: Loaded[HardwareConfig],
           service_timeout_s: float = 10.0, curve=None, runs: int | None = None,
           gap_wait_s: float = GAP_WAIT_S, reorder_pings: int = REORDER_PINGS,
           max_sequence_jump: int = MAX_SEQUENCE_JUMP,
-          max_pings_per_reply: int = MAX_PINGS_PER_REPLY) -> list[Path]:
+          max_pings_per_reply: int = MAX_PINGS_PER_REPLY,
+          progress_interval_s: float = PROGRESS_INTERVAL_S,
+          max_listed_gaps: int = MAX_LISTED_GAPS) -> list[Path]:
     """Receive pings from ``endpoint`` and image them run by run into ``out_dir/RUN_ID/``
     until ``runs`` end-of-run messages (None: no limit) or ``idle_timeout_s`` without a
     message. ``service``: the catch-up service's endpoint (gaps are fetched from the
@@ -874,7 +1103,9 @@ def serve(endpoint: str, out_dir: str | Path, hardware: Loaded[HardwareConfig],
         guards.enter_context(FolderLock(out_dir))     # before anything is written there
         sw = StreamWorker(out_dir, hardware, processing, fetcher=fetcher, force=force,
                           gap_wait_s=gap_wait_s, reorder_pings=reorder_pings,
-                          max_sequence_jump=max_sequence_jump)
+                          max_sequence_jump=max_sequence_jump,
+                          progress_interval_s=progress_interval_s,
+                          max_listed_gaps=max_listed_gaps)
         sock = subscribe(endpoint, receive_hwm, curve=curve)
         log.info("worker: waiting for pings from %s%s", endpoint,
                  f" (catch-up service {service})" if service else "")
@@ -899,23 +1130,22 @@ def _loop(sw: StreamWorker, sock: zmq.Socket, endpoint: str, idle_timeout_s: flo
     progress = Progress("imaging", None, log)
     poller = zmq.Poller()
     poller.register(sock, zmq.POLLIN)
-    idle = 0.0
+    heard = time.monotonic()         # the last message (wall time: a tick may wait)
     while runs is None or sw.runs_ended < runs:
         if not poller.poll(int(POLL_SLICE_S * 1000)):
-            idle += POLL_SLICE_S
             sw.tick()
-            if idle_timeout_s is not None and idle >= idle_timeout_s:
+            if idle_timeout_s is not None and time.monotonic() - heard >= idle_timeout_s:
                 log.warning("no message from %s for %.1f s: finishing", endpoint,
                             idle_timeout_s)
                 if sw.run is not None and sw.run.worker is not None:
                     sw.drain(final=True)
-                    sw._finish_run(sw.run, complete=sw.run.run_id is None)
+                    sw._finish_run(sw.run, finished=sw.run.run_id is None)
                     sw.run = None
                 break
             continue
-        idle = 0.0
+        heard = time.monotonic()
         try:
-            msg = messages.recv(sock)
+            msg, run_id = messages.recv_tagged(sock)
         except messages.MessageError as exc:
             sw.malformed_messages += 1
             log.error("dropped a malformed message: %s", exc)
@@ -924,5 +1154,5 @@ def _loop(sw: StreamWorker, sock: zmq.Socket, endpoint: str, idle_timeout_s: flo
             log.info("end of run %s after %d pings", msg.run_id, msg.n_pings)
             sw.on_end(msg)
             continue
-        sw.on_ping(msg)
+        sw.on_ping(msg, run_id)
         progress.update()

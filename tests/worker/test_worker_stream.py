@@ -98,10 +98,13 @@ def test_without_a_service_gaps_are_skipped_after_a_bounded_wait(raw_run, hw, sm
     ctx.term()
     assert not t.is_alive() and "error" not in result, result.get("error")
     m = json.loads((out / MANIFEST).read_text())
-    assert m["skipped_pings"] == 4 and m["pings"] == 86 and m["complete"]
+    # pings skipped: the run is not complete, and its manifest says which
+    assert m["skipped_pings"] == 4 and m["pings"] == 86 and not m["complete"]
+    assert m["runs"]["line1"]["skipped"] == [[5, 7], [40, 40]]
+    assert not m["runs"]["line1"]["complete"] and m["runs"]["line1"]["incomplete"]
     # the folder is named by the run's end marker
     assert json.loads((out / "line1" / MANIFEST).read_text())["run_id"] == "line1"
-    assert json.loads((out / "line1" / JOURNAL).read_text())["complete"]
+    assert not json.loads((out / "line1" / JOURNAL).read_text())["complete"]
 
 
 def _wait_for(pred, timeout_s, what):

@@ -1,0 +1,207 @@
+"""The reliable path's end through real processes (``svss sim-device`` -> ``svss acquire``
+-> ``svss worker``): a worker that tells the catch-up service its progress keeps the
+daemon's service up after the run while it still lacks pings, and a worker that cannot
+fetch what it lacks says so in its manifest (``complete: false``, the ranges skipped),
+never ``complete: true`` with pings skipped.
+
+The worker is stopped (SIGSTOP) mid-run: the daemon's ping queue to it is tiny
+(``publisher.send_hwm = 2``), so the stream drops the pings it does not take, and its
+last request to the service is long past when the run ends (``catch_up.linger_s`` 1 s).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from svss_daq.ping_service import PingFetcher, ServiceError
+from svss_daq.rawfile import RawRunReader
+from svss_proc.tiles import read_tile
+
+from .conftest import CONFIG, ROOT, acquire_toml
+
+pytestmark = [pytest.mark.skipif(not sys.platform.startswith("linux"),
+                                 reason="needs Linux pseudo-terminals"), pytest.mark.slow]
+DEADLINE_S = 240.0
+
+
+def config_dir(tmp: Path, edits: dict[str, str]) -> Path:
+    """A copy of the project's configuration folder with ``edits`` (old -> new text)
+    made to its daq.toml."""
+    d = tmp / "config"
+    shutil.copytree(CONFIG, d)
+    text = (d / "daq.toml").read_text()
+    for old, new in edits.items():
+        assert old in text, old
+        text = text.replace(old, new)
+    (d / "daq.toml").write_text(text)
+    return d
+
+
+def fast_processing(tmp: Path) -> Path:
+    """The demo's processing on small tiles (2 x 0.4 x 0.3 m) at 4 cm voxels: the run's
+    end, not the image, is under test."""
+    from tests.worker.conftest import small_processing_text
+    path = tmp / "processing-fast.toml"
+    text = small_processing_text().replace("voxel_m = 0.02", "voxel_m = 0.04")
+    assert "voxel_m = 0.04" in text
+    path.write_text(text)
+    return path
+
+
+def wait_for(pred, what: str, timeout_s: float = DEADLINE_S, step_s: float = 0.05):
+    deadline = time.monotonic() + timeout_s
+    while True:
+        got = pred()
+        if got:
+            return got
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+        time.sleep(step_s)
+
+
+def run_ended(endpoint: str) -> bool:
+    """Whether the catch-up service at ``endpoint`` says run1 has ended (asked there,
+    not of the file: a reader holding the file while the daemon closes it makes the
+    daemon put the summary beside it)."""
+    try:
+        with PingFetcher(endpoint, timeout_s=2.0) as fetcher:
+            return any(r.run_id == "run1" and r.ended for r in fetcher.runs())
+    except (TimeoutError, ServiceError):
+        return False
+
+
+def journal_written(folder: Path) -> bool:
+    try:
+        return bool(json.loads((folder / "worker_state.json").read_text()).get("line"))
+    except (OSError, ValueError):
+        return False
+
+
+def dead_endpoint() -> str:
+    """A loopback endpoint nothing listens on."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp://127.0.0.1:{s.getsockname()[1]}"
+
+
+class StoppedWorker:
+    """A daemon's run with a worker stopped (SIGSTOP) from its first tile frame until
+    the run has ended and the daemon has decided whether to keep its service up.
+    ``service``: the catch-up service the worker is given (default: the daemon's; with
+    another, the worker goes on as soon as the run has ended, while the daemon still
+    waits to send its end marker)."""
+
+    def __init__(self, rig, tmp: Path, service: str | None = None):
+        self.cfg_dir = config_dir(tmp, {
+            "send_hwm = 500": "send_hwm = 2",                 # a stopped worker loses pings
+            "request_timeout_s = 10.0": "request_timeout_s = 2.0"})
+        cfg = acquire_toml(tmp, run={"daq": str(self.cfg_dir / "daq.toml")},
+                           catch_up={"linger_s": 1.0, "max_linger_s": 120.0})
+        dev = rig.device("--time-scale", "2")
+        self.acq = rig.acquire(dev, "--pings", "200", "--wait-subscribers", "1",
+                               config=cfg)
+        self.out = tmp / "tiles"
+        self.log = tmp / "worker.log"
+        with open(self.log, "wb") as err:
+            self.worker = subprocess.Popen(
+                [sys.executable, "-m", "svss", "worker", "--connect",
+                 self.acq.endpoints["publisher"], "--service",
+                 service or self.acq.endpoints["service"],
+                 "--out", str(self.out), "--processing", str(fast_processing(tmp)),
+                 "--runs", "1", "--idle-timeout", "120"],
+                stdout=subprocess.DEVNULL, stderr=err, cwd=ROOT,
+                env={**os.environ, "SVSS_CONFIG_DIR": str(self.cfg_dir)})
+        try:
+            # stopped as soon as the run's first ping reached it (it has told the
+            # service then; the run goes on for seconds)
+            wait_for(lambda: "imaging into" in self.log.read_text(),
+                     "the worker's first ping")
+            self.worker.send_signal(signal.SIGSTOP)
+            # the run ends while the worker is stopped ...
+            wait_for(lambda: self.acq.proc.poll() is not None
+                     or run_ended(self.acq.endpoints["service"]), "the run's end")
+            # ... and the daemon decides: it goes (its linger on requests is over) or it
+            # stays up for the worker that lacks pings
+            if service is None:
+                wait_for(lambda: self.acq.proc.poll() is not None
+                         or "stays up while 1 worker(s)" in self.acq.logs(),
+                         "the daemon's decision after the run")
+        except BaseException:
+            self.close()
+            raise
+
+    def resume(self) -> dict:
+        """Let the worker go on; its manifest once it has exited (rc 0)."""
+        self.worker.send_signal(signal.SIGCONT)
+        try:
+            rc = self.worker.wait(DEADLINE_S)
+        finally:
+            self.close()
+        assert rc == 0, self.log.read_text()[-3000:]
+        return json.loads((self.out / "manifest.json").read_text())
+
+    def close(self) -> None:
+        if self.worker.poll() is None:
+            self.worker.send_signal(signal.SIGCONT)
+            self.worker.kill()
+            self.worker.wait(10)
+
+
+def recording(acq) -> tuple[list[int], dict]:
+    """The run's recorded sequences and its summary."""
+    [raw] = acq.files()
+    with RawRunReader(raw) as run:
+        return run.ping_table()["ping_sequence"].tolist(), run.summary
+
+
+def test_daemon_stays_up_while_a_worker_lacks_pings(rig, tmp_path):
+    run = StoppedWorker(rig, tmp_path)
+    manifest = run.resume()
+    assert run.acq.wait(DEADLINE_S) == 0, run.acq.logs()[-3000:]
+    recorded, summary = recording(run.acq)
+    # the stopped worker lost pings on the stream and fetched every one of them
+    assert manifest["fetched_pings"] > 0, manifest
+    assert manifest["fetch_errors"] == 0 and manifest["skipped_pings"] == 0, manifest
+    assert manifest["complete"] and manifest["runs"]["run1"]["complete"], manifest
+    assert manifest["pings"] == len(recorded) == summary["counters"]["recorded"]
+    assert "stays up while 1 worker(s)" in run.acq.logs()
+    imaged = set()
+    for tile in (run.out / "run1").glob("tile_*.h5"):
+        imaged |= set(read_tile(tile)["ping_sequence"].tolist())
+    assert imaged == set(recorded)
+
+
+def test_a_worker_that_cannot_fetch_says_so_in_its_manifest(rig, tmp_path):
+    # the worker's catch-up service does not answer: it lost pings on the stream and
+    # cannot fetch them
+    run = StoppedWorker(rig, tmp_path, service=dead_endpoint())
+    t0 = time.monotonic()
+    manifest = run.resume()
+    took = time.monotonic() - t0
+    assert run.acq.wait(DEADLINE_S) == 0, run.acq.logs()[-3000:]
+    recorded, _ = recording(run.acq)
+    m = manifest["runs"]["run1"]
+    assert manifest["pings"] < len(recorded)             # the stream lost some
+    # not complete, and it says why and what (the ranges it never imaged)
+    assert not manifest["complete"] and not m["complete"], manifest
+    assert m["incomplete"] and manifest["fetch_errors"] > 0
+    skipped = {q for a, b in m["skipped"] for q in range(a, b + 1)}
+    assert skipped and m["skipped_pings"] == len(skipped)
+    assert skipped <= set(range(min(recorded), max(recorded) + 1))
+    # every recorded ping is imaged or listed as skipped
+    imaged = set()
+    for tile in (run.out / "run1").glob("tile_*.h5"):
+        imaged |= set(read_tile(tile)["ping_sequence"].tolist())
+    assert not imaged & skipped and set(recorded) <= imaged | skipped
+    # a gone service is waited for a few request timeouts (2 s), not one per gap
+    assert took < 60, took
