@@ -145,6 +145,9 @@ class _RecordQueue:
     def __len__(self) -> int:
         return len(self.items)
 
+    def __iter__(self):
+        return iter(list(self.items))
+
 
 class _NmeaTap:
     """The GPS link's parser: decodes with :class:`NmeaStreamParser` and keeps each raw

@@ -164,7 +164,7 @@ def test_pd0_tap_keeps_exactly_the_bytes_of_every_ensemble_that_decoded():
     stream = _stream([b"\x00junk\x7f", ens[0], b"\x7f\x7f\xff\x00garbage", ens[1],
                       bytes(corrupt), ens[3], b"\x7f"])
     rng = np.random.default_rng(3)
-    tap, plain = _Pd0Tap(), Pd0StreamParser()
+    tap, plain = _Pd0Tap(keep=100000), Pd0StreamParser()
     got, want = [], []
     pos = 0
     while pos < len(stream):
@@ -182,7 +182,7 @@ def test_pd0_tap_keeps_exactly_the_bytes_of_every_ensemble_that_decoded():
 
 
 def test_nmea_tap_keeps_each_sentence_as_the_parser_reads_it():
-    tap = _NmeaTap(NmeaStreamParser())
+    tap = _NmeaTap(NmeaStreamParser(), keep=100000)
     gga = ne.gga("GP", T0, 41.5, -70.6, 1, 8, 1.0, 5.0, -28.0).decode().strip()
     hdt = ne.hdt("GP", 0.2).decode().strip()
     # junk glued in front of a sentence (a lost line end): the parser drops it, and so
