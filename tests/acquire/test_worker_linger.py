@@ -34,14 +34,17 @@ pytestmark = [pytest.mark.skipif(not sys.platform.startswith("linux"),
 DEADLINE_S = 240.0
 
 
-def config_dir(tmp: Path, edits: dict[str, str]) -> Path:
+def config_dir(tmp: Path, edits: dict[str, str],
+               if_there: dict[str, str] | None = None) -> Path:
     """A copy of the project's configuration folder with ``edits`` (old -> new text)
-    made to its daq.toml."""
+    made to its daq.toml, and ``if_there`` where the old text is there."""
     d = tmp / "config"
     shutil.copytree(CONFIG, d)
     text = (d / "daq.toml").read_text()
     for old, new in edits.items():
         assert old in text, old
+        text = text.replace(old, new)
+    for old, new in (if_there or {}).items():
         text = text.replace(old, new)
     (d / "daq.toml").write_text(text)
     return d
@@ -104,7 +107,10 @@ class StoppedWorker:
     def __init__(self, rig, tmp: Path, service: str | None = None):
         self.cfg_dir = config_dir(tmp, {
             "send_hwm = 500": "send_hwm = 2",                 # a stopped worker loses pings
-            "request_timeout_s = 10.0": "request_timeout_s = 2.0"})
+            "request_timeout_s = 10.0": "request_timeout_s = 2.0"},
+            # stopped for the run and the daemon's 10 s wait to send its end marker (and
+            # more on a loaded machine): not forgotten meanwhile
+            {"worker_silence_s = 30.0": "worker_silence_s = 120.0"})
         cfg = acquire_toml(tmp, run={"daq": str(self.cfg_dir / "daq.toml")},
                            catch_up={"linger_s": 1.0, "max_linger_s": 120.0})
         dev = rig.device("--time-scale", "2")
