@@ -1093,6 +1093,7 @@ def serve(endpoint: str, out_dir: str | Path, hardware: Loaded[HardwareConfig],
     check_endpoint(endpoint, bind=False)            # before anything is written
     if service is not None:
         check_endpoint(service, bind=False)
+    preflight(processing.value, processing.source)  # before the folder is made and locked
     fetcher = (PingFetcher(service, curve=curve, timeout_s=service_timeout_s,
                            max_pings_per_reply=max_pings_per_reply)
                if service is not None else None)
