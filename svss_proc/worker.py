@@ -895,6 +895,8 @@ class StreamWorker:
         info, unconfirmed = None, None
         if self.fetcher is not None:
             info, answered = self._run_info(end.run_id)
+            if not answered:                        # asked once more: a loaded machine
+                info, answered = self._run_info(end.run_id)
             current = r is not None and r.run_id in (end.run_id, None)
             if (info is not None and not info.ended) or (info is None and answered
                                                          and not current):
