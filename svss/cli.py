@@ -307,8 +307,10 @@ def cmd_sim_device(args) -> int:
             log.info("devices configuration written to %s", args.devices_out)
         sys.stdout.write(text)
         sys.stdout.flush()
+        from svss_daq.signals import raise_if_stopped
         while True:  # until SIGINT / SIGTERM (KeyboardInterrupt)
             time.sleep(0.5)
+            raise_if_stopped()
     finally:
         dev.close()
 
@@ -571,13 +573,13 @@ def build_parser() -> argparse.ArgumentParser:
 def _stop_on_sigterm() -> None:
     """SIGTERM stops a command as SIGINT does (KeyboardInterrupt: files are flushed and
     closed on the way out)."""
-    def handler(signum, frame):
-        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+    from svss_daq.signals import clear_stop, stop_handler
+    clear_stop()
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, handler)
+        signal.signal(signal.SIGTERM, stop_handler)
         # a command started in the background by a shell inherits SIGINT ignored, and
         # Python then leaves it ignored: an explicit SIGINT must still stop it
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGINT, stop_handler)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -54,6 +54,7 @@ from .nav.renavigate import navigation_config_text
 from .rawfile import NAV_CONFIG_ATTR
 from .recorder import (RESERVE_MIB, RecordingStopped, RunRecorder,
                        close_interrupted_runs, free_run_id)
+from .signals import raise_if_stopped
 from .status import StatusPublisher
 
 log = logging.getLogger(__name__)
@@ -445,6 +446,7 @@ class AcquisitionDaemon:
                     break
                 if deadline is not None and time.monotonic() >= deadline:
                     break
+                raise_if_stopped()          # its own KeyboardInterrupt may have been lost
                 self.step(0.05)
         except KeyboardInterrupt:
             self.stop()

@@ -5,6 +5,12 @@ what they hold (tiles, manifests, recordings). A second signal -- Ctrl-C pressed
 a parent that forwards SIGTERM to a child the terminal's Ctrl-C reached already -- would
 interrupt that writing half-way: :func:`stop_once` makes the first signal stop the block
 and every later one wait (logged) until the writing is done. SIGKILL still stops at once.
+
+A signal handler's exception lands wherever the main thread happens to be, and Python
+swallows it there when that is a weakref callback or a ``__del__`` ("Exception ignored
+in ..."): the command would then run on as if never signalled (a daemon went on recording
+for 20 s after SIGTERM). Every handler here therefore also records the request
+(:func:`note_stop`), and long loops call :func:`raise_if_stopped` each round.
 """
 
 from __future__ import annotations
@@ -18,6 +24,40 @@ from collections.abc import Iterator
 log = logging.getLogger(__name__)
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+_requested: str | None = None        # "signal SIGTERM" once a stop signal came
+
+
+def note_stop(signum: int) -> str:
+    """Record that signal ``signum`` asked the command to stop; returns the reason
+    (``"signal SIGTERM"``) for the :class:`KeyboardInterrupt`."""
+    global _requested
+    reason = f"signal {signal.Signals(signum).name}"
+    _requested = _requested or reason
+    return reason
+
+
+def clear_stop() -> None:
+    """Forget an earlier stop request (a command starting in a process that ran one)."""
+    global _requested
+    _requested = None
+
+
+def stop_requested() -> str | None:
+    """The reason of the stop signal received, or None."""
+    return _requested
+
+
+def raise_if_stopped() -> None:
+    """Raise :class:`KeyboardInterrupt` if a stop signal came (its own exception may
+    have been swallowed where it landed)."""
+    if _requested is not None:
+        raise KeyboardInterrupt(_requested)
+
+
+def stop_handler(signum, frame) -> None:
+    """The handler ``svss`` commands install for SIGINT and SIGTERM."""
+    raise KeyboardInterrupt(note_stop(signum))
 
 
 @contextlib.contextmanager
@@ -37,7 +77,7 @@ def stop_once(what: str) -> Iterator[None]:
     def first(signum, frame):
         for s in STOP_SIGNALS:
             signal.signal(s, later)
-        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+        raise KeyboardInterrupt(note_stop(signum))
 
     old = {s: signal.signal(s, first) for s in STOP_SIGNALS}
     try:
@@ -47,4 +87,5 @@ def stop_once(what: str) -> Iterator[None]:
             signal.signal(s, h)
 
 
-__all__ = ["STOP_SIGNALS", "stop_once"]
+__all__ = ["STOP_SIGNALS", "clear_stop", "note_stop", "raise_if_stopped", "stop_handler",
+           "stop_once", "stop_requested"]

@@ -45,7 +45,7 @@ from svss_daq.ping_service import (MAX_PINGS_PER_REPLY, PROGRESS_INTERVAL_S, Pin
                                    RunInfo, ServiceError)
 from svss_daq.progress import Progress
 from svss_daq.rawfile import RawRunReader, run_of
-from svss_daq.signals import stop_once
+from svss_daq.signals import raise_if_stopped, stop_once
 from svss_daq.subscriber import subscribe
 
 from .folder_lock import FolderLock
@@ -1135,6 +1135,7 @@ def _loop(sw: StreamWorker, sock: zmq.Socket, endpoint: str, idle_timeout_s: flo
     poller.register(sock, zmq.POLLIN)
     heard = time.monotonic()         # the last message (wall time: a tick may wait)
     while runs is None or sw.runs_ended < runs:
+        raise_if_stopped()              # its own KeyboardInterrupt may have been lost
         if not poller.poll(int(POLL_SLICE_S * 1000)):
             sw.tick()
             if idle_timeout_s is not None and time.monotonic() - heard >= idle_timeout_s:
