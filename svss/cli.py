@@ -358,9 +358,19 @@ def cmd_reproduce(args) -> int:
     return 0
 
 
+def _version() -> str:
+    """The installed distribution's version ("unknown" when run from a bare checkout)."""
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("svss")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="svss", description="Sediment Volume Search Sonar: "
                                 "acquisition, simulation and 3-D imaging.")
+    p.add_argument("--version", action="version", version=f"svss {_version()}")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more logging")
     p.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
     p.add_argument("--config-dir", help=f"configuration folder (default: ${CONFIG_ENV} or "
