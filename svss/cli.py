@@ -32,6 +32,8 @@ from pathlib import Path
 from svss_daq.config import (ConfigError, DaqConfig, HardwareConfig, ProcessingConfig,
                              config_path, load, load_with_text, CONFIG_ENV)
 
+from svss.compile_notice import announce_compiling
+
 log = logging.getLogger("svss")
 
 
@@ -598,6 +600,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.config_dir:
         os.environ[CONFIG_ENV] = str(Path(args.config_dir).resolve())
     _stop_on_sigterm()
+    announce_compiling()
     try:
         return args.func(args)
     except KeyboardInterrupt as exc:
