@@ -16,9 +16,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from svss_daq.config import ProcessingConfig, load_with_text
 from svss_daq.ping_service import PingFetcher
 from svss_daq.rawfile import RawRunReader
 from svss_proc.tiles import read_tile
+from svss_proc.worker import process_raw
 
 from .conftest import CONFIG, ROOT, acquire_toml
 from .test_daemon import device_stats
@@ -29,10 +31,14 @@ PROCESSING = CONFIG / "processing-demo.toml"
 
 
 def coarse_processing(tmp: Path) -> Path:
-    """The demo's processing at 4 cm voxels (an eighth of the imaging work): the resume
-    logic, not the image, is under test here."""
+    """The demo's processing on small tiles (2 x 0.4 x 0.3 m) at 4 cm voxels (a tile
+    every 20 pings, a sixtieth of the demo tile's voxels): the resume logic, not the
+    image, is under test here."""
+    from tests.worker.conftest import small_processing_text
     path = tmp / "processing-coarse.toml"
-    path.write_text(PROCESSING.read_text().replace("voxel_m = 0.02", "voxel_m = 0.04"))
+    text = small_processing_text().replace("voxel_m = 0.02", "voxel_m = 0.04")
+    assert "voxel_m = 0.04" in text
+    path.write_text(text)
     return path
 
 
@@ -92,7 +98,6 @@ def warm_kernels(tmp_path_factory, hardware):
     so that a worker process is not still compiling when the run it should image ends."""
     from sim_device.environment_source import EnvironmentSource
     from sim_device.scene import load_scene
-    from svss_daq.config import ProcessingConfig, load_with_text
     from svss_proc.worker import Worker
     src = EnvironmentSource(hardware, load_scene(CONFIG / "scenes" / "demo.toml"))
     warm = tmp_path_factory.mktemp("warm")
@@ -102,11 +107,11 @@ def warm_kernels(tmp_path_factory, hardware):
 
 
 def test_worker_killed_mid_run_resumes_every_tile_once(rig, tmp_path, warm_kernels):
-    # a run of 15 s; the daemon keeps its catch-up service up while the restarted worker
-    # still fetches (catch_up.linger_s)
+    # a run of 8 s (6 tiles, the first written at its 36th ping); the daemon keeps its
+    # catch-up service up while the restarted worker still fetches (catch_up.linger_s)
     cfg = acquire_toml(tmp_path, catch_up={"linger_s": 60.0, "max_linger_s": 300.0})
     dev = rig.device()
-    acq = rig.acquire(dev, "--pings", "150", "--wait-subscribers", "1", config=cfg)
+    acq = rig.acquire(dev, "--pings", "80", "--wait-subscribers", "1", config=cfg)
     out = tmp_path / "tiles"
     worker = _worker(tmp_path, acq.endpoints, out)
     run_dir = out / "run1"
@@ -132,18 +137,15 @@ def test_worker_killed_mid_run_resumes_every_tile_once(rig, tmp_path, warm_kerne
         n = len(run)
         summary = run.summary
     # device -> daemon -> file -> worker
-    assert stats["pings_sent"] == summary["counters"]["delivered"] == n >= 150
+    assert stats["pings_sent"] == summary["counters"]["delivered"] == n >= 80
     manifest = json.loads((run_dir / "manifest.json").read_text())
     assert manifest["complete"]
     # every tile once, equal voxel for voxel to svss process of the recording (with the
-    # poses recorded live: by default svss process re-navigates)
+    # poses recorded live: by default svss process re-navigates); `svss process` here
+    # in-process (its command line: tests/acquire/test_renavigation.py)
     again = tmp_path / "again"
-    res = subprocess.run([sys.executable, "-m", "svss", "process", str(raw), "--out",
-                          str(again), "--processing", str(coarse_processing(tmp_path)),
-                          "--no-renavigate"],
-                         cwd=ROOT,
-                         capture_output=True, text=True, timeout=600)
-    assert res.returncode == 0, res.stderr[-3000:]
+    process_raw(raw, again, load_with_text(ProcessingConfig, coarse_processing(tmp_path)),
+                renavigate=False)
     live = sorted(p.name for p in run_dir.glob("tile_*.h5"))
     ref = sorted(p.name for p in again.glob("tile_*.h5"))
     assert live == ref and len(live) >= 3

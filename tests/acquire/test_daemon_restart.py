@@ -55,7 +55,7 @@ def test_killed_daemon_restarted_records_a_new_run_and_runs_never_mix(rig, tmp_p
     wa = worker(tmp_path, a.endpoints, out, processing, "workerA", runs=1)
     try:
         wait_for(lambda: journal_written(out / "runA"), "worker A's first ping")
-        wait_for(lambda: recorded(a.endpoints["service"], "runA") >= 40, "40 pings of A")
+        wait_for(lambda: recorded(a.endpoints["service"], "runA") >= 20, "20 pings of A")
     finally:
         # the daemon and its worker die mid-run (the device too, below)
         for p in (a.proc, wa):
@@ -68,7 +68,7 @@ def test_killed_daemon_restarted_records_a_new_run_and_runs_never_mix(rig, tmp_p
         last_ping = run.ping(len(run) - 1)
     dev.stop()
     dev = rig.device("--time-scale", "2", name="dev2")      # ping numbers from 0 again
-    b = rig.acquire(dev, "--pings", "40", "--wait-subscribers", "1", run_id="runB",
+    b = rig.acquire(dev, "--pings", "20", "--wait-subscribers", "1", run_id="runB",
                     config=cfg)
     # the restarted daemon closed the killed run, marked it, and serves it as ended
     with PingFetcher(b.endpoints["service"], timeout_s=10.0) as f:
@@ -96,7 +96,7 @@ def test_killed_daemon_restarted_records_a_new_run_and_runs_never_mix(rig, tmp_p
     [raw_b] = b.files()
     with RawRunReader(raw_b) as run:
         n_b = len(run)
-        assert run.summary["counters"]["recorded"] == n_b >= 40
+        assert run.summary["counters"]["recorded"] == n_b >= 20
     m = json.loads((out / "manifest.json").read_text())
     assert m["complete"] and m["skipped_pings"] == 0, (
         m, (tmp_path / "workerB.log").read_text()[-3000:])
@@ -105,6 +105,7 @@ def test_killed_daemon_restarted_records_a_new_run_and_runs_never_mix(rig, tmp_p
     # the old run's are checked in its tiles below)
     assert m["runs"]["runB"]["pings"] == n_b
     # each run's tiles are those of `svss process` of its own recording, voxel for voxel
+    # (the ping numbers of both begin at 0: a ping of one run in the other's tiles shows)
     load = load_with_text(ProcessingConfig, processing)
     for raw, name in ((raw_a, "runA"), (raw_b, "runB")):
         ref = tmp_path / f"process-{name}"

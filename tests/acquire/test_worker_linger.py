@@ -51,12 +51,14 @@ def config_dir(tmp: Path, edits: dict[str, str],
 
 
 def fast_processing(tmp: Path) -> Path:
-    """The demo's processing on small tiles (2 x 0.4 x 0.3 m) at 4 cm voxels: the run's
+    """The demo's processing on small tiles (2 x 0.3 x 0.2 m) at 4 cm voxels: the run's
     end, not the image, is under test."""
     from tests.worker.conftest import small_processing_text
     path = tmp / "processing-fast.toml"
-    text = small_processing_text().replace("voxel_m = 0.02", "voxel_m = 0.04")
-    assert "voxel_m = 0.04" in text
+    text = (small_processing_text().replace("voxel_m = 0.02", "voxel_m = 0.04")
+            .replace("width_m = 0.4", "width_m = 0.3")
+            .replace("depth_m = 0.3", "depth_m = 0.2"))
+    assert "voxel_m = 0.04" in text and "width_m = 0.3" in text and "depth_m = 0.2" in text
     path.write_text(text)
     return path
 
@@ -104,17 +106,18 @@ class StoppedWorker:
     another, the worker goes on as soon as the run has ended, while the daemon still
     waits to send its end marker)."""
 
-    def __init__(self, rig, tmp: Path, service: str | None = None):
+    def __init__(self, rig, tmp: Path, service: str | None = None, n_pings: int = 80,
+                 request_timeout_s: float = 2.0):
         self.cfg_dir = config_dir(tmp, {
             "send_hwm = 500": "send_hwm = 2",                 # a stopped worker loses pings
-            "request_timeout_s = 10.0": "request_timeout_s = 2.0"},
+            "request_timeout_s = 10.0": f"request_timeout_s = {request_timeout_s}"},
             # stopped for the run and the daemon's 10 s wait to send its end marker (and
             # more on a loaded machine): not forgotten meanwhile
             {"worker_silence_s = 30.0": "worker_silence_s = 120.0"})
         cfg = acquire_toml(tmp, run={"daq": str(self.cfg_dir / "daq.toml")},
                            catch_up={"linger_s": 1.0, "max_linger_s": 600.0})
         dev = rig.device("--time-scale", "2")
-        self.acq = rig.acquire(dev, "--pings", "120", "--wait-subscribers", "1",
+        self.acq = rig.acquire(dev, "--pings", str(n_pings), "--wait-subscribers", "1",
                                config=cfg)
         self.out = tmp / "tiles"
         self.log = tmp / "worker.log"
@@ -191,7 +194,9 @@ def test_daemon_stays_up_while_a_worker_lacks_pings(rig, tmp_path):
 def test_a_worker_that_cannot_fetch_says_so_in_its_manifest(rig, tmp_path):
     # the worker's catch-up service does not answer: it lost pings on the stream and
     # cannot fetch them
-    run = StoppedWorker(rig, tmp_path, service=dead_endpoint())
+    # (its first ask of the service waits out the timeout while the run goes on)
+    run = StoppedWorker(rig, tmp_path, service=dead_endpoint(), n_pings=120,
+                        request_timeout_s=0.5)
     t0 = time.monotonic()
     manifest = run.resume()
     took = time.monotonic() - t0
@@ -210,5 +215,5 @@ def test_a_worker_that_cannot_fetch_says_so_in_its_manifest(rig, tmp_path):
     for tile in (run.out / "run1").glob("tile_*.h5"):
         imaged |= set(read_tile(tile)["ping_sequence"].tolist())
     assert not imaged & skipped and set(recorded) <= imaged | skipped
-    # a gone service is waited for a few request timeouts (2 s), not one per gap
+    # a gone service is waited for a few request timeouts (0.5 s), not one per gap
     assert took < 60, took
