@@ -235,7 +235,11 @@ def products_png(path: str | Path, mips: dict[str, np.ndarray], level: np.ndarra
     fig.suptitle(f"{title}\n{n_det} detection(s) at {cfg.detection.threshold_db:g} dB re "
                  f"background (numbered: the strongest {max_labels} on each view)\n"
                  f"{identity}", fontsize=8)
-    fig.canvas.draw()                       # the layout is fixed: label in pixels
+    # the layout fixed (laid out once, nothing rendered), then kept as it is: labels are
+    # placed in its pixels, and saving does not lay the figure out again
+    fig.set_dpi(cfg.quicklook.dpi)
+    fig.draw_without_rendering()
+    fig.set_layout_engine("none")
     for ax, idx, keys in drawn:
         _mark(ax, detections, idx, keys, max_labels)
     path = Path(path)
@@ -262,13 +266,13 @@ def save_png(fig, path: Path, dpi: int) -> None:
     from PIL import Image
 
     buf = BytesIO()
-    fig.savefig(buf, dpi=dpi, format="png")
-    buf.seek(0)
+    fig.savefig(buf, dpi=dpi, format="rgba")      # the pixels, no PNG encoding between
+    w, h = (int(round(v * dpi)) for v in fig.get_size_inches())
     pal = Image.new("P", (1, 1))
     pal.putpalette(_palette())
-    with Image.open(buf) as im:
-        im.convert("RGB").quantize(palette=pal, dither=Image.Dither.NONE).save(
-            path, format="PNG", optimize=True)
+    im = Image.frombuffer("RGBA", (w, h), buf.getbuffer(), "raw", "RGBA", 0, 1)
+    im.convert("RGB").quantize(palette=pal, dither=Image.Dither.NONE).save(
+        path, format="PNG", optimize=True)
 
 
 def _detection_lines(detections: np.ndarray, n_max: int = 20) -> str:
