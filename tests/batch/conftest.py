@@ -1,6 +1,6 @@
 """Fixtures of the batch tests: a two-run survey (one run in one file, one in two
 segment files), coarse processing (5 cm voxels, 3 m tiles), its `svss process` tiles, and a
-LocalCluster of two worker processes on loopback shared by the module's batches."""
+LocalCluster of two worker processes on loopback shared by the session's batches."""
 
 from __future__ import annotations
 
@@ -68,16 +68,17 @@ def reference(survey, coarse_proc, tmp_path_factory) -> dict:
     return out
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def cluster():
-    """Two single-threaded worker processes and their scheduler, all on loopback."""
+    """Two single-threaded worker processes and their scheduler, all on loopback, shared
+    by the batch modules (a worker a test kills is restarted by its nanny)."""
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   host="127.0.0.1", dashboard_address=None) as c:
         yield c
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def client(cluster):
     import distributed
     with distributed.Client(cluster) as c:
