@@ -130,7 +130,7 @@ def cmd_replay(args) -> int:
     from svss_daq.ping_gate import PingGate
     from svss_daq.ping_service import (PingService, RawRunStore, ReplayStore,
                                        service_options)
-    from svss_daq.publisher import PingPublisher
+    from svss_daq.publisher import PingPublisher, publisher_end_timeout_s
     from svss_daq.rawfile import RawRunReader
 
     daq = load(DaqConfig, config_path("daq.toml"))
@@ -139,8 +139,9 @@ def cmd_replay(args) -> int:
     service_endpoint = args.service
     with contextlib.ExitStack() as stack:
         stack.callback(store.close)
-        pub = stack.enter_context(PingPublisher(args.endpoint or daq.publisher.endpoint,
-                                                daq.publisher.send_hwm, curve=daq.security))
+        pub = stack.enter_context(PingPublisher(
+            args.endpoint or daq.publisher.endpoint, daq.publisher.send_hwm,
+            curve=daq.security, end_timeout_s=publisher_end_timeout_s(daq)))
         service = None
         if service_endpoint:
             service = stack.enter_context(PingService(

@@ -333,6 +333,9 @@ class PublisherConfig:
     send_hwm: int = spec("ZeroMQ send high-water mark, messages queued per subscriber; "
                          "beyond it pings to that subscriber are dropped and counted",
                          lo=1, hi=10**6)
+    end_timeout_s: float | None = spec("seconds the end-of-run marker is retried while a "
+                                       "subscriber's queue stays full (omitted: 10.0)",
+                                       lo=0.0, hi=3600)
 
 
 @dataclass(frozen=True)

@@ -49,7 +49,7 @@ from .ping import (NAV_BOTTOM_LOCK, NAV_CLOCK_RETIMED, NAV_DEAD_RECKONED, NAV_GP
                    NAV_HELD, NavSnapshot)
 from .protocols import digitiser as dg
 from .protocols.sequencer import PingEvent
-from .publisher import PingPublisher
+from .publisher import PingPublisher, publisher_end_timeout_s
 from .nav.renavigate import navigation_config_text
 from .rawfile import NAV_CONFIG_ATTR
 from .recorder import (RESERVE_MIB, RecordingStopped, RunRecorder,
@@ -319,7 +319,8 @@ class AcquisitionDaemon:
                        "open by a daemon that stopped without closing it: closed and "
                        f"marked interrupted ({summ['counters']['recorded']} pings kept)")
         self.publisher = PingPublisher(self._want_endpoints["publisher"],
-                                       daq.publisher.send_hwm, curve=self.curve)
+                                       daq.publisher.send_hwm, curve=self.curve,
+                                       end_timeout_s=publisher_end_timeout_s(daq))
         self.endpoints["publisher"] = self.publisher.endpoint
         self.status_pub = StatusPublisher(self._want_endpoints["status"], curve=self.curve)
         self.endpoints["status"] = self.status_pub.endpoint

@@ -23,6 +23,16 @@ from .security import CurveConfig, secure_server
 log = logging.getLogger(__name__)
 
 
+#: daq.toml publisher.end_timeout_s when omitted
+END_TIMEOUT_S = 10.0
+
+
+def publisher_end_timeout_s(daq) -> float:
+    """daq.toml ``publisher.end_timeout_s`` (:data:`END_TIMEOUT_S` when omitted)."""
+    t = daq.publisher.end_timeout_s
+    return END_TIMEOUT_S if t is None else float(t)
+
+
 class PingPublisher:
     """Binds ``endpoint`` (``tcp://127.0.0.1:*`` picks a free port) and publishes
     :mod:`~svss_daq.messages` with at most ``send_hwm`` (>= 1) messages queued per
@@ -38,7 +48,7 @@ class PingPublisher:
     """
 
     def __init__(self, endpoint: str, send_hwm: int, ctx: zmq.Context | None = None, *,
-                 end_timeout_s: float = 10.0, drop_log_interval_s: float = 5.0,
+                 end_timeout_s: float = END_TIMEOUT_S, drop_log_interval_s: float = 5.0,
                  curve: CurveConfig | None = None):
         check_endpoint(endpoint, bind=True)
         if isinstance(send_hwm, bool) or not isinstance(send_hwm, int) or send_hwm < 1:

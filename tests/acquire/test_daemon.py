@@ -116,8 +116,11 @@ def test_twice_the_ping_rate_every_ping_recorded_and_counts_reconcile(rig, hardw
 
 def test_slow_subscriber_never_slows_acquisition(rig, tmp_path):
     daq = tmp_path / "daq.toml"
-    daq.write_text((CONFIG / "daq.toml").read_text().replace("send_hwm = 500",
-                                                            "send_hwm = 4"))
+    text = (CONFIG / "daq.toml").read_text()
+    daq.write_text(text.replace("send_hwm = 500", "send_hwm = 4")
+                   # its end marker is not waited for 10 s: the subscriber never reads
+                   .replace("end_timeout_s = 10.0", "end_timeout_s = 1.0"))
+    assert "end_timeout_s = 10.0" in text
     cfg = acquire_toml(tmp_path, run={"daq": str(daq)})
     dev = rig.device("--time-scale", "2")
     acq = rig.acquire(dev, "--pings", "60", config=cfg)
@@ -139,6 +142,7 @@ def test_slow_subscriber_never_slows_acquisition(rig, tmp_path):
     assert stats["pings_sent"] == c["delivered"] == len(pings) >= 60
     assert c["publish_dropped"] > 0 and c["published"] + c["publish_dropped"] == len(pings)
     assert "dropped" in acq.logs()
+    assert "stayed full for 1.0 s" in acq.logs()      # daq.toml's end_timeout_s
 
 
 def test_sigkill_leaves_the_recording_readable_to_its_last_flush(rig):
