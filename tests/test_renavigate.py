@@ -342,11 +342,12 @@ def test_svss_process_images_with_the_renavigated_poses_and_says_so(tmp_path, in
     assert h["attrs"]["line_origin_north_m"] == pytest.approx(first_live.north_m)
 
 
-def test_renavigate_is_refused_for_a_run_without_records(tmp_path, hardware):
+def test_renavigate_is_refused_for_a_run_without_records(tmp_path, hardware, caplog):
+    """The command's function in this process (the test above runs the real command)."""
+    from svss.cli import main
     bare = write_instrumented_run(tmp_path / "sim.h5", hardware, 3, nmea=False, pd0=False)
-    res = svss("process", str(bare), "--out", str(tmp_path / "o"), "--renavigate")
-    assert res.returncode == 2
-    assert "cannot re-navigate: " in res.stderr and "sim.h5: records no NMEA" in res.stderr
+    assert main(["process", str(bare), "--out", str(tmp_path / "o"), "--renavigate"]) == 2
+    assert "cannot re-navigate: " in caplog.text and "sim.h5: records no NMEA" in caplog.text
     assert not (tmp_path / "o").exists()           # refused before anything is written
     # by default such a run images with its recorded poses, and says so
     process_raw(bare, tmp_path / "d",
