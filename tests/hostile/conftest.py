@@ -3,8 +3,12 @@ files to damage."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
+import subprocess
+import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -74,3 +78,61 @@ def copy(src: Path, dst: Path) -> Path:
 @pytest.fixture(scope="session")
 def small_proc(demo_processing):
     return small_processing(demo_processing)
+
+
+@dataclass
+class CliResult:
+    """One ``svss`` command's exit status, standard error and seconds taken."""
+    returncode: int
+    stderr: str
+    elapsed: float
+
+
+#: runs ``svss.cli.main`` on each argument list of argv[1] (JSON), each with its own
+#: standard output and error (the CLI's own logging set up by its first call writes to
+#: whichever is current); an exception out of a command is its traceback and status 1,
+#: as ``python -m svss`` gives
+_CLI_CALLS = """
+import io, json, sys, time, traceback
+from svss.cli import main
+
+
+class _Current:
+    target = None
+
+    def write(self, text):
+        return self.target.write(text)
+
+    def flush(self):
+        self.target.flush()
+
+
+out, err = _Current(), _Current()
+real_stdout = sys.stdout
+sys.stdout, sys.stderr = out, err
+results = []
+for argv in json.loads(sys.argv[1]):
+    out.target, err.target = io.StringIO(), io.StringIO()
+    t0 = time.monotonic()
+    try:
+        rc = main(argv)
+    except SystemExit as exc:
+        rc = exc.code if isinstance(exc.code, int) else 1
+    except BaseException:
+        traceback.print_exc(file=err.target)
+        rc = 1
+    results.append([rc, err.target.getvalue(), time.monotonic() - t0])
+real_stdout.write(json.dumps(results))
+"""
+
+
+def svss_calls(*calls, timeout: float = 180) -> list[CliResult]:
+    """The ``svss`` commands ``calls`` (argument lists) run one after another in one
+    fresh Python process (one start-up, its imports, for all of them): each one's
+    :class:`CliResult`."""
+    argv = json.dumps([[str(a) for a in call] for call in calls])
+    res = subprocess.run([sys.executable, "-c", _CLI_CALLS, argv], capture_output=True,
+                         text=True, timeout=timeout, cwd=ROOT,
+                         env={**os.environ, "PYTHONPATH": str(ROOT)}, check=False)
+    assert res.returncode == 0, (res.returncode, res.stderr[-3000:])
+    return [CliResult(*r) for r in json.loads(res.stdout)]

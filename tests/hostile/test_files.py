@@ -41,7 +41,8 @@ from svss_proc.tiles import (
 )
 from tests.test_messages import assert_same
 
-from .conftest import FUZZ_EXAMPLES, ROOT, copy, fuzz_settings, ping_for, small_tile, write_run
+from .conftest import (FUZZ_EXAMPLES, ROOT, copy, fuzz_settings, ping_for, small_tile,
+                       svss_calls, write_run)
 
 HANG_GUARD_S = 20.0      # generous: only to tell a hang from a refusal, not a speed test
 ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
@@ -51,14 +52,6 @@ def run_py(code: str, *args, timeout: float = 120) -> subprocess.CompletedProces
     return subprocess.run([sys.executable, "-c", textwrap.dedent(code), *map(str, args)],
                           capture_output=True, text=True, timeout=timeout, cwd=ROOT, env=ENV,
                           check=False)
-
-
-def svss(*args, timeout: float = 60) -> tuple[subprocess.CompletedProcess, float]:
-    t0 = time.monotonic()
-    res = subprocess.run([sys.executable, "-m", "svss", *map(str, args)],
-                         capture_output=True, text=True, timeout=timeout, cwd=ROOT, env=ENV,
-                         check=False)
-    return res, time.monotonic() - t0
 
 
 # a writer killed with SIGKILL after flushing argv[2] pings and appending up to argv[3]
@@ -105,13 +98,29 @@ def tile_path(tmp_path_factory, hardware, small_proc):
 
 # ---------------------------------------------------------------- truncated raw runs
 
+TRUNCATED = [(kind, fraction) for fraction in (0.0005, 0.01, 0.3, 0.6)
+             for kind in ("clean", "killed")]
+
+
+@pytest.fixture(scope="module")
+def truncated(runs, tmp_path_factory):
+    """Each case of :data:`TRUNCATED`: the file cut short and ``svss inspect``'s result
+    on it (one process inspects them all)."""
+    d = tmp_path_factory.mktemp("truncated")
+    paths = {}
+    for kind, fraction in TRUNCATED:
+        data = runs[kind].read_bytes()
+        paths[kind, fraction] = path = d / f"cut_{kind}_{fraction}.h5"
+        path.write_bytes(data[: int(len(data) * fraction)])
+    results = svss_calls(*(("inspect", paths[case]) for case in TRUNCATED))
+    return {case: (paths[case], res) for case, res in zip(TRUNCATED, results)}
+
+
 @pytest.mark.parametrize("kind", ["clean", "killed"])
 @pytest.mark.parametrize("fraction", [0.0005, 0.01, 0.3, 0.6])
-def test_truncated_raw_run_is_refused_naming_the_file(runs, kind, fraction, tmp_path):
-    src = runs[kind]
-    data = src.read_bytes()
-    path = tmp_path / f"cut_{kind}_{fraction}.h5"
-    path.write_bytes(data[: int(len(data) * fraction)])
+def test_truncated_raw_run_is_refused_naming_the_file(runs, truncated, kind, fraction):
+    data = runs[kind].read_bytes()
+    path, res = truncated[kind, fraction]
     t0 = time.monotonic()
     with pytest.raises(RawFileError, match=re.escape(str(path))) as err:
         RawRunReader(path)
@@ -119,9 +128,8 @@ def test_truncated_raw_run_is_refused_naming_the_file(runs, kind, fraction, tmp_
     if kind == "clean":      # the superblock's end of file against the file's size
         assert f"truncated: {path.stat().st_size} bytes on disk" in str(err.value)
         assert f"records {len(data)} bytes" in str(err.value)
-    res, elapsed = svss("inspect", path)
     assert res.returncode == 2 and str(path) in res.stderr, res.stderr[-2000:]
-    assert "Traceback" not in res.stderr and elapsed < HANG_GUARD_S
+    assert "Traceback" not in res.stderr and res.elapsed < HANG_GUARD_S
 
 
 @pytest.mark.parametrize("size", [0, 7, 9, 47])
@@ -289,22 +297,37 @@ def test_truncated_tile_is_refused(tile_path, tmp_path):
 
 # ------------------------------------------------------------------ format versions
 
-@pytest.mark.parametrize("version", [3, 999, 2.5, "2", -1, True])
-def test_unknown_tile_version_refused_by_readers_inspect_and_score(
-        tile_path, version, tmp_path):
-    out = tmp_path / "tiles"
-    out.mkdir()
-    path = _damaged(tile_path, out / "tile_0001.h5",
-                    lambda f: f.attrs.__setitem__("svss_format_version", version))
+VERSIONS = [3, 999, 2.5, "2", -1, True]
+
+
+@pytest.fixture(scope="module")
+def versioned(tile_path, tmp_path_factory):
+    """For each version of :data:`VERSIONS`: a folder holding the tile marked with it,
+    and ``svss inspect``'s and ``svss score``'s results on them (one process runs them
+    all)."""
+    scene = ROOT / "config" / "scenes" / "demo.toml"
+    paths, calls = [], []
+    for i, version in enumerate(VERSIONS):
+        out = tmp_path_factory.mktemp(f"version{i}") / "tiles"
+        out.mkdir()
+        path = _damaged(tile_path, out / "tile_0001.h5",
+                        lambda f, v=version: f.attrs.__setitem__("svss_format_version", v))
+        paths.append(path)
+        calls += [("inspect", path), ("score", out, "--scene", scene)]
+    results = svss_calls(*calls)
+    return {repr(v): (path, results[2 * i], results[2 * i + 1])
+            for i, (v, path) in enumerate(zip(VERSIONS, paths))}
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+def test_unknown_tile_version_refused_by_readers_inspect_and_score(versioned, version):
+    path, inspected, scored = versioned[repr(version)]
     for read in (read_tile, read_tile_header, read_detections):
         with pytest.raises(TileFileError, match=re.escape(str(path)) + ".*svss_format_version"):
             read(path)
-    res, _ = svss("inspect", path)
-    assert res.returncode == 2 and str(path) in res.stderr
-    assert "svss_format_version" in res.stderr and "Traceback" not in res.stderr
-    res, _ = svss("score", out, "--scene", ROOT / "config" / "scenes" / "demo.toml")
-    assert res.returncode == 2 and str(path) in res.stderr
-    assert "svss_format_version" in res.stderr and "Traceback" not in res.stderr
+    for res in (inspected, scored):
+        assert res.returncode == 2 and str(path) in res.stderr, res.stderr[-2000:]
+        assert "svss_format_version" in res.stderr and "Traceback" not in res.stderr
 
 
 def test_tile_without_detections_refused_by_score_naming_it(tile_path, hardware, small_proc,
@@ -319,16 +342,17 @@ def test_tile_without_detections_refused_by_score_naming_it(tile_path, hardware,
     assert "detections" not in read_tile_header(h5)["products"]
     with pytest.raises(TileFileError, match=re.escape(str(h5)) + ": group '/detections'"):
         read_detections(h5)
-    res, _ = svss("score", bare, "--scene", scene)
-    assert res.returncode == 2 and f"{h5}: group '/detections' missing" in res.stderr
     # a tile with products whose detections group was removed: refused everywhere
     gone = tmp_path / "gone"
     gone.mkdir()
     path = _damaged(tile_path, gone / "tile_0001.h5", _delete("detections"))
-    res, _ = svss("inspect", path)
-    assert res.returncode == 2 and f"{path}: group '/detections' missing" in res.stderr
-    res, _ = svss("score", gone, "--scene", scene)
-    assert res.returncode == 2 and f"{path}: group '/detections' missing" in res.stderr
+    bare_scored, inspected, gone_scored = svss_calls(
+        ("score", bare, "--scene", scene), ("inspect", path), ("score", gone, "--scene", scene))
+    assert bare_scored.returncode == 2, bare_scored.stderr[-2000:]
+    assert f"{h5}: group '/detections' missing" in bare_scored.stderr
+    for res in (inspected, gone_scored):
+        assert res.returncode == 2, res.stderr[-2000:]
+        assert f"{path}: group '/detections' missing" in res.stderr
 
 
 # ------------------------------------------------------------------------ full disk
@@ -396,8 +420,11 @@ def test_full_disk_in_svss_simulate(tmp_path):
         assert all(np.any(p.samples != 0) for p in r)
 
 
+# save_tile into argv[1]/LIMIT for each limit of argv[2:], files limited to LIMIT bytes
+# (the soft limit, raised again after each): what each raised, as JSON
 FULL_TILE = """
-    import resource, signal, sys
+    import json, resource, signal, sys
+    from pathlib import Path
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     from svss_daq.config import (HardwareConfig, ProcessingConfig, config_path,
                                  load_with_text)
@@ -408,25 +435,40 @@ FULL_TILE = """
     proc = small_processing(load_with_text(ProcessingConfig,
                                            config_path("processing-demo.toml")))
     tile = small_tile(proc)
-    limit = int(sys.argv[2])
-    resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
-    try:
-        save_tile(tile, sys.argv[1], hw, proc)
-    except TileFileError as exc:
-        print(exc, file=sys.stderr)
-        sys.exit(3)
+    _, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    errors = {}
+    for limit in map(int, sys.argv[2:]):
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, hard))
+        try:
+            save_tile(tile, Path(sys.argv[1]) / str(limit), hw, proc)
+            errors[limit] = None
+        except TileFileError as exc:
+            errors[limit] = str(exc)
+        finally:
+            resource.setrlimit(resource.RLIMIT_FSIZE, (hard, hard))
+    print(json.dumps(errors))
 """
+FULL_TILE_CASES = [(90_000, "tile_0001.h5"),         # after the PNG
+                   (20_000, "tile_0001_mip.png")]    # at the PNG
 
 
-@pytest.mark.parametrize("limit, fails", [(90_000, "tile_0001.h5"),        # after the PNG
-                                          (20_000, "tile_0001_mip.png")])  # at the PNG
-def test_full_disk_leaves_no_tile_under_its_final_name(tmp_path, tile_path, limit, fails):
+@pytest.fixture(scope="module")
+def full_tile(tmp_path_factory):
+    """The folder each limit of :data:`FULL_TILE_CASES` wrote into and the error
+    save_tile raised (one process writes them all)."""
+    base = tmp_path_factory.mktemp("full-tile")
+    res = run_py(FULL_TILE, base, *(limit for limit, _ in FULL_TILE_CASES))
+    assert res.returncode == 0, (res.returncode, res.stderr[-3000:])
+    errors = json.loads(res.stdout)
+    return {limit: (base / str(limit), errors[str(limit)]) for limit, _ in FULL_TILE_CASES}
+
+
+@pytest.mark.parametrize("limit, fails", FULL_TILE_CASES)
+def test_full_disk_leaves_no_tile_under_its_final_name(full_tile, tile_path, limit, fails):
     assert tile_path.stat().st_size > limit
-    out = tmp_path / "tiles"
-    res = run_py(FULL_TILE, out, limit)
-    assert res.returncode == 3, (res.returncode, res.stderr[-3000:])
-    assert f"{out / fails}: writing" in res.stderr and "no file written" in res.stderr, \
-        res.stderr[-3000:]
+    out, error = full_tile[limit]
+    assert error is not None, "save_tile wrote the tile"
+    assert f"{out / fails}: writing" in error and "no file written" in error, error
     assert sorted(p.name for p in out.iterdir()) == []     # no final name, no temporary
 
 

@@ -23,7 +23,7 @@ from hypothesis import given, settings, strategies as st
 from sim_device.environment_source import EnvironmentSource
 from sim_device.scene import load_scene
 from svss_daq import messages
-from svss_daq.config import (ConfigError, config_path)
+from svss_daq.config import ConfigError, ProcessingConfig, config_path, loaded_from_text
 from svss_daq.ping import Ping
 from svss_daq.ping_gate import PingGate, PingRejected
 from svss_daq.publisher import PingPublisher
@@ -31,8 +31,10 @@ from svss_proc.imaging.pose_check import TrackGuard
 from svss_proc.tiles import read_tile
 from svss_proc.worker import MANIFEST, Worker, serve
 
+from .conftest import svss_calls
+
 ROOT = Path(__file__).resolve().parents[2]
-N_PINGS = 30
+N_PINGS = 20            # hostile_stream puts a bad ping after each from the third: 16 cases
 MAX_EXAMPLES = int(os.environ.get("SVSS_FUZZ_EXAMPLES", 200))
 
 
@@ -44,6 +46,17 @@ def hw(hardware):
 @pytest.fixture(scope="module")
 def proc(demo_processing):
     return demo_processing
+
+
+@pytest.fixture(scope="module")
+def narrow(demo_processing):
+    """The demo processing on tiles 0.4 m wide and deep (3 m long, products kept): for
+    the tests that image a run; what they check (which pings reach the tiles, voxel
+    for voxel) does not depend on the tiles' size."""
+    text = (demo_processing.text.replace("width_m = 1.2", "width_m = 0.4")
+            .replace("depth_m = 1.0", "depth_m = 0.4"))
+    assert text != demo_processing.text
+    return loaded_from_text(ProcessingConfig, text, "processing-demo-narrow.toml")
 
 
 @pytest.fixture(scope="module")
@@ -254,7 +267,8 @@ def hostile_stream(pings, hw):
 
 
 def test_bad_pings_over_zeromq_are_refused_and_every_good_ping_is_imaged(
-        pings, hw, proc, tmp_path):
+        pings, hw, narrow, tmp_path):
+    proc = narrow
     marked, n_bad = hostile_stream(pings, hw)
     stream = [p for p, _ in marked]
     clean = Worker(hw, proc, tmp_path / "clean")
@@ -414,18 +428,18 @@ def test_cli_refuses_settings_that_cannot_work_before_work_starts(tmp_path):
     cfg = Path(config_path("processing-demo.toml")).read_text()
     bad = tmp_path / "fine.toml"
     bad.write_text(cfg.replace("voxel_m = 0.02", "voxel_m = 0.001"))
-    res = _svss("worker", "--connect", "tcp://127.0.0.1:5999", "--out", str(tmp_path / "t"),
-                "--processing", str(bad), "--idle-timeout", "1")
-    assert res.returncode == 2 and "fine.toml" in res.stderr and "tile.voxel_m" in res.stderr
-    assert not (tmp_path / "t").exists()
-    res = _svss("worker", "--connect", "tcp://127.0.0.1:99999", "--out", str(tmp_path / "t"),
-                "--idle-timeout", "1")
-    assert res.returncode == 2 and "99999" in res.stderr
+    fine, port = svss_calls(
+        ("worker", "--connect", "tcp://127.0.0.1:5999", "--out", tmp_path / "t",
+         "--processing", bad, "--idle-timeout", "1"),
+        ("worker", "--connect", "tcp://127.0.0.1:99999", "--out", tmp_path / "t",
+         "--idle-timeout", "1"), timeout=300)
+    assert fine.returncode == 2 and "fine.toml" in fine.stderr and "tile.voxel_m" in fine.stderr
+    assert port.returncode == 2 and "99999" in port.stderr
     assert not (tmp_path / "t").exists()
 
 
 def test_worker_interrupted_mid_run_writes_open_tiles_and_an_incomplete_manifest(
-        pings, hw, proc, tmp_path):
+        pings, hw, narrow, tmp_path):
     """SIGINT during `svss process` (KeyboardInterrupt out of the ping loop): the tiles
     open at that moment are written with the pings they had, the manifest says the run
     is incomplete, and the interrupt goes on to the command (exit 130)."""
@@ -433,7 +447,7 @@ def test_worker_interrupted_mid_run_writes_open_tiles_and_an_incomplete_manifest
         yield from pings[:12]
         raise KeyboardInterrupt
 
-    w = Worker(hw, proc, tmp_path)
+    w = Worker(hw, narrow, tmp_path)
     with pytest.raises(KeyboardInterrupt):
         w.run(interrupted())
     manifest = json.loads((tmp_path / MANIFEST).read_text())

@@ -9,8 +9,7 @@ import pytest
 
 from svss_daq.rawfile import FLUSHED, RawFileError, RawRunReader
 
-from .conftest import write_run
-from .test_files import svss
+from .conftest import svss_calls, write_run
 
 
 def _shorten(path, name: str, n: int, drop_count: bool = False):
@@ -38,9 +37,9 @@ def test_inspect_and_process_refuse_the_shortened_run(tmp_path, hardware):
     """The hostile tester's reproduction: north_m 3 of the run's entries."""
     path = _shorten(write_run(tmp_path / "run.h5", hardware, n_pings=12),
                     "Platform/north_m", 3)
-    for args in (("inspect", path), ("process", path, "--out", tmp_path / "tiles",
-                                     "--no-renavigate")):
-        res, _ = svss(*args, timeout=180)
+    calls = (("inspect", path), ("process", path, "--out", tmp_path / "tiles",
+                                 "--no-renavigate"))
+    for args, res in zip(calls, svss_calls(*calls, timeout=180)):
         assert res.returncode == 2, (args[0], res.returncode, res.stderr[-2000:])
         assert f"{path}: damaged: dataset '/Platform/north_m' has 3 entries" in res.stderr, \
             res.stderr[-2000:]
