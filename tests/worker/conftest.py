@@ -1,5 +1,6 @@
-"""Fixtures of the tile-worker tests: a short simulated run recorded to a raw file, a
-small processing configuration (2 m tiles) and its `svss process` tiles."""
+"""Fixtures of the tile-worker tests: a short simulated run recorded to a raw file (and
+its first 30 pings as a run of their own), a small processing configuration (2 m tiles,
+no products) and their `svss process` tiles."""
 
 from __future__ import annotations
 
@@ -15,6 +16,8 @@ from svss_proc.tiles import read_tile
 
 ROOT = Path(__file__).resolve().parents[2]
 N_PINGS = 90                       # 9 s at 10 pings/s
+#: pings of :func:`short_run`: 3 m, so that no tile closes before the run ends
+N_SHORT = 30
 
 
 def small_processing_text() -> str:
@@ -25,10 +28,20 @@ def small_processing_text() -> str:
     return new
 
 
+def stream_processing_text() -> str:
+    """:func:`small_processing_text` without its ``[products]`` tables: what the worker
+    tests compare with `svss process`'s tiles is each tile's pings and image (the
+    products are the same code after either, tested in tests/products), and a tile's
+    products quicklook costs more than imaging its pings."""
+    head, sep, _ = small_processing_text().partition("\n[products]")
+    assert sep
+    return head + "\n"
+
+
 @pytest.fixture(scope="session")
 def small_proc_path(tmp_path_factory) -> Path:
     p = tmp_path_factory.mktemp("config") / "small-processing.toml"
-    p.write_text(small_processing_text())
+    p.write_text(stream_processing_text())
     return p
 
 
@@ -56,9 +69,35 @@ def simulate(path: Path, n_pings: int = N_PINGS, run_attrs: dict | None = None,
     return path
 
 
+def write_pings(path: Path, pings, run_attrs: dict | None = None) -> Path:
+    """``pings`` recorded to ``path`` (a clean raw run)."""
+    from svss_daq.config import HardwareConfig
+    from svss_daq.rawfile import RawRunWriter
+    hw = load_with_text(HardwareConfig, config_path("hardware.toml"))
+    with RawRunWriter(path, hw, run_attrs=run_attrs or {}) as rec:
+        for p in pings:
+            rec.append(p)
+    return path
+
+
 @pytest.fixture(scope="session")
 def raw_run(tmp_path_factory) -> Path:
     return simulate(tmp_path_factory.mktemp("raw") / "line1.h5")
+
+
+@pytest.fixture(scope="session")
+def first_pings(raw_run) -> list:
+    """The raw run's first :data:`N_SHORT` pings."""
+    from svss_daq.rawfile import RawRunReader
+    with RawRunReader(raw_run) as r:
+        return [p for p, _ in zip(r, range(N_SHORT))]
+
+
+@pytest.fixture(scope="session")
+def short_run(first_pings, tmp_path_factory) -> Path:
+    """:func:`first_pings` recorded as run "line1" of their own: for the tests whose
+    point needs no tile closed mid-run (a third of the imaging of :func:`raw_run`)."""
+    return write_pings(tmp_path_factory.mktemp("short") / "line1.h5", first_pings)
 
 
 @pytest.fixture(scope="session")
@@ -67,6 +106,15 @@ def processed(raw_run, small_proc, tmp_path_factory) -> Path:
     from svss_proc.worker import process_raw
     out = tmp_path_factory.mktemp("processed")
     process_raw(raw_run, out, small_proc)
+    return out
+
+
+@pytest.fixture(scope="session")
+def short_processed(short_run, small_proc, tmp_path_factory) -> Path:
+    """`svss process` of :func:`short_run` (in process: the same function)."""
+    from svss_proc.worker import process_raw
+    out = tmp_path_factory.mktemp("short-processed")
+    process_raw(short_run, out, small_proc)
     return out
 
 

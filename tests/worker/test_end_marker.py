@@ -19,7 +19,7 @@ from svss_daq.ping_service import PingService, RawRunStore, ReplayStore
 from svss_daq.publisher import PingPublisher
 from svss_daq.rawfile import RawRunReader
 
-from .conftest import ROOT, assert_same_tiles
+from .conftest import N_SHORT, ROOT, assert_same_tiles
 
 DEADLINE_S = 240.0
 
@@ -33,14 +33,14 @@ def wait_for(pred, what: str, timeout_s: float = DEADLINE_S):
 
 
 @pytest.mark.slow
-def test_end_marker_mid_run_is_refused_and_the_run_goes_on(raw_run, processed,
+def test_end_marker_mid_run_is_refused_and_the_run_goes_on(short_run, short_processed,
                                                            small_proc_path, tmp_path):
     out, log = tmp_path / "w", tmp_path / "worker.log"
     ctx = zmq.Context()
-    with RawRunStore([raw_run]) as store, \
+    with RawRunStore([short_run]) as store, \
             PingService("tcp://127.0.0.1:*", ReplayStore(store), ctx=ctx) as svc, \
             PingPublisher("tcp://127.0.0.1:*", 1000, ctx=ctx) as pub, \
-            RawRunReader(raw_run) as run, open(log, "wb") as err:
+            RawRunReader(short_run) as run, open(log, "wb") as err:
         worker = subprocess.Popen(
             [sys.executable, "-m", "svss", "worker", "--connect", pub.endpoint,
              "--service", svc.endpoint, "--out", str(out), "--processing",
@@ -67,7 +67,7 @@ def test_end_marker_mid_run_is_refused_and_the_run_goes_on(raw_run, processed,
                 worker.kill()
     ctx.term()
     m = json.loads((out / "manifest.json").read_text())
-    assert m["complete"] and m["pings"] == len(pings) == 90, m
+    assert m["complete"] and m["pings"] == len(pings) == N_SHORT, m
     assert m["end_markers_refused"] == 1, m
     assert m["runs"]["line1"]["complete"] and m["skipped_pings"] == 0
-    assert_same_tiles(processed, out / "line1")
+    assert_same_tiles(short_processed, out / "line1")

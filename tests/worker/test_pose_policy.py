@@ -21,7 +21,7 @@ from svss_daq.rawfile import RawRunWriter
 from svss_proc.batch.plan import plan_run
 from svss_proc.worker import Worker, process_raw
 
-from .conftest import small_processing_text
+from .conftest import stream_processing_text
 from .test_tile_closing import pings
 
 OK = NAV_GPS_FIX | NAV_BOTTOM_LOCK
@@ -34,7 +34,8 @@ N_PINGS = 12
 
 
 def processing(**policy):
-    text = small_processing_text()
+    # no products: the tests count pings and refusals (tests/worker/conftest.py)
+    text = stream_processing_text()
     for key, value in policy.items():
         old = next(ln for ln in text.splitlines() if ln.startswith(f"{key} ="))
         text = text.replace(old, f'{key} = "{value}"')

@@ -19,12 +19,13 @@ import zmq
 from svss_daq import messages
 from svss_daq.ping_service import PingService, RawRunStore, ReplayStore
 from svss_daq.publisher import PingPublisher
-from svss_daq.rawfile import RawRunReader, RawRunWriter
+from svss_daq.rawfile import RawRunWriter
 from svss_proc.worker import MANIFEST, process_raw, serve
 
-from .conftest import assert_same_tiles
+from .conftest import N_SHORT, assert_same_tiles
 
-N = 30
+N = N_SHORT
+RUN = "line1"                    # the run of `run30`
 HOLE = 10**6                     # sequences the recording of `holed` lacks after ping 14
 
 
@@ -63,18 +64,14 @@ def _write(path, hardware, pings, run_id):
 
 
 @pytest.fixture(scope="module")
-def first30(raw_run):
-    with RawRunReader(raw_run) as r:
-        return [p for p, _ in zip(r, range(N))]
+def first30(first_pings):
+    return first_pings
 
 
 @pytest.fixture(scope="module")
-def run30(hardware, first30, small_proc, tmp_path_factory):
-    """The raw run's first 30 pings as run "r30", and its `svss process` tiles."""
-    d = tmp_path_factory.mktemp("r30")
-    path = _write(d / "r30.h5", hardware, first30, "r30")
-    process_raw(path, d / "ref", small_proc)
-    return path, d / "ref"
+def run30(short_run, short_processed):
+    """The raw run's first 30 pings as run RUN, and its `svss process` tiles."""
+    return short_run, short_processed
 
 
 @pytest.fixture(scope="module")
@@ -151,7 +148,7 @@ def test_a_ping_1e10_ahead_is_refused_not_the_new_frontier(run30, first30, hardw
     out = tmp_path / "w"
     chain = _Chain(path, out, hardware, small_proc)
     try:
-        chain.replay.begin("r30")
+        chain.replay.begin(RUN)
         for p in first30[:15]:
             chain.pub.publish(p)
         chain.pub.publish(hostile(first30[14], 10**10))
@@ -160,14 +157,14 @@ def test_a_ping_1e10_ahead_is_refused_not_the_new_frontier(run30, first30, hardw
         _wait_for(lambda: lines.seen("refused", "skipped"), 60, "the hostile ping judged")
         for p in first30[15:]:
             chain.pub.publish(p)
-        chain.finish("r30", N)
+        chain.finish(RUN, N)
     finally:
         chain.close()
     m = json.loads((out / MANIFEST).read_text())
     assert m["complete"] and m["pings"] == N, m
     assert m["skipped_pings"] == 0 and m["duplicate_pings"] == 0
     assert m["implausible_sequences"] == 1
-    assert_same_tiles(ref, out / "r30")
+    assert_same_tiles(ref, out / RUN)
 
 
 def test_a_hostile_ping_after_the_run_ended_costs_one_line(run30, first30, hardware,
@@ -181,12 +178,12 @@ def test_a_hostile_ping_after_the_run_ended_costs_one_line(run30, first30, hardw
     chain = _Chain(path, out, hardware, small_proc)
     t0 = time.monotonic()
     try:
-        chain.replay.begin("r30")
+        chain.replay.begin(RUN)
         for p in first30:
             chain.pub.publish(p)
-        chain.replay.end("r30")
+        chain.replay.end(RUN)
         chain.pub.publish(hostile(first30[-1], N - 1 + HOLE))
-        chain.finish("r30", N)
+        chain.finish(RUN, N)
     finally:
         chain.close()
     assert lines.n < 200, (lines.n, lines.kept[-5:])
@@ -195,7 +192,7 @@ def test_a_hostile_ping_after_the_run_ended_costs_one_line(run30, first30, hardw
     assert m["missing_in_recording"] == 0 and m["skipped_pings"] == 0
     assert m["implausible_sequences"] == 1
     assert any(f"ping {N - 1 + HOLE} refused" in k for k in lines.kept)
-    assert_same_tiles(ref, out / "r30")
+    assert_same_tiles(ref, out / RUN)
     assert time.monotonic() - t0 < 120
 
 

@@ -23,7 +23,7 @@ from svss_daq.publisher import PingPublisher
 from svss_daq.rawfile import RawRunReader
 from svss_proc.worker import JOURNAL, MANIFEST, serve
 
-from .conftest import assert_same_tiles, svss
+from .conftest import N_SHORT, assert_same_tiles, svss, write_pings
 
 DROPPED = {0, 1, 5, 6, 7, 20} | set(range(44, 52)) | {89}
 
@@ -78,29 +78,29 @@ def test_dropped_pings_are_fetched_from_the_recording(raw_run, processed, hw, sm
     assert j["complete"] and j["run_id"] == "line1"
 
 
-def test_without_a_service_gaps_are_skipped_after_a_bounded_wait(raw_run, hw, small_proc,
+def test_without_a_service_gaps_are_skipped_after_a_bounded_wait(short_run, hw, small_proc,
                                                                  tmp_path):
     out = tmp_path / "w"
     result = {}
     ctx = zmq.Context()
     with PingPublisher("tcp://127.0.0.1:*", 1000, ctx=ctx) as pub, \
-            RawRunReader(raw_run) as run:
+            RawRunReader(short_run) as run:
         t = _serve_in_thread(result, pub.endpoint, out, hw, small_proc, 60,
                              receive_hwm=1000, runs=1, gap_wait_s=0.3)
         pub.wait_for_subscribers(timeout_s=60)
         for p in run:
-            if p.sequence not in {5, 6, 7, 40}:
+            if p.sequence not in {5, 6, 7, 20}:
                 pub.publish(p)
-            if p.sequence == 50:
-                time.sleep(1.0)                   # the gap at 40 waits, then is skipped
+            if p.sequence == 25:
+                time.sleep(1.0)                   # the gap at 20 waits, then is skipped
         pub.publish(messages.RunEnd("line1", len(run)))
         t.join(timeout=300)
     ctx.term()
     assert not t.is_alive() and "error" not in result, result.get("error")
     m = json.loads((out / MANIFEST).read_text())
     # pings skipped: the run is not complete, and its manifest says which
-    assert m["skipped_pings"] == 4 and m["pings"] == 86 and not m["complete"]
-    assert m["runs"]["line1"]["skipped"] == [[5, 7], [40, 40]]
+    assert m["skipped_pings"] == 4 and m["pings"] == N_SHORT - 4 and not m["complete"]
+    assert m["runs"]["line1"]["skipped"] == [[5, 7], [20, 20]]
     assert not m["runs"]["line1"]["complete"] and m["runs"]["line1"]["incomplete"]
     # the folder is named by the run's end marker
     assert json.loads((out / "line1" / MANIFEST).read_text())["run_id"] == "line1"
@@ -194,11 +194,13 @@ def test_stopped_worker_resumes_with_every_tile_once(sig, raw_run, processed,
     assert json.loads((out / "line1" / JOURNAL).read_text())["complete"]
 
 
-def test_worker_stays_up_across_two_runs(raw_run, processed, hw, small_proc, tmp_path):
+def test_worker_stays_up_across_two_runs(short_run, short_processed, hw, small_proc,
+                                        tmp_path):
+    # two short runs (3 m each): staying up from one run to the next is the point
     second = tmp_path / "line2.h5"
-    shutil.copyfile(raw_run, second)
+    shutil.copyfile(short_run, second)
     out = tmp_path / "w"
-    replay, pub, service = _replay(raw_run, second, realtime=False)
+    replay, pub, service = _replay(short_run, second, realtime=False)
     result = {}
     try:
         t = _serve_in_thread(result, pub, out, hw, small_proc, 120, receive_hwm=1000,
@@ -208,20 +210,21 @@ def test_worker_stays_up_across_two_runs(raw_run, processed, hw, small_proc, tmp
         _stop(replay)
     assert not t.is_alive() and "error" not in result, result.get("error")
     for run in ("line1", "line2"):
-        assert_same_tiles(processed, out / run)
+        assert_same_tiles(short_processed, out / run)
     m = json.loads((out / MANIFEST).read_text())
     assert m["complete"] and set(m["runs"]) == {"line1", "line2"}
-    assert m["pings"] == 180 and all(r["complete"] for r in m["runs"].values())
+    assert m["pings"] == 2 * N_SHORT and all(r["complete"] for r in m["runs"].values())
 
 
-def test_sequences_the_recording_lacks_are_skipped_and_counted(hw, small_proc, tmp_path):
+def test_sequences_the_recording_lacks_are_skipped_and_counted(first_pings, hw, small_proc,
+                                                                tmp_path):
     """A recording with holes (pings the daemon never got): the service says they are
     missing, the worker skips them at once (no wait) and its tiles equal `svss
     process`'s of the same file."""
     from svss_proc.worker import process_raw
 
-    from .conftest import simulate
-    raw = simulate(tmp_path / "holes.h5", 50, skip=frozenset({10, 11, 30}))
+    raw = write_pings(tmp_path / "holes.h5",
+                      [p for p in first_pings if p.sequence not in {10, 11, 25}])
     process_raw(raw, tmp_path / "ref", small_proc)
     out = tmp_path / "w"
     result = {}
@@ -246,4 +249,4 @@ def test_sequences_the_recording_lacks_are_skipped_and_counted(hw, small_proc, t
     assert_same_tiles(tmp_path / "ref", out / "holes")
     m = json.loads((out / MANIFEST).read_text())
     assert m["missing_in_recording"] == 3 and m["fetched_pings"] == 1
-    assert m["skipped_pings"] == 0 and m["pings"] == 47
+    assert m["skipped_pings"] == 0 and m["pings"] == N_SHORT - 3
