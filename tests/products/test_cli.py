@@ -1,5 +1,6 @@
 """``svss inspect`` on a raw run and on a tile, and ``svss score`` against a scene, run as
-real commands on files written by the project's own writers."""
+real commands on files written by the project's own writers (a test's further runs of
+the same command, other options, through the command's function in process)."""
 
 from __future__ import annotations
 
@@ -28,6 +29,15 @@ def svss(*args, ok=True):
     if ok:
         assert res.returncode == 0, res.stderr[-3000:]
     return res
+
+
+def svss_here(capsys, *args) -> str:
+    """The command's function in this process (a test's further run of a command it has
+    already run for real): its standard output."""
+    from svss.cli import main
+    capsys.readouterr()
+    assert main([str(a) for a in args]) == 0
+    return capsys.readouterr().out
 
 
 HEADING = math.radians(30.0)
@@ -62,7 +72,7 @@ def write_raw_run(path, hardware):
     return first
 
 
-def test_inspect_raw_run(tmp_path, hardware):
+def test_inspect_raw_run(tmp_path, hardware, capsys):
     path = tmp_path / "run.h5"
     first = write_raw_run(path, hardware)
     s = json.loads(svss("inspect", str(path), "--json").stdout)
@@ -87,12 +97,12 @@ def test_inspect_raw_run(tmp_path, hardware):
     fp = s["first_ping_samples"]
     assert fp["peak_counts"] == 2 ** 21
     assert fp["rms_counts"] == pytest.approx(np.sqrt(np.mean(first.astype(float) ** 2)))
-    text = svss("inspect", str(path)).stdout
+    text = svss_here(capsys, "inspect", path)
     assert "SVSS raw run" in text and "6 (sequence 10 .. 16, 1 gap(s))" in text
     assert "PD0        0 ensemble(s), 0 ping-clock event(s); re-navigation: possible" in text
 
 
-def test_inspect_tile(tmp_path, hardware, demo_processing):
+def test_inspect_tile(tmp_path, hardware, demo_processing, capsys):
     grid = tile_grid(demo_processing.value.tile, 3)
     img = speckle(grid.shape, np.random.default_rng(32))
     axes = (grid.along, grid.cross, grid.depth)
@@ -115,7 +125,7 @@ def test_inspect_tile(tmp_path, hardware, demo_processing):
     det = read_tile(path)["detections"]
     assert len(s["detections"]) == len(det) == 1
     assert s["detections"][0]["along_m"] == pytest.approx(det["along_m"][0])
-    text = svss("inspect", str(path)).stdout
+    text = svss_here(capsys, "inspect", path)
     assert "SVSS tile 3" in text and "detections 1" in text
 
 
@@ -150,7 +160,7 @@ electronic_rms_counts = 1.0
 """
 
 
-def test_score_against_scene_truth(tmp_path, hardware, demo_processing):
+def test_score_against_scene_truth(tmp_path, hardware, demo_processing, capsys):
     # scene frame: along from the first ping's body origin; the tiles here are imaged
     # on a line starting 0.5 m further along the track, so tile along = scene along - 0.5
     points = [(1.0, 0.1, 0.3, True), (2.2, -0.3, 0.6, True), (4.0, 0.2, 0.5, False),
@@ -197,8 +207,7 @@ def test_score_against_scene_truth(tmp_path, hardware, demo_processing):
     assert "Pd = 0.67" in res.stdout and "false alarm" in res.stdout
     # a radius from the command line: 1.1 m lets the extra contact 1.03 m from the
     # third target detect it
-    svss("score", str(out), "--scene", str(scene), "--radius", "1.1", "--out",
-         str(report_path))
+    svss_here(capsys, "score", out, "--scene", scene, "--radius", "1.1", "--out", report_path)
     r = json.loads(report_path.read_text())
     assert r["match_radius_m"] == 1.1
     assert (r["summary"]["hits"], r["summary"]["misses"], r["summary"]["false_alarms"]) == \
@@ -206,7 +215,7 @@ def test_score_against_scene_truth(tmp_path, hardware, demo_processing):
 
 
 def test_score_names_the_tile_and_key_of_a_bad_stored_configuration(tmp_path, hardware,
-                                                                    demo_processing):
+                                                                    demo_processing, capsys):
     """The match radius comes from the tile's stored processing configuration, read by the
     configuration loader: a bad value is refused naming the file, the dataset and the key;
     a radius given on the command line is used without reading it."""
@@ -231,5 +240,4 @@ def test_score_names_the_tile_and_key_of_a_bad_stored_configuration(tmp_path, ha
     assert res.returncode == 2
     assert ("tile_0000.h5:/provenance/processing_config_toml: key "
             "'products.detection.match_radius_m'") in res.stderr and "--radius" in res.stderr
-    res = svss("score", str(out), "--scene", str(scene), "--radius", "0.5")
-    assert "Pd = " in res.stdout
+    assert "Pd = " in svss_here(capsys, "score", out, "--scene", scene, "--radius", "0.5")
