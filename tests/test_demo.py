@@ -116,10 +116,14 @@ def test_targets_at_true_positions(demo):
 
 
 def test_process_recorded_run_gives_the_same_tiles(demo, tmp_path):
+    """``svss process`` through the command's function in this process (its kernels
+    compiled once for the session; the real command runs in tests/test_renavigate.py)."""
+    from svss.cli import main
     out, _ = demo
     # with the poses recorded live (svss process re-navigates by default: other poses)
-    svss("process", str(out / "runs" / f"{RUN}_000.h5"), "--out", str(tmp_path),
-         "--processing", str(config_path("processing-demo.toml")), "--no-renavigate")
+    assert main(["process", str(out / "runs" / f"{RUN}_000.h5"), "--out", str(tmp_path),
+                 "--processing", str(config_path("processing-demo.toml")),
+                 "--no-renavigate"]) == 0
     live = sorted((out / "tiles" / RUN).glob("tile_*.h5"))
     again = sorted(tmp_path.glob("tile_*.h5"))
     assert [p.name for p in live] == [p.name for p in again]
