@@ -261,17 +261,15 @@ def _palette() -> list[int]:
 def save_png(fig, path: Path, dpi: int) -> None:
     """Save ``fig`` as a palette PNG (:func:`_palette`: the colour map at 224 levels and
     the few other colours a quicklook uses; a third of the bytes of full colour)."""
-    from io import BytesIO
-
     from PIL import Image
 
-    buf = BytesIO()
-    fig.savefig(buf, dpi=dpi, format="rgba")      # the pixels, no PNG encoding between
-    w, h = (int(round(v * dpi)) for v in fig.get_size_inches())
+    fig.set_dpi(dpi)
+    fig.canvas.draw()                      # the pixels, no PNG encoding between
+    rgba = np.asarray(fig.canvas.buffer_rgba())
     pal = Image.new("P", (1, 1))
     pal.putpalette(_palette())
-    im = Image.frombuffer("RGBA", (w, h), buf.getbuffer(), "raw", "RGBA", 0, 1)
-    im.convert("RGB").quantize(palette=pal, dither=Image.Dither.NONE).save(
+    Image.fromarray(rgba[..., :3], "RGB").quantize(palette=pal,
+                                                   dither=Image.Dither.NONE).save(
         path, format="PNG", optimize=True)
 
 

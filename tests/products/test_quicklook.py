@@ -92,3 +92,25 @@ def test_default_tile_quicklook_is_legible(default_tile, tmp_path):
     assert n_no_data >= 0.7 * n_views * (1.5 * px_per_m) * (MIN_PANEL_IN * dpi)
     assert n_no_data <= 1.1 * n_views * (1.5 * px_per_m) * (MAX_PANEL_IN * dpi)
     assert DEFAULT_MAX_LABELS < len(det)
+
+
+@pytest.mark.parametrize("size_in", [(6.006, 3.337), (10.0, 9.0), (7.25, 2.995)])
+def test_palette_png_has_the_size_and_pixels_matplotlib_saves(tmp_path, size_in):
+    # a size whose pixels are not whole (6.006 in at 100 dpi: 600.6 px) failed once the
+    # pixels were taken raw (the mosaic of the demo was not written)
+    import matplotlib.pyplot as plt
+    from PIL import Image
+
+    from svss_proc.products.quicklook import _palette, save_png
+    fig = plt.figure(figsize=size_in)
+    fig.add_subplot().imshow(np.arange(64.0).reshape(8, 8), cmap="magma")
+    save_png(fig, tmp_path / "palette.png", 100)
+    fig.savefig(tmp_path / "full.png", dpi=100)
+    plt.close(fig)
+    pal = Image.new("P", (1, 1))
+    pal.putpalette(_palette())
+    with Image.open(tmp_path / "palette.png") as a, Image.open(tmp_path / "full.png") as b:
+        assert a.mode == "P" and a.size == b.size
+        want = b.convert("RGB").quantize(palette=pal, dither=Image.Dither.NONE)
+        # matplotlib's own rendering, put on the same palette: the same pixels
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(want))
