@@ -69,7 +69,8 @@ from svss_daq.config import (ProcessingConfig, config_path, load_with_text)  # n
 from svss_daq.geometry import place_array  # noqa: E402
 from svss_daq.ping_gate import PingGate, PingRejected  # noqa: E402
 from svss_daq.rawfile import RawRunReader  # noqa: E402
-from svss_proc.imaging.imager import TileImager, along_reach, ping_frame  # noqa: E402
+from svss_proc.imaging.imager import TileImager  # noqa: E402
+from svss_proc.imaging.schedule import along_reach, ping_frame  # noqa: E402
 from svss_proc.imaging.kernel_args import DelayModel, prepare  # noqa: E402
 from svss.demo import stop_process  # noqa: E402
 
@@ -311,10 +312,11 @@ class Focus:
     def sample(self, along, cross, depth) -> np.ndarray:
         """The image at the grid ``along x cross x depth`` (tile frame), complex: the
         pings the tiles took, each as :meth:`TileImager.add` images it."""
-        im, imager, geo = self.proc.imaging, self.imager, self.imager.geometry
+        im, acc = self.proc.imaging, self.imager.accumulator
+        geo = acc.geometry
         along, cross, depth = (np.ascontiguousarray(x, dtype=np.float64)
                                for x in (along, cross, depth))
-        re_ = np.zeros((along.size, cross.size, depth.size), dtype=imager.dtype)
+        re_ = np.zeros((along.size, cross.size, depth.size), dtype=acc.dtype)
         im_ = np.zeros_like(re_)
         max_depth = self.proc.tile.top_m + self.proc.tile.depth_m
         for p in self.pings:
@@ -331,20 +333,20 @@ class Focus:
                 continue
             delays = DelayModel(im.delays, im.water_sound_speed_m_s,
                                 im.sediment_sound_speed_m_s,
-                                imager._table(tx, rx, reach) if im.delays == "table"
+                                acc.travel_table(tx, rx, reach) if im.delays == "table"
                                 else None)
-            imager._run(re_, im_, kd, tx, rx, along, cross, depth, int(ia[0]),
-                        int(ia[-1]) + 1, bore=bore,
-                        cos_tx=math.cos(geo.projector_half_angle),
-                        cos_rx=math.cos(geo.receiver_half_angle), delays=delays,
-                        gating=im.beam_gating, apod=imager.apod)
+            acc.kernel(re_, im_, kd, tx, rx, along, cross, depth, int(ia[0]),
+                       int(ia[-1]) + 1, bore=bore,
+                       cos_tx=math.cos(geo.projector_half_angle),
+                       cos_rx=math.cos(geo.receiver_half_angle), delays=delays,
+                       gating=im.beam_gating, apod=acc.apod)
         return re_.astype(np.float64) + 1j * im_.astype(np.float64)
 
     def _conditioned(self, p):
         if p.sequence not in self._kd:
-            cond = self.imager.conditioner.ping(p)
+            cond = self.imager.accumulator.condition(p)
             self._kd[p.sequence] = (cond, prepare(cond, self.proc.imaging.interpolation,
-                                                  self.imager.dtype))
+                                                  self.imager.accumulator.dtype))
         return self._kd[p.sequence]
 
     def _cube(self, c, half, step):

@@ -63,12 +63,12 @@ def image(hw, proc, pings, record=False):
     imager = TileImager(hw, proc)
     calls = []
     if record:
-        run = imager._run
+        run = imager.accumulator.kernel
 
         def recording(*args, **kw):
             calls.append((args, kw))
             return run(*args, **kw)
-        imager._run = recording
+        imager.accumulator.kernel = recording
     t0 = time.perf_counter()
     tiles = []
     for p in pings:

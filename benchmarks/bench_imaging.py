@@ -37,7 +37,8 @@ from sim_device.scene import load_scene
 from svss_daq.config import (HardwareConfig, ProcessingConfig, config_path, load,
                              load_with_text)
 from svss_daq.frames import body_to_ned
-from svss_proc.imaging.imager import TileImager, line_from_ping
+from svss_proc.imaging.imager import TileImager
+from svss_proc.imaging.schedule import line_from_ping
 
 log = logging.getLogger("bench_imaging")
 
@@ -91,7 +92,7 @@ def reference_tile(hw, proc, pings, repeat: int = 1):
 def numpy_baseline(hw, proc, pings, n_pings: int = 2):
     """Plain numpy: loop over channels, vectorised over voxels, nearest sample."""
     imager = TileImager(hw, proc)
-    geo = imager.geometry
+    geo = imager.accumulator.geometry
     line = line_from_ping(pings[0], proc)
     from svss_proc.imaging.grid import tile_grid
     grid = tile_grid(proc.tile, 1)
@@ -108,7 +109,7 @@ def numpy_baseline(hw, proc, pings, n_pings: int = 2):
         origin = line.ned_to_tile(nav.ned)
         tx = origin + rot @ geo.projectors[p.projector]
         rx = origin + geo.receivers @ rot.T
-        cond = imager.conditioner.ping(p)   # analytic signal at its arrival times
+        cond = imager.accumulator.condition(p)   # analytic signal at its arrival times
         r1 = np.sqrt((X - tx[0]) ** 2 + (Y - tx[1]) ** 2 + (Z - tx[2]) ** 2)
         in_tx = (Z - tx[2]) >= r1 * cos_tx
         for ch in range(rx.shape[0]):

@@ -58,7 +58,7 @@ def record_calls(hw, proc, pings):
         calls.append((args, ia0, ia1, img_re.shape,
                       (kd.interp, delays.code, bool(gating), kd.halvings)))
         return 0
-    imager._run = recording
+    imager.accumulator.kernel = recording
     for p in pings:
         imager.add(p)
     return calls

@@ -7,6 +7,7 @@ lever arm ``lever_arms.array_m`` places it in the body frame.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -101,3 +102,14 @@ def place_array(geometry: ArrayGeometry, nav: NavSnapshot, projector: int,
     return PlacedArray(origin + rot @ geometry.projectors[projector],
                        origin + geometry.receivers @ rot.T, rot @ geometry.boresight,
                        int(projector))
+
+
+def cone_reach(height_m: float, bore_z: float, half_angle_rad: float) -> float:
+    """Largest horizontal distance from the projector at which a point ``height_m``
+    below it can lie inside the projector cone (half angle ``half_angle_rad`` about a
+    boresight whose downward component is ``bore_z``), m; the cone's edge is taken no
+    flatter than 89 degrees from the vertical. The one definition of the cone's reach
+    (the schedule, the coverage count, the GPU launch and the trade's workloads)."""
+    tilt = math.acos(max(-1.0, min(1.0, float(bore_z))))
+    cone = min(half_angle_rad + tilt, math.radians(89.0))
+    return max(0.0, float(height_m)) * math.tan(cone)

@@ -90,6 +90,15 @@ class Conditioner:
         self.slots = np.mod(k[keep] - k0, self.m_out)     # their place in the short ifft
         self.filter = (spec[self.bins] * (self.m_out / n)).astype(np.complex128)
 
+    def output_axis(self, axis: SampleAxis | None = None) -> SampleAxis:
+        """The conditioned samples' axis (arrival times at the array) for samples taken
+        on ``axis`` (default: the configured window): from the header alone, what
+        :meth:`__call__` gives with the samples."""
+        axis = self.sample_axis if axis is None else axis
+        arrival = acoustic_axis(axis, self.digitiser)
+        return SampleAxis(arrival.start_s, self.decimation / (self.fs * self.upsample),
+                          self.n_out)
+
     def ping(self, ping: Ping) -> Conditioned:
         """Condition a ping on its own sample axis."""
         return self(ping.samples, ping.sample_axis)
@@ -104,9 +113,7 @@ class Conditioner:
         z = np.zeros((x.shape[0], self.m_out), dtype=np.complex128)
         z[:, self.slots] = x[:, self.bins] * self.filter
         y = sfft.ifft(z, axis=-1)[:, : self.n_out]
-        arrival = acoustic_axis(axis, self.digitiser)
-        out = SampleAxis(arrival.start_s, self.decimation / (self.fs * self.upsample),
-                         self.n_out)
+        out = self.output_axis(axis)
         # y holds a(t) exp(-j 2 pi f_shift (t - t_first)): bring back the analytic samples
         shift = np.exp(2j * np.pi * self.f_shift * (out.times() - out.start_s))
         return Conditioned(y * shift, out, self.fc)

@@ -256,9 +256,9 @@ class Worker:
         try:
             line = j.get("line")
             if line is not None:
-                self.imager.line = TrackLine(tuple(float(v) for v in line["origin_ne"]),
-                                             float(line["heading"]),
-                                             float(line["interface_down"]))
+                self.imager.schedule.fix_frame(
+                    TrackLine(tuple(float(v) for v in line["origin_ne"]),
+                              float(line["heading"]), float(line["interface_down"])))
                 self._journal_line = True
             redo = {int(k) for k in j.get("stopped_open", [])}
             self.resume_sequence = j.get("resume_sequence")
@@ -280,7 +280,7 @@ class Worker:
             # point
             files.pop(k).unlink()
             self.out.joinpath(f"{tile_name(k)}_mip.png").unlink(missing_ok=True)
-        self.imager.done |= set(files)
+        self.imager.schedule.mark_done(files)
         self.written = [p for k in sorted(files) for p in
                         (files[k], files[k].with_name(f"{tile_name(k)}_mip.png"))]
         log.info("%s: resuming run %s from ping %s (%d tile(s) done%s)", self.out,

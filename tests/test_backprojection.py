@@ -12,7 +12,7 @@ from svss_daq.ping import SampleAxis
 from svss_proc.conditioning import Conditioned
 from svss_proc.imaging.cpu_kernel import run_ping
 from svss_proc.imaging.delays import build_table
-from svss_proc.imaging.imager import along_reach
+from svss_proc.imaging.schedule import along_reach
 from svss_proc.imaging.kernel_args import DelayModel, prepare
 from tests.references import direct_sum
 

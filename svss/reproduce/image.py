@@ -90,7 +90,7 @@ def image_regions(src: EnvironmentSource, pings, regions: dict[str, Region],
         # only tile 0 (the region) is wanted: the imager leaves tiles it has already
         # written alone, so the neighbours a ping's cone also reaches are marked so
         # (halves the imaging: a cone reaches ~3 m either side at 3 m depth)
-        im.done.update(k for k in range(-NEIGHBOURS, NEIGHBOURS + 1) if k != 0)
+        im.schedule.mark_done(k for k in range(-NEIGHBOURS, NEIGHBOURS + 1) if k != 0)
     found: dict[str, object] = {}
     t_sim = t_img = 0.0
     pings = list(pings)

@@ -31,36 +31,17 @@ import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
 from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
-from svss_proc.conditioning import Conditioned
-from svss_proc.imaging.imager import TileImager, receive_apodisation
+from svss_proc.imaging.imager import TileImager
 
 from .workloads import Workload, extrapolation
 
 log = logging.getLogger(__name__)
 
 
-class _SubsetConditioner:
-    """A conditioner handing on only some channels."""
-
-    def __init__(self, inner, channels: np.ndarray):
-        self.inner, self.channels = inner, channels
-
-    def ping(self, ping) -> Conditioned:
-        c = self.inner.ping(ping)
-        return Conditioned(c.analytic[self.channels], c.axis, c.center_hz)
-
-
 def make_imager(hw: Loaded[HardwareConfig], proc: ProcessingConfig,
                 channels: np.ndarray | None) -> TileImager:
     """A tile imager that sums only ``channels`` (None: all)."""
-    imager = TileImager(hw, proc)
-    if channels is not None:
-        imager.geometry = dataclasses.replace(imager.geometry,
-                                              receivers=imager.geometry.receivers[channels])
-        imager.apod = receive_apodisation(imager.geometry.receivers,
-                                          proc.imaging.apodisation)
-        imager.conditioner = _SubsetConditioner(imager.conditioner, channels)
-    return imager
+    return TileImager(hw, proc, channels=channels)
 
 
 def channel_subsets(hw: HardwareConfig) -> dict[str, np.ndarray | None]:
@@ -74,7 +55,8 @@ def channel_subsets(hw: HardwareConfig) -> dict[str, np.ndarray | None]:
 def only_tile(imager: TileImager, index: int, span: int = 1000) -> TileImager:
     """Restrict ``imager`` to tile ``index``: it skips tiles it has written, so the
     neighbours are marked written (the pings' other tiles would cost time for nothing)."""
-    imager.done.update(k for k in range(index - span, index + span + 1) if k != index)
+    imager.schedule.mark_done(k for k in range(index - span, index + span + 1)
+                              if k != index)
     return imager
 
 
@@ -87,7 +69,7 @@ def image(hw, proc, pings, index: int, channels=None):
     t_cond = 0.0
     for p in pings:                       # conditioning alone, for the extrapolation
         t0 = time.perf_counter()
-        imager.conditioner.ping(p)
+        imager.accumulator.condition(p)
         t_cond += time.perf_counter() - t0
     t0 = time.perf_counter()
     c0 = time.process_time()

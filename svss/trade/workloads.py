@@ -26,6 +26,7 @@ from svss_daq.config import (
     TileConfig,
     config_path,
 )
+from svss_daq.geometry import cone_reach
 
 #: the reference tile of DESIGN.md: 15 m at 1 m/s and 10 pings/s
 TILE_PINGS = 150
@@ -63,8 +64,8 @@ def ping_spacing(scene: SceneConfig, hw: HardwareConfig) -> float:
 
 def _reach(hw: HardwareConfig, tile: TileConfig, altitude: float) -> float:
     """Largest along-track distance from the projector at which it insonifies the tile."""
-    return (altitude + tile.top_m + tile.depth_m) * math.tan(
-        math.radians(hw.beams.projector_half_angle_deg))
+    return cone_reach(altitude + tile.top_m + tile.depth_m, 1.0,      # boresight down
+                      math.radians(hw.beams.projector_half_angle_deg))
 
 
 def around(scene: SceneConfig, hw: Loaded[HardwareConfig], tile: TileConfig,

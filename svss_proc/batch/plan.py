@@ -1,14 +1,12 @@
 """Tile planning for batch reprocessing: which pings of which raw files go into which
 tile, decided from the runs' ping and navigation tables alone (no sample is read).
 
-The plan replays the streaming worker's bookkeeping (:class:`svss_proc.worker.Worker`:
-the :class:`~svss_daq.ping_gate.PingGate`, then :class:`TileImager.add
-<svss_proc.imaging.imager.TileImager.add>`'s pose checks, tile frame, reach, tile
-opening, early closing under ``limits.memory_gib`` and closing after
-``tile.close_after_pings`` clear pings) ping by ping, with the same functions
-(:func:`~svss_proc.imaging.imager.line_from_ping`, :func:`~svss_daq.geometry.place_array`,
-:func:`~svss_proc.imaging.imager.along_reach`, :func:`~svss_proc.imaging.grid.tile_index`,
-:class:`~svss_proc.imaging.pose_check.TrackGuard`), but without imaging. Each tile's
+The plan runs the streaming worker's gate (:class:`~svss_daq.ping_gate.PingGate`,
+:func:`~svss_proc.imaging.pose_check.check_pose_flags`) and the same
+:class:`~svss_proc.imaging.schedule.TileSchedule` that
+:class:`~svss_proc.imaging.imager.TileImager` images with (tile frame, track guard,
+reach, tile opening, early closing under ``limits.memory_gib``, closing after
+``tile.close_after_pings`` clear pings), ping by ping, without imaging. Each tile's
 plan is then the list of pings the streaming worker images into it, in order, as index
 ranges of the run's segment files: a task images exactly those (and checks that the
 imager took exactly those), so that its tile equals ``svss process``'s voxel for voxel.
@@ -31,17 +29,12 @@ import numpy as np
 
 from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
 from svss_daq.frames import TrackLine
-from svss_daq.geometry import array_geometry, place_array
-from svss_daq.ping import NavSnapshot, Ping, SampleAxis
+from svss_daq.ping import NavSnapshot, Ping
 from svss_daq.ping_gate import PingGate, PingRejected
 from svss_daq.rawfile import RawFileError, RawRunReader, run_of
-from svss_daq.waveform import make_waveform
 
-from ..conditioning import Conditioner
-from ..imaging.grid import tile_grid, tile_index
-from ..imaging.imager import CLOSE_AFTER_PINGS, along_reach, line_from_ping, ping_frame
-from ..imaging.pose_check import TrackGuard, check_pose_flags
-from ..preflight import preflight
+from ..imaging.pose_check import check_pose_flags
+from ..imaging.schedule import TileSchedule
 from ..worker import LIVE_POSES, run_poses
 
 log = logging.getLogger(__name__)
@@ -120,38 +113,24 @@ def _ranges(refs: list[tuple[int, int]], paths: list[Path]) -> tuple:
 
 
 class TilePlanner:
-    """The streaming worker's tile bookkeeping on poses only (see the module doc)."""
+    """A run's tiles planned on poses alone: the streaming worker's gate and its
+    :class:`~svss_proc.imaging.schedule.TileSchedule` (see the module doc); ``tiles``:
+    tile index -> [(ref, sequence)] of the pings imaged into it, in order."""
 
     def __init__(self, hardware: Loaded[HardwareConfig], processing: ProcessingConfig,
                  source: str, name: str):
-        self.hardware, self.proc = hardware, processing
-        self.max_open_tiles = preflight(processing, source)
+        self.proc = processing
+        self.schedule = TileSchedule(hardware, processing, source=source)
         self.gate = PingGate(hardware, name=name)
-        self.track = TrackGuard(processing.ping_gate)
-        self.geometry = array_geometry(hardware.value)
-        hold = processing.tile.close_after_pings
-        self.close_after = CLOSE_AFTER_PINGS if hold is None else hold
-        self.line: TrackLine | None = None
-        self.active: dict[int, list] = {}
-        self.clear: dict[int, int] = {}
-        self.done: set[int] = set()
-        self.tiles: dict[int, list] = {}          # index -> [(ref, sequence)]
-        self.late_pings = 0
-        cond = processing.conditioning
-        dig = hardware.value.digitiser
-        self._step_out = cond.decimation / (dig.sample_rate_hz * cond.upsample)
-        self._group_delay = dig.group_delay_s
+        self.tiles: dict[int, list] = {}
 
-    def _echo_end_s(self, ping: Ping) -> float:
-        """End of the conditioned (arrival-time) axis, s: what
-        :class:`~svss_proc.conditioning.Conditioner` gives, without the samples."""
-        if not hasattr(self, "_n_out"):
-            c = self.proc.conditioning
-            hw = self.hardware.value
-            self._n_out = Conditioner(hw.digitiser, make_waveform(hw.waveform),
-                                      c.decimation, c.upsample).n_out
-        start = ping.sample_axis.start_s - self._group_delay
-        return SampleAxis(start, self._step_out, self._n_out).end_s
+    @property
+    def line(self) -> TrackLine | None:
+        return self.schedule.line
+
+    @property
+    def late_pings(self) -> int:
+        return self.schedule.late_pings
 
     def add(self, ping: Ping, ref) -> None:
         """One ping (``ref``: where it lies, kept in the plan)."""
@@ -163,65 +142,14 @@ class TilePlanner:
         if not self.gate.admit(ping):
             return
         try:
-            self._add(ping, ref)
+            step = self.schedule.step(ping)
         except PingRejected as exc:
             self.gate.refuse(exc)
-
-    def _add(self, ping: Ping, ref) -> None:
-        proc, tcfg, geo = self.proc, self.proc.tile, self.geometry
-        line = self.line or line_from_ping(ping, proc)
-        placed = place_array(geo, ping.nav, ping.projector, ping_frame(line, ping.nav, proc))
-        tx, bore = placed.tx, placed.bore
-        fix = self.track.check(ping.sequence, ping.nav, tx)
-        if proc.imaging.beam_gating:
-            reach = along_reach(tx, bore, geo.projector_half_angle, tcfg.top_m + tcfg.depth_m)
-        else:
-            reach = self._echo_end_s(ping) * proc.imaging.water_sound_speed_m_s / 2
-        lo, hi = tx[0] - reach, tx[0] + reach
-        k_lo, k_hi = tile_index(tcfg, lo), tile_index(tcfg, hi)
-        if k_hi - k_lo + 1 > self.max_open_tiles:
-            raise PingRejected(ping.sequence, f"reaches {k_hi - k_lo + 1} tiles (along-track "
-                               f"{lo:.1f} to {hi:.1f} m), more than the "
-                               f"{self.max_open_tiles} that fit in limits.memory_gib")
-        if self.line is None:
-            self.line = line
-        self.track.commit(fix)
-        reached = [k for k in range(k_lo, k_hi + 1) if k not in self.done]
-        if not reached:
-            self.late_pings += 1
-        else:
-            self._make_room([k for k in reached if k not in self.active], reached)
-        v = tcfg.voxel_m
-        for k in reached:
-            if k not in self.active:
-                self.active[k] = self.tiles.setdefault(k, [])
-                self.clear[k] = 0
-            a = tile_grid(tcfg, k).along
-            ia0 = int(np.clip(np.floor((lo - a[0]) / v), 0, a.size))
-            ia1 = int(np.clip(np.ceil((hi - a[0]) / v) + 1, 0, a.size))
-            if ia1 > ia0:
-                self.active[k].append((ref, ping.sequence))
-        finished = []
-        for k in self.active:
-            if k_lo <= k <= k_hi:
-                self.clear[k] = 0
-            else:
-                self.clear[k] += 1
-                if self.clear[k] >= self.close_after:
-                    finished.append(k)
-        for k in sorted(finished):
-            self._close(k)
-
-    def _make_room(self, new: list[int], reached: list[int]) -> None:
-        spare = sorted((k for k in self.active if k not in reached),
-                       key=lambda k: -min(abs(k - r) for r in reached))
-        while len(self.active) + len(new) > self.max_open_tiles and spare:
-            self._close(spare.pop(0))
-
-    def _close(self, k: int) -> None:
-        self.done.add(k)
-        self.clear.pop(k, None)
-        self.active.pop(k)
+            return
+        for k in step.reached:                  # a reached tile is made, pings or not
+            self.tiles.setdefault(k, [])
+        for sl in step.slices:
+            self.tiles[sl.tile].append((ref, ping.sequence))
 
 
 def _pose_ping(reader: RawRunReader, i: int, meta: dict, zeros: np.ndarray,

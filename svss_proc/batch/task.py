@@ -21,7 +21,6 @@ import dataclasses
 import logging
 import os
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numba
@@ -36,20 +35,6 @@ from ..tiles import read_tile_header, tile_name
 from .plan import PlanMismatch, TilePlan
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class _Judged:
-    """Stands in for the imager's :class:`~svss_proc.imaging.pose_check.TrackGuard`:
-    the plan judged every pose against the whole run's track already (a tile's pings
-    alone are not that track)."""
-    reanchored: int = 0
-
-    def check(self, sequence, nav, tx_tile):
-        return None
-
-    def commit(self, fix) -> None:
-        pass
 
 
 class PingsRefused(RuntimeError):
@@ -105,9 +90,12 @@ def image_tile(plan: TilePlan, out: str, processing: Loaded[ProcessingConfig],
                 raise RawFileError(f"{r.path}: hardware configuration {r.hardware.id}, the "
                                    f"plan was made with {plan.hardware_id} (file changed?)")
         imager = TileImager(hardware, processing.value, source=processing.source)
-        imager.line = plan.track_line()
-        imager.done = plan.others
-        imager.track = _Judged()
+        # the run's frame; its other tiles written (only this one is formed); the poses
+        # judged against the whole run's track by the plan (a tile's pings alone are not
+        # that track)
+        imager.schedule.fix_frame(plan.track_line())
+        imager.schedule.mark_done(plan.others)
+        imager.schedule.trust_poses()
         k = 0
         refused: list[tuple[str, int, int, str]] = []
         for path, start, stop in plan.ranges:

@@ -30,6 +30,8 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from svss_daq.geometry import cone_reach
+
 #: largest count a coverage volume holds
 SATURATE = 65535
 
@@ -191,10 +193,8 @@ def add_ping(pings: np.ndarray, channels: np.ndarray, along: np.ndarray,
     equal to the water's for straight-ray delays)."""
     # the widest the projector cone gets within the tile: a column further away is
     # outside it at every depth (its tilt added to the half-angle, as the imager does)
-    b = np.asarray(bore, dtype=np.float64)
-    cone = min(half_tx_rad + math.acos(max(-1.0, min(1.0, float(b[2])))), math.radians(89.0))
-    rho_max = ((max(float(np.max(depth)), 0.0) - float(tx[2])) * math.tan(cone) + 1e-9
-               if gating else math.inf)
+    rho_max = (cone_reach(max(float(np.max(depth)), 0.0) - float(tx[2]), float(bore[2]),
+                          half_tx_rad) + 1e-9 if gating else math.inf)
     _accumulate(pings, channels, np.ascontiguousarray(along, dtype=np.float64),
                 np.ascontiguousarray(cross, dtype=np.float64),
                 np.ascontiguousarray(depth, dtype=np.float64), int(ia0), int(ia1),

@@ -23,6 +23,8 @@ import math
 import numpy as np
 from numba import cuda
 
+from svss_daq.geometry import cone_reach
+
 from .delays import build_refraction
 from .kernel_args import (DelayModel, KernelArgs, KernelData, TapPlanes, TravelTimes,
                           VoxelGeometry, check_call, kernel_args)
@@ -157,10 +159,9 @@ def cross_range(args: KernelArgs, gating: bool) -> tuple[int, int]:
     bore = np.asarray(g.bore, dtype=np.float64)
     half = math.acos(min(1.0, max(-1.0, float(g.cos_tx))))
     tilt = math.acos(min(1.0, max(-1.0, float(bore[2]))))
-    cone = half + tilt
-    if cone >= math.radians(89.0):
+    if half + tilt >= math.radians(89.0):           # past the cone's flattest edge
         return 0, nc
-    reach = max(0.0, float(np.max(g.dz)) + float(g.h_tx)) * math.tan(cone)
+    reach = cone_reach(float(np.max(g.dz)) + float(g.h_tx), float(bore[2]), half)
     inside = np.flatnonzero(np.abs(cy) <= reach)
     if inside.size == 0:
         return 0, 0

@@ -1,11 +1,7 @@
-"""Tile imager: conditions pings, backprojects them into every tile they reach, and
-hands back tiles once the pings' reach has stayed clear of them for a while.
-
-Tile completion (docs/worker.md): a tile is complete when ``tile.close_after_pings``
-consecutive pings (default :data:`CLOSE_AFTER_PINGS`) have not reached it, whichever
-way the platform moves (forward, reversing, turning away); a stopped platform keeps the
-tiles it reaches open. :meth:`TileImager.finish` closes the rest at run end, and the
-memory bound (``limits.memory_gib``) closes the farthest tile early.
+"""Tile imager: a :class:`~.schedule.TileSchedule` (what to image where, from the poses)
+and a :class:`PingAccumulator` (condition a ping once, run the imaging and coverage
+kernels on the slices the schedule gives) over the tiles being formed; it hands back
+tiles as the schedule closes them (docs/worker.md: tile completion).
 
 The imager knows only the hardware configuration, the processing configuration and the
 pings; never the truth of a scene.
@@ -21,26 +17,23 @@ import numpy as np
 
 from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
 from svss_daq.frames import TrackLine
-from svss_daq.geometry import array_geometry, place_array
+from svss_daq.geometry import array_geometry
 from svss_daq.ping import Ping
 from svss_daq.ping_gate import PingRejected, ping_problem
 from svss_daq.waveform import make_waveform
 
-from ..conditioning import Conditioner
-from ..preflight import preflight
+from ..conditioning import Conditioned, Conditioner
 from ..tiles import Tile
 from .coverage import Coverage
 from .cpu_kernel import run_ping
 from .delays import TravelTimeTable, build_table
-from .grid import tile_grid, tile_index
+from .grid import tile_grid
 from .kernel_args import DelayModel, prepare
-from .pose_check import TrackGuard, check_pose_flags
+from .pose_check import check_pose_flags
+from .schedule import PingStep, TileSchedule
 
 log = logging.getLogger(__name__)
 
-#: consecutive pings that must stay clear of a tile before it is complete, when the
-#: processing configuration's ``tile.close_after_pings`` is omitted
-CLOSE_AFTER_PINGS = 20
 #: refraction tables are cached per 1 / TABLE_KEYS_PER_M of array height (1 cm)
 TABLE_KEYS_PER_M = 100
 
@@ -60,194 +53,83 @@ def receive_apodisation(receivers_body: np.ndarray, kind: str) -> np.ndarray | N
     return w / w.mean()
 
 
-def along_reach(tx_tile: np.ndarray, bore: np.ndarray, half_angle: float,
-                max_depth: float) -> float:
-    """Largest horizontal distance from the projector at which a voxel no deeper than
-    ``max_depth`` (tile frame) can lie inside the projector cone, m."""
-    tilt = math.acos(max(-1.0, min(1.0, float(bore[2]))))
-    cone = min(half_angle + tilt, math.radians(89.0))
-    return max(0.0, (max_depth - float(tx_tile[2]))) * math.tan(cone)
-
-
-def line_from_ping(ping: Ping, proc: ProcessingConfig) -> TrackLine:
-    """The tile frame, from the processing configuration and (if so configured) the
-    first ping's pose."""
-    im = proc.imaging
-    nav = ping.nav
-    if im.track_line == "fixed":
-        origin, heading = tuple(im.line_origin_ne_m), math.radians(im.line_heading_deg)
-    else:
-        origin, heading = (nav.north_m, nav.east_m), nav.heading_rad
-    interface = (im.interface_down_m if im.interface == "fixed"
-                 else nav.down_m + nav.altitude_m)
-    return TrackLine(origin, heading, interface)
-
-
-def ping_frame(frame: TrackLine, nav, proc: ProcessingConfig) -> TrackLine:
-    """The frame one ping is placed in: the tile frame, except that with
-    ``imaging.interface = "altitude"`` the interface lies at this ping's measured
-    altitude below the body (DVL bottom track), so that the array's height above the
-    seabed is the DVL's rather than the GPS height's (decimetres of noise). Without an
-    altitude (lost bottom lock) the tile frame's interface is used."""
-    if proc.imaging.interface != "altitude":
-        return frame
-    interface = nav.down_m + nav.altitude_m
-    if not math.isfinite(interface):
-        return frame
-    return dataclasses.replace(frame, interface_down=interface)
-
-
-class TileImager:
-    """Streaming imager. Feed pings in time order with :meth:`add`; it returns the tiles
-    that are complete. :meth:`finish` returns the rest."""
+class PingAccumulator:
+    """Images pings into tiles: conditions a ping (:meth:`condition`), builds the kernel
+    arguments once per ping and runs the imaging and coverage kernels on the slices a
+    :class:`~.schedule.PingStep` gives (:meth:`image`). ``channels``: sum only these
+    receive channels (None: all; ``svss trade``'s sub-arrays)."""
 
     def __init__(self, hardware: Loaded[HardwareConfig], processing: ProcessingConfig, *,
-                 source: str = "processing configuration"):
-        self.max_open_tiles = preflight(processing, source)
-        self.hardware = hardware
+                 channels: np.ndarray | None = None):
         hw = hardware.value
         self.proc = processing
-        self.track = TrackGuard(processing.ping_gate)
-        self.late_pings = 0
-        self.geometry = array_geometry(hw)
+        self.channels = None if channels is None else np.asarray(channels)
+        geometry = array_geometry(hw)
+        if self.channels is not None:
+            geometry = dataclasses.replace(geometry,
+                                           receivers=geometry.receivers[self.channels])
+        self.geometry = geometry
         cond = processing.conditioning
         self.conditioner = Conditioner(hw.digitiser, make_waveform(hw.waveform),
                                        cond.decimation, cond.upsample)
         self.dtype = np.float32 if processing.imaging.precision == "float32" else np.float64
-        self.apod = receive_apodisation(self.geometry.receivers, processing.imaging.apodisation)
+        self.apod = receive_apodisation(geometry.receivers, processing.imaging.apodisation)
         self._tables: dict[int, TravelTimeTable] = {}
         if processing.imaging.device == "cuda":
             from . import gpu_kernel            # numba-cuda only when asked for
-            self._run, self._zeros = gpu_kernel.run_ping_gpu, gpu_kernel.device_zeros
+            #: the kernel's front door (benchmarks and tests may wrap it)
+            self.kernel, self._zeros = gpu_kernel.run_ping_gpu, gpu_kernel.device_zeros
         else:
-            self._run, self._zeros = run_ping, np.zeros
-        self.line: TrackLine | None = None
-        self.active: dict[int, Tile] = {}
-        hold = processing.tile.close_after_pings
-        self.close_after = CLOSE_AFTER_PINGS if hold is None else hold
-        #: per open tile: consecutive pings since one last reached it
-        self.clear: dict[int, int] = {}
-        #: per open tile: the sequence of the ping that opened it
-        self.opened_by: dict[int, int] = {}
-        self.done: set[int] = set()
-        self.n_pings = 0
+            self.kernel, self._zeros = run_ping, np.zeros
         self.updates = 0
 
-    def resume_sequence(self) -> int | None:
-        """The first sequence of the earliest still-open tile (None: no tile open):
-        imaging again from there rebuilds every open tile exactly."""
-        return min(self.opened_by.values()) if self.opened_by else None
+    def condition(self, ping: Ping) -> Conditioned:
+        """The ping's analytic signal at its arrival times (its channels)."""
+        c = self.conditioner.ping(ping)
+        if self.channels is None:
+            return c
+        return Conditioned(c.analytic[self.channels], c.axis, c.center_hz)
 
-    def _tile(self, k: int, sequence: int) -> Tile:
-        if k not in self.active:
-            self.opened_by[k] = sequence
-            self.clear[k] = 0
-            grid = tile_grid(self.proc.tile, k)
-            self.active[k] = Tile(grid, self.line, self._zeros(grid.shape, dtype=self.dtype),
-                                  self._zeros(grid.shape, dtype=self.dtype),
-                                  coverage=Coverage.new(grid.shape, self.geometry.receivers))
-        return self.active[k]
+    def new_tile(self, index: int, line: TrackLine) -> Tile:
+        """An empty tile ``index`` in frame ``line``, its planes where the kernel runs."""
+        grid = tile_grid(self.proc.tile, index)
+        return Tile(grid, line, self._zeros(grid.shape, dtype=self.dtype),
+                    self._zeros(grid.shape, dtype=self.dtype),
+                    coverage=Coverage.new(grid.shape, self.geometry.receivers))
 
-    def add(self, ping: Ping) -> list[Tile]:
-        """Image one ping into the tiles it reaches; return tiles now complete.
-
-        Raises :class:`~svss_daq.ping_gate.PingRejected`, changing nothing, for a pose
-        its navigation's flags keep from imaging
-        (:func:`~svss_proc.imaging.pose_check.pose_flags_problem`), a ping the gate's
-        :func:`~svss_daq.ping_gate.ping_problem` refuses, an implausible pose
-        (:mod:`~svss_proc.imaging.pose_check`) or one that would reach more than
-        the tiles that fit in ``limits.memory_gib``. (A stream's
-        :class:`~svss_daq.ping_gate.PingGate` also keeps time order and counts.)"""
-        check_pose_flags(ping, self.proc.ping_gate)
-        reason = ping_problem(ping, self.hardware)
-        if reason is not None:
-            raise PingRejected(getattr(ping, "sequence", "?"), reason)
-        line = self.line or line_from_ping(ping, self.proc)
-        geo, tcfg = self.geometry, self.proc.tile
-        placed = place_array(geo, ping.nav, ping.projector,
-                             ping_frame(line, ping.nav, self.proc))
+    def image(self, ping: Ping, cond: Conditioned, step: PingStep,
+              tiles: dict[int, Tile]) -> int:
+        """Image ``ping`` (conditioned ``cond``) into the slices of ``step`` (tiles by
+        index); returns the voxel-channel updates."""
+        if not step.slices:
+            return 0
+        im, geo = self.proc.imaging, self.geometry
+        placed = step.placed
+        if self.channels is not None:
+            placed = dataclasses.replace(placed, rx=placed.rx[self.channels])
         tx, rx, bore = placed.tx, placed.rx, placed.bore
-        fix = self.track.check(ping.sequence, ping.nav, tx)
-        im = self.proc.imaging
-        gating = im.beam_gating
-        # which tiles can this ping reach?
-        max_depth = tcfg.top_m + tcfg.depth_m
-        cond = None
-        if gating:
-            reach = along_reach(tx, bore, geo.projector_half_angle, max_depth)
-        else:
-            cond = self.conditioner.ping(ping)
-            reach = cond.axis.end_s * im.water_sound_speed_m_s / 2
-        lo, hi = tx[0] - reach, tx[0] + reach
-        k_lo, k_hi = tile_index(tcfg, lo), tile_index(tcfg, hi)
-        limit = self.max_open_tiles
-        if k_hi - k_lo + 1 > limit:
-            raise PingRejected(ping.sequence, f"reaches {k_hi - k_lo + 1} tiles (along-track "
-                               f"{lo:.1f} to {hi:.1f} m), more than the {limit} that fit "
-                               "in limits.memory_gib")
-        if self.line is None:
-            self.line = line
-            log.info("tile frame: origin N %.2f E %.2f m, heading %.1f deg, interface %.2f m",
-                     *line.origin_ne, math.degrees(line.heading), line.interface_down)
-        self.track.commit(fix)
-        reached = [k for k in range(k_lo, k_hi + 1) if k not in self.done]
-        if not reached:
-            self.late_pings += 1
-            log.warning("ping %d reaches only tiles already written (%d..%d); not imaged",
-                        ping.sequence, k_lo, k_hi)
-        closed = (self._make_room([k for k in reached if k not in self.active], reached)
-                  if reached else [])
-        cond = cond or self.conditioner.ping(ping)
         delays = DelayModel(im.delays, im.water_sound_speed_m_s, im.sediment_sound_speed_m_s,
-                            self._table(tx, rx, reach) if im.delays == "table" else None)
-        kd = None
-        for k in reached:
-            tile = self._tile(k, ping.sequence)
-            a = tile.grid.along
-            v = tcfg.voxel_m
-            ia0 = int(np.clip(np.floor((lo - a[0]) / v), 0, a.size))
-            ia1 = int(np.clip(np.ceil((hi - a[0]) / v) + 1, 0, a.size))
-            if ia1 <= ia0:
-                continue
-            kd = kd or prepare(cond, im.interpolation, self.dtype)
-            n = self._run(tile.re, tile.im, kd, tx, rx, a, tile.grid.cross, tile.grid.depth,
-                          ia0, ia1, bore=bore, cos_tx=math.cos(geo.projector_half_angle),
-                          cos_rx=math.cos(geo.receiver_half_angle), delays=delays,
-                          gating=gating, apod=self.apod)
+                            self.travel_table(tx, rx, step.reach_m) if im.delays == "table"
+                            else None)
+        kd = prepare(cond, im.interpolation, self.dtype)
+        window = (cond.axis.start_s, cond.axis.end_s - cond.axis.step_s)
+        total = 0
+        for s in step.slices:
+            tile = tiles[s.tile]
+            n = self.kernel(tile.re, tile.im, kd, tx, rx, tile.grid.along, tile.grid.cross,
+                            tile.grid.depth, s.ia0, s.ia1, bore=bore,
+                            cos_tx=math.cos(geo.projector_half_angle),
+                            cos_rx=math.cos(geo.receiver_half_angle), delays=delays,
+                            gating=im.beam_gating, apod=self.apod)
             # which voxels this ping reached (geometry only; the image is not touched)
-            window = (cond.axis.start_s, cond.axis.end_s - cond.axis.step_s)
-            tile.coverage.add(tile.grid, ia0, ia1, placed, geo, window, im, ping.nav)
+            tile.coverage.add(tile.grid, s.ia0, s.ia1, placed, geo, window, im, ping.nav)
             tile.pings.append(ping.sequence)
             tile.updates += int(n)
-            self.updates += int(n)
-        self.n_pings += 1
-        # a tile is complete once close_after consecutive pings have stayed clear of it
-        # (in either direction); one this ping reaches stays open
-        finished = []
-        for k in self.active:
-            if k_lo <= k <= k_hi:
-                self.clear[k] = 0
-            else:
-                self.clear[k] += 1
-                if self.clear[k] >= self.close_after:
-                    finished.append(k)
-        return closed + [self._close(k) for k in sorted(finished)]
+            total += int(n)
+        self.updates += total
+        return total
 
-    def _make_room(self, new: list[int], reached: list[int]) -> list[Tile]:
-        """Close open tiles this ping does not reach, farthest first, until the ``new``
-        ones fit within the tiles ``limits.memory_gib`` allows; return those closed."""
-        limit = self.max_open_tiles
-        closed = []
-        spare = sorted((k for k in self.active if k not in reached),
-                       key=lambda k: -min(abs(k - r) for r in reached))
-        while len(self.active) + len(new) > limit and spare:
-            k = spare.pop(0)
-            log.warning("closing tile %d early: %d tiles open, %d fit in limits.memory_gib",
-                        k, len(self.active) + len(new), limit)
-            closed.append(self._close(k))
-        return closed
-
-    def _table(self, tx: np.ndarray, rx: np.ndarray, reach: float) -> TravelTimeTable:
+    def travel_table(self, tx: np.ndarray, rx: np.ndarray, reach: float) -> TravelTimeTable:
         """Refraction table for this ping's mean element height (cached per cm: the
         kernel corrects each element's height to first order, T(h) = T(h_ref) +
         (h - h_ref) eta, and the second-order remainder over 5 mm, ~(5 mm)^2 / (2 x 2 m),
@@ -270,12 +152,85 @@ class TileImager:
                 im.water_sound_speed_m_s, im.sediment_sound_speed_m_s)
         return self._tables[key]
 
-    def _close(self, k: int) -> Tile:
-        self.done.add(k)
-        self.clear.pop(k, None)
-        self.opened_by.pop(k, None)
+
+class TileImager:
+    """Streaming imager: a :class:`~.schedule.TileSchedule` and a
+    :class:`PingAccumulator` over the tiles being formed. Feed pings in time order with
+    :meth:`add`; it returns the tiles that are complete. :meth:`finish` returns the
+    rest. Set-up (a fixed frame, tiles already written, poses judged elsewhere) goes
+    through :attr:`schedule`'s ``fix_frame``, ``mark_done`` and ``trust_poses``."""
+
+    def __init__(self, hardware: Loaded[HardwareConfig], processing: ProcessingConfig, *,
+                 source: str = "processing configuration",
+                 channels: np.ndarray | None = None):
+        self.hardware = hardware
+        self.proc = processing
+        self.schedule = TileSchedule(hardware, processing, source=source)
+        self.accumulator = PingAccumulator(hardware, processing, channels=channels)
+        #: the tiles being formed, by index
+        self.active: dict[int, Tile] = {}
+
+    # read-only views of the schedule and the accumulator
+    @property
+    def line(self) -> TrackLine | None:
+        return self.schedule.line
+
+    @property
+    def done(self) -> frozenset[int]:
+        return frozenset(self.schedule.done)
+
+    @property
+    def n_pings(self) -> int:
+        return self.schedule.n_pings
+
+    @property
+    def late_pings(self) -> int:
+        return self.schedule.late_pings
+
+    @property
+    def track(self):
+        return self.schedule.track
+
+    @property
+    def updates(self) -> int:
+        return self.accumulator.updates
+
+    def resume_sequence(self) -> int | None:
+        """The first sequence of the earliest still-open tile (None: no tile open):
+        imaging again from there rebuilds every open tile exactly."""
+        return self.schedule.resume_sequence()
+
+    def add(self, ping: Ping) -> list[Tile]:
+        """Image one ping into the tiles it reaches; return tiles now complete.
+
+        Raises :class:`~svss_daq.ping_gate.PingRejected`, changing nothing, for a pose
+        its navigation's flags keep from imaging
+        (:func:`~svss_proc.imaging.pose_check.pose_flags_problem`), a ping the gate's
+        :func:`~svss_daq.ping_gate.ping_problem` refuses, an implausible pose
+        (:mod:`~svss_proc.imaging.pose_check`) or one that would reach more than
+        the tiles that fit in ``limits.memory_gib``. (A stream's
+        :class:`~svss_daq.ping_gate.PingGate` also keeps time order and counts.)"""
+        check_pose_flags(ping, self.proc.ping_gate)
+        reason = ping_problem(ping, self.hardware)
+        if reason is not None:
+            raise PingRejected(getattr(ping, "sequence", "?"), reason)
+        cond = None
+        if not self.proc.imaging.beam_gating:       # the reach is the echo window's
+            cond = self.accumulator.condition(ping)
+        step = self.schedule.step(ping, None if cond is None else cond.axis.end_s)
+        out = [self._hand_back(k) for k in step.closed_early]
+        for k in step.reached:
+            if k not in self.active:
+                self.active[k] = self.accumulator.new_tile(k, self.schedule.line)
+        if step.slices:
+            cond = cond or self.accumulator.condition(ping)
+            self.accumulator.image(ping, cond, step, self.active)
+        return out + [self._hand_back(k) for k in step.closed]
+
+    def _hand_back(self, k: int) -> Tile:
         return self.active.pop(k).to_host()
 
     def finish(self) -> list[Tile]:
         """Return every tile still being formed."""
-        return [self._close(k) for k in sorted(self.active)]
+        self.schedule.finish()
+        return [self._hand_back(k) for k in sorted(self.active)]

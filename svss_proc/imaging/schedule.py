@@ -1,0 +1,271 @@
+"""Tile schedule: from poses alone, which tiles -- and which along-track slices of them --
+each ping reaches, and when tiles open and close.
+
+The schedule is the one place that decides what is imaged where; it reads no sample.
+:class:`~svss_proc.imaging.imager.TileImager` (the worker and ``svss process``) feeds it
+pings and images what it says; ``svss batch`` plans a run with it alone
+(:mod:`svss_proc.batch.plan`) and a batch task then images one planned tile with the
+same schedule, its frame fixed and the run's other tiles marked written.
+
+For each ping, in order (:meth:`TileSchedule.step`): the tile frame (the first admitted
+ping's, or fixed), the array placed in it, the track guard
+(:class:`~svss_proc.imaging.pose_check.TrackGuard`), the ping's along-track reach (the
+projector cone down to the tile's bottom with beam gating, else the echo window's
+one-way range), the tiles it reaches (at most ``limits.memory_gib`` allows, else the
+ping is refused), tiles closed early to make room (farthest first), each reached tile's
+slice of along-track voxel planes, and the tiles complete after it.
+
+Tile completion (docs/worker.md): a tile is complete when ``tile.close_after_pings``
+consecutive pings (default :data:`CLOSE_AFTER_PINGS`) have not reached it, whichever way
+the platform moves (forward, reversing, turning away); a stopped platform keeps the
+tiles it reaches open. :meth:`TileSchedule.finish` closes the rest at run end.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
+from svss_daq.frames import TrackLine
+from svss_daq.geometry import PlacedArray, array_geometry, cone_reach, place_array
+from svss_daq.ping import Ping
+from svss_daq.ping_gate import PingRejected
+from svss_daq.waveform import make_waveform
+
+from ..conditioning import Conditioner
+from ..preflight import preflight
+from .grid import tile_grid, tile_index
+from .pose_check import TrackGuard
+
+log = logging.getLogger(__name__)
+
+#: consecutive pings that must stay clear of a tile before it is complete, when the
+#: processing configuration's ``tile.close_after_pings`` is omitted
+CLOSE_AFTER_PINGS = 20
+
+
+def along_reach(tx_tile: np.ndarray, bore: np.ndarray, half_angle: float,
+                max_depth: float) -> float:
+    """Largest horizontal distance from the projector at which a voxel no deeper than
+    ``max_depth`` (tile frame) can lie inside the projector cone, m."""
+    return cone_reach(max_depth - float(tx_tile[2]), float(bore[2]), half_angle)
+
+
+def line_from_ping(ping: Ping, proc: ProcessingConfig) -> TrackLine:
+    """The tile frame, from the processing configuration and (if so configured) the
+    first ping's pose."""
+    im = proc.imaging
+    nav = ping.nav
+    if im.track_line == "fixed":
+        origin, heading = tuple(im.line_origin_ne_m), math.radians(im.line_heading_deg)
+    else:
+        origin, heading = (nav.north_m, nav.east_m), nav.heading_rad
+    interface = (im.interface_down_m if im.interface == "fixed"
+                 else nav.down_m + nav.altitude_m)
+    return TrackLine(origin, heading, interface)
+
+
+def ping_frame(frame: TrackLine, nav, proc: ProcessingConfig) -> TrackLine:
+    """The frame one ping is placed in: the tile frame, except that with
+    ``imaging.interface = "altitude"`` the interface lies at this ping's measured
+    altitude below the body (DVL bottom track), so that the array's height above the
+    seabed is the DVL's rather than the GPS height's (decimetres of noise). Without an
+    altitude (lost bottom lock) the tile frame's interface is used."""
+    if proc.imaging.interface != "altitude":
+        return frame
+    interface = nav.down_m + nav.altitude_m
+    if not math.isfinite(interface):
+        return frame
+    return dataclasses.replace(frame, interface_down=interface)
+
+
+@dataclass(frozen=True)
+class Slice:
+    """Along-track voxel planes ``ia0 <= i < ia1`` of tile ``tile``."""
+    tile: int
+    ia0: int
+    ia1: int
+
+
+@dataclass(frozen=True)
+class PingStep:
+    """What the schedule decided for one ping: image ``slices`` (in tile order) with the
+    array ``placed``; ``reached``: the tiles it reaches (open after it, a tile with no
+    slice included); ``closed_early``: tiles closed to make room, before it is imaged;
+    ``closed``: tiles complete after it."""
+    sequence: int
+    placed: PlacedArray
+    reach_m: float
+    reached: tuple[int, ...]
+    slices: tuple[Slice, ...]
+    closed_early: tuple[int, ...]
+    closed: tuple[int, ...]
+
+
+class _Trusted:
+    """The track guard of a schedule whose poses were judged elsewhere (a batch task:
+    the plan judged every pose against the whole run's track)."""
+    reanchored = 0
+
+    def check(self, sequence, nav, tx_tile):
+        return None
+
+    def commit(self, fix) -> None:
+        pass
+
+
+class TileSchedule:
+    """Tile bookkeeping on poses only. :meth:`step` one ping at a time, in time order;
+    :meth:`finish` at the run's end."""
+
+    def __init__(self, hardware: Loaded[HardwareConfig], processing: ProcessingConfig, *,
+                 source: str = "processing configuration"):
+        self.max_open_tiles = preflight(processing, source)
+        self.hardware = hardware
+        self.proc = processing
+        self.geometry = array_geometry(hardware.value)
+        self.track: TrackGuard | _Trusted = TrackGuard(processing.ping_gate)
+        hold = processing.tile.close_after_pings
+        self.close_after = CLOSE_AFTER_PINGS if hold is None else hold
+        self._conditioner: Conditioner | None = None
+        self.line: TrackLine | None = None
+        #: open tiles: index -> sequence of the ping that opened it
+        self.opened_by: dict[int, int] = {}
+        #: per open tile: consecutive pings since one last reached it
+        self.clear: dict[int, int] = {}
+        #: tiles closed (written), never opened again
+        self.done: set[int] = set()
+        self.n_pings = 0
+        self.late_pings = 0
+
+    # -- set-up for resumes, batch tasks and single-tile imaging --------------------------
+
+    def fix_frame(self, line: TrackLine) -> None:
+        """Use ``line`` as the tile frame (a resumed run's, a batch plan's)."""
+        self.line = line
+
+    def mark_done(self, tiles: Iterable[int]) -> None:
+        """Treat ``tiles`` as written: no ping opens them again."""
+        self.done.update(int(k) for k in tiles)
+
+    def trust_poses(self) -> None:
+        """Skip the track guard: the poses were judged against the whole run already."""
+        self.track = _Trusted()
+
+    @property
+    def open_tiles(self) -> list[int]:
+        return sorted(self.opened_by)
+
+    def resume_sequence(self) -> int | None:
+        """The first sequence of the earliest still-open tile (None: no tile open):
+        imaging again from there rebuilds every open tile exactly."""
+        return min(self.opened_by.values()) if self.opened_by else None
+
+    # -- one ping ---------------------------------------------------------------------------
+
+    def echo_end_s(self, ping: Ping) -> float:
+        """End of the ping's conditioned (arrival-time) axis, s, from its header."""
+        if self._conditioner is None:
+            hw, c = self.hardware.value, self.proc.conditioning
+            self._conditioner = Conditioner(hw.digitiser, make_waveform(hw.waveform),
+                                            c.decimation, c.upsample)
+        return self._conditioner.output_axis(ping.sample_axis).end_s
+
+    def step(self, ping: Ping, echo_end_s: float | None = None) -> PingStep:
+        """Schedule one ping (``echo_end_s``: its conditioned axis's end, when known;
+        else from its header). Raises :class:`~svss_daq.ping_gate.PingRejected`,
+        changing nothing, for an implausible pose (the track guard) or a ping that would
+        reach more tiles than fit in ``limits.memory_gib``."""
+        proc, tcfg, geo = self.proc, self.proc.tile, self.geometry
+        line = self.line or line_from_ping(ping, proc)
+        placed = place_array(geo, ping.nav, ping.projector, ping_frame(line, ping.nav, proc))
+        tx = placed.tx
+        fix = self.track.check(ping.sequence, ping.nav, tx)
+        if proc.imaging.beam_gating:
+            reach = along_reach(tx, placed.bore, geo.projector_half_angle,
+                                tcfg.top_m + tcfg.depth_m)
+        else:
+            end = self.echo_end_s(ping) if echo_end_s is None else echo_end_s
+            reach = end * proc.imaging.water_sound_speed_m_s / 2
+        lo, hi = tx[0] - reach, tx[0] + reach
+        k_lo, k_hi = tile_index(tcfg, lo), tile_index(tcfg, hi)
+        limit = self.max_open_tiles
+        if k_hi - k_lo + 1 > limit:
+            raise PingRejected(ping.sequence, f"reaches {k_hi - k_lo + 1} tiles (along-track "
+                               f"{lo:.1f} to {hi:.1f} m), more than the {limit} that fit "
+                               "in limits.memory_gib")
+        if self.line is None:
+            self.line = line
+            log.info("tile frame: origin N %.2f E %.2f m, heading %.1f deg, interface %.2f m",
+                     *line.origin_ne, math.degrees(line.heading), line.interface_down)
+        self.track.commit(fix)
+        reached = [k for k in range(k_lo, k_hi + 1) if k not in self.done]
+        if not reached:
+            self.late_pings += 1
+            log.warning("ping %d reaches only tiles already written (%d..%d); not imaged",
+                        ping.sequence, k_lo, k_hi)
+        early = self._make_room([k for k in reached if k not in self.opened_by], reached) \
+            if reached else []
+        v = tcfg.voxel_m
+        slices = []
+        for k in reached:
+            if k not in self.opened_by:
+                self.opened_by[k] = ping.sequence
+                self.clear[k] = 0
+            a = tile_grid(tcfg, k).along
+            ia0 = int(np.clip(np.floor((lo - a[0]) / v), 0, a.size))
+            ia1 = int(np.clip(np.ceil((hi - a[0]) / v) + 1, 0, a.size))
+            if ia1 > ia0:
+                slices.append(Slice(k, ia0, ia1))
+        self.n_pings += 1
+        # a tile is complete once close_after consecutive pings have stayed clear of it
+        # (in either direction); one this ping reaches stays open
+        finished = []
+        for k in self.opened_by:
+            if k_lo <= k <= k_hi:
+                self.clear[k] = 0
+            else:
+                self.clear[k] += 1
+                if self.clear[k] >= self.close_after:
+                    finished.append(k)
+        for k in sorted(finished):
+            self._close(k)
+        return PingStep(ping.sequence, placed, reach, tuple(reached), tuple(slices),
+                        tuple(early), tuple(sorted(finished)))
+
+    def _make_room(self, new: list[int], reached: list[int]) -> list[int]:
+        """Close open tiles this ping does not reach, farthest first, until the ``new``
+        ones fit within the tiles ``limits.memory_gib`` allows; return those closed."""
+        limit = self.max_open_tiles
+        closed = []
+        spare = sorted((k for k in self.opened_by if k not in reached),
+                       key=lambda k: -min(abs(k - r) for r in reached))
+        while len(self.opened_by) + len(new) > limit and spare:
+            k = spare.pop(0)
+            log.warning("closing tile %d early: %d tiles open, %d fit in limits.memory_gib",
+                        k, len(self.opened_by) + len(new), limit)
+            self._close(k)
+            closed.append(k)
+        return closed
+
+    def _close(self, k: int) -> None:
+        self.done.add(k)
+        self.clear.pop(k, None)
+        self.opened_by.pop(k, None)
+
+    def finish(self) -> list[int]:
+        """Close every open tile (the run's end); their indices, in order."""
+        rest = sorted(self.opened_by)
+        for k in rest:
+            self._close(k)
+        return rest
+
+
+__all__ = ["CLOSE_AFTER_PINGS", "PingStep", "Slice", "TileSchedule", "along_reach",
+           "line_from_ping", "ping_frame"]
