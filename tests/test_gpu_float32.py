@@ -73,12 +73,12 @@ def far_tile(hardware):
         proc = _processing(prec, scene.track.heading_deg, scene.track.start_ne_m)
         imager = TileImager(hardware, proc)
         calls = []
-        run = imager._run
+        run = imager.accumulator.kernel
 
         def recording(*args, _run=run, _calls=calls, **kw):
             _calls.append((args, kw))
             return _run(*args, **kw)
-        imager._run = recording
+        imager.accumulator.kernel = recording
         tiles = []
         for p in pings:
             tiles += imager.add(p)

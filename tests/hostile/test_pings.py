@@ -153,7 +153,7 @@ def test_fuzzed_pings_are_admitted_or_refused_never_crash(data, pings, hw, proc)
         assert exc.reason
         return
     from svss_daq.geometry import array_geometry, place_array
-    from svss_proc.imaging.imager import line_from_ping
+    from svss_proc.imaging.schedule import line_from_ping
     line = line_from_ping(p, proc.value)
     placed = place_array(array_geometry(hw.value), bad.nav, bad.projector, line)
     try:

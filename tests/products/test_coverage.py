@@ -84,7 +84,7 @@ def test_coverage_of_one_ping_equals_a_brute_force_count(pings, hardware, demo_p
     from svss_daq.geometry import place_array
     from svss_proc.imaging.coverage import Coverage
     from svss_proc.imaging.grid import tile_grid
-    from svss_proc.imaging.imager import line_from_ping, ping_frame
+    from svss_proc.imaging.schedule import line_from_ping, ping_frame
     from svss_proc.tiles import Tile
     proc = small_processing(demo_processing).value
     geo = array_geometry(hardware.value)

@@ -14,7 +14,8 @@ from svss_daq.assembly import PingAssembler
 from svss_daq.config import HardwareConfig, ProcessingConfig, config_path, load_with_text, \
     loaded_from_text
 from svss_daq.ping import NavSnapshot
-from svss_proc.imaging.imager import CLOSE_AFTER_PINGS, TileImager
+from svss_proc.imaging.imager import TileImager
+from svss_proc.imaging.schedule import CLOSE_AFTER_PINGS
 
 from .conftest import small_processing_text
 
