@@ -249,11 +249,11 @@ def test_refraction_table_covers_every_ping_whatever_came_first(hardware):
     imager = TileImager(hardware, proc)
     tx = np.array([0.0, 0.0, -2.0])
     rx = np.array([[0.1, -0.3, -2.0], [-0.2, 0.4, -2.0]])
-    short = imager._table(tx, rx, 0.5)
-    long = imager._table(tx, rx, 4.0)
+    short = imager.accumulator.travel_table(tx, rx, 0.5)
+    long = imager.accumulator.travel_table(tx, rx, 4.0)
     assert long.rho_max >= 4.0 + proc.tile.width_m
     n = short.time.shape[0]
     assert long.time.shape[0] > n
     np.testing.assert_array_equal(long.time[:n], short.time)
     np.testing.assert_array_equal(long.eta[:n], short.eta)
-    assert imager._table(tx, rx, 1.0) is long          # long enough: kept
+    assert imager.accumulator.travel_table(tx, rx, 1.0) is long          # long enough: kept

@@ -241,7 +241,7 @@ def test_reach_without_beam_gating_is_the_conditioned_window(survey, coarse_proc
                            c.upsample)
         for i in (0, len(r) - 1):
             p = r.ping(i)
-            assert planner._echo_end_s(p) == cond.ping(p).axis.end_s
+            assert planner.schedule.echo_end_s(p) == cond.ping(p).axis.end_s
 
 
 def _segments_with_records(whole: Path, out_dir: Path, run_id: str, split: int):
