@@ -86,18 +86,19 @@ def raw_run(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="session")
-def first_pings(raw_run) -> list:
-    """The raw run's first :data:`N_SHORT` pings."""
-    from svss_daq.rawfile import RawRunReader
-    with RawRunReader(raw_run) as r:
-        return [p for p, _ in zip(r, range(N_SHORT))]
+def short_run(tmp_path_factory) -> Path:
+    """The demo scene's first :data:`N_SHORT` pings (those of :func:`raw_run`: the
+    simulation is seeded) as run "line1": for the tests whose point needs no tile
+    closed mid-run (a third of the imaging of :func:`raw_run`)."""
+    return simulate(tmp_path_factory.mktemp("short") / "line1.h5", N_SHORT)
 
 
 @pytest.fixture(scope="session")
-def short_run(first_pings, tmp_path_factory) -> Path:
-    """:func:`first_pings` recorded as run "line1" of their own: for the tests whose
-    point needs no tile closed mid-run (a third of the imaging of :func:`raw_run`)."""
-    return write_pings(tmp_path_factory.mktemp("short") / "line1.h5", first_pings)
+def first_pings(short_run) -> list:
+    """The pings of :func:`short_run`."""
+    from svss_daq.rawfile import RawRunReader
+    with RawRunReader(short_run) as r:
+        return list(r)
 
 
 @pytest.fixture(scope="session")
