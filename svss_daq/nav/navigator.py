@@ -24,6 +24,11 @@ logger = logging.getLogger(__name__)
 
 #: notices (clock offsets, the GPS sigma gate) kept until the acquisition takes them
 NOTICES_KEPT = 100
+#: live poses chain across a gap between pings of up to this many ``live_follow_s``
+#: (the pull toward the solution, 1 - exp(-gap / live_follow_s), is then complete to
+#: 0.7 %); a gap in the pings is not one in the solution (a chain that restarted after
+#: 2 s without pings, as a loaded simulator's dropped pings made, jumped 120 mm)
+LIVE_CHAIN_TAUS = 5.0
 #: fixes given out recently, for their withdrawal (a late GST or GGA of their epoch)
 GIVEN_KEPT = 256
 #: instruments whose clocks are judged, and the record lists each feeds
@@ -327,7 +332,7 @@ class Navigator:
         fused = fused[1:] if chain else fused
         order = np.argsort(times, kind="stable")
         live = follow(prev if chain else None, prev_now, [fused[i] for i in order],
-                      self.cfg.live_follow_s, self.cfg.dvl_max_gap_s + self.cfg.fixed_lag_s)
+                      self.cfg.live_follow_s, LIVE_CHAIN_TAUS * self.cfg.live_follow_s)
         out = [None] * len(fused)
         for i, pose in zip(order, live):
             out[i] = pose

@@ -55,6 +55,20 @@ def aperture_spread(poses, scene, t0):
     return float(np.sqrt(np.mean(np.sum((e - e.mean(axis=0)) ** 2, axis=1))))
 
 
+def max_aperture_spread(poses, scene, t0, aperture_s: float = 4.0):
+    """The largest :func:`aperture_spread` over the pings of any ``aperture_s`` of time
+    (all 40 pings when the device delivered every one; pings a loaded simulator dropped
+    do not lengthen an aperture)."""
+    times = np.array([p.time_ns for p in poses]) * 1e-9
+    spreads = []
+    for start in times:
+        inside = (times >= start) & (times < start + aperture_s)
+        if inside.sum() >= 10:
+            spreads.append(aperture_spread([p for p, k in zip(poses, inside) if k], scene,
+                                           t0))
+    return max(spreads)
+
+
 def test_daemon_recording_renavigates_to_the_truth_and_svss_process_uses_it(rig, tmp_path):
     dev = rig.device()
     acq = rig.acquire(dev, "--pings", str(N_PINGS))
@@ -94,8 +108,8 @@ def test_daemon_recording_renavigates_to_the_truth_and_svss_process_uses_it(rig,
     assert err_renav.max() < 0.3 and err_renav.mean() <= err_live.mean() + 0.02
     # the 4 s of pings are one synthetic aperture: their relative geometry within lambda/8
     # (the GPS-minus-DR offset smoother moved them by 20-38 mm)
-    spread_renav = aperture_spread(renav.poses, scene, t0)
-    spread_live = aperture_spread(live, scene, t0)
+    spread_renav = max_aperture_spread(renav.poses, scene, t0)
+    spread_live = max_aperture_spread(live, scene, t0)
     print(f"spread about the mean: re-navigated {spread_renav * 1e3:.1f} mm, live "
           f"{spread_live * 1e3:.1f} mm")
     assert spread_renav < 0.007 and spread_live < 0.007
