@@ -27,22 +27,40 @@ from tests.test_messages import make_ping
 MAX_EXAMPLES = int(os.environ.get("SVSS_FUZZ_EXAMPLES", "200"))
 
 
+#: reader threads of the running test, stopped before its context is destroyed
+_READERS: list[tuple[threading.Thread, threading.Event]] = []
+
+
 @pytest.fixture
 def ctx():
     c = zmq.Context()
     yield c
+    # a reader still polling its socket when the context closes it deadlocks the
+    # context's term (a loaded machine: the reader's join timed out): stop them first
+    for t, stop in _READERS:
+        stop.set()
+        t.join(10)
+    _READERS.clear()
     c.destroy(linger=0)      # closes what a failed test left open
 
 
-def _reader(sock: zmq.Socket, got: list) -> threading.Thread:
-    """Read pings into ``got`` until the end-of-run marker (appended last)."""
+def _reader(sock: zmq.Socket, got: list, quiet_s: float = 20.0) -> threading.Thread:
+    """Read pings into ``got`` until the end-of-run marker (appended last), ``quiet_s``
+    without a message, or the test's end."""
+    stop = threading.Event()
+
     def run():
-        while sock.poll(20000):
+        heard = time.monotonic()
+        while not stop.is_set() and time.monotonic() - heard < quiet_s:
+            if not sock.poll(100):
+                continue
             m = messages.recv(sock)
             got.append(m)
+            heard = time.monotonic()
             if isinstance(m, RunEnd):
                 return
     t = threading.Thread(target=run, daemon=True)
+    _READERS.append((t, stop))
     t.start()
     return t
 
