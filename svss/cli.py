@@ -586,8 +586,9 @@ def build_parser() -> argparse.ArgumentParser:
 def _stop_on_sigterm() -> None:
     """SIGTERM stops a command as SIGINT does (KeyboardInterrupt: files are flushed and
     closed on the way out)."""
-    from svss_daq.signals import clear_stop, stop_handler
+    from svss_daq.signals import clear_stop, quiet_unraisable, stop_handler
     clear_stop()
+    sys.unraisablehook = quiet_unraisable
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, stop_handler)
         # a command started in the background by a shell inherits SIGINT ignored, and

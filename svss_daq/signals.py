@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 
@@ -55,6 +56,18 @@ def raise_if_stopped() -> None:
         raise KeyboardInterrupt(_requested)
 
 
+def quiet_unraisable(unraisable) -> None:
+    """``sys.unraisablehook``: a stop signal's KeyboardInterrupt that Python swallowed
+    (it landed in a finaliser) is noted in one line, not printed as a traceback (the
+    loops raise it again); anything else goes to Python's own hook."""
+    if (isinstance(unraisable.exc_value, KeyboardInterrupt)
+            and _requested is not None):
+        log.debug("%s landed in %r; the command's loop stops on it", _requested,
+                  unraisable.object)
+        return
+    sys.__unraisablehook__(unraisable)
+
+
 def stop_handler(signum, frame) -> None:
     """The handler ``svss`` commands install for SIGINT and SIGTERM."""
     raise KeyboardInterrupt(note_stop(signum))
@@ -87,5 +100,6 @@ def stop_once(what: str) -> Iterator[None]:
             signal.signal(s, h)
 
 
-__all__ = ["STOP_SIGNALS", "clear_stop", "note_stop", "raise_if_stopped", "stop_handler",
+__all__ = ["STOP_SIGNALS", "clear_stop", "note_stop", "quiet_unraisable", "raise_if_stopped",
+           "stop_handler",
            "stop_once", "stop_requested"]
