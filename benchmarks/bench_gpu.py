@@ -79,6 +79,25 @@ def image(hw, proc, pings, record=False):
     return tile, imager.updates, el, calls
 
 
+def profile_pass(hw, proc, pings, top=25) -> list[dict]:
+    """One end-to-end pass under cProfile: where the seconds of a ping go (conditioning,
+    argument packing, uploads, launches, read-back), the functions with the most
+    cumulative time."""
+    import cProfile
+    import pstats
+    prof = cProfile.Profile()
+    prof.enable()
+    image(hw, proc, pings)
+    prof.disable()
+    st = pstats.Stats(prof)
+    rows = []
+    for (path, line, name), (cc, nc, tt, ct, _) in st.stats.items():
+        rows.append({"function": f"{Path(path).name}:{line}:{name}", "calls": nc,
+                     "tottime_s": round(tt, 4), "cumtime_s": round(ct, 4)})
+    rows.sort(key=lambda r: -r["cumtime_s"])
+    return rows[:top]
+
+
 def kernel_only(calls, repeat):
     """Replay recorded GPU kernel calls: with their per-ping uploads (run_ping_gpu), and
     the launches alone with all arguments resident (one synchronisation at the end)."""
@@ -174,6 +193,8 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--quick", action="store_true", help="tiny problem (works under "
                     "NUMBA_ENABLE_CUDASIM=1; its rates mean nothing there)")
+    ap.add_argument("--profile", action="store_true",
+                    help="also profile one float32 end-to-end pass (cProfile, top functions)")
     ap.add_argument("--ptx-only", action="store_true",
                     help="only compile the float32 kernel to PTX and count instructions")
     args = ap.parse_args(argv)
@@ -238,6 +259,11 @@ def main(argv=None) -> int:
                "updates_equal_cpu": n == n_ref}
         # every tile has the same shape: the calls replay into one pair of planes
         row.update(kernel_only(passes[0][3], args.repeat if not SIMULATOR else 1))
+        if args.profile and precision == "float32":
+            row["profile_one_pass"] = profile_pass(hw, gproc, pings)
+            for r in row["profile_one_pass"][:15]:
+                log.info("profile %8.3f s cum %8.3f s own %7d calls  %s", r["cumtime_s"],
+                         r["tottime_s"], r["calls"], r["function"])
         result[f"cuda_{precision}"] = row
         log.info("cuda %s: %s", precision, row)
     with open(args.out, "w") as fh:

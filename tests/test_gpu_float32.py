@@ -12,7 +12,7 @@ float64 over the tile; the same per-ping kernel inputs then go, under numba's CU
 simulator (a subprocess: the simulator must be chosen before numba.cuda is imported; on
 a real GPU where there is one), through the GPU kernel in float32 on a sub-tile around
 the brightest voxel (3 x 3 x 3 voxels under the simulator, which interprets each thread;
-7 x 5 x 7 on a real GPU).
+the whole tile on a real GPU).
 
 Tolerance: the largest error over the tile's peak below 1e-3 and no voxel off by 1 % of
 the peak. Float32 carries ~3e-5 of a sample in the delays (~1e-4 rad of phase) and
@@ -43,7 +43,7 @@ TOL = 1e-3                 # of the tile's peak
 # grows with the voxels (7 x 5 x 7 took 70 s; 3 x 3 x 3 about 8 s); every (ping, channel)
 # term of the realistic geometry still goes through the kernel.
 HALF = (1, 1, 1)
-HALF_GPU = (3, 2, 3)       # on a real GPU: 7 x 5 x 7 voxels
+HALF_GPU = None            # on a real GPU: the whole tile
 
 
 def _processing(precision: str, heading_deg: float, start_ne) -> ProcessingConfig:
@@ -144,8 +144,11 @@ def _gpu_sub_tile(far_tile, tmp_path, simulator: bool, half):
     ref_full = tile64.image.astype(np.complex128)
     peak = np.abs(ref_full).max()
     centre = np.array(np.unravel_index(np.abs(ref_full).argmax(), ref_full.shape))
-    lo = np.maximum(centre - half, 0)
-    hi = np.minimum(centre + np.asarray(half) + 1, ref_full.shape)
+    if half is None:                                        # the whole tile
+        lo, hi = np.zeros(3, int), np.array(ref_full.shape)
+    else:
+        lo = np.maximum(centre - half, 0)
+        hi = np.minimum(centre + np.asarray(half) + 1, ref_full.shape)
     calls = _sub_tile_calls(far_tile["float32"][1], lo, hi)
     job = tmp_path / "job.pkl"
     with open(job, "wb") as fh:

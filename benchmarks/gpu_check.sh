@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# The GPU check of issue 33 in one run on a lent GPU machine (see ../shared/tools/gpu-wheels.sh
+# and docs/imaging.md "GPU figures"): the real-GPU tests, then bench_gpu.py (with a profile of
+# one pass), bench_gpu_synthesis.py and bench_threads.py, each bounded in time, results and
+# logs under $OUT (at most 8 files come back).
+#   device run, carry [".whl"]:  bash benchmarks/gpu_check.sh
+set -u
+python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
+  --target .site .whl/*.whl && export PYTHONPATH=$PWD:$PWD/.site || exit 1
+export PYTHONUNBUFFERED=1
+OUT=${OUT:-/tmp/gpu_check}; mkdir -p "$OUT"
+T_TESTS=${T_TESTS:-150} T_GPU=${T_GPU:-240} T_SYN=${T_SYN:-90} T_THR=${T_THR:-90}
+{
+  date -u; nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.sm --format=csv
+  lscpu | grep -E '^(Model name|CPU\(s\)|Thread|Core)'
+  echo "avx512: $(grep -o -w 'avx512[a-z0-9_]*' /proc/cpuinfo | sort -u | tr '\n' ' ')"
+  python3 -c "import sys, numpy, numba, numba_cuda; from numba import cuda; \
+print(sys.version.split()[0], 'numpy', numpy.__version__, 'numba', numba.__version__, \
+'numba-cuda', numba_cuda.__version__, 'gpu', cuda.is_available())"
+} > "$OUT/machine.txt" 2>&1
+cat "$OUT/machine.txt"
+stage() { local name=$1 limit=$2; shift 2; local t0=$SECONDS
+  timeout "$limit" "$@" > "$OUT/$name.log" 2>&1; local rc=$?
+  echo "== $name rc=$rc $((SECONDS - t0)) s"; tail -n 25 "$OUT/$name.log"; }
+stage tests "$T_TESTS" python3 -m pytest -q -p no:cacheprovider -rs --durations=8 \
+  tests/test_gpu_float32.py tests/test_gpu_kernel.py tests/sim/test_gpu_synthesis.py
+stage bench_gpu "$T_GPU" python3 benchmarks/bench_gpu.py --repeat 2 --profile \
+  --out "$OUT/bench_gpu.json"
+stage bench_gpu_synthesis "$T_SYN" python3 benchmarks/bench_gpu_synthesis.py --pings 3 \
+  --out "$OUT/bench_gpu_synthesis.json"
+stage bench_threads "$T_THR" python3 benchmarks/bench_threads.py --pings 20 --reps 2 \
+  --out "$OUT/bench_threads.json"
