@@ -47,6 +47,7 @@ from sim_device.environment_source import EnvironmentSource  # noqa: E402
 from svss_daq.config import (HardwareConfig, ProcessingConfig, config_path, load,  # noqa: E402
                              load_with_text)
 from svss_proc.imaging.imager import TileImager  # noqa: E402
+from svss_proc.imaging.kernel_args import STRAIGHT  # noqa: E402
 
 log = logging.getLogger("bench_gpu")
 SIMULATOR = os.environ.get("NUMBA_ENABLE_CUDASIM", "0") == "1"
@@ -131,7 +132,9 @@ def kernel_only(calls, repeat):
                            G.VoxelGeometry(*(cuda.to_device(v) if isinstance(v, np.ndarray)
                                              else v for v in args.geometry)),
                            G.TravelTimes(*(cuda.to_device(v) if isinstance(v, np.ndarray)
-                                           else v for v in args.delays)))
+                                           else v for v in args.delays)),
+                           G.ConeGate(*(cuda.to_device(v) if isinstance(v, np.ndarray)
+                                        else v for v in args.gate)))
         kernel = G.kernel_for(kd.interp, kw["delays"].code, gating, kd.halvings)
         nvox = (ia1 - ia0) * (ic1 - ic0) * depth.size
         launches.append((kernel, -(-nvox // G.THREADS), dev, ia0, ia1, ic0, ic1))
@@ -167,17 +170,24 @@ def ptx_counts(proc_pings, hw, proc) -> dict:
     args = kernel_args(kd, tx, rx, along, cross, depth, bore=kw["bore"],
                        cos_tx=kw["cos_tx"], cos_rx=kw["cos_rx"], apod=kw.get("apod"),
                        delays=kw["delays"])
-    kernel = G.kernel_for(kd.interp, kw["delays"].code, kw.get("gating", True), kd.halvings)
     f3 = numba.float32[:, :, ::1]
     sig = (f3, f3, numba.typeof(args), numba.int64, numba.int64, numba.int64, numba.int64,
            numba.int64[::1])
-    ptx, _ = cuda.compile_ptx(kernel.py_func, sig, cc=(9, 0))
-    ops = Counter(re.findall(r"^\s+([a-z]+(?:\.[a-z0-9]+)*)", ptx, re.M))
-    return {"float64_ops": {k: v for k, v in ops.items() if "f64" in k},
-            "float32_ops": {k: v for k, v in ops.items()
-                            if k.split(".")[0] in ("fma", "mul", "add", "sub", "sqrt")
-                            and "f32" in k},
-            "lines": ptx.count("\n")}
+
+    def counts(kernel):
+        ptx, _ = cuda.compile_ptx(kernel.py_func, sig, cc=(9, 0))
+        ops = Counter(re.findall(r"^\s+([a-z]+(?:\.[a-z0-9]+)*)", ptx, re.M))
+        return {"float64_ops": {k: v for k, v in ops.items() if "f64" in k},
+                "float32_ops": {k: v for k, v in ops.items()
+                                if k.split(".")[0] in ("fma", "mul", "add", "sub", "sqrt")
+                                and "f32" in k},
+                "lines": ptx.count("\n")}
+    # the default setting: float64 where meant (the refraction table's bilinear lookup,
+    # cone decisions at an edge); straight rays ungated: float32 alone
+    out = counts(G.kernel_for(kd.interp, kw["delays"].code, kw.get("gating", True),
+                              kd.halvings))
+    out["straight_ungated"] = counts(G.kernel_for(kd.interp, STRAIGHT, False, kd.halvings))
+    return out
 
 
 def agreement(img, ref) -> dict:
@@ -199,6 +209,7 @@ def main(argv=None) -> int:
                     help="only compile the float32 kernel to PTX and count instructions")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    logging.getLogger("numba").setLevel(logging.WARNING)   # no dealloc lines
     if SIMULATOR:
         log.warning("NUMBA_ENABLE_CUDASIM=1: the CUDA simulator runs the kernel in Python; "
                     "its rates say NOTHING about a GPU (this run checks that the script "

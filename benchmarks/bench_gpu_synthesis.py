@@ -98,6 +98,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger("numba").setLevel(logging.WARNING)   # no dealloc lines
     hw = load_with_text(HardwareConfig, config_path("hardware.toml"))
     first = 40 if args.quick else args.first
     pings = list(range(first, first + args.pings))

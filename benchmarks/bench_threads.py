@@ -97,6 +97,7 @@ def main(argv=None) -> int:
     ap.add_argument("--reps", type=int, default=3)
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    logging.getLogger("numba").setLevel(logging.WARNING)   # no dealloc lines
     hw = load_with_text(HardwareConfig, config_path("hardware.toml"))
     proc = load(ProcessingConfig, config_path("processing.toml"))
     src = EnvironmentSource(hw, scene_for(340))

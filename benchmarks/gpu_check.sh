@@ -9,7 +9,8 @@ python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upg
   --target .site .whl/*.whl && export PYTHONPATH=$PWD:$PWD/.site || exit 1
 export PYTHONUNBUFFERED=1
 OUT=${OUT:-/tmp/gpu_check}; mkdir -p "$OUT"
-T_TESTS=${T_TESTS:-150} T_GPU=${T_GPU:-240} T_SYN=${T_SYN:-90} T_THR=${T_THR:-90}
+T_TESTS=${T_TESTS:-240} T_GPU=${T_GPU:-150} T_SYN=${T_SYN:-90} T_THR=${T_THR:-90}
+STAGES=${STAGES:-"bench_gpu tests bench_threads bench_gpu_synthesis"}
 {
   date -u; nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.sm --format=csv
   lscpu | grep -E '^(Model name|CPU\(s\)|Thread|Core)'
@@ -22,11 +23,16 @@ cat "$OUT/machine.txt"
 stage() { local name=$1 limit=$2; shift 2; local t0=$SECONDS
   timeout "$limit" "$@" > "$OUT/$name.log" 2>&1; local rc=$?
   echo "== $name rc=$rc $((SECONDS - t0)) s"; tail -n 25 "$OUT/$name.log"; }
-stage tests "$T_TESTS" python3 -m pytest -q -p no:cacheprovider -rs --durations=8 \
-  tests/test_gpu_float32.py tests/test_gpu_kernel.py tests/sim/test_gpu_synthesis.py
-stage bench_gpu "$T_GPU" python3 benchmarks/bench_gpu.py --repeat 2 --profile \
-  --out "$OUT/bench_gpu.json"
-stage bench_gpu_synthesis "$T_SYN" python3 benchmarks/bench_gpu_synthesis.py --pings 3 \
-  --out "$OUT/bench_gpu_synthesis.json"
-stage bench_threads "$T_THR" python3 benchmarks/bench_threads.py --pings 20 --reps 2 \
-  --out "$OUT/bench_threads.json"
+# pytest-timeout (on the GPU machine's image): a stuck test prints its stack and the rest run
+to=""; python3 -c "import pytest_timeout" 2>/dev/null && to="-p timeout --timeout=150"
+for st in $STAGES; do case $st in
+  tests) stage tests "$T_TESTS" python3 -m pytest -q -p no:cacheprovider -rs --durations=12 $to \
+    tests/test_gpu_float32.py tests/test_gpu_kernel.py tests/sim/test_gpu_synthesis.py \
+    tests/test_cone_edges.py ;;
+  bench_gpu) stage bench_gpu "$T_GPU" python3 benchmarks/bench_gpu.py --repeat 2 --profile \
+    --out "$OUT/bench_gpu.json" ;;
+  bench_gpu_synthesis) stage bench_gpu_synthesis "$T_SYN" python3 \
+    benchmarks/bench_gpu_synthesis.py --pings 3 --out "$OUT/bench_gpu_synthesis.json" ;;
+  bench_threads) stage bench_threads "$T_THR" python3 benchmarks/bench_threads.py --pings 20 \
+    --reps 1 --out "$OUT/bench_threads.json" ;;
+esac; done

@@ -44,9 +44,9 @@ import numba as nb
 import numpy as np
 
 from .delays import _cpu as refraction_cpu
-from .kernel_args import (EXACT, LINEAR, NEAREST, SHIFT, STRAIGHT, TABLE, TAPS, DelayModel,
-                          KernelArgs, KernelData, TapPlanes, TravelTimes, VoxelGeometry,
-                          check_call, kernel_args)
+from .kernel_args import (EXACT, GATE_BAND, LINEAR, NEAREST, SHIFT, STRAIGHT, TABLE, TAPS,
+                          ConeGate, DelayModel, KernelArgs, KernelData, TapPlanes,
+                          TravelTimes, VoxelGeometry, check_call, kernel_args)
 from .kernel_math import build, cast_like, kernel_one
 from .window_gather import LANES, window_gather_1, window_gather_2, window_gather_4
 
@@ -55,6 +55,8 @@ _cpu = build(nb.njit(inline="always", cache=True), refraction_cpu)
 _voxel_sum = _cpu.voxel_sum          # voxel-order sum (the GPU kernel's building block)
 _cis = _cpu.cis
 _weights = _cpu.weights
+_tx_inside64 = _cpu.tx_inside64
+_rx_inside64 = _cpu.rx_inside64
 
 
 @nb.njit(inline="always", cache=True)
@@ -144,6 +146,9 @@ def _make_voxel_kernel(interp: int, mode: int, gating: bool, halvings: int,
             g.cos_rx)
         inv_cw, cw, cs, ttab, etab, inv_drho, z0, inv_dz, h_ref = (
             d.inv_cw, d.cw, d.cs, d.time, d.eta, d.inv_drho, d.z0, d.inv_dz, d.h_ref)
+        c = args.gate
+        gx, gy, gz, gh, gdx, gdy, gdh, gb, gct, gcr = (
+            c.ax, c.cy, c.dz, c.h_tx, c.rx_dx, c.rx_dy, c.rx_h, c.bore, c.cos_tx, c.cos_rx)
         one = kernel_one(re)
         nc = cy.size
         nd = dz.size
@@ -155,14 +160,13 @@ def _make_voxel_kernel(interp: int, mode: int, gating: bool, halvings: int,
                            VoxelGeometry(ax, cy, dz, h_tx, rx_dx, rx_dy, rx_h, apod, bore,
                                          cos_tx, cos_rx),
                            TravelTimes(inv_cw, cw, cs, ttab, etab, inv_drho, z0, inv_dz,
-                                       h_ref))
+                                       h_ref),
+                           ConeGate(gx, gy, gz, gh, gdx, gdy, gdh, gb, gct, gcr))
             ia = ia0 + k
-            x = ax[ia]
             n_upd = 0
             for ic in range(nc):
-                y = cy[ic]
                 for iz in range(nd):
-                    sr, si, n = _voxel_sum(x, y, dz[iz], interp, mode, gating, halvings, a,
+                    sr, si, n = _voxel_sum(ia, ic, iz, interp, mode, gating, halvings, a,
                                            one)
                     img_re[ia, ic, iz] += sr
                     img_im[ia, ic, iz] += si
@@ -212,9 +216,11 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
         tz0 = args.delays.z0
         inv_dz = args.delays.inv_dz
         h_ref = args.delays.h_ref
+        gx, gy, gz, gh, gdx, gdy, gdh, gb, gct, gcr = args.gate   # float64: cone edges
         one = cast_like(re[0, 0, 0], 1)          # the kernel precision
         zero = one - one
         shift = cast_like(one, shift_s)
+        band = cast_like(one, GATE_BAND)
         ft = img_re.dtype
         nch = re.shape[1]
         nt = re.shape[2]
@@ -255,12 +261,14 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
         idx_w = np.empty(nk * npad, dtype=np.uint32)
         frac_w = np.empty(nk * npad, dtype=ft)
         wt_w = np.empty(nk * npad, dtype=ft)
+        pre_w = np.empty(nk * npad, dtype=ft)        # weight before the receiver cone
         tap_w = np.empty(nk * 2 * ntap * npad, dtype=ft)  # re taps, then im taps
         step = spread_step(nk) if spread else 1      # balanced order: spread_step
         for j in nb.prange(nk):
             k = (j * step) % nk
             ia = ia0 + k
             x = ax[ia]
+            gate = ConeGate(gx, gy, gz, gh, gdx, gdy, gdh, gb, gct, gcr)
             bs = np.uint64(k * npad)                 # unsigned: no negative-index wraparound
             bt = np.uint64(k * 2 * ntap * npad)
             n_upd = 0
@@ -273,7 +281,11 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
                     r1 = math.sqrt(x * x + y * y + vz * vz)
                     inside = True
                     if gating:
-                        inside = x * b0 + y * b1 + vz * b2 >= r1 * cos_tx
+                        m1 = x * b0 + y * b1 + vz * b2 - r1 * cos_tx
+                        if abs(m1) <= band * r1:     # at the edge: as in float64
+                            inside = _tx_inside64(gate, ia, ic, iz)
+                        else:
+                            inside = m1 >= zero
                     txm_w[bs + iz] = one if inside else zero
                     if mode == STRAIGHT:
                         t1 = r1 * inv_c
@@ -303,13 +315,17 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
                     g0 = apod[ch]
                     ir, a, dh = _table_row(ex, ey, h, inv_drho, n_rho, h_ref, one)
                     n_ch = zero                          # updates (exact: < 2^24)
+                    n_edge = zero                        # depths at a receiver cone edge
                     for iz in range(z_lo, z_hi):        # delays and weights (vectorised)
                         z = dzp[iz]
                         ez = z + h
                         g = g0 * txm_w[bs + iz]
+                        g_tx = g
                         r2 = math.sqrt(e2 + ez * ez)     # dead code in ungated table mode
                         if gating:
-                            g = g if eb + ez * b2 >= r2 * cos_rx else zero
+                            m2 = eb + ez * b2 - r2 * cos_rx
+                            n_edge += one if abs(m2) <= band * r2 else zero
+                            g = g if m2 >= zero else zero
                         if mode == STRAIGHT:
                             u = u1_w[bs + iz] + r2 * k_straight
                         else:
@@ -319,6 +335,16 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
                         idx_w[bs + iz] = i0
                         frac_w[bs + iz] = w
                         wt_w[bs + iz] = g * valid
+                        if gating:
+                            pre_w[bs + iz] = g_tx * valid
+                    if gating and n_edge > zero:        # rare: decide those in float64
+                        for iz in range(z_lo, min(z_hi, nd)):
+                            ez = dzp[iz] + h
+                            r2 = math.sqrt(e2 + ez * ez)
+                            if abs(eb + ez * b2 - r2 * cos_rx) <= band * r2:
+                                wt_w[bs + iz] = (pre_w[bs + iz]
+                                                 if _rx_inside64(gate, ia, ic, iz, ch)
+                                                 else zero)
                     for off in range(z_lo, z_hi, LANES):  # taps, 16 depths at a time
                         if ntap == 1:
                             window_gather_1(re, im, ch, idx_w, bs + off, tap_w, bt + off,

@@ -26,8 +26,8 @@ from numba import cuda
 from svss_daq.geometry import cone_reach
 
 from .delays import build_refraction
-from .kernel_args import (DelayModel, KernelArgs, KernelData, TapPlanes, TravelTimes,
-                          VoxelGeometry, check_call, kernel_args)
+from .kernel_args import (ConeGate, DelayModel, KernelArgs, KernelData, TapPlanes,
+                          TravelTimes, VoxelGeometry, check_call, kernel_args)
 from .kernel_math import build, kernel_one
 
 _dev = cuda.jit(device=True)
@@ -53,9 +53,7 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
             ic = ic0 + rem // nd
             iz = rem % nd
             one = kernel_one(args.planes.re)       # the kernel precision
-            sr, si, n = _voxel_sum(args.geometry.ax[ia], args.geometry.cy[ic],
-                                   args.geometry.dz[iz], interp, mode, gating, halvings,
-                                   args, one)
+            sr, si, n = _voxel_sum(ia, ic, iz, interp, mode, gating, halvings, args, one)
             img_re[ia, ic, iz] += sr               # each thread owns its voxel
             img_im[ia, ic, iz] += si
         part[t] = n                                # the block's updates, summed here
@@ -92,14 +90,29 @@ class _Buffers:
     def __init__(self):
         self.buffers: dict = {}
         self.tables: dict = {}
+        self.views: dict = {}
 
     def upload(self, role: str, host: np.ndarray):
         dev = self.buffers.get(role)
         if dev is None or dev.shape != host.shape or dev.dtype != host.dtype:
             dev = self.buffers[role] = cuda.to_device(host)   # the old one is freed
+            self.views.pop(role, None)
         else:
             dev.copy_to_device(host)
         return dev
+
+    def upload_parts(self, role: str, arrays) -> list:
+        """``arrays`` (1-D, one dtype) uploaded in one copy into one buffer; device views
+        of the parts, kept from ping to ping while the buffer and the part sizes stay
+        (slicing a device array costs tens of microseconds)."""
+        sizes = tuple(a.size for a in arrays)
+        dev = self.upload(role, np.concatenate(arrays))
+        cached = self.views.get(role)
+        if cached is None or cached[0] != sizes:
+            edges = np.cumsum((0,) + sizes)
+            cached = self.views[role] = (sizes, [dev[edges[k]:edges[k + 1]]
+                                                 for k in range(len(sizes))])
+        return cached[1]
 
     def table(self, host: np.ndarray):
         entry = self.tables.get(id(host))
@@ -121,7 +134,10 @@ def _planes_to_device(p: TapPlanes) -> TapPlanes:
             and base.shape == (2,) + p.re.shape and np.shares_memory(base[0], p.re)
             and np.shares_memory(base[1], p.im)):
         dev = _BUFFERS.upload("planes", base)
-        re, im = dev[0], dev[1]
+        cached = _BUFFERS.views.get("planes")
+        if cached is None:
+            cached = _BUFFERS.views["planes"] = (None, [dev[0], dev[1]])
+        re, im = cached[1]
     else:
         re, im = _BUFFERS.upload("planes_re", p.re), _BUFFERS.upload("planes_im", p.im)
     return TapPlanes(re, im, p.t0, p.inv_dt, p.theta)
@@ -130,14 +146,17 @@ def _planes_to_device(p: TapPlanes) -> TapPlanes:
 def _geometry_to_device(g: VoxelGeometry) -> VoxelGeometry:
     """The voxel and element arrays on the device in one copy (one host buffer, device
     views of it)."""
-    arrays = (g.ax, g.cy, g.dz, g.rx_dx, g.rx_dy, g.rx_h, g.apod, g.bore)
-    edges = np.cumsum([0] + [a.size for a in arrays])
-    host = np.concatenate(arrays)
-    dev = _BUFFERS.upload("geometry", host)
-    views = [dev[edges[k]:edges[k + 1]] for k in range(len(arrays))]
-    ax, cy, dz, rx_dx, rx_dy, rx_h, apod, bore = views
+    ax, cy, dz, rx_dx, rx_dy, rx_h, apod, bore = _BUFFERS.upload_parts(
+        "geometry", (g.ax, g.cy, g.dz, g.rx_dx, g.rx_dy, g.rx_h, g.apod, g.bore))
     return VoxelGeometry(ax, cy, dz, g.h_tx, rx_dx, rx_dy, rx_h, apod, bore, g.cos_tx,
                          g.cos_rx)
+
+
+def _gate_to_device(c: ConeGate) -> ConeGate:
+    """The float64 cone geometry on the device in one copy."""
+    ax, cy, dz, rx_dx, rx_dy, rx_h, bore = _BUFFERS.upload_parts(
+        "gate", (c.ax, c.cy, c.dz, c.rx_dx, c.rx_dy, c.rx_h, c.bore))
+    return ConeGate(ax, cy, dz, c.h_tx, rx_dx, rx_dy, rx_h, bore, c.cos_tx, c.cos_rx)
 
 
 def _to_device(args: KernelArgs) -> KernelArgs:
@@ -145,7 +164,7 @@ def _to_device(args: KernelArgs) -> KernelArgs:
     delays = TravelTimes(d.inv_cw, d.cw, d.cs, _BUFFERS.table(d.time),
                          _BUFFERS.table(d.eta), d.inv_drho, d.z0, d.inv_dz, d.h_ref)
     return KernelArgs(_planes_to_device(args.planes), _geometry_to_device(args.geometry),
-                      delays)
+                      delays, _gate_to_device(args.gate))
 
 
 def cross_range(args: KernelArgs, gating: bool) -> tuple[int, int]:

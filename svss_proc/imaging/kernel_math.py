@@ -17,7 +17,7 @@ import numpy as np
 from numba import types
 from numba.extending import overload
 
-from .kernel_args import CUBIC, LINEAR, NEAREST, STRAIGHT, TABLE
+from .kernel_args import CUBIC, GATE_BAND, LINEAR, NEAREST, STRAIGHT, TABLE
 
 
 def cast_like(ref, x):
@@ -156,15 +156,41 @@ def build(jit, refr):
         return cast_like(one, one_way_time(np.float64(h), rho, np.float64(z), tt.cw, tt.cs))
 
     @jit
-    def voxel_sum(x, y, z, interp, mode, gating, halvings, args, one):
-        """One ping's coherent sum at one voxel, (x, y) its offset from the projector and
-        z its depth below the interface (m); ``args`` a
+    def tx_inside64(c, ia, ic, iz):
+        """Voxel (ia, ic, iz) inside the projector's cone, decided in float64 from the
+        float64 geometry ``c`` (:class:`~svss_proc.imaging.kernel_args.ConeGate`), as the
+        float64 kernels decide it."""
+        x = c.ax[ia]
+        y = c.cy[ic]
+        vz = c.dz[iz] + c.h_tx
+        r = math.sqrt(x * x + y * y + vz * vz)
+        return x * c.bore[0] + y * c.bore[1] + vz * c.bore[2] >= r * c.cos_tx
+
+    @jit
+    def rx_inside64(c, ia, ic, iz, ch):
+        """Voxel (ia, ic, iz) inside receiver ``ch``'s cone, in float64 (as
+        :func:`tx_inside64`)."""
+        ex = c.ax[ia] - c.rx_dx[ch]
+        ey = c.cy[ic] - c.rx_dy[ch]
+        ez = c.dz[iz] + c.rx_h[ch]
+        r = math.sqrt(ex * ex + ey * ey + ez * ez)
+        return ex * c.bore[0] + ey * c.bore[1] + ez * c.bore[2] >= r * c.cos_rx
+
+    @jit
+    def voxel_sum(ia, ic, iz, interp, mode, gating, halvings, args, one):
+        """One ping's coherent sum at voxel (ia, ic, iz) of the geometry's axes (offsets
+        from the projector, depth below the interface); ``args`` a
         :class:`~svss_proc.imaging.kernel_args.KernelArgs`. Returns (re, im, updates); no
-        update when the voxel is outside the projector's cone (with gating)."""
+        update when the voxel is outside the projector's cone (with gating). Cone
+        decisions within GATE_BAND of an edge are made in float64 (``args.gate``)."""
         zero = one - one
         p = args.planes
         g = args.geometry
         tt = args.delays
+        x = g.ax[ia]
+        y = g.cy[ic]
+        z = g.dz[iz]
+        band = cast_like(one, GATE_BAND)
         re = p.re
         im = p.im
         rx_dx = g.rx_dx
@@ -178,8 +204,13 @@ def build(jit, refr):
         nt = re.shape[2]
         vz = z + g.h_tx                              # vertical offset below the projector
         r1 = math.sqrt(x * x + y * y + vz * vz)
-        if gating and x * b0 + y * b1 + vz * b2 < r1 * g.cos_tx:
-            return zero, zero, 0
+        if gating:
+            m1 = x * b0 + y * b1 + vz * b2 - r1 * g.cos_tx
+            if abs(m1) <= band * r1:                 # at the edge: as in float64
+                if not tx_inside64(args.gate, ia, ic, iz):
+                    return zero, zero, 0
+            elif m1 < zero:
+                return zero, zero, 0
         # the projector leg in samples after the window start, once per voxel; each
         # channel adds its own leg (relative quantities only: no absolute time is
         # formed and differenced)
@@ -188,14 +219,18 @@ def build(jit, refr):
         acc_re = zero
         acc_im = zero
         n_upd = 0
-        for ch in range(nch):                        # branch free: vectorises on the CPU
+        for ch in range(nch):
             ex = x - rx_dx[ch]
             ey = y - rx_dy[ch]
             ez = z + rx_h[ch]
             w = apod[ch]
             if gating:
                 r2 = math.sqrt(ex * ex + ey * ey + ez * ez)
-                w = w if ex * b0 + ey * b1 + ez * b2 >= r2 * g.cos_rx else zero
+                m2 = ex * b0 + ey * b1 + ez * b2 - r2 * g.cos_rx
+                if abs(m2) <= band * r2:             # at the edge: as in float64
+                    w = w if rx_inside64(args.gate, ia, ic, iz, ch) else zero
+                else:
+                    w = w if m2 >= zero else zero
             u = u1 + travel_time(mode, ex, ey, z, rx_h[ch], tt) * inv_dt
             sr, si, valid = sample(re, im, ch, u, interp, halvings, p.theta, nt, one)
             w = w * valid
@@ -205,4 +240,5 @@ def build(jit, refr):
         return acc_re, acc_im, n_upd
 
     return SimpleNamespace(cis=cis, weights=weights, sample=sample, travel_time=travel_time,
+                           tx_inside64=tx_inside64, rx_inside64=rx_inside64,
                            voxel_sum=voxel_sum)
