@@ -23,12 +23,16 @@ cat "$OUT/machine.txt"
 stage() { local name=$1 limit=$2; shift 2; local t0=$SECONDS
   timeout "$limit" "$@" > "$OUT/$name.log" 2>&1; local rc=$?
   echo "== $name rc=$rc $((SECONDS - t0)) s"; tail -n 25 "$OUT/$name.log"; }
-# pytest-timeout (on the GPU machine's image): a stuck test prints its stack and the rest run
-to=""; python3 -c "import pytest_timeout" 2>/dev/null && to="-p timeout --timeout=150"
+# pytest-timeout (on the GPU machine's image): a stuck test fails with its stack and the rest
+# run; the real-GPU tests first, in their own pytest run, so that a slow simulator test
+# can't take their time or their report (pytest prints failures at the end of a run)
+to=""; python3 -c "import pytest_timeout" 2>/dev/null && to="-p timeout --timeout=100"
+GPU_TESTS="tests/test_gpu_float32.py tests/test_gpu_kernel.py tests/sim/test_gpu_synthesis.py"
+GPU_TESTS="$GPU_TESTS tests/test_cone_edges.py"
 for st in $STAGES; do case $st in
-  tests) stage tests "$T_TESTS" python3 -m pytest -q -p no:cacheprovider -rs --durations=12 $to \
-    tests/test_gpu_float32.py tests/test_gpu_kernel.py tests/sim/test_gpu_synthesis.py \
-    tests/test_cone_edges.py ;;
+  tests) stage tests "$T_TESTS" bash -c "python3 -m pytest -q -p no:cacheprovider -rfEs \
+    --tb=short --durations=8 $to -k real_gpu $GPU_TESTS; python3 -m pytest -q \
+    -p no:cacheprovider -rfEs --tb=short --durations=8 $to -k 'not real_gpu' $GPU_TESTS" ;;
   bench_gpu) stage bench_gpu "$T_GPU" python3 benchmarks/bench_gpu.py --repeat 2 --profile \
     --out "$OUT/bench_gpu.json" ;;
   bench_gpu_synthesis) stage bench_gpu_synthesis "$T_SYN" python3 \

@@ -19,6 +19,7 @@ import pytest
 
 from sim_device.scene import check_scene, load_scene
 from svss_daq.config import ConfigError, config_path
+from tests.test_gpu_kernel import subprocess_env
 
 ROOT = Path(__file__).resolve().parents[2]
 PING = 100
@@ -129,7 +130,9 @@ CASES = tuple(N_EACH)
 def simulated(tmp_path_factory):
     """The simulator runs (one subprocess for every case)."""
     out = tmp_path_factory.mktemp("gpu_sim") / "out.npz"
-    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1", PYTHONPATH=str(ROOT))
+    # the project root prepended to PYTHONPATH, never replacing it: on the GPU machine
+    # numpy, pyzmq and the rest live on PYTHONPATH (replacing it failed this fixture there)
+    env = subprocess_env(True)
     r = subprocess.run([sys.executable, "-c", SCRIPT, str(out), *CASES], cwd=ROOT, env=env,
                        capture_output=True, text=True, timeout=600, check=False)
     assert r.returncode == 0, r.stderr[-4000:]
