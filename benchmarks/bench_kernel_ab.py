@@ -216,6 +216,7 @@ class Side:
     hardware: object                           # that side's Loaded[HardwareConfig]
     processing: object                         # that side's ProcessingConfig
     config: dict                               # where each config file came from
+    daq: str = "svss_daq"                      # that side's svss_daq package name
 
     def imager(self, delays: str, interpolation: str, precision: str):
         p = self.processing
@@ -224,12 +225,28 @@ class Side:
         return self.imager_cls(self.hardware, dataclasses.replace(p, imaging=im))
 
     def adapt(self, ping):
-        """The ping as this side accepts it: if it names a hardware config other than
-        this side's (only when the side had to read its own revision's hardware file),
-        without the id."""
+        """The ping as this side accepts it: rebuilt from this side's own ``Ping`` and
+        ``NavSnapshot`` classes (its ping gate checks the types, and the renamed
+        packages' classes differ from this checkout's), and, if it names a hardware
+        config other than this side's (only when the side had to read its own
+        revision's hardware file), without the id."""
+        mod = importlib.import_module(f"{self.daq}.ping")
+        ping = _as_class(ping, mod)
         if ping.config_id and ping.config_id != self.hardware.id:
             return dataclasses.replace(ping, config_id="")
         return ping
+
+
+def _as_class(obj, mod):
+    """``obj`` (a dataclass) rebuilt as ``mod``'s class of the same name, field by field
+    (nested dataclasses too); returned as it is where ``mod`` has no such class."""
+    if not dataclasses.is_dataclass(obj) or isinstance(obj, type):
+        return obj
+    cls = getattr(mod, type(obj).__name__, None)
+    if cls is None or cls is type(obj):
+        return obj
+    return cls(**{f.name: _as_class(getattr(obj, f.name), mod)
+                  for f in dataclasses.fields(cls) if f.init and hasattr(obj, f.name)})
 
 
 def side_at(rev: str, label: str, workdir: pathlib.Path) -> Side:
@@ -247,7 +264,7 @@ def side_at(rev: str, label: str, workdir: pathlib.Path) -> Side:
     config = importlib.import_module(f"{daq}.config")
     hw, pc, prov = read_configs(config, label, sha, top / "config")
     log.info("%s: %s (%s), packages under %s", label, rev, sha[:10], top)
-    return Side(label, f"{rev} ({sha[:10]})", imager_class(proc), hw, pc, prov)
+    return Side(label, f"{rev} ({sha[:10]})", imager_class(proc), hw, pc, prov, daq)
 
 
 def side_here(label: str, workdir: pathlib.Path) -> Side:

@@ -261,7 +261,6 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
         idx_w = np.empty(nk * npad, dtype=np.uint32)
         frac_w = np.empty(nk * npad, dtype=ft)
         wt_w = np.empty(nk * npad, dtype=ft)
-        pre_w = np.empty(nk * npad, dtype=ft)        # weight before the receiver cone
         tap_w = np.empty(nk * 2 * ntap * npad, dtype=ft)  # re taps, then im taps
         step = spread_step(nk) if spread else 1      # balanced order: spread_step
         for j in nb.prange(nk):
@@ -275,6 +274,7 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
             for ic in range(nc):
                 y = cy[ic]
                 ir1, a1, dh1 = _table_row(x, y, h_tx, inv_drho, n_rho, h_ref, one)
+                n_edge = zero                            # depths at the projector's edge
                 for iz in range(nd):
                     z = dzp[iz]
                     vz = z + h_tx
@@ -282,16 +282,20 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
                     inside = True
                     if gating:
                         m1 = x * b0 + y * b1 + vz * b2 - r1 * cos_tx
-                        if abs(m1) <= band * r1:     # at the edge: as in float64
-                            inside = _tx_inside64(gate, ia, ic, iz)
-                        else:
-                            inside = m1 >= zero
+                        inside = m1 >= zero
+                        n_edge += one if abs(m1) <= band * r1 else zero
                     txm_w[bs + iz] = one if inside else zero
                     if mode == STRAIGHT:
                         t1 = r1 * inv_c
                     else:
                         t1 = _table_time(tz, ez_tab, ir1, a1, dh1, iz, one)
                     u1_w[bs + iz] = (t1 - t0) * inv_dt
+                if gating and n_edge > zero:             # rare: decide those in float64
+                    for iz in range(nd):
+                        vz = dzp[iz] + h_tx
+                        r1 = math.sqrt(x * x + y * y + vz * vz)
+                        if abs(x * b0 + y * b1 + vz * b2 - r1 * cos_tx) <= band * r1:
+                            txm_w[bs + iz] = one if _tx_inside64(gate, ia, ic, iz) else zero
                 # the cone's depth interval, padded to whole vectors (txm = 0 outside)
                 lo = 0
                 while lo < nd and txm_w[bs + lo] == zero:
@@ -320,7 +324,6 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
                         z = dzp[iz]
                         ez = z + h
                         g = g0 * txm_w[bs + iz]
-                        g_tx = g
                         r2 = math.sqrt(e2 + ez * ez)     # dead code in ungated table mode
                         if gating:
                             m2 = eb + ez * b2 - r2 * cos_rx
@@ -335,15 +338,19 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
                         idx_w[bs + iz] = i0
                         frac_w[bs + iz] = w
                         wt_w[bs + iz] = g * valid
-                        if gating:
-                            pre_w[bs + iz] = g_tx * valid
                     if gating and n_edge > zero:        # rare: decide those in float64
                         for iz in range(z_lo, min(z_hi, nd)):
                             ez = dzp[iz] + h
                             r2 = math.sqrt(e2 + ez * ez)
                             if abs(eb + ez * b2 - r2 * cos_rx) <= band * r2:
-                                wt_w[bs + iz] = (pre_w[bs + iz]
-                                                 if _rx_inside64(gate, ia, ic, iz, ch)
+                                if mode == STRAIGHT:
+                                    u = u1_w[bs + iz] + r2 * k_straight
+                                else:
+                                    u = (u1_w[bs + iz] + _table_time(tz, ez_tab, ir, a, dh,
+                                                                     iz, one) * inv_dt)
+                                valid = _position(u, interp, nt, one)[2]
+                                inside = _rx_inside64(gate, ia, ic, iz, ch)
+                                wt_w[bs + iz] = (g0 * txm_w[bs + iz] * valid if inside
                                                  else zero)
                     for off in range(z_lo, z_hi, LANES):  # taps, 16 depths at a time
                         if ntap == 1:
