@@ -19,6 +19,7 @@ side of the edge each voxel was put on.
 
 from __future__ import annotations
 
+import functools
 import math
 import pickle
 import subprocess
@@ -106,9 +107,13 @@ def _column(kd, rx, vox, kw):
     return np.array(n), np.array(val)
 
 
+#: one compiled voxel-order kernel per setting for the module (each build compiles anew)
+_voxel_kernel = functools.cache(cpu_kernel._make_voxel_kernel)
+
+
 def _voxel_order(kd, rx, vox, kw):
     """Counts from the CPU voxel-order kernel (the GPU kernel's sum, kernel_math)."""
-    kern = cpu_kernel._make_voxel_kernel(kd.interp, STRAIGHT, True, kd.halvings)
+    kern = _voxel_kernel(kd.interp, STRAIGHT, True, kd.halvings)
     n = []
     for v in vox:
         re = np.zeros((1, 1, 1), kd.dtype)
