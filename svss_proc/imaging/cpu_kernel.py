@@ -104,6 +104,15 @@ def _table_time(tz, ez, ir, a, dh, iz, one):
             + a * (tz[ir + 1, iz] + dh * ez[ir + 1, iz]))
 
 
+@nb.njit(inline="always", cache=True)
+def _receive_u(mode, u1, r2, k_straight, tz, ez, ir, a, dh, iz, inv_dt, one):
+    """Fractional sample index of a receive leg: the projector leg ``u1`` (samples) plus
+    the receive leg, straight (``r2`` m at ``k_straight`` samples/m) or from the table."""
+    if mode == STRAIGHT:
+        return u1 + r2 * k_straight
+    return u1 + _table_time(tz, ez, ir, a, dh, iz, one) * inv_dt
+
+
 @nb.njit(cache=True)
 def spread_step(n):
     """A step coprime with ``n`` near n / golden ratio: ``j -> (j * step) % n`` is a
@@ -329,11 +338,8 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
                             m2 = eb + ez * b2 - r2 * cos_rx
                             n_edge += one if abs(m2) <= band * r2 else zero
                             g = g if m2 >= zero else zero
-                        if mode == STRAIGHT:
-                            u = u1_w[bs + iz] + r2 * k_straight
-                        else:
-                            u = (u1_w[bs + iz]
-                                 + _table_time(tz, ez_tab, ir, a, dh, iz, one) * inv_dt)
+                        u = _receive_u(mode, u1_w[bs + iz], r2, k_straight, tz, ez_tab, ir,
+                                       a, dh, iz, inv_dt, one)
                         i0, w, valid = _position(u, interp, nt, one)
                         idx_w[bs + iz] = i0
                         frac_w[bs + iz] = w
@@ -343,11 +349,8 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
                             ez = dzp[iz] + h
                             r2 = math.sqrt(e2 + ez * ez)
                             if abs(eb + ez * b2 - r2 * cos_rx) <= band * r2:
-                                if mode == STRAIGHT:
-                                    u = u1_w[bs + iz] + r2 * k_straight
-                                else:
-                                    u = (u1_w[bs + iz] + _table_time(tz, ez_tab, ir, a, dh,
-                                                                     iz, one) * inv_dt)
+                                u = _receive_u(mode, u1_w[bs + iz], r2, k_straight, tz,
+                                               ez_tab, ir, a, dh, iz, inv_dt, one)
                                 valid = _position(u, interp, nt, one)[2]
                                 inside = _rx_inside64(gate, ia, ic, iz, ch)
                                 wt_w[bs + iz] = (g0 * txm_w[bs + iz] * valid if inside
