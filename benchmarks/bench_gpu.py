@@ -106,14 +106,15 @@ def kernel_only(calls, repeat):
 
     from svss_proc.imaging import gpu_kernel as G
     from svss_proc.imaging.kernel_args import kernel_args
-    shape, dtype = calls[0][0][0].shape, calls[0][0][0].dtype
+    shape, dtype = calls[0][0][0].re.shape, calls[0][0][0].re.dtype
     re, im = G.device_zeros(shape, dtype), G.device_zeros(shape, dtype)
     out = {}
     best = None
     for _ in range(repeat):
         cuda.synchronize()
         t0 = time.perf_counter()
-        n = sum(G.run_ping_gpu(re, im, *a[2:], **kw) for a, kw in calls)
+        n = sum(G.run_ping_gpu(a[0]._replace(re=re, im=im), *a[1:], **kw)
+                for a, kw in calls)
         cuda.synchronize()
         el = time.perf_counter() - t0
         best = el if best is None else min(best, el)
@@ -121,10 +122,9 @@ def kernel_only(calls, repeat):
     # everything resident: each call's arguments uploaded once, outside the timing
     launches = []
     for a, kw in calls:
-        kd, tx, rx, along, cross, depth, ia0, ia1 = a[2:]
-        args = kernel_args(kd, tx, rx, along, cross, depth, bore=kw["bore"],
-                           cos_tx=kw["cos_tx"], cos_rx=kw["cos_rx"], apod=kw.get("apod"),
-                           delays=kw["delays"])
+        out_slice, kd, array, delays = a
+        ia0, ia1 = out_slice.ia0, out_slice.ia1
+        args = kernel_args(kd, array, out_slice.axes, delays)
         gating = kw.get("gating", True)
         ic0, ic1 = G.cross_range(args, gating)
         dev = G.KernelArgs(G.TapPlanes(cuda.to_device(args.planes.re),
@@ -135,8 +135,8 @@ def kernel_only(calls, repeat):
                                            else v for v in args.delays)),
                            G.ConeGate(*(cuda.to_device(v) if isinstance(v, np.ndarray)
                                         else v for v in args.gate)))
-        kernel = G.kernel_for(kd.interp, kw["delays"].code, gating, kd.halvings)
-        nvox = (ia1 - ia0) * (ic1 - ic0) * depth.size
+        kernel = G.kernel_for(kd.interp, delays.code, gating, kd.halvings)
+        nvox = (ia1 - ia0) * (ic1 - ic0) * len(out_slice.axes.depth)
         launches.append((kernel, -(-nvox // G.THREADS), dev, ia0, ia1, ic0, ic1))
     count = cuda.to_device(np.zeros(1, np.int64))
     best = None
@@ -166,10 +166,8 @@ def ptx_counts(proc_pings, hw, proc) -> dict:
     tile, _, _, calls = image(hw, settings(proc, "cpu", "float32"), proc_pings[:2],
                               record=True)
     a, kw = calls[-1]
-    kd, tx, rx, along, cross, depth = a[2:8]
-    args = kernel_args(kd, tx, rx, along, cross, depth, bore=kw["bore"],
-                       cos_tx=kw["cos_tx"], cos_rx=kw["cos_rx"], apod=kw.get("apod"),
-                       delays=kw["delays"])
+    out_slice, kd, array, delays = a
+    args = kernel_args(kd, array, out_slice.axes, delays)
     f3 = numba.float32[:, :, ::1]
     sig = (f3, f3, numba.typeof(args), numba.int64, numba.int64, numba.int64, numba.int64,
            numba.int64[::1])
@@ -184,7 +182,7 @@ def ptx_counts(proc_pings, hw, proc) -> dict:
                 "lines": ptx.count("\n")}
     # the default setting: float64 where meant (the refraction table's bilinear lookup,
     # cone decisions at an edge); straight rays ungated: float32 alone
-    out = counts(G.kernel_for(kd.interp, kw["delays"].code, kw.get("gating", True),
+    out = counts(G.kernel_for(kd.interp, delays.code, kw.get("gating", True),
                               kd.halvings))
     out["straight_ungated"] = counts(G.kernel_for(kd.interp, STRAIGHT, False, kd.halvings))
     return out

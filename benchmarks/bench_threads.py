@@ -51,11 +51,9 @@ def record_calls(hw, proc, pings):
     imager = TileImager(hw, proc)
     calls = []
 
-    def recording(img_re, img_im, kd, tx, rx, along, cross, depth, ia0, ia1, *, bore,
-                  cos_tx, cos_rx, delays, gating=True, apod=None):
-        args = kernel_args(kd, tx, rx, along, cross, depth, bore=bore, cos_tx=cos_tx,
-                           cos_rx=cos_rx, apod=apod, delays=delays)
-        calls.append((args, ia0, ia1, img_re.shape,
+    def recording(out, kd, array, delays, *, gating=True):
+        args = kernel_args(kd, array, out.axes, delays)
+        calls.append((args, out.ia0, out.ia1, out.re.shape,
                       (kd.interp, delays.code, bool(gating), kd.halvings)))
         return 0
     imager.accumulator.kernel = recording

@@ -13,7 +13,8 @@ from svss_proc.conditioning import Conditioned
 from svss_proc.imaging.cpu_kernel import run_ping
 from svss_proc.imaging.delays import build_table
 from svss_proc.imaging.schedule import along_reach
-from svss_proc.imaging.kernel_args import DelayModel, prepare
+from svss_proc.imaging.kernel_args import (DelayModel, ImageSlice, PingArray, VoxelAxes,
+                                          prepare)
 from tests.references import direct_sum
 
 CW, CS = 1500.0, 1767.0
@@ -65,9 +66,9 @@ def test_kernel_matches_direct_sum(interp, precision, mode):
     kd = prepare(cond, interp, ft)
     re, im = np.zeros(ref.shape, ft), np.zeros(ref.shape, ft)
     table = (build_table(2.0, 4.0, -0.2, 1.0, 0.005, CW, CS) if mode == "table" else None)
-    n = run_ping(re, im, kd, tx, rx, along, cross, depth, 0, along.size, bore=bore,
-                 cos_tx=cos_tx, cos_rx=cos_rx, gating=True, apod=apod, 
-                 delays=DelayModel(mode, CW, CS, table))
+    n = run_ping(ImageSlice(re, im, VoxelAxes(along, cross, depth), 0, along.size), kd,
+                 PingArray(tx, rx, bore, cos_tx, cos_rx, apod),
+                 DelayModel(mode, CW, CS, table), gating=True)
     assert n == n_ref > 0                          # every (voxel, element) term summed
     assert np.count_nonzero(ref == 0) > 0          # the cones really exclude voxels
     err = np.abs(re + 1j * im - ref).max() / np.abs(ref).max()
@@ -103,9 +104,9 @@ def test_window_path_matches_direct_sum(interp, mode):
     kd = prepare(cond, interp, np.float32)
     re, im = np.zeros(ref.shape, np.float32), np.zeros(ref.shape, np.float32)
     table = build_table(2.0, 4.0, -0.2, 1.2, 0.005, CW, CS) if mode == "table" else None
-    n = run_ping(re, im, kd, tx, rx, along, cross, depth, 0, along.size, bore=bore,
-                 cos_tx=cos_tx, cos_rx=cos_rx, gating=True,
-                 delays=DelayModel(mode, CW, CS, table))
+    n = run_ping(ImageSlice(re, im, VoxelAxes(along, cross, depth), 0, along.size), kd,
+                 PingArray(tx, rx, bore, cos_tx, cos_rx),
+                 DelayModel(mode, CW, CS, table), gating=True)
     assert np.count_nonzero(ref) > 0.5 * ref.size
     assert n == n_ref
     err = np.abs(re + 1j * im - ref).max() / np.abs(ref).max()
@@ -121,10 +122,11 @@ def test_partial_along_range_and_no_gating():
     bore = np.array([0.0, 0.0, 1.0])
     full = [np.zeros((7, 3, 3)), np.zeros((7, 3, 3))]
     part = [np.zeros((7, 3, 3)), np.zeros((7, 3, 3))]
-    kw = dict(bore=bore, cos_tx=0.9, cos_rx=0.6, gating=False,
-              delays=DelayModel("straight", CW, CW))
-    run_ping(*full, kd, tx, rx, along, cross, depth, 0, 7, **kw)
-    run_ping(*part, kd, tx, rx, along, cross, depth, 2, 5, **kw)
+    axes = VoxelAxes(along, cross, depth)
+    array = PingArray(tx, rx, bore, 0.9, 0.6)
+    delays = DelayModel("straight", CW, CW)
+    run_ping(ImageSlice(*full, axes, 0, 7), kd, array, delays, gating=False)
+    run_ping(ImageSlice(*part, axes, 2, 5), kd, array, delays, gating=False)
     assert not part[0][:2].any() and not part[0][5:].any()
     np.testing.assert_allclose(part[0][2:5], full[0][2:5], rtol=1e-12)
     ref = direct_sum(data.astype(np.complex128), 1e-3, 16e-6, 27.5e3, tx, rx, bore, 0.9, 0.6,

@@ -33,7 +33,8 @@ from svss_daq.geometry import array_geometry
 from svss_daq.ping import SampleAxis
 from svss_proc.conditioning import Conditioned
 from svss_proc.imaging import cpu_kernel
-from svss_proc.imaging.kernel_args import STRAIGHT, DelayModel, kernel_args, prepare
+from svss_proc.imaging.kernel_args import (STRAIGHT, DelayModel, ImageSlice, PingArray,
+                                          VoxelAxes, kernel_args, prepare)
 from tests.test_gpu_kernel import ROOT, subprocess_env
 
 EPS = 2e-9          # rad off the edge: f32 geometry can't see it, f64 arithmetic can
@@ -92,7 +93,7 @@ DELAYS = DelayModel("straight", 1500.0, 1500.0)
 
 
 def _one(v):
-    return np.array([v[0]]), np.array([v[1]]), np.array([v[2]])
+    return VoxelAxes(np.array([v[0]]), np.array([v[1]]), np.array([v[2]]))
 
 
 def _column(kd, rx, vox, kw):
@@ -101,8 +102,8 @@ def _column(kd, rx, vox, kw):
     for v in vox:
         re = np.zeros((1, 1, 1), kd.dtype)
         im = np.zeros((1, 1, 1), kd.dtype)
-        n.append(cpu_kernel.run_ping(re, im, kd, TX, rx, *_one(v), 0, 1, delays=DELAYS,
-                                     gating=True, **kw))
+        n.append(cpu_kernel.run_ping(ImageSlice(re, im, _one(v), 0, 1), kd,
+                                     PingArray(TX, rx, **kw), DELAYS, gating=True))
         val.append(complex(re[0, 0, 0], im[0, 0, 0]))
     return np.array(n), np.array(val)
 
@@ -118,7 +119,7 @@ def _voxel_order(kd, rx, vox, kw):
     for v in vox:
         re = np.zeros((1, 1, 1), kd.dtype)
         im = np.zeros((1, 1, 1), kd.dtype)
-        args = kernel_args(kd, TX, rx, *_one(v), apod=None, delays=DELAYS, **kw)
+        args = kernel_args(kd, PingArray(TX, rx, **kw), _one(v), DELAYS)
         n.append(kern(re, im, args, 0, 1))
     return np.array(n)
 
@@ -127,16 +128,18 @@ GPU_SCRIPT = textwrap.dedent("""
     import pickle, sys, numpy as np
     from numba import cuda
     from svss_proc.imaging.gpu_kernel import run_ping_gpu
+    from svss_proc.imaging.kernel_args import ImageSlice, VoxelAxes
     with open(sys.argv[1], "rb") as fh:
         jobs = pickle.load(fh)
     out = []
-    for kd, tx, rx, vox, kw in jobs:
+    for kd, array, vox, delays in jobs:
         counts = []
         for v in vox:
             re = cuda.to_device(np.zeros((1, 1, 1), kd.dtype))
             im = cuda.to_device(np.zeros((1, 1, 1), kd.dtype))
-            counts.append(run_ping_gpu(re, im, kd, tx, rx, np.array([v[0]]),
-                                       np.array([v[1]]), np.array([v[2]]), 0, 1, **kw))
+            axes = VoxelAxes(np.array([v[0]]), np.array([v[1]]), np.array([v[2]]))
+            counts.append(run_ping_gpu(ImageSlice(re, im, axes, 0, 1), kd, array, delays,
+                                       gating=True))
         out.append(counts)
     with open(sys.argv[2], "wb") as fh:
         pickle.dump(out, fh)
@@ -164,10 +167,10 @@ def test_float32_kernels_gate_edge_voxels_as_float64(cases, tmp_path):
         scale = np.abs(v64).max()
         assert np.abs(v32 - v64).max() <= 1e-3 * scale, name   # a channel is ~10 %
         assert (_voxel_order(kd32, rx, vox, kw) == n64).all(), (name, "voxel order f32")
-        jobs.append((kd32, TX, rx, vox, dict(delays=DELAYS, gating=True, **kw), n64))
+        jobs.append((kd32, PingArray(TX, rx, **kw), vox, DELAYS, n64))
     job = tmp_path / "jobs.pkl"
     with open(job, "wb") as fh:
-        pickle.dump([j[:5] for j in jobs], fh)
+        pickle.dump([j[:4] for j in jobs], fh)
     res = subprocess.run([sys.executable, "-c", GPU_SCRIPT, str(job), str(tmp_path / "out")],
                          cwd=ROOT, env=subprocess_env(True), capture_output=True, text=True,
                          timeout=600)
@@ -175,5 +178,5 @@ def test_float32_kernels_gate_edge_voxels_as_float64(cases, tmp_path):
     with open(tmp_path / "out", "rb") as fh:
         gpu = pickle.load(fh)
     for (name, *_), counts, j in zip(cases, gpu, jobs):
-        assert (np.array(counts) == j[5]).all(), (name, "GPU (simulator) f32",
-                                                  np.array(counts) - j[5])
+        assert (np.array(counts) == j[4]).all(), (name, "GPU (simulator) f32",
+                                                  np.array(counts) - j[4])

@@ -13,7 +13,8 @@ import pytest
 from svss_daq.ping import SampleAxis
 from svss_proc.conditioning import Conditioned
 from svss_proc.imaging.cpu_kernel import _make_kernel, spread_step
-from svss_proc.imaging.kernel_args import DELAY, INTERP, DelayModel, kernel_args, prepare
+from svss_proc.imaging.kernel_args import (DELAY, INTERP, DelayModel, PingArray, VoxelAxes,
+                                          kernel_args, prepare)
 
 CW = 1500.0
 
@@ -74,9 +75,9 @@ def test_images_identical_in_any_order_and_thread_count(interp, mode, precision)
     along = np.arange(-1.2, 1.8, 0.02)
     cross = np.arange(-0.3, 0.3, 0.04)
     depth = np.arange(0.0, 0.6, 0.02)
-    args = kernel_args(kd, tx, rx, along, cross, depth, bore=np.array([0.0, 0.0, 1.0]),
-                       cos_tx=math.cos(math.radians(25)), cos_rx=math.cos(math.radians(50)),
-                       apod=None, delays=DelayModel(mode, CW, CW))
+    array = PingArray(tx, rx, np.array([0.0, 0.0, 1.0]), math.cos(math.radians(25)),
+                      math.cos(math.radians(50)))
+    args = kernel_args(kd, array, VoxelAxes(along, cross, depth), DelayModel(mode, CW, CW))
     shape = (along.size, cross.size, depth.size)
     images = []
     threads = numba.get_num_threads()

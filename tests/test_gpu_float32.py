@@ -84,7 +84,7 @@ def far_tile(hardware):
             tiles += imager.add(p)
         tiles += imager.finish()
         tile = max(tiles, key=lambda t: t.updates)
-        out[prec] = (tile, [c for c in calls if c[0][0] is tile.re])
+        out[prec] = (tile, [c for c in calls if c[0][0].re is tile.re])
     return out
 
 
@@ -92,7 +92,7 @@ def test_premise_realistic_far_tile(far_tile, hardware):
     tile, calls = far_tile["float32"]
     assert tile.grid.index >= 20 and tile.grid.along[0] >= FAR_M      # 300 m out
     assert np.allclose(np.diff(tile.grid.depth), 0.02)
-    assert calls[0][0][4].shape == (80, 3)                           # 80 receivers
+    assert calls[0][0][2].rx.shape == (80, 3)                        # 80 receivers
     mag = np.abs(far_tile["float64"][0].image)
     assert mag.max() > 30 * np.median(mag[mag > 0])      # bright points over the rest
     assert len(calls) >= 30
@@ -116,26 +116,30 @@ GPU_SCRIPT = textwrap.dedent("""
     import pickle, sys, numpy as np
     from numba import cuda
     from svss_proc.imaging.gpu_kernel import run_ping_gpu
+    from svss_proc.imaging.kernel_args import ImageSlice
     with open(sys.argv[1], "rb") as fh:
         job = pickle.load(fh)
     re = cuda.to_device(np.zeros(job["shape"], np.float32))
     im = cuda.to_device(np.zeros(job["shape"], np.float32))
     n = 0
-    for args, kw in job["calls"]:
-        n += run_ping_gpu(re, im, *args, **kw)
+    for (axes, ia0, ia1, kd, array, delays), kw in job["calls"]:
+        n += run_ping_gpu(ImageSlice(re, im, axes, ia0, ia1), kd, array, delays, **kw)
     np.savez(sys.argv[2], image=re.copy_to_host() + 1j * im.copy_to_host(), n=n)
 """)
 
 
 def _sub_tile_calls(calls, lo, hi):
-    """The kernel calls restricted to the voxel box lo..hi (exclusive) of the tile."""
+    """The kernel calls restricted to the voxel box lo..hi (exclusive) of the tile, as
+    ((voxel axes, ia0, ia1, tap planes, array, delays), keywords), without the planes."""
+    from svss_proc.imaging.kernel_args import VoxelAxes
     out = []
     for args, kw in calls:
-        _, _, kd, tx, rx, along, cross, depth, ia0, ia1 = args
+        (_, _, axes, ia0, ia1), kd, array, delays = args
         i0, i1 = max(ia0, lo[0]) - lo[0], min(ia1, hi[0]) - lo[0]
         if i1 > i0:
-            out.append(((kd, tx, rx, along[lo[0]:hi[0]], cross[lo[1]:hi[1]],
-                         depth[lo[2]:hi[2]], i0, i1), kw))
+            box = VoxelAxes(axes.along[lo[0]:hi[0]], axes.cross[lo[1]:hi[1]],
+                            axes.depth[lo[2]:hi[2]])
+            out.append(((box, i0, i1, kd, array, delays), kw))
     return out
 
 
@@ -192,11 +196,10 @@ def test_scalar_math_keeps_float32_in_float32():
     from svss_proc.imaging.cpu_kernel import _cpu
     from svss_proc.imaging.kernel_args import LINEAR, STRAIGHT, TABLE, kernel_args
     from svss_proc.imaging.kernel_math import kernel_one
-    from tests.test_gpu_kernel import case_inputs
+    from tests.test_gpu_kernel import case_inputs, kernel_call
     kd, geo, kw = case_inputs()["linear-float32-table"]
-    args = kernel_args(kd, geo["tx"], geo["rx"], geo["along"], geo["cross"], geo["depth"],
-                       bore=kw["bore"], cos_tx=kw["cos_tx"], cos_rx=kw["cos_rx"],
-                       apod=kw["apod"], delays=kw["delays"])
+    (out, _, array, delays), _ = kernel_call(None, None, kd, geo, kw)
+    args = kernel_args(kd, array, out.axes, delays)
     voxel_sum, travel_time = _cpu.voxel_sum, _cpu.travel_time
 
     @nb.njit
@@ -247,16 +250,15 @@ CROSS_SCRIPT = textwrap.dedent("""
     import pickle, sys, numpy as np
     from numba import cuda
     from svss_proc.imaging import gpu_kernel
-    from svss_proc.imaging.kernel_args import kernel_args
+    from svss_proc.imaging.kernel_args import ImageSlice, kernel_args
     with open(sys.argv[1], "rb") as fh:
-        args, kw = pickle.load(fh)
-    kd, tx, rx, along, cross, depth = args
-    ka = kernel_args(kd, tx, rx, along, cross, depth, bore=kw["bore"], cos_tx=kw["cos_tx"],
-                     cos_rx=kw["cos_rx"], apod=None, delays=kw["delays"])
-    shape = (along.size, cross.size, depth.size)
+        kd, array, axes, delays = pickle.load(fh)
+    ka = kernel_args(kd, array, axes, delays)
+    shape = (axes.along.size, axes.cross.size, axes.depth.size)
     re = cuda.to_device(np.zeros(shape, kd.dtype))
     im = cuda.to_device(np.zeros(shape, kd.dtype))
-    n = gpu_kernel.run_ping_gpu(re, im, *args, 0, along.size, **kw)
+    n = gpu_kernel.run_ping_gpu(ImageSlice(re, im, axes, 0, axes.along.size), kd, array,
+                                delays, gating=True)
     np.savez(sys.argv[2], image=re.copy_to_host() + 1j * im.copy_to_host(), n=n,
              box=np.array(gpu_kernel.cross_range(ka, True)))
 """)
@@ -269,7 +271,8 @@ def test_gpu_launch_over_the_cone_cross_range_matches_cpu(tmp_path):
     from svss_daq.ping import SampleAxis
     from svss_proc.conditioning import Conditioned
     from svss_proc.imaging.cpu_kernel import run_ping
-    from svss_proc.imaging.kernel_args import DelayModel, prepare
+    from svss_proc.imaging.kernel_args import (DelayModel, ImageSlice, PingArray, VoxelAxes,
+                                              prepare)
     rng = np.random.default_rng(8)
     nch, nt = 6, 200
     data = (rng.normal(size=(nch, nt)) + 1j * rng.normal(size=(nch, nt))).astype(np.complex64)
@@ -280,15 +283,16 @@ def test_gpu_launch_over_the_cone_cross_range_matches_cpu(tmp_path):
                           np.full(nch, -0.5)])
     along, cross, depth = np.linspace(-0.1, 0.1, 3), np.linspace(-2, 2, 41), \
         np.array([0.0, 0.15, 0.3])
-    kw = dict(bore=np.array([0.0, 0.0, 1.0]), cos_tx=math.cos(math.radians(20)),
-              cos_rx=math.cos(math.radians(50)), gating=True,
-              delays=DelayModel("straight", 1500.0, 1500.0))
+    array = PingArray(tx, rx, np.array([0.0, 0.0, 1.0]), math.cos(math.radians(20)),
+                      math.cos(math.radians(50)))
+    delays = DelayModel("straight", 1500.0, 1500.0)
+    axes = VoxelAxes(along, cross, depth)
     shape = (along.size, cross.size, depth.size)
     re, im = np.zeros(shape, np.float32), np.zeros(shape, np.float32)
-    n_cpu = run_ping(re, im, kd, tx, rx, along, cross, depth, 0, along.size, **kw)
+    n_cpu = run_ping(ImageSlice(re, im, axes, 0, along.size), kd, array, delays, gating=True)
     job = tmp_path / "job.pkl"
     with open(job, "wb") as fh:
-        pickle.dump(((kd, tx, rx, along, cross, depth), kw), fh)
+        pickle.dump((kd, array, axes, delays), fh)
     res = subprocess.run([sys.executable, "-c", CROSS_SCRIPT, str(job),
                           str(tmp_path / "out.npz")], cwd=ROOT,
                          env=subprocess_env(True), capture_output=True, text=True,

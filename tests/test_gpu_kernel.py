@@ -22,14 +22,14 @@ CW, CS = 1500.0, 1767.0          # water and sediment sound speeds, m/s
 SCRIPT = textwrap.dedent("""
     import sys, numpy as np
     from numba import cuda
-    from tests.test_gpu_kernel import case_inputs
+    from tests.test_gpu_kernel import case_inputs, kernel_call
     from svss_proc.imaging.gpu_kernel import run_ping_gpu
     out = {}
     for name, (kd, geo, kw) in case_inputs().items():
         re = cuda.to_device(np.zeros(geo["shape"], kd.dtype))
         im = cuda.to_device(np.zeros(geo["shape"], kd.dtype))
-        n = run_ping_gpu(re, im, kd, geo["tx"], geo["rx"], geo["along"], geo["cross"],
-                         geo["depth"], 0, geo["shape"][0], **kw)
+        args, gating = kernel_call(re, im, kd, geo, kw)
+        n = run_ping_gpu(*args, gating=gating)
         out[name] = re.copy_to_host() + 1j * im.copy_to_host()
         out[name + "_n"] = np.array(n)
     np.savez(sys.argv[1], **out)
@@ -67,14 +67,25 @@ def case_inputs():
     return cases
 
 
+def kernel_call(re, im, kd, geo, kw):
+    """A case as the kernel front doors take it: ((image slice, tap planes, array,
+    delays), gating)."""
+    from svss_proc.imaging.kernel_args import ImageSlice, PingArray, VoxelAxes
+    axes = VoxelAxes(geo["along"], geo["cross"], geo["depth"])
+    array = PingArray(geo["tx"], geo["rx"], kw["bore"], kw["cos_tx"], kw["cos_rx"],
+                      kw["apod"])
+    return (ImageSlice(re, im, axes, 0, geo["shape"][0]), kd, array, kw["delays"]), \
+        kw["gating"]
+
+
 def cpu_results():
     from svss_proc.imaging.cpu_kernel import run_ping
     out = {}
     for name, (kd, geo, kw) in case_inputs().items():
         re = np.zeros(geo["shape"], kd.dtype)
         im = np.zeros(geo["shape"], kd.dtype)
-        n = run_ping(re, im, kd, geo["tx"], geo["rx"], geo["along"], geo["cross"],
-                     geo["depth"], 0, geo["shape"][0], **kw)
+        args, gating = kernel_call(re, im, kd, geo, kw)
+        n = run_ping(*args, gating=gating)
         out[name] = (re + 1j * im, n)
     return out
 

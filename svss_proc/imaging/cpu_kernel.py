@@ -45,8 +45,9 @@ import numpy as np
 
 from .delays import _cpu as refraction_cpu
 from .kernel_args import (EXACT, GATE_BAND, LINEAR, NEAREST, SHIFT, STRAIGHT, TABLE, TAPS,
-                          ConeGate, DelayModel, KernelArgs, KernelData, TapPlanes,
-                          TravelTimes, VoxelGeometry, check_call, kernel_args)
+                          ConeGate, DelayModel, ImageSlice, KernelArgs, KernelData,
+                          PingArray, TapPlanes, TravelTimes, VoxelGeometry, check_call,
+                          kernel_args)
 from .kernel_math import build, cast_like, kernel_one
 from .window_gather import LANES, window_gather_1, window_gather_2, window_gather_4
 
@@ -407,16 +408,16 @@ def kernel_for(interp: int, mode: int, gating: bool, halvings: int):
     return _KERNELS[key]
 
 
-def run_ping(img_re, img_im, kd: KernelData, tx, rx, along, cross, depth, ia0, ia1, *,
-             bore, cos_tx, cos_rx, delays: DelayModel, gating=True, apod=None) -> int:
-    """Add one ping into the image planes (along x cross x depth) for along-track indices
-    ia0 <= ia < ia1, with geometry in the tile frame (float64): ``tx`` (3,), ``rx``
-    (channels, 3), voxel axes. The kernel precision is the image planes'. Returns the
-    number of voxel-channel updates."""
-    if kd.dtype != img_re.dtype:
-        raise ValueError(f"kernel data is {kd.dtype}, the image planes are {img_re.dtype}")
-    check_call(img_re, img_im, along, cross, depth, ia0, ia1)
-    args = kernel_args(kd, tx, rx, along, cross, depth, bore=bore, cos_tx=cos_tx,
-                       cos_rx=cos_rx, apod=apod, delays=delays)
+def run_ping(out: ImageSlice, kd: KernelData, array: PingArray, delays: DelayModel, *,
+             gating: bool = True) -> int:
+    """Add one ping (tap planes ``kd``, its ``array`` in the tile frame, float64) into
+    the image planes of ``out`` for its along-track indices ``out.ia0 <= ia < out.ia1``,
+    with travel times from ``delays``; ``gating``: sum only voxels inside both cones.
+    The kernel precision is the image planes'. Returns the number of voxel-channel
+    updates."""
+    if kd.dtype != out.re.dtype:
+        raise ValueError(f"kernel data is {kd.dtype}, the image planes are {out.re.dtype}")
+    check_call(out)
+    args = kernel_args(kd, array, out.axes, delays)
     kernel = kernel_for(kd.interp, delays.code, gating, kd.halvings)
-    return int(kernel(img_re, img_im, args, ia0, ia1))
+    return int(kernel(out.re, out.im, args, out.ia0, out.ia1))

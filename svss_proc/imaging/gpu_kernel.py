@@ -26,8 +26,9 @@ from numba import cuda
 from svss_daq.geometry import cone_reach
 
 from .delays import build_refraction
-from .kernel_args import (ConeGate, DelayModel, KernelArgs, KernelData, TapPlanes,
-                          TravelTimes, VoxelGeometry, check_call, kernel_args)
+from .kernel_args import (ConeGate, DelayModel, ImageSlice, KernelArgs, KernelData,
+                          PingArray, TapPlanes, TravelTimes, VoxelGeometry, check_call,
+                          kernel_args)
 from .kernel_math import build, kernel_one
 
 _dev = cuda.jit(device=True)
@@ -187,22 +188,21 @@ def cross_range(args: KernelArgs, gating: bool) -> tuple[int, int]:
     return max(int(inside[0]) - 1, 0), min(int(inside[-1]) + 2, nc)
 
 
-def run_ping_gpu(img_re, img_im, kd: KernelData, tx, rx, along, cross, depth, ia0, ia1, *,
-                 bore, cos_tx, cos_rx, delays: DelayModel, gating=True, apod=None) -> int:
-    """GPU counterpart of :func:`svss_proc.imaging.cpu_kernel.run_ping`;
-    ``img_re``/``img_im`` are device arrays (``cuda.to_device``) that accumulate across
-    pings."""
-    if kd.dtype != img_re.dtype:
-        raise ValueError(f"kernel data is {kd.dtype}, the image planes are {img_re.dtype}")
-    check_call(img_re, img_im, along, cross, depth, ia0, ia1)
-    args = kernel_args(kd, tx, rx, along, cross, depth, bore=bore, cos_tx=cos_tx,
-                       cos_rx=cos_rx, apod=apod, delays=delays)
+def run_ping_gpu(out: ImageSlice, kd: KernelData, array: PingArray, delays: DelayModel, *,
+                 gating: bool = True) -> int:
+    """GPU counterpart of :func:`svss_proc.imaging.cpu_kernel.run_ping`; the image planes
+    of ``out`` are device arrays (:func:`device_zeros`) that accumulate across pings."""
+    if kd.dtype != out.re.dtype:
+        raise ValueError(f"kernel data is {kd.dtype}, the image planes are {out.re.dtype}")
+    check_call(out)
+    args = kernel_args(kd, array, out.axes, delays)
     ic0, ic1 = cross_range(args, gating)
-    n = (ia1 - ia0) * (ic1 - ic0) * depth.size
+    ia0, ia1 = out.ia0, out.ia1
+    n = (ia1 - ia0) * (ic1 - ic0) * len(out.axes.depth)
     if n <= 0:
         return 0
     count = _BUFFERS.upload("count", np.zeros(1, dtype=np.int64))
     kernel = kernel_for(kd.interp, delays.code, gating, kd.halvings)
-    kernel[math.ceil(n / THREADS), THREADS](img_re, img_im, _to_device(args), ia0, ia1,
+    kernel[math.ceil(n / THREADS), THREADS](out.re, out.im, _to_device(args), ia0, ia1,
                                             ic0, ic1, count)
     return int(count.copy_to_host()[0])

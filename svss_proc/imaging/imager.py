@@ -28,7 +28,7 @@ from .coverage import Coverage
 from .cpu_kernel import run_ping
 from .delays import TravelTimeTable, build_table
 from .grid import tile_grid
-from .kernel_args import DelayModel, prepare
+from .kernel_args import DelayModel, ImageSlice, PingArray, prepare
 from .pose_check import check_pose_flags
 from .schedule import PingStep, TileSchedule
 
@@ -107,20 +107,19 @@ class PingAccumulator:
         placed = step.placed
         if self.channels is not None:
             placed = dataclasses.replace(placed, rx=placed.rx[self.channels])
-        tx, rx, bore = placed.tx, placed.rx, placed.bore
+        tx, rx = placed.tx, placed.rx
         delays = DelayModel(im.delays, im.water_sound_speed_m_s, im.sediment_sound_speed_m_s,
                             self.travel_table(tx, rx, step.reach_m) if im.delays == "table"
                             else None)
         kd = prepare(cond, im.interpolation, self.dtype)
+        array = PingArray(tx, rx, placed.bore, math.cos(geo.projector_half_angle),
+                          math.cos(geo.receiver_half_angle), self.apod)
         window = (cond.axis.start_s, cond.axis.end_s - cond.axis.step_s)
         total = 0
         for s in step.slices:
             tile = tiles[s.tile]
-            n = self.kernel(tile.re, tile.im, kd, tx, rx, tile.grid.along, tile.grid.cross,
-                            tile.grid.depth, s.ia0, s.ia1, bore=bore,
-                            cos_tx=math.cos(geo.projector_half_angle),
-                            cos_rx=math.cos(geo.receiver_half_angle), delays=delays,
-                            gating=im.beam_gating, apod=self.apod)
+            n = self.kernel(ImageSlice(tile.re, tile.im, tile.grid, s.ia0, s.ia1), kd,
+                            array, delays, gating=im.beam_gating)
             # which voxels this ping reached (geometry only; the image is not touched)
             tile.coverage.add(tile.grid, s.ia0, s.ia1, placed, geo, window, im, ping.nav)
             tile.pings.append(ping.sequence)

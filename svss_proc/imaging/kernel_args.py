@@ -186,10 +186,44 @@ def _finite(name: str, x, limit: float | None = None) -> None:
                          f"{limit:g}")
 
 
-def check_call(img_re, img_im, along, cross, depth, ia0: int, ia1: int) -> None:
+class VoxelAxes(NamedTuple):
+    """A tile's voxel-centre axes in the tile frame (float64), m; a
+    :class:`~svss_proc.imaging.grid.TileGrid` serves as well."""
+    along: np.ndarray     # (n_along,)
+    cross: np.ndarray     # (n_cross,)
+    depth: np.ndarray     # (n_depth,) below the interface
+
+
+class ImageSlice(NamedTuple):
+    """Where a kernel call adds one ping: the image planes ``re``/``im`` (along x cross x
+    depth, in the kernel precision; device arrays for the GPU kernel), the tile's voxel
+    axes ``axes`` (anything with ``along``, ``cross`` and ``depth``: :class:`VoxelAxes`
+    or a tile grid) and the along-track planes ``ia0 <= ia < ia1``."""
+    re: object
+    im: object
+    axes: object
+    ia0: int
+    ia1: int
+
+
+class PingArray(NamedTuple):
+    """One ping's array for a kernel call, in the tile frame (float64): projector
+    ``tx`` (3,), receivers ``rx`` (channels, 3), boresight ``bore`` (3,), the cosines of
+    the projector's and the receivers' cone half angles, and the per-channel
+    apodisation (None: uniform)."""
+    tx: np.ndarray
+    rx: np.ndarray
+    bore: np.ndarray
+    cos_tx: float
+    cos_rx: float
+    apod: np.ndarray | None = None
+
+
+def check_call(out: ImageSlice) -> None:
     """The image planes match the voxel axes and the along-track range lies inside them
     (so that the kernels cannot write out of bounds); raise ValueError otherwise."""
-    shape = (len(along), len(cross), len(depth))
+    img_re, img_im, axes, ia0, ia1 = out
+    shape = (len(axes.along), len(axes.cross), len(axes.depth))
     for name, img in (("real", img_re), ("imaginary", img_im)):
         if tuple(img.shape) != shape:
             raise ValueError(f"{name} image plane of shape {tuple(img.shape)}; the voxel "
@@ -198,14 +232,17 @@ def check_call(img_re, img_im, along, cross, depth, ia0: int, ia1: int) -> None:
         raise ValueError(f"along-track range {ia0}..{ia1} outside 0..{shape[0]}")
 
 
-def kernel_args(kd: KernelData, tx, rx, along, cross, depth, *, bore, cos_tx: float,
-                cos_rx: float, apod, delays: DelayModel) -> KernelArgs:
-    """The kernel's argument for one ping: geometry from the tile frame (float64) made
-    relative to the projector, then cast to the kernel precision. Refuses (ValueError)
-    whatever could make a kernel index outside its arrays: non-finite or huge geometry,
-    channel counts that disagree, a non-finite sample axis."""
+def kernel_args(kd: KernelData, array: PingArray, axes, delays: DelayModel) -> KernelArgs:
+    """The kernel's argument for one ping: the geometry of ``array`` and the voxel
+    ``axes`` from the tile frame (float64) made relative to the projector, then cast to
+    the kernel precision. Refuses (ValueError) whatever could make a kernel index outside
+    its arrays: non-finite or huge geometry, channel counts that disagree, a non-finite
+    sample axis."""
+    along, cross, depth = axes.along, axes.cross, axes.depth
+    bore, cos_tx, cos_rx, apod = array.bore, array.cos_tx, array.cos_rx, array.apod
     ft = kd.dtype.type
-    tx, rx = np.asarray(tx, dtype=np.float64), np.asarray(rx, dtype=np.float64)
+    tx = np.asarray(array.tx, dtype=np.float64)
+    rx = np.asarray(array.rx, dtype=np.float64)
     if tx.shape != (3,) or rx.ndim != 2 or rx.shape[1] != 3:
         raise ValueError(f"projector position of shape {tx.shape} and receivers of shape "
                          f"{rx.shape}; expected (3,) and (channels, 3)")

@@ -193,7 +193,8 @@ def test_kernels_refuse_what_would_index_out_of_bounds(pings, hw, proc):
     from svss_proc.conditioning import Conditioner
     from svss_daq.waveform import make_waveform
     from svss_proc.imaging.cpu_kernel import run_ping
-    from svss_proc.imaging.kernel_args import DelayModel, prepare
+    from svss_proc.imaging.kernel_args import (DelayModel, ImageSlice, PingArray, VoxelAxes,
+                                              prepare)
     h = hw.value
     cond = Conditioner(h.digitiser, make_waveform(h.waveform), 2, 1).ping(pings[0])
     kd = prepare(cond, "linear", np.float32)
@@ -201,9 +202,11 @@ def test_kernels_refuse_what_would_index_out_of_bounds(pings, hw, proc):
     ax = np.linspace(-1, 1, 5)
     img = np.zeros((5, 5, 5), np.float32)
     tx, rx = np.array([0.0, 0.0, -2.5]), geo.receivers + [0, 0, -2.5]
-    kw = dict(bore=np.array([0.0, 0.0, 1.0]), cos_tx=0.5, cos_rx=0.5,
-              delays=DelayModel("straight", 1500.0, 1500.0))
-    assert run_ping(img, img.copy(), kd, tx, rx, ax, ax, ax + 1.5, 0, 5, **kw) > 0
+    bore = np.array([0.0, 0.0, 1.0])
+    delays = DelayModel("straight", 1500.0, 1500.0)
+    axes = VoxelAxes(ax, ax, ax + 1.5)
+    assert run_ping(ImageSlice(img, img.copy(), axes, 0, 5), kd,
+                    PingArray(tx, rx, bore, 0.5, 0.5), delays) > 0
     cases = {"channels": dict(rx=np.vstack([rx, rx[:1]])),
              "NaN projector": dict(tx=np.array([np.nan, 0.0, -2.5])),
              "huge receiver": dict(rx=rx * 1e12),
@@ -212,8 +215,8 @@ def test_kernels_refuse_what_would_index_out_of_bounds(pings, hw, proc):
     for name, c in cases.items():
         args = dict(img=img, tx=tx, rx=rx, ia1=5) | c
         with pytest.raises(ValueError):
-            run_ping(args["img"], args["img"].copy(), kd, args["tx"], args["rx"], ax, ax,
-                     ax + 1.5, 0, args["ia1"], **kw)
+            run_ping(ImageSlice(args["img"], args["img"].copy(), axes, 0, args["ia1"]), kd,
+                     PingArray(args["tx"], args["rx"], bore, 0.5, 0.5), delays)
 
 
 def test_preflight_refuses_tiles_beyond_memory_before_allocating(hw, proc):
