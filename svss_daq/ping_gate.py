@@ -20,6 +20,7 @@ import math
 
 import numpy as np
 
+from .checked import once
 from .config import HardwareConfig, Loaded
 from .ping import NavSnapshot, Ping
 
@@ -112,10 +113,18 @@ def ping_problem(ping: Ping, hardware: Loaded[HardwareConfig]) -> str | None:
     return nav_problem(ping.nav, ping.transmit_time_ns)
 
 
+def checked_ping_problem(ping: Ping, hardware: Loaded[HardwareConfig]) -> str | None:
+    """:func:`ping_problem`, made once per ping and hardware configuration
+    (:mod:`svss_daq.checked`): a ping that passed it at a gate is not checked (nor its
+    samples scanned) again by the imager; a refused one is refused again alike."""
+    return once(ping, ("ping_problem", hardware.id), lambda: ping_problem(ping, hardware))
+
+
 @dataclasses.dataclass
 class PingGate:
-    """Admits the pings of one stream: :func:`ping_problem` for each, and transmit times
-    strictly increasing over the admitted pings. Counts refusals by reason."""
+    """Admits the pings of one stream: :func:`ping_problem` for each (once per ping:
+    :func:`checked_ping_problem`), and transmit times strictly increasing over the
+    admitted pings. Counts refusals by reason."""
     hardware: Loaded[HardwareConfig]
     name: str = "ping gate"
     refused: collections.Counter = dataclasses.field(default_factory=collections.Counter)
@@ -124,7 +133,7 @@ class PingGate:
 
     def check(self, ping: Ping) -> None:
         """Raise :class:`PingRejected` when ``ping`` may not pass; change nothing."""
-        reason = ping_problem(ping, self.hardware)
+        reason = checked_ping_problem(ping, self.hardware)
         if reason is None and self.last_time_ns is not None \
                 and ping.transmit_time_ns <= self.last_time_ns:
             reason = (f"transmit time {ping.transmit_time_ns} ns not after the previous "

@@ -19,7 +19,7 @@ from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
 from svss_daq.frames import TrackLine
 from svss_daq.geometry import array_geometry
 from svss_daq.ping import Ping
-from svss_daq.ping_gate import PingRejected, ping_problem
+from svss_daq.ping_gate import PingRejected, checked_ping_problem
 from svss_daq.waveform import make_waveform
 
 from ..conditioning import Conditioned, Conditioner
@@ -209,8 +209,8 @@ class TileImager:
         (:mod:`~svss_proc.imaging.pose_check`) or one that would reach more than
         the tiles that fit in ``limits.memory_gib``. (A stream's
         :class:`~svss_daq.ping_gate.PingGate` also keeps time order and counts.)"""
-        check_pose_flags(ping, self.proc.ping_gate)
-        reason = ping_problem(ping, self.hardware)
+        check_pose_flags(ping, self.proc.ping_gate)        # each once per ping: a gate
+        reason = checked_ping_problem(ping, self.hardware)  # that passed it is trusted
         if reason is not None:
             raise PingRejected(getattr(ping, "sequence", "?"), reason)
         cond = None

@@ -22,6 +22,7 @@ import logging
 import math
 from dataclasses import dataclass, field
 
+from svss_daq.checked import once
 from svss_daq.config import PingGateConfig
 from svss_daq.ping import (NAV_CLOCK_RETIMED, NAV_DEAD_RECKONED, NAV_GPS_FIX,
                            NAV_HEADING_FROM_COMPASS, NAV_HEADING_FROM_COURSE, NAV_HELD,
@@ -73,8 +74,10 @@ def pose_flags_problem(nav: NavSnapshot, cfg: PingGateConfig) -> str | None:
 
 def check_pose_flags(ping, cfg: PingGateConfig) -> None:
     """Raise :class:`~svss_daq.ping_gate.PingRejected` when :func:`pose_flags_problem`
-    refuses the ping's pose."""
-    reason = pose_flags_problem(getattr(ping, "nav", None), cfg)
+    refuses the ping's pose; once per ping and ``cfg`` (:mod:`svss_daq.checked`: the
+    worker's check before its gate is not made again by the imager)."""
+    reason = once(ping, ("pose_flags", cfg),
+                  lambda: pose_flags_problem(getattr(ping, "nav", None), cfg))
     if reason is not None:
         raise PingRejected(getattr(ping, "sequence", "?"), reason)
 
