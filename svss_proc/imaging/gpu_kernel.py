@@ -30,11 +30,11 @@ from .kernel_args import (ConeGate, DelayModel, ImageSlice, KernelArgs, KernelDa
                           PingArray, TapPlanes, TravelTimes, VoxelGeometry, check_call,
                           kernel_args)
 from .kernel_math import build, kernel_one
+from .gpu_shared import THREADS, DeviceBuffers, block_count
 
 _dev = cuda.jit(device=True)
 _math = build(_dev, build_refraction(_dev))
 _voxel_sum = _math.voxel_sum
-THREADS = 128                 # per block; the count reduction assumes a power of two
 
 _KERNELS: dict = {}
 
@@ -43,7 +43,6 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
     @cuda.jit
     def kernel(img_re, img_im, args, ia0, ia1, ic0, ic1, count):
         i = cuda.grid(1)
-        t = cuda.threadIdx.x
         nc = ic1 - ic0
         nd = args.geometry.dz.size
         part = cuda.shared.array(THREADS, dtype=np.int64)
@@ -57,16 +56,7 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
             sr, si, n = _voxel_sum(ia, ic, iz, interp, mode, gating, halvings, args, one)
             img_re[ia, ic, iz] += sr               # each thread owns its voxel
             img_im[ia, ic, iz] += si
-        part[t] = n                                # the block's updates, summed here
-        cuda.syncthreads()
-        s = THREADS // 2
-        while s > 0:
-            if t < s:
-                part[t] += part[t + s]
-            cuda.syncthreads()
-            s //= 2
-        if t == 0 and part[0] != 0:
-            cuda.atomic.add(count, 0, part[0])
+        block_count(part, n, count)                # the block's updates, one atomic add
 
     return kernel
 
@@ -83,48 +73,7 @@ def kernel_for(interp: int, mode: int, gating: bool, halvings: int):
     return _KERNELS[key]
 
 
-class _Buffers:
-    """Device buffers reused from ping to ping (one per role, replaced when its shape
-    changes), and device
-    copies of the refraction tables (by identity: the imager keeps its tables)."""
-
-    def __init__(self):
-        self.buffers: dict = {}
-        self.tables: dict = {}
-        self.views: dict = {}
-
-    def upload(self, role: str, host: np.ndarray):
-        dev = self.buffers.get(role)
-        if dev is None or dev.shape != host.shape or dev.dtype != host.dtype:
-            dev = self.buffers[role] = cuda.to_device(host)   # the old one is freed
-            self.views.pop(role, None)
-        else:
-            dev.copy_to_device(host)
-        return dev
-
-    def upload_parts(self, role: str, arrays) -> list:
-        """``arrays`` (1-D, one dtype) uploaded in one copy into one buffer; device views
-        of the parts, kept from ping to ping while the buffer and the part sizes stay
-        (slicing a device array costs tens of microseconds)."""
-        sizes = tuple(a.size for a in arrays)
-        dev = self.upload(role, np.concatenate(arrays))
-        cached = self.views.get(role)
-        if cached is None or cached[0] != sizes:
-            edges = np.cumsum((0,) + sizes)
-            cached = self.views[role] = (sizes, [dev[edges[k]:edges[k + 1]]
-                                                 for k in range(len(sizes))])
-        return cached[1]
-
-    def table(self, host: np.ndarray):
-        entry = self.tables.get(id(host))
-        if entry is None or entry[0] is not host:
-            if len(self.tables) > 64:
-                self.tables.clear()
-            entry = self.tables[id(host)] = (host, cuda.to_device(host))
-        return entry[1]
-
-
-_BUFFERS = _Buffers()
+_BUFFERS = DeviceBuffers()
 
 
 def _planes_to_device(p: TapPlanes) -> TapPlanes:
