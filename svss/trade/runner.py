@@ -55,9 +55,10 @@ def run_trade(hw: Loaded[HardwareConfig], proc: ProcessingConfig, out: Path, *,
               areas: tuple[str, ...] = AREAS) -> TradeResult:
     """Measure ``areas`` and write the table and plots to ``out``."""
     res = TradeResult(machine(), budget_s, quick)
-    # the imager is restricted to one sub-tile (imaging.only_tile): its notes on pings
-    # that reach only the other tiles are expected here
-    logging.getLogger("svss_proc.imaging.imager").setLevel(logging.ERROR)
+    # the imager is restricted to one sub-tile (imaging.only_tile): its schedule's notes
+    # on pings that reach only the other tiles are expected here
+    for name in ("svss_proc.imaging.imager", "svss_proc.imaging.schedule"):
+        logging.getLogger(name).setLevel(logging.ERROR)
     if "imaging" in areas:
         w = imaging_workload(hw, proc, quick)
         c_sed = sediment_speed(w.scene) or proc.imaging.water_sound_speed_m_s

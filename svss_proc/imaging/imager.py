@@ -12,6 +12,8 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+from collections.abc import Mapping
+from types import MappingProxyType
 
 import numpy as np
 
@@ -62,40 +64,69 @@ class PingAccumulator:
     def __init__(self, hardware: Loaded[HardwareConfig], processing: ProcessingConfig, *,
                  channels: np.ndarray | None = None):
         hw = hardware.value
-        self.proc = processing
-        self.channels = None if channels is None else np.asarray(channels)
+        self._proc = processing
+        self._channels = None if channels is None else np.asarray(channels)
         geometry = array_geometry(hw)
-        if self.channels is not None:
+        if self._channels is not None:
             geometry = dataclasses.replace(geometry,
-                                           receivers=geometry.receivers[self.channels])
-        self.geometry = geometry
+                                           receivers=geometry.receivers[self._channels])
+        self._geometry = geometry
         cond = processing.conditioning
-        self.conditioner = Conditioner(hw.digitiser, make_waveform(hw.waveform),
-                                       cond.decimation, cond.upsample)
-        self.dtype = np.float32 if processing.imaging.precision == "float32" else np.float64
-        self.apod = receive_apodisation(geometry.receivers, processing.imaging.apodisation)
+        self._conditioner = Conditioner(hw.digitiser, make_waveform(hw.waveform),
+                                        cond.decimation, cond.upsample)
+        self._dtype = np.float32 if processing.imaging.precision == "float32" else np.float64
+        self._apod = receive_apodisation(geometry.receivers, processing.imaging.apodisation)
         self._tables: dict[int, TravelTimeTable] = {}
         if processing.imaging.device == "cuda":
             from . import gpu_kernel            # numba-cuda only when asked for
-            #: the kernel's front door (benchmarks and tests may wrap it)
-            self.kernel, self._zeros = gpu_kernel.run_ping_gpu, gpu_kernel.device_zeros
+            kernel, self._zeros = gpu_kernel.run_ping_gpu, gpu_kernel.device_zeros
         else:
-            self.kernel, self._zeros = run_ping, np.zeros
-        self.updates = 0
+            kernel, self._zeros = run_ping, np.zeros
+        #: the kernel's front door, ``kernel(out: ImageSlice, kd, array: PingArray,
+        #: delays, gating=)`` (:func:`~.cpu_kernel.run_ping` or
+        #: :func:`~.gpu_kernel.run_ping_gpu`); benchmarks and tests may wrap it
+        self.kernel = kernel
+        self._updates = 0
+
+    # read-only views
+    @property
+    def geometry(self):
+        """The array geometry imaged with (the channel subset's receivers)."""
+        return self._geometry
+
+    @property
+    def channels(self) -> np.ndarray | None:
+        """The receive channels summed (None: all)."""
+        return self._channels
+
+    @property
+    def apod(self) -> np.ndarray | None:
+        """Per-channel apodisation weights (None: uniform)."""
+        return self._apod
+
+    @property
+    def dtype(self) -> type:
+        """The kernel precision (numpy float32 or float64)."""
+        return self._dtype
+
+    @property
+    def updates(self) -> int:
+        """Voxel-channel updates made so far."""
+        return self._updates
 
     def condition(self, ping: Ping) -> Conditioned:
         """The ping's analytic signal at its arrival times (its channels)."""
-        c = self.conditioner.ping(ping)
-        if self.channels is None:
+        c = self._conditioner.ping(ping)
+        if self._channels is None:
             return c
-        return Conditioned(c.analytic[self.channels], c.axis, c.center_hz)
+        return Conditioned(c.analytic[self._channels], c.axis, c.center_hz)
 
     def new_tile(self, index: int, line: TrackLine) -> Tile:
         """An empty tile ``index`` in frame ``line``, its planes where the kernel runs."""
-        grid = tile_grid(self.proc.tile, index)
-        return Tile(grid, line, self._zeros(grid.shape, dtype=self.dtype),
-                    self._zeros(grid.shape, dtype=self.dtype),
-                    coverage=Coverage.new(grid.shape, self.geometry.receivers))
+        grid = tile_grid(self._proc.tile, index)
+        return Tile(grid, line, self._zeros(grid.shape, dtype=self._dtype),
+                    self._zeros(grid.shape, dtype=self._dtype),
+                    coverage=Coverage.new(grid.shape, self._geometry.receivers))
 
     def image(self, ping: Ping, cond: Conditioned, step: PingStep,
               tiles: dict[int, Tile]) -> int:
@@ -103,17 +134,17 @@ class PingAccumulator:
         index); returns the voxel-channel updates."""
         if not step.slices:
             return 0
-        im, geo = self.proc.imaging, self.geometry
+        im, geo = self._proc.imaging, self._geometry
         placed = step.placed
-        if self.channels is not None:
-            placed = dataclasses.replace(placed, rx=placed.rx[self.channels])
+        if self._channels is not None:
+            placed = dataclasses.replace(placed, rx=placed.rx[self._channels])
         tx, rx = placed.tx, placed.rx
         delays = DelayModel(im.delays, im.water_sound_speed_m_s, im.sediment_sound_speed_m_s,
                             self.travel_table(tx, rx, step.reach_m) if im.delays == "table"
                             else None)
-        kd = prepare(cond, im.interpolation, self.dtype)
+        kd = prepare(cond, im.interpolation, self._dtype)
         array = PingArray(tx, rx, placed.bore, math.cos(geo.projector_half_angle),
-                          math.cos(geo.receiver_half_angle), self.apod)
+                          math.cos(geo.receiver_half_angle), self._apod)
         window = (cond.axis.start_s, cond.axis.end_s - cond.axis.step_s)
         total = 0
         for s in step.slices:
@@ -125,7 +156,7 @@ class PingAccumulator:
             tile.pings.append(ping.sequence)
             tile.updates += int(n)
             total += int(n)
-        self.updates += total
+        self._updates += total
         return total
 
     def travel_table(self, tx: np.ndarray, rx: np.ndarray, reach: float) -> TravelTimeTable:
@@ -138,7 +169,7 @@ class PingAccumulator:
         their times do not depend on the extent, so every ping sees the same times
         whichever pings came before it (a batch task images a subset of a run's pings
         and must give the same tile as the whole run)."""
-        im, tcfg = self.proc.imaging, self.proc.tile
+        im, tcfg = self._proc.imaging, self._proc.tile
         h = float(-np.mean(np.concatenate([rx[:, 2], tx[2:3]])))
         key = int(round(h * TABLE_KEYS_PER_M))
         span = float(np.ptp(rx[:, 0]) + np.ptp(rx[:, 1]) + abs(rx[:, :2] - tx[:2]).max())
@@ -162,36 +193,50 @@ class TileImager:
     def __init__(self, hardware: Loaded[HardwareConfig], processing: ProcessingConfig, *,
                  source: str = "processing configuration",
                  channels: np.ndarray | None = None):
-        self.hardware = hardware
-        self.proc = processing
+        self._hardware = hardware
+        self._proc = processing
+        #: what to image where, from the poses (set-up: ``fix_frame``, ``mark_done``,
+        #: ``trust_poses``)
         self.schedule = TileSchedule(hardware, processing, source=source)
+        #: conditions pings and runs the kernels (``condition``, ``kernel``)
         self.accumulator = PingAccumulator(hardware, processing, channels=channels)
-        #: the tiles being formed, by index
-        self.active: dict[int, Tile] = {}
+        self._active: dict[int, Tile] = {}
 
-    # read-only views of the schedule and the accumulator
+    # read-only views of the tiles, the schedule and the accumulator
+    @property
+    def active(self) -> Mapping[int, Tile]:
+        """The tiles being formed, by index (read-only)."""
+        return MappingProxyType(self._active)
+
     @property
     def line(self) -> TrackLine | None:
+        """The tile frame (None until the first ping is admitted or a frame is fixed)."""
         return self.schedule.line
 
     @property
     def done(self) -> frozenset[int]:
-        return frozenset(self.schedule.done)
+        """The tiles closed (handed back or marked written), never opened again."""
+        return self.schedule.done
 
     @property
     def n_pings(self) -> int:
+        """Pings scheduled (admitted past the gate, the pose checks and the track)."""
         return self.schedule.n_pings
 
     @property
     def late_pings(self) -> int:
+        """Pings that reached only tiles already written (not imaged)."""
         return self.schedule.late_pings
 
     @property
     def track(self):
+        """The track guard, read-only by use: ``track.reanchored`` counts the times the
+        track followed a true move."""
         return self.schedule.track
 
     @property
     def updates(self) -> int:
+        """Voxel-channel updates made so far."""
         return self.accumulator.updates
 
     def resume_sequence(self) -> int | None:
@@ -209,27 +254,27 @@ class TileImager:
         (:mod:`~svss_proc.imaging.pose_check`) or one that would reach more than
         the tiles that fit in ``limits.memory_gib``. (A stream's
         :class:`~svss_daq.ping_gate.PingGate` also keeps time order and counts.)"""
-        check_pose_flags(ping, self.proc.ping_gate)        # each once per ping: a gate
-        reason = checked_ping_problem(ping, self.hardware)  # that passed it is trusted
+        check_pose_flags(ping, self._proc.ping_gate)        # each once per ping: a gate
+        reason = checked_ping_problem(ping, self._hardware)  # that passed it is trusted
         if reason is not None:
             raise PingRejected(getattr(ping, "sequence", "?"), reason)
         cond = None
-        if not self.proc.imaging.beam_gating:       # the reach is the echo window's
+        if not self._proc.imaging.beam_gating:      # the reach is the echo window's
             cond = self.accumulator.condition(ping)
         step = self.schedule.step(ping, None if cond is None else cond.axis.end_s)
         out = [self._hand_back(k) for k in step.closed_early]
         for k in step.reached:
-            if k not in self.active:
-                self.active[k] = self.accumulator.new_tile(k, self.schedule.line)
+            if k not in self._active:
+                self._active[k] = self.accumulator.new_tile(k, self.schedule.line)
         if step.slices:
             cond = cond or self.accumulator.condition(ping)
-            self.accumulator.image(ping, cond, step, self.active)
+            self.accumulator.image(ping, cond, step, self._active)
         return out + [self._hand_back(k) for k in step.closed]
 
     def _hand_back(self, k: int) -> Tile:
-        return self.active.pop(k).to_host()
+        return self._active.pop(k).to_host()
 
     def finish(self) -> list[Tile]:
         """Return every tile still being formed."""
         self.schedule.finish()
-        return [self._hand_back(k) for k in sorted(self.active)]
+        return [self._hand_back(k) for k in sorted(self._active)]

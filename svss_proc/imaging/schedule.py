@@ -130,42 +130,69 @@ class TileSchedule:
         self.hardware = hardware
         self.proc = processing
         self.geometry = array_geometry(hardware.value)
-        self.track: TrackGuard | _Trusted = TrackGuard(processing.ping_gate)
+        self._track: TrackGuard | _Trusted = TrackGuard(processing.ping_gate)
         hold = processing.tile.close_after_pings
         self.close_after = CLOSE_AFTER_PINGS if hold is None else hold
         self._conditioner: Conditioner | None = None
-        self.line: TrackLine | None = None
-        #: open tiles: index -> sequence of the ping that opened it
-        self.opened_by: dict[int, int] = {}
-        #: per open tile: consecutive pings since one last reached it
-        self.clear: dict[int, int] = {}
-        #: tiles closed (written), never opened again
-        self.done: set[int] = set()
-        self.n_pings = 0
-        self.late_pings = 0
+        self._line: TrackLine | None = None
+        # open tiles: index -> sequence of the ping that opened it
+        self._opened_by: dict[int, int] = {}
+        # per open tile: consecutive pings since one last reached it
+        self._clear: dict[int, int] = {}
+        # tiles closed (written), never opened again
+        self._done: set[int] = set()
+        self._n_pings = 0
+        self._late_pings = 0
+
+    # -- read-only views --------------------------------------------------------------------
+
+    @property
+    def line(self) -> TrackLine | None:
+        """The tile frame (None until the first ping is admitted or :meth:`fix_frame`)."""
+        return self._line
+
+    @property
+    def done(self) -> frozenset[int]:
+        """Tiles closed (written, or marked so), never opened again."""
+        return frozenset(self._done)
+
+    @property
+    def track(self) -> TrackGuard | _Trusted:
+        """The track guard (``reanchored``: times the track followed a true move)."""
+        return self._track
+
+    @property
+    def n_pings(self) -> int:
+        """Pings scheduled."""
+        return self._n_pings
+
+    @property
+    def late_pings(self) -> int:
+        """Pings that reached only tiles already written (not imaged)."""
+        return self._late_pings
 
     # -- set-up for resumes, batch tasks and single-tile imaging --------------------------
 
     def fix_frame(self, line: TrackLine) -> None:
         """Use ``line`` as the tile frame (a resumed run's, a batch plan's)."""
-        self.line = line
+        self._line = line
 
     def mark_done(self, tiles: Iterable[int]) -> None:
         """Treat ``tiles`` as written: no ping opens them again."""
-        self.done.update(int(k) for k in tiles)
+        self._done.update(int(k) for k in tiles)
 
     def trust_poses(self) -> None:
         """Skip the track guard: the poses were judged against the whole run already."""
-        self.track = _Trusted()
+        self._track = _Trusted()
 
     @property
     def open_tiles(self) -> list[int]:
-        return sorted(self.opened_by)
+        return sorted(self._opened_by)
 
     def resume_sequence(self) -> int | None:
         """The first sequence of the earliest still-open tile (None: no tile open):
         imaging again from there rebuilds every open tile exactly."""
-        return min(self.opened_by.values()) if self.opened_by else None
+        return min(self._opened_by.values()) if self._opened_by else None
 
     # -- one ping ---------------------------------------------------------------------------
 
@@ -183,10 +210,10 @@ class TileSchedule:
         changing nothing, for an implausible pose (the track guard) or a ping that would
         reach more tiles than fit in ``limits.memory_gib``."""
         proc, tcfg, geo = self.proc, self.proc.tile, self.geometry
-        line = self.line or line_from_ping(ping, proc)
+        line = self._line or line_from_ping(ping, proc)
         placed = place_array(geo, ping.nav, ping.projector, ping_frame(line, ping.nav, proc))
         tx = placed.tx
-        fix = self.track.check(ping.sequence, ping.nav, tx)
+        fix = self._track.check(ping.sequence, ping.nav, tx)
         if proc.imaging.beam_gating:
             reach = along_reach(tx, placed.bore, geo.projector_half_angle,
                                 tcfg.top_m + tcfg.depth_m)
@@ -200,39 +227,39 @@ class TileSchedule:
             raise PingRejected(ping.sequence, f"reaches {k_hi - k_lo + 1} tiles (along-track "
                                f"{lo:.1f} to {hi:.1f} m), more than the {limit} that fit "
                                "in limits.memory_gib")
-        if self.line is None:
-            self.line = line
+        if self._line is None:
+            self._line = line
             log.info("tile frame: origin N %.2f E %.2f m, heading %.1f deg, interface %.2f m",
                      *line.origin_ne, math.degrees(line.heading), line.interface_down)
-        self.track.commit(fix)
-        reached = [k for k in range(k_lo, k_hi + 1) if k not in self.done]
+        self._track.commit(fix)
+        reached = [k for k in range(k_lo, k_hi + 1) if k not in self._done]
         if not reached:
-            self.late_pings += 1
+            self._late_pings += 1
             log.warning("ping %d reaches only tiles already written (%d..%d); not imaged",
                         ping.sequence, k_lo, k_hi)
-        early = self._make_room([k for k in reached if k not in self.opened_by], reached) \
+        early = self._make_room([k for k in reached if k not in self._opened_by], reached) \
             if reached else []
         v = tcfg.voxel_m
         slices = []
         for k in reached:
-            if k not in self.opened_by:
-                self.opened_by[k] = ping.sequence
-                self.clear[k] = 0
+            if k not in self._opened_by:
+                self._opened_by[k] = ping.sequence
+                self._clear[k] = 0
             a = tile_grid(tcfg, k).along
             ia0 = int(np.clip(np.floor((lo - a[0]) / v), 0, a.size))
             ia1 = int(np.clip(np.ceil((hi - a[0]) / v) + 1, 0, a.size))
             if ia1 > ia0:
                 slices.append(Slice(k, ia0, ia1))
-        self.n_pings += 1
+        self._n_pings += 1
         # a tile is complete once close_after consecutive pings have stayed clear of it
         # (in either direction); one this ping reaches stays open
         finished = []
-        for k in self.opened_by:
+        for k in self._opened_by:
             if k_lo <= k <= k_hi:
-                self.clear[k] = 0
+                self._clear[k] = 0
             else:
-                self.clear[k] += 1
-                if self.clear[k] >= self.close_after:
+                self._clear[k] += 1
+                if self._clear[k] >= self.close_after:
                     finished.append(k)
         for k in sorted(finished):
             self._close(k)
@@ -244,24 +271,24 @@ class TileSchedule:
         ones fit within the tiles ``limits.memory_gib`` allows; return those closed."""
         limit = self.max_open_tiles
         closed = []
-        spare = sorted((k for k in self.opened_by if k not in reached),
+        spare = sorted((k for k in self._opened_by if k not in reached),
                        key=lambda k: -min(abs(k - r) for r in reached))
-        while len(self.opened_by) + len(new) > limit and spare:
+        while len(self._opened_by) + len(new) > limit and spare:
             k = spare.pop(0)
             log.warning("closing tile %d early: %d tiles open, %d fit in limits.memory_gib",
-                        k, len(self.opened_by) + len(new), limit)
+                        k, len(self._opened_by) + len(new), limit)
             self._close(k)
             closed.append(k)
         return closed
 
     def _close(self, k: int) -> None:
-        self.done.add(k)
-        self.clear.pop(k, None)
-        self.opened_by.pop(k, None)
+        self._done.add(k)
+        self._clear.pop(k, None)
+        self._opened_by.pop(k, None)
 
     def finish(self) -> list[int]:
         """Close every open tile (the run's end); their indices, in order."""
-        rest = sorted(self.opened_by)
+        rest = sorted(self._opened_by)
         for k in rest:
             self._close(k)
         return rest
