@@ -30,11 +30,12 @@ from .kernel_args import (ConeGate, DelayModel, ImageSlice, KernelArgs, KernelDa
                           PingArray, TapPlanes, TravelTimes, VoxelGeometry, check_call,
                           kernel_args)
 from .kernel_math import build, kernel_one
-from .gpu_shared import THREADS, DeviceBuffers, block_count
+from .gpu_shared import THREADS, DeviceBuffers, block_count_for
 
 _dev = cuda.jit(device=True)
 _math = build(_dev, build_refraction(_dev))
 _voxel_sum = _math.voxel_sum
+block_count = block_count_for(globals())     # the block sum (gpu_shared)
 
 _KERNELS: dict = {}
 

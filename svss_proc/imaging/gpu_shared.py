@@ -1,32 +1,32 @@
 """GPU pieces shared by the backprojection kernel (:mod:`svss_proc.imaging.gpu_kernel`)
 and the simulator's GPU synthesis (:mod:`sim_device.synthesis_gpu`): the block size, the
-per-block sum of a count with one atomic add per block, and the cache of device buffers
-kept from call to call (per-role buffers refilled in place, scene tables uploaded once
-per table object).
+per-block sum of a count with one atomic add per block (:func:`block_count_for`), and the
+cache of device buffers kept from call to call (per-role buffers refilled in place,
+scene tables uploaded once per table object).
 """
 
 from __future__ import annotations
 
 import logging
+import types
 
 import numpy as np
 from numba import cuda
 
 log = logging.getLogger(__name__)
 
-#: threads per block; :func:`block_count` assumes a power of two
+#: threads per block; the block sum assumes a power of two
 THREADS = 128
 
 
-@cuda.jit(device=True)
-def block_count(part, n, count):
+def _block_count(part, n, count):
     """Adds every thread's ``n`` of the block to ``count[0]`` by one atomic add:
     ``part`` is the block's shared int64 array of :data:`THREADS` entries. Every thread
     of the block must call it (it synchronises the block)."""
     t = cuda.threadIdx.x
     part[t] = n
     cuda.syncthreads()
-    s = THREADS // 2
+    s = part.shape[0] // 2
     while s > 0:
         if t < s:
             part[t] += part[t + s]
@@ -34,6 +34,19 @@ def block_count(part, n, count):
         s //= 2
     if t == 0 and part[0] != 0:
         cuda.atomic.add(count, 0, part[0])
+
+
+def block_count_for(namespace: dict):
+    """The block sum (:func:`_block_count`) as a CUDA device function whose globals are
+    ``namespace``, the ``globals()`` of the module that defines the kernels calling it
+    (which names ``numba.cuda`` ``cuda``). Under numba's CUDA simulator a launch swaps
+    ``numba.cuda`` for its per-launch stand-in in the kernel module's globals only; a
+    device function of another module swaps its own module's globals per call, and the
+    first simulated thread to return undoes that swap for the threads still waiting at
+    the block's barrier (they then fail on ``cuda.atomic``)."""
+    fn = types.FunctionType(_block_count.__code__, namespace, "block_count")
+    fn.__doc__ = _block_count.__doc__
+    return cuda.jit(device=True)(fn)
 
 
 class DeviceBuffers:
