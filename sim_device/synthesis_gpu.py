@@ -34,7 +34,7 @@ import numba
 import numpy as np
 from numba import config, cuda
 
-from svss_proc.imaging.gpu_shared import THREADS, DeviceBuffers, block_count
+from svss_proc.imaging.gpu_shared import THREADS, DeviceBuffers, block_count_for
 
 from . import echo_loop, layered_rays, synthesis
 from .synthesis_args import bundles
@@ -42,6 +42,7 @@ from .synthesis_args import bundles
 _dev = cuda.jit(device=True)
 _rays = layered_rays.build(_dev, _dev)
 _math = synthesis.build(_dev, _rays)
+_block_count = block_count_for(globals())
 
 #: media a leg may cross (scratch arrays of the ray solver are this long, per thread)
 MAX_MEDIA = 15
@@ -99,7 +100,7 @@ def _receive_kernel(pts, legs_t, paths, medium, beam, win, planes, count):
         cbuf = cuda.local.array(2, dtype=np.float64)
         n_add = _scatterer_echoes(i // nch, i % nch, pts, legs_t, paths, medium, beam, win,
                                   _fastest(medium.c), hbuf, cbuf, planes)
-    block_count(part, n_add, count)          # the block's echoes, one atomic add
+    _block_count(part, n_add, count)         # the block's echoes, one atomic add
 
 
 @cuda.jit
