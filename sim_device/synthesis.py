@@ -69,8 +69,8 @@ from .synthesis_args import (  # noqa: F401 (the column names: re-exported)
     IMG_Y,
     MED_INTERFACE,
     Beam,
-    Points,
     Medium,
+    Points,
     TransmitLegs,
     bundles,
 )
@@ -440,19 +440,23 @@ class PulseSynthesiser:
 
 # ------------------------------------------------------------------- fast accumulation
 #
-# The reference pass 2 (:func:`accumulate`) runs channels in parallel and, for each
-# channel, every scatterer: the scatterer arrays are streamed once per channel and the
-# per-scatterer bookkeeping (earliest transmit delay, receive images needed) is kept in
-# ping-sized arrays. :func:`accumulate_fast` turns the loops round: threads take
+# The reference pass 2 (:func:`accumulate_kernel`) runs channels in parallel and, for
+# each channel, every scatterer through the echo loop of :mod:`sim_device.echo_loop` (the
+# GPU kernel's loop): the scatterer arrays are streamed once per channel and the
+# per-scatterer bookkeeping (earliest transmit delay, receive images needed) is redone
+# per channel. :func:`accumulate_fast_kernel` turns the loops round: threads take
 # interleaved chunks of scatterers; for each scatterer the bookkeeping is done once, each
-# receive image's legs are evaluated for all channels in one inner loop (the same
-# :func:`leg` as the reference, element-image rows transposed so the channel loop reads
-# contiguous memory), then every kept transmit image's echoes for all channels are
-# formed and added to the thread's own complex64 buffer, laid out (sample, channel) so
-# that one scatterer's echoes on neighbouring channels land in neighbouring memory. The
-# threads' buffers are summed at the end. The echoes and their delays, amplitudes and
-# phases are those of the reference to float64 rounding; only the accumulation is
-# float32 (complex64), so the two paths agree to float32 rounding.
+# receive image's legs are evaluated for all channels in one inner loop (the reference's
+# :func:`leg` where the vectorised forms do not apply, element-image rows transposed so
+# the channel loop reads contiguous memory), then every kept transmit image's echoes for
+# all channels are formed and added to the thread's own complex64 buffer, laid out
+# (sample, channel) so that one scatterer's echoes on neighbouring channels land in
+# neighbouring memory. The threads' buffers are summed at the end. It shares the echo
+# loop's path tests (:func:`receive_needed`) and scalar receive leg, not the loop: a loop
+# over one channel's echoes cannot be vectorised across channels, which is this kernel's
+# speed. The echoes and their delays, amplitudes and phases are those of the reference
+# to float64 rounding; only the accumulation is float32 (complex64), so the two paths
+# agree to float32 rounding.
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", inline="always")
