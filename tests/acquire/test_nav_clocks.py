@@ -11,6 +11,7 @@ the scene's time) runs twice as fast as the host's."""
 from __future__ import annotations
 
 import logging
+import signal
 import sys
 import threading
 import time
@@ -39,6 +40,7 @@ WITH_BT = SHARED_DATA / "dvl_pd0" / "RDI_withBT.000"
 LOCKED_FROM = 860          # RDI_withBT.000: bottom lock from this ensemble to the end
 TIME_SCALE = 2.0
 YEAR_S = 365.25 * 86400
+STOP_AFTER_RETIMED = 30    # re-timed pings in the status before the run is stopped
 
 
 def ensemble_bytes(path) -> list[tuple[int, bytes]]:
@@ -101,7 +103,9 @@ def test_dvl_clock_years_off_is_named_retimed_and_posed(rig, tmp_path):
     replay = Replay(dvl, no_bt, locked)
     replay.start()
     try:
-        acq = rig.acquire(types.SimpleNamespace(out=devices), "--duration", "14")
+        # run until the status shows enough re-timed pings (a condition, not a time: a
+        # loaded machine pings slower); the duration only bounds a run that never gets there
+        acq = rig.acquire(types.SimpleNamespace(out=devices), "--duration", "300")
         # the pings start (the DVL's ensembles without bottom track count as a DVL
         # there): from then on the DVL with bottom lock
         deadline = time.monotonic() + 60
@@ -110,13 +114,18 @@ def test_dvl_clock_years_off_is_named_retimed_and_posed(rig, tmp_path):
                 break
             time.sleep(0.02)
         replay.switch.set()
-        last = None
+        last, stopped = None, False
         while acq.proc.poll() is None:
             try:
                 last = read_status(acq.endpoints["status"], timeout_s=2)
             except TimeoutError:     # a loaded machine, or no status after the run:
                 continue             # the last one read stays, until the daemon exits
-        assert acq.wait(60) == 0, acq.logs()[-4000:]
+            if not stopped and last["navigation"]["clock_retimed"] >= STOP_AFTER_RETIMED \
+                    and replay.sent_second >= 8:
+                acq.proc.send_signal(signal.SIGTERM)    # flushed, closed, summarised
+                stopped = True
+        assert stopped, acq.logs()[-4000:]
+        assert acq.wait(60) == 130, acq.logs()[-4000:]
     finally:
         replay.stop_flag.set()
         replay.join(5)

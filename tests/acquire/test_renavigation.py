@@ -80,7 +80,9 @@ def test_daemon_recording_renavigates_to_the_truth_and_svss_process_uses_it(rig,
         nmea, pd0, clock = r.nmea(), r.pd0(), r.ping_clock()
         nav_text = r.navigation_config
         summary = r.summary
-    assert len(live) == N_PINGS == summary["counters"]["recorded"]
+    # --pings N stops after the N-th ping; pings the digitiser delivered beside it (a
+    # loaded machine takes several per step) are recorded too, never dropped
+    assert len(live) == summary["counters"]["recorded"] >= N_PINGS
     # every instrument record the navigation used is in the file
     assert navigation_config_from_text(nav_text, "run") == \
         load(DevicesConfig, dev.out).navigation
