@@ -21,24 +21,17 @@ s_bb(t) = s_a(t) exp(-j 2 pi f_c t) and remodulates. The baseband pulse occupies
 accurate to ~-90 dB; only the pulse's out-of-band edges (the taper's pedestal) are
 band-limited, as a real digitiser's anti-alias filter would.
 
-Pass 1 (:func:`transmit_kernel`) evaluates every scatterer's transmit legs. Pass 2 has
-two implementations that form the same echoes: :func:`accumulate_fast_kernel` (the
-default: scatterer-parallel into per-thread complex64 buffers, the receive legs of one
-scatterer vectorised across channels; see the comment above it) and
-:func:`accumulate_kernel` (the reference: parallel over channels, so no two threads write
-the same buffer); :mod:`sim_device.synthesis_gpu` runs pass 2 on a GPU. Geometry is in
-the tile frame (z down from the interface), float64.
-
-The kernels take the named bundles of :mod:`sim_device.synthesis_args` (scatterers,
-transmit legs, paths, medium, beam, window). :func:`transmit_legs`, :func:`accumulate`,
-:func:`accumulate_fast` and :func:`accumulate_fast_serial` take the same arrays and
-scalars one by one, in the order :class:`~sim_device.environment_source.EnvironmentSource`
-forms them, and make the bundles (:func:`~sim_device.synthesis_args.bundles`).
+Pass 1 (:func:`transmit_legs`) evaluates every scatterer's transmit legs. Pass 2 has
+two implementations that form the same echoes: :func:`accumulate_fast` (the default:
+scatterer-parallel into per-thread complex64 buffers, the receive legs of one scatterer
+vectorised across channels; see the comment above it) and :func:`accumulate` (the
+reference: parallel over channels, so no two threads write the same buffer);
+:mod:`sim_device.synthesis_gpu` runs the fast path's pass 2 on a GPU. Geometry is in the
+tile frame (z down from the interface), float64.
 
 The scalar functions of a leg are defined once, in :func:`build`, and compiled by the
 decorator it is given: ``njit(inline="always")`` here (the module-level names, used by
-the CPU kernels) and ``cuda.jit(device=True)`` in :mod:`sim_device.synthesis_gpu`; so is
-the reference and GPU kernels' echo loop (:mod:`sim_device.echo_loop`).
+the CPU kernels) and ``cuda.jit(device=True)`` in :mod:`sim_device.synthesis_gpu`.
 """
 
 from __future__ import annotations
@@ -46,34 +39,26 @@ from __future__ import annotations
 import math
 import types
 from types import SimpleNamespace
-from typing import NamedTuple
 
 import numba as nb
 import numpy as np
 import scipy.fft as sfft
 
-from svss_daq.conventions import baseband_carrier, remodulation
+from svss_daq.conventions import ECHO_PHASE_SIGN, baseband_carrier, remodulation
 from svss_daq.waveform import Waveform
 
-from . import echo_loop, layered_rays
+from . import layered_rays
 from .layered_rays import (  # noqa: F401 (ray_amplitude_terms: re-exported for tests)
     TABLE_TRUSTED,
     ray_amplitude_terms,
 )
-from .synthesis_args import (  # noqa: F401 (the column names: re-exported)
-    IMG_DIR,
-    IMG_H,
-    IMG_NB,
-    IMG_RS,
-    IMG_X,
-    IMG_Y,
-    MED_INTERFACE,
-    Beam,
-    Medium,
-    Points,
-    TransmitLegs,
-    bundles,
-)
+
+#: columns of an element-image row: x, y (m), height above the interface (m), direction
+#: (+1: leaves the element downwards), the surface factor R_s^n_s, seabed bounces n_b
+IMG_X, IMG_Y, IMG_H, IMG_DIR, IMG_RS, IMG_NB = range(6)
+
+#: scatterer medium code of interface scatterers (media >= 0 are volume/point scatterers)
+MED_INTERFACE = -1
 
 #: samples of margin on each side of the window kept in the baseband buffer
 _MARGIN = 4
@@ -150,30 +135,19 @@ def build(jit_inline, rays):
         return p, tau, spread, g0, att
 
     @jit_inline
-    def leg(ex, ey, height, direction, f_surf, n_b, x, y, z, med, up, medium, beam, hbuf,
-            cbuf):
+    def leg(ex, ey, height, direction, f_surf, n_b, x, y, z, med, up, c, rho_m, delta, alpha,
+            z_top, tab, r_top, r_bot, bore, g_front, g_back, lo_front, lo_back, hbuf, cbuf):
         """One leg between an element image (ex, ey, height above the interface, direction,
         surface factor R_s^n_s, seabed bounces n_b) and a scatterer (x, y, z, medium
-        ``med``; -1: on the interface), through ``medium`` (a
-        :class:`~sim_device.synthesis_args.Medium`) and the element's ``beam`` (a
-        :class:`~sim_device.synthesis_args.Beam`); ``hbuf``, ``cbuf``: the ray solver's
-        scratch arrays.
+        ``med``; -1: on the interface).
 
         ``up``: the leg carries the scattered wave up to a receiver (transmission 1 - R and
         spreading from a source in the scatterer's medium) rather than down from the
-        projector. ``r_top``/``r_bot`` of the medium: tables over cos(grazing) in [0, 1] of
-        the interface's reflection coefficient and of its coherent (Eckart) value for
-        seabed bounces. Returns (delay s, complex amplitude factor, cos of the grazing angle
-        at the interface); the amplitude is 0 where the element's beam does not see the leg.
+        projector. ``r_top``/``r_bot``: tables over cos(grazing) in [0, 1] of the interface's
+        reflection coefficient and of its coherent (Eckart) value for seabed bounces.
+        Returns (delay s, complex amplitude factor, cos of the grazing angle at the interface);
+        the amplitude is 0 where the element's beam does not see the leg.
         """
-        c = medium.c
-        alpha = medium.alpha
-        rho_m = medium.rho
-        delta = medium.delta
-        tab = medium.tab
-        r_top = medium.r_top
-        r_bot = medium.r_bot
-        bore = beam.bore
         dx = x - ex
         dy = y - ey
         rho = math.sqrt(dx * dx + dy * dy)
@@ -200,7 +174,7 @@ def build(jit_inline, rays):
                 p, tau, spread, cosp, att = two_medium_terms(t, rho, height, z, c0, c[1],
                                                              alpha[0], alpha[1], 1 if up else 0)
             else:
-                n = leg_extents(height, z, med, medium.z_top, hbuf)
+                n = leg_extents(height, z, med, z_top, hbuf)
                 t = ray_tan(rho, hbuf, c, n)
                 p, tau, spread, cosp, att = amplitude_terms(t, rho, hbuf, c, alpha, n,
                                                             med if up else 0)
@@ -217,7 +191,7 @@ def build(jit_inline, rays):
             cos_off = (sinp * (dx * bore[0] + dy * bore[1]) / rho + d * cosp * bore[2])
         else:
             cos_off = d * cosp * bore[2]
-        g = gain(cos_off, beam.front, beam.back, beam.lo_front, beam.lo_back)
+        g = gain(cos_off, g_front, g_back, lo_front, lo_back)
         if g == 0.0:
             return tau, complex(0.0, 0.0), sinp
         amp = (g * f_surf * spread * math.exp(-att)) * trans
@@ -226,17 +200,6 @@ def build(jit_inline, rays):
             for _ in range(n_b):
                 amp *= rb
         return tau, amp, sinp
-
-    @jit_inline
-    def scattered_leg(ex, ey, height, direction, f_surf, n_b, x, y, z, med, up, medium,
-                      beam, hbuf, cbuf):
-        """:func:`leg` (its delay and amplitude) with an interface scatterer's
-        sigma^(1/4) at the leg's grazing angle (``medium.sig``) in the amplitude."""
-        tau, a, cg = leg(ex, ey, height, direction, f_surf, n_b, x, y, z, med, up, medium,
-                         beam, hbuf, cbuf)
-        if med == MED_INTERFACE and a != 0.0:
-            a *= _interp(medium.sig, cg)
-        return tau, a
 
     @jit_inline
     def cis_cycles32(x):
@@ -261,8 +224,7 @@ def build(jit_inline, rays):
 
     return SimpleNamespace(_interp=_interp, cis_cycles=cis_cycles, gain=gain,
                            two_medium_terms=two_medium_terms, leg=leg,
-                           scattered_leg=scattered_leg, cis_cycles32=cis_cycles32,
-                           lagrange4=lagrange4)
+                           cis_cycles32=cis_cycles32, lagrange4=lagrange4)
 
 
 _cpu = build(nb.njit(cache=True, inline="always"), layered_rays._cpu)
@@ -271,96 +233,112 @@ cis_cycles = _cpu.cis_cycles
 gain = _cpu.gain
 two_medium_terms = _cpu.two_medium_terms
 leg = _cpu.leg
-scattered_leg = _cpu.scattered_leg
 cis_cycles32 = _cpu.cis_cycles32
 lagrange4 = _cpu.lagrange4
 
 
-@nb.njit(cache=True, inline="always")
-def _deposit(buf, ch, i1, e, w0, w1, w2, w3):
-    """One echo into the reference kernel's complex buffer (channel, sample)."""
-    buf[ch, i1 - 1] += e * w0
-    buf[ch, i1] += e * w1
-    buf[ch, i1 + 1] += e * w2
-    buf[ch, i1 + 2] += e * w3
-
-
-_echo = echo_loop.build(nb.njit(cache=True, inline="always"), _cpu, cis_cycles, _deposit)
-receive_needed = _echo.receive_needed
-_fastest = _echo.fastest
-_scatterer_echoes = _echo.scatterer_echoes
-
-
 @nb.njit(parallel=True, cache=True)
-def transmit_kernel(pts, samp, img, medium, beam, out):
-    """Pass 1: every scatterer's transmit legs (``pts``: :class:`Points`), one per
-    projector image (rows of ``img``), into ``out`` (:class:`TransmitLegs`). ``samp``:
-    scatterer strengths (source level, xi, sqrt(sigma dV) or the point's amplitude);
-    ``medium.sig``: sigma^(1/4) of the interface over cos(grazing)."""
-    ns = pts.x.size
+def transmit_legs(sx, sy, sz, smed, samp, img, c, rho_m, delta, alpha, z_top, tab, r_top,
+                  r_bot, bore, g_front, g_back, lo_front, lo_back, sig, tau_out, amp_out):
+    """Pass 1: every scatterer's transmit legs, one per projector image (rows of
+    ``img``). ``samp``: scatterer strengths (source level, xi, sqrt(sigma dV) or the
+    point's amplitude); ``sig``: sigma^(1/4) of the interface over cos(grazing)."""
+    ns = sx.size
     nt = img.shape[0]
-    nmed = medium.c.size
-    # the outputs as locals: numba's parallel loops do not write through a tuple's arrays
-    tau_out = out.tau
-    amp_out = out.amp
+    nmed = c.size
     chunk = 1024
     for b in nb.prange((ns + chunk - 1) // chunk):
         hbuf = np.empty(nmed + 1)
         cbuf = np.empty(2)
         for k in range(b * chunk, min(ns, (b + 1) * chunk)):
             for m in range(nt):
-                tau, a = scattered_leg(img[m, IMG_X], img[m, IMG_Y], img[m, IMG_H],
-                                       img[m, IMG_DIR], img[m, IMG_RS], int(img[m, IMG_NB]),
-                                       pts.x[k], pts.y[k], pts.z[k], pts.med[k], False,
-                                       medium, beam, hbuf, cbuf)
+                tau, a, cg = leg(img[m, IMG_X], img[m, IMG_Y], img[m, IMG_H],
+                                 img[m, IMG_DIR], img[m, IMG_RS], int(img[m, IMG_NB]),
+                                 sx[k], sy[k], sz[k], smed[k], False, c, rho_m, delta,
+                                 alpha, z_top, tab, r_top, r_bot, bore, g_front,
+                                 g_back, lo_front, lo_back, hbuf, cbuf)
+                if smed[k] == MED_INTERFACE and a != 0.0:
+                    a *= _interp(sig, cg)
                 tau_out[k, m] = tau
                 amp_out[k, m] = a * samp[k]
 
 
-def transmit_legs(sx, sy, sz, smed, samp, img, c, rho_m, delta, alpha, z_top, tab, r_top,
-                  r_bot, bore, g_front, g_back, lo_front, lo_back, sig, tau_out, amp_out):
-    """:func:`transmit_kernel` of the arrays and scalars in the order
-    :class:`~sim_device.environment_source.EnvironmentSource` forms them."""
-    transmit_kernel(Points(sx, sy, sz, smed), samp, img,
-                    Medium(c, rho_m, delta, alpha, z_top, tab, r_top, r_bot, sig),
-                    Beam(bore, g_front, g_back, float(lo_front), float(lo_back)),
-                    TransmitLegs(tau_out, amp_out))
-
-
 @nb.njit(parallel=True, cache=True)
-def accumulate_kernel(pts, legs_t, paths, medium, beam, win, buf):
+def accumulate(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delta, alpha, z_top,
+               tab, r_top, r_bot, bore, g_front, g_back, lo_front, lo_back, sig, fc, t_lo,
+               t_hi, t_buf0, fs, buf):
     """Pass 2: for each channel (in parallel), every scatterer's receive legs (rows
-    ``paths.img[ch]``) combined with its transmit legs (``legs_t``) on the kept paths;
-    echoes with delay in (t_lo, t_hi) of ``win`` are added to ``buf[ch]`` (complex
-    baseband, sample 0 at ``win.t_buf0``, rate ``win.fs``) as A exp(-j 2 pi fc tau) at
-    their fractional delay (cubic Lagrange): :mod:`sim_device.echo_loop`'s loop, as on
-    the GPU. Returns the number of echoes added per channel."""
-    nch = paths.img.shape[0]
-    ns = pts.x.size
-    nmed = medium.c.size
-    cmax = _fastest(medium.c)
+    img[ch]) combined with its transmit legs where ``allowed[a, b]``; echoes with delay
+    in (t_lo, t_hi) are added to ``buf[ch]`` (complex baseband, sample 0 at t_buf0,
+    rate fs) as A exp(-j 2 pi fc tau) at their fractional delay (cubic Lagrange).
+    Returns the number of echoes added per channel."""
+    nch = img.shape[0]
+    nr = img.shape[1]
+    nt = tau_t.shape[1]
+    ns = sx.size
+    nmed = c.size
+    cmax = 0.0
+    for i in range(nmed):
+        cmax = max(cmax, c[i])
+    # per scatterer: earliest transmit delay and the receive images some kept path needs
+    tmin = np.full(ns, math.inf)
+    need = np.zeros((ns, nr), dtype=np.bool_)
+    for k in range(ns):
+        for a in range(nt):
+            if amp_t[k, a] != 0.0:
+                tmin[k] = min(tmin[k], tau_t[k, a])
+                for b in range(nr):
+                    if allowed[a, b]:
+                        need[k, b] = True
+    sign = ECHO_PHASE_SIGN * fc
     counts = np.zeros(nch, dtype=np.int64)
     for ch in nb.prange(nch):
         hbuf = np.empty(nmed + 1)
         cbuf = np.empty(2)
         n_add = 0
         for k in range(ns):
-            n_add += _scatterer_echoes(k, ch, pts, legs_t, paths, medium, beam, win, cmax,
-                                       hbuf, cbuf, buf)
+            if tmin[k] == math.inf:
+                continue
+            for b in range(nr):
+                if not need[k, b]:
+                    continue
+                ex = img[ch, b, IMG_X]
+                ey = img[ch, b, IMG_Y]
+                hh = img[ch, b, IMG_H]
+                # the straight line at the fastest speed bounds the receive delay
+                dz = hh + max(sz[k], 0.0)
+                dmin = math.sqrt((sx[k] - ex) ** 2 + (sy[k] - ey) ** 2 + dz * dz)
+                if tmin[k] + dmin / cmax >= t_hi:
+                    continue
+                tau_r, a_r, cg = leg(ex, ey, hh, img[ch, b, IMG_DIR], img[ch, b, IMG_RS],
+                                     int(img[ch, b, IMG_NB]), sx[k], sy[k], sz[k], smed[k],
+                                     True, c, rho_m, delta, alpha, z_top, tab, r_top, r_bot,
+                                     bore, g_front, g_back, lo_front, lo_back, hbuf, cbuf)
+                if a_r == 0.0:
+                    continue
+                if smed[k] == MED_INTERFACE:
+                    a_r *= _interp(sig, cg)
+                for a in range(nt):
+                    if not allowed[a, b]:
+                        continue
+                    a_t = amp_t[k, a]
+                    if a_t == 0.0:
+                        continue
+                    tau = tau_t[k, a] + tau_r
+                    if tau <= t_lo or tau >= t_hi:
+                        continue
+                    co, si = cis_cycles(sign * tau)
+                    amp = a_t * a_r * complex(co, si)
+                    u = (tau - t_buf0) * fs
+                    i1 = int(u)
+                    w0, w1, w2, w3 = lagrange4(u - i1)
+                    buf[ch, i1 - 1] += amp * w0
+                    buf[ch, i1] += amp * w1
+                    buf[ch, i1 + 1] += amp * w2
+                    buf[ch, i1 + 2] += amp * w3
+                    n_add += 1
         counts[ch] = n_add
     return counts
-
-
-def accumulate(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delta, alpha, z_top,
-               tab, r_top, r_bot, bore, g_front, g_back, lo_front, lo_back, sig, fc, t_lo,
-               t_hi, t_buf0, fs, buf):
-    """:func:`accumulate_kernel` of the arrays and scalars in the order
-    :class:`~sim_device.environment_source.EnvironmentSource` forms them (every path to
-    any depth)."""
-    return accumulate_kernel(*bundles(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c,
-                                      rho_m, delta, alpha, z_top, tab, r_top, r_bot, bore,
-                                      g_front, g_back, lo_front, lo_back, sig, fc, t_lo,
-                                      t_hi, t_buf0, fs), buf)
 
 
 #: the simulated digitiser's anti-alias filter: raised-cosine low-pass from
@@ -440,23 +418,19 @@ class PulseSynthesiser:
 
 # ------------------------------------------------------------------- fast accumulation
 #
-# The reference pass 2 (:func:`accumulate_kernel`) runs channels in parallel and, for
-# each channel, every scatterer through the echo loop of :mod:`sim_device.echo_loop` (the
-# GPU kernel's loop): the scatterer arrays are streamed once per channel and the
-# per-scatterer bookkeeping (earliest transmit delay, receive images needed) is redone
-# per channel. :func:`accumulate_fast_kernel` turns the loops round: threads take
+# The reference pass 2 (:func:`accumulate`) runs channels in parallel and, for each
+# channel, every scatterer: the scatterer arrays are streamed once per channel and the
+# per-scatterer bookkeeping (earliest transmit delay, receive images needed) is kept in
+# ping-sized arrays. :func:`accumulate_fast` turns the loops round: threads take
 # interleaved chunks of scatterers; for each scatterer the bookkeeping is done once, each
-# receive image's legs are evaluated for all channels in one inner loop (the reference's
-# :func:`leg` where the vectorised forms do not apply, element-image rows transposed so
-# the channel loop reads contiguous memory), then every kept transmit image's echoes for
-# all channels are formed and added to the thread's own complex64 buffer, laid out
-# (sample, channel) so that one scatterer's echoes on neighbouring channels land in
-# neighbouring memory. The threads' buffers are summed at the end. It shares the echo
-# loop's path tests (:func:`receive_needed`) and scalar receive leg, not the loop: a loop
-# over one channel's echoes cannot be vectorised across channels, which is this kernel's
-# speed. The echoes and their delays, amplitudes and phases are those of the reference
-# to float64 rounding; only the accumulation is float32 (complex64), so the two paths
-# agree to float32 rounding.
+# receive image's legs are evaluated for all channels in one inner loop (the same
+# :func:`leg` as the reference, element-image rows transposed so the channel loop reads
+# contiguous memory), then every kept transmit image's echoes for all channels are
+# formed and added to the thread's own complex64 buffer, laid out (sample, channel) so
+# that one scatterer's echoes on neighbouring channels land in neighbouring memory. The
+# threads' buffers are summed at the end. The echoes and their delays, amplitudes and
+# phases are those of the reference to float64 rounding; only the accumulation is
+# float32 (complex64), so the two paths agree to float32 rounding.
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", inline="always")
@@ -488,56 +462,19 @@ def _exp_neg(x):
     return e * e
 
 
-class SplitTables(NamedTuple):
-    """The medium's complex interface tables as real and imaginary parts (contiguous),
-    for the fast path's vectorised look-ups."""
-    rt_re: np.ndarray
-    rt_im: np.ndarray
-    rb_re: np.ndarray
-    rb_im: np.ndarray
-
-
-class ReceiveRow(NamedTuple):
-    """One scatterer's receive legs through one element image, per channel, and the
-    fast path's scratch (:func:`_receive_legs`)."""
-    tr: np.ndarray        # (channels,) delay, s
-    ar_re: np.ndarray     # (channels,) complex amplitude, real part
-    ar_im: np.ndarray     # (channels,) imaginary part
-    fix: np.ndarray       # (channels,) bool: left to the scalar leg
-    wk: np.ndarray        # (5, channels) work space
-
-
 @nb.njit(cache=True, fastmath=True, error_model="numpy")
-def _receive_legs(xk, yk, zk, mk, b, imt, medium, split, beam, row):
+def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tab, rt_re, rt_im, rb_re, rb_im, bore,
+                  g_front, g_back, lo_front, lo_back, sig, tr, ar_re, ar_im, fix, wk):
     """Receive legs of one scatterer through element image ``b`` to every channel
-    (vectorisable loops; ``imt``: element-image rows transposed, (b, column, channel);
-    ``split``: :class:`SplitTables`): delay ``row.tr``, complex amplitude (``row.ar_re``,
-    ``row.ar_im``) as :func:`leg` (times sigma^(1/4) for interface scatterers). Channels
-    the fast forms do not cover (the two-medium table's checked region, a zero range,
-    other media) are marked in ``row.fix`` for :func:`leg`. Returns True if any channel
-    was marked."""
-    c = medium.c
-    alpha = medium.alpha
-    tab = medium.tab
-    sig = medium.sig
-    rt_re = split.rt_re
-    rt_im = split.rt_im
-    rb_re = split.rb_re
-    rb_im = split.rb_im
-    g_front = beam.front
-    g_back = beam.back
-    lo_front = beam.lo_front
-    lo_back = beam.lo_back
-    tr = row.tr
-    ar_re = row.ar_re
-    ar_im = row.ar_im
-    fix = row.fix
-    wk = row.wk
+    (vectorisable loops): delay ``tr``, complex amplitude (``ar_re``, ``ar_im``) as
+    :func:`leg` (times sigma^(1/4) for interface scatterers). Channels the fast forms
+    do not cover (the two-medium table's checked region, a zero range, other media)
+    are marked in ``fix`` for :func:`leg`. Returns True if any channel was marked."""
     nch = tr.size
     c0 = c[0]
-    b0 = beam.bore[0]
-    b1 = beam.bore[1]
-    b2 = beam.bore[2]
+    b0 = bore[0]
+    b1 = bore[1]
+    b2 = bore[2]
     any_fix = False
     # table sizes and scales (the back-lobe table may be empty: then it is never used)
     ng = g_front.size - 1
@@ -678,40 +615,32 @@ def _receive_legs(xk, yk, zk, mk, b, imt, medium, split, beam, row):
 
 
 @nb.njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
-def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_blocks):
-    """Pass 2 as :func:`accumulate_kernel` (same echoes, same delays, amplitudes and
-    phases to float64 rounding), scatterer-parallel into per-thread complex64 buffers
-    (module comment above).
+def accumulate_fast(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delta, alpha,
+                    z_top, tab, r_top, r_bot, bore, g_front, g_back, lo_front, lo_back, sig,
+                    fc, t_lo, t_hi, t_buf0, fs, n_buf, n_blocks, zmax):
+    """Pass 2 as :func:`accumulate` (same echoes, same delays, amplitudes and phases to
+    float64 rounding), scatterer-parallel into per-thread complex64 buffers (module
+    comment above).
 
-    ``paths.zmax[a, b]``: deepest scatterer (m below the interface) for which path (a, b)
-    is synthesised (finite: the kernel is compiled with fastmath; the level cut-off of
-    :mod:`sim_device.fidelity`). Returns (buffer (n_channels, n_buf) complex128, echoes
-    added per block)."""
-    img = paths.img
-    allowed = paths.allowed
-    zmax = paths.zmax
-    tau_t = legs_t.tau
-    amp_t = legs_t.amp
-    t_lo = win.t_lo
-    t_hi = win.t_hi
-    t_buf0 = win.t_buf0
-    fs = win.fs
-    sign = win.sign
+    ``zmax[a, b]``: deepest scatterer (m below the interface) for which path (a, b) is
+    synthesised (``inf``: all; the level cut-off of :mod:`sim_device.fidelity`).
+    Returns (buffer (n_channels, n_buf) complex128, echoes added per block)."""
     nch = img.shape[0]
     nr = img.shape[1]
     nt = tau_t.shape[1]
-    ns = pts.x.size
-    nmed = medium.c.size
+    ns = sx.size
+    nmed = c.size
     # element-image rows transposed: imt[b, column, ch]
     imt = np.empty((nr, 6, nch))
     for ch in range(nch):
         for b in range(nr):
             for j in range(6):
                 imt[b, j, ch] = img[ch, b, j]
-    split = SplitTables(np.ascontiguousarray(medium.r_top.real),
-                        np.ascontiguousarray(medium.r_top.imag),
-                        np.ascontiguousarray(medium.r_bot.real),
-                        np.ascontiguousarray(medium.r_bot.imag))
+    rt_re = np.ascontiguousarray(r_top.real)
+    rt_im = np.ascontiguousarray(r_top.imag)
+    rb_re = np.ascontiguousarray(r_bot.real)
+    rb_im = np.ascontiguousarray(r_bot.imag)
+    sign = ECHO_PHASE_SIGN * fc
     bufs = np.zeros((n_blocks, n_buf, nch), dtype=np.complex64)
     counts = np.zeros(n_blocks, dtype=np.int64)
     chunk = 64
@@ -720,12 +649,11 @@ def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_block
         hbuf = np.empty(nmed + 1)
         cbuf = np.empty(2)
         need = np.zeros(nr, dtype=np.bool_)
-        row = ReceiveRow(np.empty(nch), np.empty(nch), np.empty(nch),
-                         np.zeros(nch, dtype=np.bool_), np.empty((5, nch)))
-        tr = row.tr
-        ar_re = row.ar_re
-        ar_im = row.ar_im
-        fix = row.fix
+        tr = np.empty(nch)
+        ar_re = np.empty(nch)
+        ar_im = np.empty(nch)
+        fix = np.zeros(nch, dtype=np.bool_)
+        wk = np.empty((5, nch))
         e_i = np.empty(nch, dtype=np.int64)
         e_w = np.empty((nch, 4), dtype=np.float32)
         e_re = np.empty(nch, dtype=np.float32)
@@ -736,27 +664,37 @@ def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_block
         for q in range(blk, n_chunks, n_blocks):
             for k in range(q * chunk, min(ns, (q + 1) * chunk)):
                 any_need = False
-                zk = pts.z[k]
+                zk = sz[k]
                 for b in range(nr):
-                    need[b] = receive_needed(legs_t, paths, k, b, zk)
-                    any_need |= need[b]
+                    need[b] = False
+                for a in range(nt):
+                    if amp_t[k, a] != 0.0:
+                        for b in range(nr):
+                            if allowed[a, b] and zk <= zmax[a, b]:
+                                need[b] = True
+                                any_need = True
                 if not any_need:
                     continue
-                xk = pts.x[k]
-                yk = pts.y[k]
-                mk = pts.med[k]
+                xk = sx[k]
+                yk = sy[k]
+                mk = smed[k]
                 for b in range(nr):
                     if not need[b]:
                         continue
-                    if _receive_legs(xk, yk, zk, mk, b, imt, medium, split, beam, row):
+                    if _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tab, rt_re, rt_im,
+                                     rb_re, rb_im, bore, g_front, g_back, lo_front,
+                                     lo_back, sig, tr, ar_re, ar_im, fix, wk):
                         for ch in range(nch):
                             if not fix[ch]:
                                 continue
-                            tau_r, a_r = scattered_leg(
+                            tau_r, a_r, cg = leg(
                                 imt[b, IMG_X, ch], imt[b, IMG_Y, ch], imt[b, IMG_H, ch],
                                 imt[b, IMG_DIR, ch], imt[b, IMG_RS, ch],
-                                int(imt[b, IMG_NB, ch]), xk, yk, zk, mk, True, medium, beam,
-                                hbuf, cbuf)
+                                int(imt[b, IMG_NB, ch]), xk, yk, zk, mk, True, c, rho_m,
+                                delta, alpha, z_top, tab, r_top, r_bot, bore, g_front,
+                                g_back, lo_front, lo_back, hbuf, cbuf)
+                            if mk == MED_INTERFACE and a_r != 0.0:
+                                a_r *= _interp(sig, cg)
                             tr[ch] = tau_r
                             ar_re[ch] = a_r.real
                             ar_im[ch] = a_r.imag
@@ -819,34 +757,10 @@ def _renamed(func, name):
     return f
 
 
-#: :func:`accumulate_fast_kernel` compiled without threads, for pings with few scatterers
-#: (a scene of points in water): a parallel region's start costs more than their echoes
-accumulate_fast_serial_kernel = nb.njit(cache=True, fastmath=True, error_model="numpy")(
-    _renamed(accumulate_fast_kernel.py_func, "accumulate_fast_serial_kernel"))
-
-
-def accumulate_fast(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delta, alpha,
-                    z_top, tab, r_top, r_bot, bore, g_front, g_back, lo_front, lo_back, sig,
-                    fc, t_lo, t_hi, t_buf0, fs, n_buf, n_blocks, zmax):
-    """:func:`accumulate_fast_kernel` of the arrays and scalars in the order
-    :class:`~sim_device.environment_source.EnvironmentSource` forms them."""
-    return accumulate_fast_kernel(*bundles(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c,
-                                           rho_m, delta, alpha, z_top, tab, r_top, r_bot,
-                                           bore, g_front, g_back, lo_front, lo_back, sig,
-                                           fc, t_lo, t_hi, t_buf0, fs, zmax),
-                                  n_buf, n_blocks)
-
-
-def accumulate_fast_serial(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delta,
-                           alpha, z_top, tab, r_top, r_bot, bore, g_front, g_back, lo_front,
-                           lo_back, sig, fc, t_lo, t_hi, t_buf0, fs, n_buf, n_blocks, zmax):
-    """:func:`accumulate_fast` without threads (:data:`SERIAL_BELOW`)."""
-    return accumulate_fast_serial_kernel(*bundles(sx, sy, sz, smed, tau_t, amp_t, img,
-                                                  allowed, c, rho_m, delta, alpha, z_top,
-                                                  tab, r_top, r_bot, bore, g_front, g_back,
-                                                  lo_front, lo_back, sig, fc, t_lo, t_hi,
-                                                  t_buf0, fs, zmax),
-                                         n_buf, n_blocks)
+#: :func:`accumulate_fast` compiled without threads, for pings with few scatterers (a
+#: scene of points in water): a parallel region's start costs more than their echoes
+accumulate_fast_serial = nb.njit(cache=True, fastmath=True, error_model="numpy")(
+    _renamed(accumulate_fast.py_func, "accumulate_fast_serial"))
 
 #: below this many scatterers in view the serial kernel is used
 SERIAL_BELOW = 2048
