@@ -39,8 +39,8 @@ from . import messages
 from .acquire_config import DEFAULT_LIMITS, AcquireSetup
 from .assembly import AssemblyError, PingAssembler
 from .drivers.digitiser import DigitiserClient
-from .drivers.nmea import NmeaStreamParser
-from .drivers.pd0 import Pd0Ensemble, Pd0StreamParser
+from .protocols.nmea import NmeaStreamParser
+from .protocols.pd0 import Pd0Ensemble, Pd0StreamParser
 from .drivers.sequencer import SequencerDriver
 from .drivers.serial_link import SerialLink
 from .nav.clocks import describe_offset

@@ -159,7 +159,7 @@ def test_sigkill_keeps_everything_up_to_last_flush(tmp_path, hardware):
 
 
 def _ensembles(n):
-    from svss_daq.drivers.pd0_encoder import Pd0Setup, encode_ensemble
+    from svss_daq.protocols.pd0_encoder import Pd0Setup, encode_ensemble
     return [encode_ensemble(Pd0Setup(), ensemble_number=k + 1,
                             time_ns=1_790_000_000_000_000_000 + k * 200_000_000,
                             heading_rad=0.5, pitch_rad=0.01, roll_rad=-0.02,
@@ -171,7 +171,7 @@ def test_instrument_records_round_trip(tmp_path, hardware):
     """The PD0 ensembles (exact bytes, receive times), the ping-clock events and the
     navigation configuration a run keeps for re-navigation, read back as written, also
     across the records' chunks; and the writer's layout."""
-    from svss_daq.drivers.pd0 import decode_ensemble
+    from svss_daq.protocols.pd0 import decode_ensemble
     from svss_daq.rawfile import NAV_CONFIG_ATTR, PD0_CHUNK
     path = tmp_path / "run.h5"
     ens = _ensembles(3)

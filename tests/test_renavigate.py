@@ -3,7 +3,7 @@ daemon's taps: each PD0 ensemble's exact bytes, each NMEA sentence as the parser
 it), decoded again and fed to the navigation as the daemon feeds it, give the poses of
 the truth the records were made from; ``svss process`` images with them and says so.
 
-The records are made by the project's encoders (svss_daq/drivers/nmea_encoder.py,
+The records are made by the project's encoders (svss_daq/protocols/nmea_encoder.py,
 pd0_encoder.py: written from NMEA 0183 and RDI's output-format manual) from a known
 track; the daemon-made recording is tested in tests/acquire/test_renavigation.py."""
 
@@ -25,10 +25,10 @@ import pytest
 from svss_daq.config import (ConfigError, DevicesConfig, ProcessingConfig, config_path,
                              load, load_with_text)
 from svss_daq.daemon import _NmeaTap, _Pd0Tap
-from svss_daq.drivers import nmea_encoder as ne
-from svss_daq.drivers.nmea import NmeaStreamParser
-from svss_daq.drivers.pd0 import Pd0StreamParser, decode_ensemble
-from svss_daq.drivers.pd0_encoder import Pd0Setup, encode_ensemble
+from svss_daq.protocols import nmea_encoder as ne
+from svss_daq.protocols.nmea import NmeaStreamParser
+from svss_daq.protocols.pd0 import Pd0StreamParser, decode_ensemble
+from svss_daq.protocols.pd0_encoder import Pd0Setup, encode_ensemble
 from svss_daq.frames import body_to_ned
 from svss_daq.nav.geodesy import ned_to_geodetic
 from svss_daq.nav.renavigate import (RenavigationError, navigation_config_from_text,

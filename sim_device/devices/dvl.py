@@ -32,7 +32,7 @@ from typing import Callable
 
 import numpy as np
 
-from svss_daq.drivers.pd0_encoder import Pd0Setup, encode_ensemble
+from svss_daq.protocols.pd0_encoder import Pd0Setup, encode_ensemble
 from svss_daq.frames import body_to_ned
 from svss_daq.navigation import janus_beam_vectors
 from svss_daq.ping import NavSnapshot

@@ -23,7 +23,7 @@ from typing import Callable
 
 import numpy as np
 
-from svss_daq.drivers import nmea_encoder as enc
+from svss_daq.protocols import nmea_encoder as enc
 from svss_daq.frames import body_to_ned
 from svss_daq.navigation import ned_to_geodetic
 from svss_daq.ping import NavSnapshot

@@ -2,8 +2,8 @@
 
 :class:`SerialLink` opens a port with pyserial, reads in a background thread with a
 short read timeout, feeds the bytes to a parser (any object with
-``feed(bytes) -> iterable of records``, e.g. :class:`~svss_daq.drivers.pd0.Pd0StreamParser`
-or :class:`~svss_daq.drivers.nmea.NmeaStreamParser`) and hands each record to a
+``feed(bytes) -> iterable of records``, e.g. :class:`~svss_daq.protocols.pd0.Pd0StreamParser`
+or :class:`~svss_daq.protocols.nmea.NmeaStreamParser`) and hands each record to a
 callback and/or puts it on a queue. When the port fails (read error, device
 unplugged, pseudo-terminal closed) it logs it, closes the port and reopens the
 same path with an exponential backoff until :meth:`SerialLink.stop` is called; the

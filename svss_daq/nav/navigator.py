@@ -38,7 +38,7 @@ CLOCK_LISTS = {"gps": ("fixes", "headings"), "dvl": ("dvl",)}
 class Navigator:
     """Collects GPS, heading and DVL records and poses pings from them.
 
-    ``add_nmea`` takes NMEA records of ``svss_daq.drivers.nmea``, or ``(receive_ns,
+    ``add_nmea`` takes NMEA records of ``svss_daq.protocols.nmea``, or ``(receive_ns,
     record)`` pairs (the host's receive time; see
     :class:`~svss_daq.nav.nmea_samples.NmeaSampler` for GST pairing and HDT times);
     ``add_pd0`` PD0 ensembles with their ``receive_ns``; ``add_reference`` the ping

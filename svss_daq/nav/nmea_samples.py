@@ -126,7 +126,7 @@ class NmeaSampler:
         """Take records (or ``(receive_ns, record)`` pairs); return the fixes and
         headings decided by them (time order) and the fixes given out earlier that
         are withdrawn (to be removed by identity)."""
-        from svss_daq.drivers import nmea
+        from svss_daq.protocols import nmea
         for item in records:
             rx = None
             if isinstance(item, tuple):
@@ -368,7 +368,7 @@ def samples_from_nmea(records: Iterable, course_min_speed_m_s: float = 0.3,
                       fix_max_age_s: float = 1.5
                       ) -> tuple[list[GpsFix], list[HeadingSample]]:
     """GPS fixes and headings from a whole list of NMEA records of
-    ``svss_daq.drivers.nmea`` (records, or ``(receive_ns, record)`` pairs): a
+    ``svss_daq.protocols.nmea`` (records, or ``(receive_ns, record)`` pairs): a
     :class:`NmeaSampler` fed them all and flushed. Rejections are counted in
     ``counts["gps_rejected"]`` (when a dict is given; also ``gps_rejected_sigma`` and
     ``gps_gst_missing``). Records without ``time_ns`` are skipped (HDT has no time of

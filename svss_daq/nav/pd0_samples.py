@@ -63,7 +63,7 @@ def _declination(fx, configured_rad: float, number: int) -> float:
 
 def dvl_sample_from_pd0(ens, min_beams: int = 3, beam_angle_rad: Optional[float] = None,
                         declination_rad: float = 0.0) -> Optional[DvlSample]:
-    """A :class:`DvlSample` from a decoded PD0 ensemble (``svss_daq.drivers.pd0``).
+    """A :class:`DvlSample` from a decoded PD0 ensemble (``svss_daq.protocols.pd0``).
 
     Bottom-track velocity is RDI's velocity of the bottom relative to the instrument,
     so the head's velocity is its negative. Coordinate systems: ``beam`` (to instrument

@@ -6,7 +6,7 @@ NMEA sentences (``/Platform/NMEA``), the PD0 ensembles (``/Platform/PD0``) and t
 sequencer's transmit records (``/Platform/ping_clock``), each with its host receive
 time, and the navigation configuration it posed the pings with (root
 attribute ``navigation_config_toml``; docs/formats.md). :func:`renavigate` decodes them
-again (:mod:`svss_daq.drivers.nmea`, :mod:`svss_daq.drivers.pd0`) and feeds a
+again (:mod:`svss_daq.protocols.nmea`, :mod:`svss_daq.protocols.pd0`) and feeds a
 :class:`~svss_daq.navigation.Navigator` in receive-time order as the daemon fed it (with
 the ping-clock events it judged the instrument clocks by, ``/Platform/ping_clock``),
 then poses every ping of the run at its transmit time with the smoother over the whole
@@ -31,8 +31,8 @@ import numpy as np
 
 from svss_daq.config import (ConfigError, DevicesConfig, NavigationConfig, config_path,
                              from_dict, read_toml)
-from svss_daq.drivers.nmea import NmeaStreamParser
-from svss_daq.drivers.pd0 import Pd0DecodeError, decode_ensemble
+from svss_daq.protocols.nmea import NmeaStreamParser
+from svss_daq.protocols.pd0 import Pd0DecodeError, decode_ensemble
 from svss_daq.ping import NavSnapshot
 from svss_daq.rawfile import NAV_CONFIG_ATTR, PD0, RawRunReader
 

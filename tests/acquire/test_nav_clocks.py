@@ -23,7 +23,7 @@ import pytest
 from sim_device.devices.serial_device import SerialDevice
 from svss_daq.acquire_config import load_acquire
 from svss_daq.daemon import AcquisitionDaemon
-from svss_daq.drivers.pd0 import Pd0StreamParser, decode_ensemble
+from svss_daq.protocols.pd0 import Pd0StreamParser, decode_ensemble
 from svss_daq.ping import (NAV_BOTTOM_LOCK, NAV_CLOCK_RETIMED, NAV_GPS_FIX, NAV_HELD,
                            NavSnapshot)
 from svss_daq.rawfile import RawRunReader

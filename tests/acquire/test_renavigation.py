@@ -17,7 +17,7 @@ from sim_device.scene import load_scene
 from sim_device.track import parse_utc_ns, pose_at
 from svss_daq.config import DevicesConfig, HardwareConfig, config_path, load
 from svss_daq.frames import body_to_ned
-from svss_daq.drivers.pd0 import decode_ensemble
+from svss_daq.protocols.pd0 import decode_ensemble
 from svss_daq.nav.renavigate import navigation_config_from_text, renavigation
 from svss_daq.ping import NAV_GPS_FIX, NAV_SMOOTHED
 from svss_daq.rawfile import RawRunReader

@@ -25,10 +25,10 @@ import pytest
 
 from svss_daq import navigation as nav
 from svss_daq.config import DevicesConfig, config_path, load
-from svss_daq.drivers import nmea
-from svss_daq.drivers import nmea_encoder as enc
-from svss_daq.drivers.pd0 import Pd0StreamParser, decode_ensemble
-from svss_daq.drivers.pd0_encoder import Pd0Setup, encode_ensemble
+from svss_daq.protocols import nmea
+from svss_daq.protocols import nmea_encoder as enc
+from svss_daq.protocols.pd0 import Pd0StreamParser, decode_ensemble
+from svss_daq.protocols.pd0_encoder import Pd0Setup, encode_ensemble
 from svss_daq.ping import NAV_BOTTOM_LOCK, NAV_CLOCK_RETIMED, NAV_GPS_FIX
 from tests.conftest import SHARED_DATA
 from tests.daq.test_navigation import LEVER, ORIGIN, T0

@@ -5,7 +5,7 @@ its alignment and declination) come before the course over ground; ensembles wit
 bottom track keep their attitude and heading; RDI's missing pressure is missing.
 
 Real bytes (``../shared/data/dvl_pd0``) where they hold the case, else ensembles made by
-:mod:`svss_daq.drivers.pd0_encoder` to RDI's formulas, with the beam geometry written
+:mod:`svss_daq.protocols.pd0_encoder` to RDI's formulas, with the beam geometry written
 out here (not the module's)."""
 
 from __future__ import annotations
@@ -20,10 +20,10 @@ import pytest
 
 from svss_daq import navigation as nav
 from svss_daq.config import DevicesConfig, LeverArms, config_path, load
-from svss_daq.drivers import nmea, pd0
-from svss_daq.drivers import nmea_encoder as enc
-from svss_daq.drivers.pd0 import Pd0StreamParser, ensemble_checksum
-from svss_daq.drivers.pd0_encoder import Pd0Setup, encode_ensemble
+from svss_daq.protocols import nmea, pd0
+from svss_daq.protocols import nmea_encoder as enc
+from svss_daq.protocols.pd0 import Pd0StreamParser, ensemble_checksum
+from svss_daq.protocols.pd0_encoder import Pd0Setup, encode_ensemble
 from svss_daq.nav import pd0_samples
 from svss_daq.nav.dvl_geometry import _sample_altitude, head_height_m
 from svss_daq.nav.headings import _headings

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from svss_daq import navigation as nav
-from svss_daq.drivers import pd0
-from svss_daq.drivers import nmea
-from svss_daq.drivers import nmea_encoder as enc
-from svss_daq.drivers.pd0_encoder import Pd0Setup, encode_ensemble
+from svss_daq.protocols import pd0
+from svss_daq.protocols import nmea
+from svss_daq.protocols import nmea_encoder as enc
+from svss_daq.protocols.pd0_encoder import Pd0Setup, encode_ensemble
 from svss_daq.ping import (NAV_BOTTOM_LOCK, NAV_DEAD_RECKONED, NAV_GPS_FIX,
                            NAV_HEADING_FROM_COMPASS, NAV_NO_HEADING)
 from tests.daq.test_navigation import (LEVER, ORIGIN, T0, cfg, errors,  # noqa: F401

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from svss_daq.drivers.nmea import GgaFix, NmeaStreamParser
-from svss_daq.drivers.pd0 import Pd0StreamParser
+from svss_daq.protocols.nmea import GgaFix, NmeaStreamParser
+from svss_daq.protocols.pd0 import Pd0StreamParser
 from svss_daq.config import DevicesConfig, config_path, load
 from svss_daq.navigation import Navigator, compute_poses, dvl_sample_from_pd0, samples_from_nmea
 from tests.conftest import SHARED_DATA

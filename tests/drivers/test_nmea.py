@@ -14,7 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from svss_daq.drivers.nmea import (
+from svss_daq.protocols.nmea import (
     KNOT_MPS,
     ChecksumPolicy,
     GgaFix,

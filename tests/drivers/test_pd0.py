@@ -14,7 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from svss_daq.drivers.pd0 import (
+from svss_daq.protocols.pd0 import (
     MAX_ENSEMBLE_BYTES,
     Pd0DecodeError,
     Pd0Ensemble,
@@ -275,7 +275,7 @@ def test_stream_discards_are_counted_and_logged_with_offsets(caplog):
     junk = b"garbage\x7f!"
     stream = junk + ens[0] + bytes(corrupted) + ens[2]
     parser = Pd0StreamParser()
-    with caplog.at_level(logging.WARNING, logger="svss_daq.drivers.pd0"):
+    with caplog.at_level(logging.WARNING, logger="svss_daq.protocols.pd0"):
         out = parser.feed(stream) + parser.flush()
     assert [e.ensemble_number for e in out] == [1, 3]
     assert parser.stats.bad_checksums >= 1

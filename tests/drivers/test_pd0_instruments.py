@@ -10,8 +10,8 @@ import struct
 import numpy as np
 import pytest
 
-from svss_daq.drivers import pd0
-from svss_daq.drivers.pd0_encoder import Pd0Setup, encode_ensemble
+from svss_daq.protocols import pd0
+from svss_daq.protocols.pd0_encoder import Pd0Setup, encode_ensemble
 
 T0 = 1_700_000_000_000_000_000
 
@@ -91,7 +91,7 @@ def test_vendor_blocks_are_skipped_quietly_and_summarised(caplog):
     stream = b"".join(e + b for e, b in zip(ensembles, blocks)) + ensembles[-1]
     p = pd0.Pd0StreamParser()
     got = []
-    with caplog.at_level(logging.INFO, logger="svss_daq.drivers.pd0"):
+    with caplog.at_level(logging.INFO, logger="svss_daq.protocols.pd0"):
         for i in range(0, len(stream), 29):
             got += p.feed(stream[i:i + 29])
         got += p.flush()
@@ -122,7 +122,7 @@ def test_known_undecoded_data_types_are_counted_without_warnings(caplog):
     attitude = struct.pack("<H", 0x5902) + bytes(103)    # ping attitude
     mystery = struct.pack("<H", 0x6A6A) + bytes(4)       # not known to anyone
     p = pd0.Pd0StreamParser()
-    with caplog.at_level(logging.INFO, logger="svss_daq.drivers.pd0"):
+    with caplog.at_level(logging.INFO, logger="svss_daq.protocols.pd0"):
         got = p.feed(b"".join(ens(s, k, extra_blocks=[adc, attitude, mystery]) for k in range(4)))
         got += p.flush()
     assert len(got) == 4 and 0x7001 in got[0].data_type_ids

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pytest
 
-from svss_daq.drivers.nmea import HdtHeading, NmeaStreamParser, nmea_checksum
-from svss_daq.drivers.pd0 import Pd0Ensemble, Pd0StreamParser
+from svss_daq.protocols.nmea import HdtHeading, NmeaStreamParser, nmea_checksum
+from svss_daq.protocols.pd0 import Pd0Ensemble, Pd0StreamParser
 from svss_daq.drivers.serial_link import SerialLink, SerialOpenTimeout, open_port
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux pseudo-terminals")

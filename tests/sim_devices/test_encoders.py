@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from svss_daq.drivers import nmea, pd0
-from svss_daq.drivers import nmea_encoder as ne
-from svss_daq.drivers.pd0_encoder import Pd0Setup, encode_ensemble
+from svss_daq.protocols import nmea, pd0
+from svss_daq.protocols import nmea_encoder as ne
+from svss_daq.protocols.pd0_encoder import Pd0Setup, encode_ensemble
 from svss_daq.navigation import dvl_sample_from_pd0
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"

@@ -22,9 +22,9 @@ from sim_device.devices.instruments_config import load_instruments
 from sim_device.scene import MotionConfig, load_scene
 from sim_device.track import parse_utc_ns, pose_at
 from svss_daq.config import DevicesConfig, HardwareConfig, config_path, load
-from svss_daq.drivers import nmea
-from svss_daq.drivers.nmea import NmeaStreamParser
-from svss_daq.drivers.pd0 import Pd0StreamParser
+from svss_daq.protocols import nmea
+from svss_daq.protocols.nmea import NmeaStreamParser
+from svss_daq.protocols.pd0 import Pd0StreamParser
 from svss_daq.drivers.serial_link import SerialLink
 from svss_daq.frames import body_to_ned
 from svss_daq.navigation import (Navigator, dvl_sample_from_pd0, geodetic_to_ned,

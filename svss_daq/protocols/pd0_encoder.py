@@ -1,10 +1,10 @@
-"""Teledyne RDI PD0 ensembles: encoding, the mirror of :mod:`svss_daq.drivers.pd0`.
+"""Teledyne RDI PD0 ensembles: encoding, the mirror of :mod:`svss_daq.protocols.pd0`.
 
 Builds a bottom-track ensemble as a Workhorse Navigator sends it with water profiling
 off: header, fixed leader (59 bytes), variable leader (65 bytes, Y2K clock) and bottom
 track (85 bytes, range MSBs included), then the checksum (sum of the bytes modulo
 65536). Layout and scaling after the "Workhorse Commands and Output Data Format"
-manual, as decoded by :func:`svss_daq.drivers.pd0.decode_ensemble`.
+manual, as decoded by :func:`svss_daq.protocols.pd0.decode_ensemble`.
 
 Inputs in SI units (m, m/s, rad, deg C); resolutions on the wire: time 10 ms, heading,
 pitch and roll 0.01 deg, velocity 1 mm/s, range 1 cm, sound speed 1 m/s, depth 0.1 m,
@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import Optional, Sequence
 
-from svss_daq.drivers.pd0 import (BAD_VELOCITY, ID_BEAM5_RANGE, ID_BOTTOM_TRACK,
+from svss_daq.protocols.pd0 import (BAD_VELOCITY, ID_BEAM5_RANGE, ID_BOTTOM_TRACK,
                                   ID_FIXED_LEADER, ID_VARIABLE_LEADER, MISSING_U32,
                                   SENTINEL_V_FIRMWARE, ensemble_checksum)
 

@@ -1,4 +1,4 @@
-"""NMEA 0183 sentences: encoding, the mirror of :mod:`svss_daq.drivers.nmea`.
+"""NMEA 0183 sentences: encoding, the mirror of :mod:`svss_daq.protocols.nmea`.
 
 GGA, RMC, VTG, HDT, ZDA and GST formatted like a survey-grade receiver (Hemisphere style):
 time ``hhmmss.ss``, latitude ``ddmm.mmmmmmm``, longitude ``dddmm.mmmmmmm`` (1e-7 minute,
@@ -16,7 +16,7 @@ import math
 from datetime import datetime, timezone
 from typing import Optional
 
-from svss_daq.drivers.nmea import KNOT_MPS, nmea_checksum
+from svss_daq.protocols.nmea import KNOT_MPS, nmea_checksum
 
 __all__ = ["sentence", "gga", "rmc", "vtg", "hdt", "zda", "gst", "format_time", "format_latlon"]
 
