@@ -128,8 +128,8 @@ def cmd_replay(args) -> int:
 
     from svss_daq.acquisition import acquire
     from svss_daq.ping_gate import PingGate
-    from svss_daq.ping_service import (PingService, RawRunStore, ReplayStore,
-                                       service_options)
+    from svss_daq.catchup_stores import RawRunStore, ReplayStore
+    from svss_daq.ping_service import PingService, service_options
     from svss_daq.publisher import PingPublisher, publisher_end_timeout_s
     from svss_daq.rawfile import RawRunReader
 

@@ -343,7 +343,7 @@ class AcquisitionDaemon:
 
     def _start_service(self, endpoint: str) -> None:
         from .ping_service import PingService, service_options
-        from .recorder import RecordingStore
+        from .catchup_stores import RecordingStore
         store = RecordingStore(self.recorder)
         cfg = self.setup.daq.service
         self.service = PingService(endpoint, store, curve=self.curve,

@@ -38,15 +38,8 @@ into a :class:`RawFileError` naming the file and the path.
 
 from __future__ import annotations
 
-import ctypes
-import faulthandler
-import functools
 import logging
 import os
-import pickle
-import re
-import select
-import signal
 import time
 from pathlib import Path
 
@@ -56,6 +49,8 @@ import numpy as np
 from . import __version__
 from .config import ConfigError, HardwareConfig, Loaded, loaded_from_text
 from .ping import NAV_FIELDS, NavSnapshot, Ping
+from .untrusted_hdf5 import (H5_ERRORS, abandon, cause, dataset, format_version, group,
+                             hdf5_superblock, in_child, open_swmr, shown, text)
 
 log = logging.getLogger(__name__)
 
@@ -77,12 +72,6 @@ EVENT_DETAIL_LEN = 200
 EVENTS = "Vendor_specific/events"
 #: 1-element int64: pings known to be on disk (written after each successful flush)
 FLUSHED = f"{BEAM}/pings_flushed"
-#: metadata read attempts of a SWMR reader; HDF5 sleeps 2**k ns before attempt k, and
-#: its default of 100 makes a damaged file hang "forever"; 20 bounds it to ~1 ms
-SWMR_READ_ATTEMPTS = 20
-#: exceptions h5py raises on corrupt or unwritable files
-H5_ERRORS = (OSError, KeyError, ValueError, RuntimeError, TypeError, IndexError,
-             AttributeError, OverflowError)
 
 _PER_PING = {  # name: (dtype, description)
     "ping_time": ("<i8", "transmit time, ns since the Unix epoch (UTC)"),
@@ -96,116 +85,6 @@ class RawFileError(ValueError):
     """A raw-run file that cannot be read (or written) as such."""
 
 
-_SIGNATURE = b"\x89HDF\r\n\x1a\n"
-
-
-def hdf5_superblock(path: str | Path, error: type[Exception] = RawFileError) -> dict:
-    """The HDF5 superblock of ``path``: ``offset``, ``version``, ``flags`` (file
-    consistency flags: bit 0 open for writing, bit 2 SWMR writing), ``eof`` (the
-    absolute end-of-file address it records, None when undefined) and the file's
-    ``size``. Raises ``error`` naming the file when it has no superblock, or when it was
-    closed cleanly and is shorter than the address it records (a truncated file). A file
-    still flagged open for writing may be shorter: a writer that died in a failed write
-    leaves that; its reader checks that what it reads lies in the file."""
-    path = Path(path)
-    try:
-        size = path.stat().st_size
-        with open(path, "rb") as fh:
-            offset = 0
-            while True:       # the superblock is at 0, 512, 1024, 2048, ...
-                fh.seek(offset)
-                head = fh.read(64)
-                if head[:8] == _SIGNATURE:
-                    break
-                offset = 512 if offset == 0 else 2 * offset
-                if offset + 8 > size:
-                    raise error(f"{path}: not a readable HDF5 file (no HDF5 superblock "
-                                f"signature in its {size} bytes)")
-    except OSError as exc:
-        raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
-    if len(head) < 48:
-        raise error(f"{path}: truncated: {size} bytes, too short for the HDF5 superblock "
-                    f"at byte {offset}")
-    version = head[8]
-    if version in (0, 1):           # addresses after fixed fields, flags 4 bytes
-        n_off = head[13]
-        flags = int.from_bytes(head[20:24], "little")
-        start = 24 if version == 0 else 28
-    elif version in (2, 3):
-        n_off = head[9]
-        flags = head[11]
-        start = 12
-    else:
-        raise error(f"{path}: HDF5 superblock at byte {offset} has version {version}; "
-                    "expected 0 to 3")
-    if n_off not in (2, 4, 8, 16) or len(head) < start + 3 * n_off:
-        raise error(f"{path}: HDF5 superblock at byte {offset} is damaged "
-                    f"(size of offsets {n_off})")
-    addr = [int.from_bytes(head[start + k * n_off: start + (k + 1) * n_off], "little")
-            for k in range(3)]
-    undefined = (1 << (8 * n_off)) - 1
-    base, eof = addr[0], addr[2]    # v0/v1: base, free space, eof; v2/v3: base, ext, eof
-    eof = None if eof == undefined else base + eof
-    if eof is not None and size < eof and not flags & 1:
-        raise error(f"{path}: truncated: {size} bytes on disk, its HDF5 superblock records "
-                    f"{eof} bytes")
-    return {"offset": offset, "version": version, "flags": flags, "eof": eof, "size": size}
-
-
-@functools.lru_cache(maxsize=1)
-def _set_read_attempts():
-    """``H5Pset_metadata_read_attempts`` of the HDF5 library h5py runs on (h5py does not
-    expose it), or None where it cannot be found."""
-    try:
-        h5py.h5p.create(h5py.h5p.FILE_ACCESS)       # make sure the library is loaded
-        with open("/proc/self/maps") as fh:
-            libs = sorted(set(re.findall(r"\S*/libhdf5[-.][^/\s]*\.so[^/\s]*", fh.read())))
-        for lib in libs:
-            fn = getattr(ctypes.CDLL(lib), "H5Pset_metadata_read_attempts", None)
-            if fn is not None:
-                fn.argtypes, fn.restype = [ctypes.c_int64, ctypes.c_uint], ctypes.c_int
-                return fn
-    except (OSError, ValueError):
-        pass
-    log.debug("H5Pset_metadata_read_attempts not found: SWMR reads retry HDF5's default")
-    return None
-
-
-def _open_swmr(path: Path) -> h5py.File:
-    """Open ``path`` as a SWMR reader with bounded metadata read attempts."""
-    fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
-    fapl.set_libver_bounds(h5py.h5f.LIBVER_LATEST, h5py.h5f.LIBVER_LATEST)
-    fapl.set_fclose_degree(h5py.h5f.CLOSE_STRONG)
-    setter = _set_read_attempts()
-    if setter is not None and setter(fapl.id, SWMR_READ_ATTEMPTS) < 0:
-        log.debug("H5Pset_metadata_read_attempts failed")
-    fid = h5py.h5f.open(os.fsencode(path), h5py.h5f.ACC_RDONLY | h5py.h5f.ACC_SWMR_READ,
-                        fapl=fapl)
-    return h5py.File(fid)
-
-
-def abandon(f: h5py.File) -> None:
-    """Close an HDF5 file after a failed write without writing anything more to it.
-
-    HDF5 retries the failed writes when the file (or a dataset) is closed, fails again,
-    and a later close of the half-closed dataset (at garbage collection or interpreter
-    exit) crashes the process (HDF5 2.0, H5D_close). Pointing the file's descriptor at
-    ``/dev/null`` first lets the close complete; the file on disk keeps what reached
-    it before the failure."""
-    name = "?"
-    try:
-        if not f.id.valid:
-            return
-        name = f.filename
-        fd = f.id.get_vfd_handle()
-        null = os.open(os.devnull, os.O_RDWR)
-        try:
-            os.dup2(null, fd)
-        finally:
-            os.close(null)
-        f.close()
-    except H5_ERRORS as exc:
-        log.error("closing %s after a failed write: %s", name, _cause(exc))
 
 
 def _appendable(group: h5py.Group, name: str, dtype, shape_tail=(), chunk=1024, doc=""):
@@ -253,7 +132,7 @@ class RawRunWriter:
             abandon(self._f)
             self.path.unlink(missing_ok=True)       # nothing in it worth keeping
             raise RawFileError(f"{self.path}: writing the run's header failed "
-                               f"({_cause(exc)}); no file written") from None
+                               f"({cause(exc)}); no file written") from None
         except BaseException:                   # a signal mid-header: no half-made file
             abandon(self._f)
             self.path.unlink(missing_ok=True)
@@ -461,7 +340,7 @@ class RawRunWriter:
             samples = self._samples[i]
         except H5_ERRORS as exc:
             raise RawFileError(f"{self.path}: reading back ping {i} failed "
-                               f"({_cause(exc)})") from None
+                               f"({cause(exc)})") from None
         nav["time_ns"] = int(nav.pop("time1"))
         nav["quality"] = int(nav["quality"])
         return Ping(sequence=meta["ping_sequence"], projector=meta["transmit_projector"],
@@ -513,7 +392,7 @@ def write_summary(path: str | Path, summary: dict) -> None:
             f.attrs["acquisition_summary"] = json.dumps(summary, sort_keys=True)
     except H5_ERRORS as exc:
         raise RawFileError(f"{path}: writing the acquisition summary failed "
-                           f"({_cause(exc)})") from None
+                           f"({cause(exc)})") from None
 
 
 #: the largest summary file beside a raw run a reader reads, bytes
@@ -589,7 +468,7 @@ def _clear_open_flags(path: Path) -> None:
     bytes the dead writer left), the superblock's checksum recomputed. Version 2 and 3
     superblocks only (what :class:`RawRunWriter` writes); :class:`RawFileError`
     otherwise."""
-    sb = hdf5_superblock(path)
+    sb = hdf5_superblock(path, RawFileError)
     if sb["version"] not in (2, 3):
         raise RawFileError(f"{path}: HDF5 superblock version {sb['version']}; only "
                            "versions 2 and 3 can be closed here")
@@ -627,7 +506,7 @@ def close_interrupted(path: str | Path, summary: dict) -> str:
     ``"beside"``; :class:`RawFileError` when neither could be written."""
     path = Path(path)
     try:
-        if hdf5_superblock(path)["flags"] & 1:
+        if hdf5_superblock(path, RawFileError)["flags"] & 1:
             _clear_open_flags(path)
         write_summary(path, summary)
         return "closed"
@@ -637,74 +516,6 @@ def close_interrupted(path: str | Path, summary: dict) -> str:
     return "beside"
 
 
-#: seconds HDF5 may take reading a file's structure before the file is refused
-PROBE_TIMEOUT_S = 10.0
-_in_probe = False
-
-
-def in_child(path: Path, read, error: type[Exception] = RawFileError,
-             timeout_s: float | None = None):
-    """``read()`` (reading a file through HDF5) run in a forked child process: its
-    result (pickled back), or the exception it raised; ``error`` naming the file if it
-    does not finish within ``timeout_s`` (default :data:`PROBE_TIMEOUT_S`) or crashes
-    the process. HDF5 loops forever on some damaged structures (a global heap
-    collection with an empty free-space object, for one) and crashes on others, in C
-    code that nothing in-process can interrupt: the child takes the risk, and the
-    caller does not read those structures itself. Runs ``read()`` in-process where
-    ``os.fork`` is missing (or inside a child already)."""
-    global _in_probe
-    if _in_probe or not hasattr(os, "fork"):
-        return read()
-    timeout_s = PROBE_TIMEOUT_S if timeout_s is None else timeout_s
-    rfd, wfd = os.pipe()
-    pid = os.fork()
-    if pid == 0:                                    # child: read, send, leave at once
-        try:
-            os.close(rfd)
-            _in_probe = True
-            logging.disable(logging.CRITICAL)
-            faulthandler.disable()              # a crash here is reported by the parent
-            try:
-                out = (True, read())
-            except BaseException as exc:            # noqa: BLE001 - the parent raises it
-                out = (False, exc)
-            try:
-                data = pickle.dumps(out)
-            except Exception as exc:                # noqa: BLE001
-                data = pickle.dumps((False, error(f"{path}: what was read cannot be passed "
-                                                  f"on ({_cause(exc)})")))
-            view = memoryview(data)
-            while view:
-                view = view[os.write(wfd, view):]
-        finally:
-            os._exit(0)
-    os.close(wfd)
-    chunks, deadline = [], time.monotonic() + timeout_s
-    try:
-        while True:
-            left = deadline - time.monotonic()
-            ready = select.select([rfd], [], [], max(left, 0))[0] if left > 0 else []
-            if not ready:
-                os.kill(pid, signal.SIGKILL)
-                os.waitpid(pid, 0)
-                raise error(f"{path}: HDF5 did not finish reading it within {timeout_s:g} s "
-                            "(a damaged file)")
-            chunk = os.read(rfd, 1 << 20)
-            if not chunk:
-                break
-            chunks.append(chunk)
-    finally:
-        os.close(rfd)
-    _, status = os.waitpid(pid, 0)
-    if os.WIFSIGNALED(status) or not chunks:
-        raise error(f"{path}: HDF5 crashed reading it (a damaged file; exit status "
-                    f"{status})")
-    ok, value = pickle.loads(b"".join(chunks))
-    if not ok:
-        raise value
-    return value
-
-
 def _open_for_reading(path: Path) -> tuple[h5py.File, bool]:
     """Open an SVSS HDF5 file read-only: (file, closed cleanly). A writer that never
     closed leaves its open-for-writing flag set; such a file is opened as a SWMR reader
@@ -712,33 +523,12 @@ def _open_for_reading(path: Path) -> tuple[h5py.File, bool]:
     is refused before HDF5 sees it."""
     if not path.is_file():
         raise RawFileError(f"{path}: no such file")
-    sb = hdf5_superblock(path)
+    sb = hdf5_superblock(path, RawFileError)
     clean = not sb["flags"] & 1
     try:
-        return (h5py.File(path, "r") if clean else _open_swmr(path)), clean
+        return (h5py.File(path, "r") if clean else open_swmr(path)), clean
     except H5_ERRORS as exc:
-        raise RawFileError(f"{path}: not a readable HDF5 file ({_cause(exc)})") from None
-
-
-def _cause(exc: Exception) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
-
-
-def shown(v) -> str:
-    """``repr`` of a value read from a file, without numpy's wrappers."""
-    if isinstance(v, np.ndarray):
-        v = v.tolist()
-    elif isinstance(v, np.generic):
-        v = v.item()
-    return repr(v)
-
-
-def _text(v) -> str | None:
-    if isinstance(v, bytes):
-        return v.decode("utf-8", "replace")
-    if isinstance(v, np.ndarray) and v.shape == ():
-        return _text(v[()])
-    return v if isinstance(v, str) else None
+        raise RawFileError(f"{path}: not a readable HDF5 file ({cause(exc)})") from None
 
 
 def svss_format(path: str | Path) -> str | None:
@@ -746,67 +536,17 @@ def svss_format(path: str | Path) -> str | None:
     None when it has none (or it is not a string); also reads files a killed writer left
     open."""
     path = Path(path)
-    return in_child(path, lambda: _format_of(path))
+    return in_child(path, lambda: _format_of(path), RawFileError)
 
 
 def _format_of(path: Path) -> str | None:
     f, _ = _open_for_reading(path)
     try:
         with f:
-            return _text(f.attrs.get("svss_format"))
+            return text(f.attrs.get("svss_format"))
     except H5_ERRORS as exc:
-        raise RawFileError(f"{path}: cannot read its root attributes ({_cause(exc)})") \
+        raise RawFileError(f"{path}: cannot read its root attributes ({cause(exc)})") \
             from None
-
-
-def format_version(value, path: Path, readable: tuple[int, ...],
-                   error: type[Exception] = RawFileError) -> int:
-    """The ``svss_format_version`` root attribute ``value`` checked: an integer scalar
-    in ``readable``; otherwise ``error`` naming the file."""
-    if isinstance(value, np.ndarray) and value.size == 1:
-        value = value.reshape(())[()]
-    if value is None:
-        raise error(f"{path}: root attribute 'svss_format_version' missing; expected one "
-                    f"of {list(readable)}")
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise error(f"{path}: root attribute 'svss_format_version' is {shown(value)}; expected "
-                    f"an integer, one of {list(readable)}")
-    if int(value) not in readable:
-        raise error(f"{path}: svss_format_version {int(value)}; this software reads "
-                    f"version(s) {list(readable)}")
-    return int(value)
-
-
-def dataset(f: h5py.Group, name: str, path: Path, ndim: int, kinds: str,
-            error: type[Exception] = RawFileError, what: str = "") -> h5py.Dataset:
-    """``f[name]`` checked to be a dataset of ``ndim`` dimensions whose dtype kind is in
-    ``kinds`` (numpy kind letters: ``i`` integer, ``f`` float, ``S`` bytes, ...);
-    otherwise ``error`` naming the file and the path."""
-    full = f"{f.name.rstrip('/')}/{name}"
-    obj = f.get(name)
-    if obj is None:
-        raise error(f"{path}: dataset '{full}' missing; expected {what or 'it'}")
-    if not isinstance(obj, h5py.Dataset):
-        raise error(f"{path}: '{full}' is a {type(obj).__name__}; expected a dataset")
-    if obj.ndim != ndim:
-        raise error(f"{path}: dataset '{full}' has shape {obj.shape}; expected {ndim} "
-                    "dimension(s)")
-    if obj.dtype.kind not in kinds:
-        raise error(f"{path}: dataset '{full}' has dtype {obj.dtype}; expected kind "
-                    f"{' or '.join(repr(k) for k in kinds)}")
-    return obj
-
-
-def group(f: h5py.Group, name: str, path: Path,
-          error: type[Exception] = RawFileError) -> h5py.Group:
-    """``f[name]`` checked to be a group; otherwise ``error`` naming the file and path."""
-    full = f"{f.name.rstrip('/')}/{name}"
-    obj = f.get(name)
-    if obj is None:
-        raise error(f"{path}: group '{full}' missing")
-    if not isinstance(obj, h5py.Group):
-        raise error(f"{path}: '{full}' is a {type(obj).__name__}; expected a group")
-    return obj
 
 
 _NAV = ["time1", *NAV_FIELDS[1:]]
@@ -836,10 +576,10 @@ def _read_events(f: h5py.File, path: Path) -> list[tuple[int, str, str]]:
     """The device events of a run (none in files written before they were kept)."""
     if EVENTS not in f:
         return []
-    g = group(f, EVENTS, path)
-    times = dataset(g, "time", path, 1, "iu")
-    kinds = dataset(g, "kind", path, 1, "S")
-    details = dataset(g, "detail", path, 1, "S")
+    g = group(f, EVENTS, path, RawFileError)
+    times = dataset(g, "time", path, 1, "iu", RawFileError)
+    kinds = dataset(g, "kind", path, 1, "S", RawFileError)
+    details = dataset(g, "detail", path, 1, "S", RawFileError)
     n = min(times.shape[0], kinds.shape[0], details.shape[0])
     return [(int(t), k.decode("ascii", "replace"), d.decode("ascii", "replace"))
             for t, k, d in zip(times[:n], kinds[:n], details[:n])]
@@ -852,12 +592,12 @@ def _read_pd0_index(f: h5py.File, path: Path, notes: list[str]
     kept (no ``/Platform/PD0``). What is left out is said in ``notes``."""
     if PD0 not in f:
         return None
-    g = group(f, PD0, path)
-    stream = dataset(g, "stream", path, 1, "u", what="the PD0 ensembles' bytes (uint8)")
+    g = group(f, PD0, path, RawFileError)
+    stream = dataset(g, "stream", path, 1, "u", RawFileError, what="the PD0 ensembles' bytes (uint8)")
     if stream.dtype.itemsize != 1:
         raise RawFileError(f"{path}: dataset '/{PD0}/stream' has dtype {stream.dtype}; "
                            "expected uint8")
-    index = [dataset(g, k, path, 1, "iu") for k in ("time", "offset", "n_bytes")]
+    index = [dataset(g, k, path, 1, "iu", RawFileError) for k in ("time", "offset", "n_bytes")]
     size = path.stat().st_size
     n = min(d.shape[0] for d in index)
     n = min([n] + [_on_disk(d, n, size) for d in index])
@@ -878,9 +618,9 @@ def _read_ping_clock(f: h5py.File, path: Path) -> list[tuple[int, int]]:
     were kept)."""
     if PING_CLOCK not in f:
         return []
-    g = group(f, PING_CLOCK, path)
-    rx = dataset(g, "receive_time", path, 1, "iu")
-    tx = dataset(g, "transmit_time", path, 1, "iu")
+    g = group(f, PING_CLOCK, path, RawFileError)
+    rx = dataset(g, "receive_time", path, 1, "iu", RawFileError)
+    tx = dataset(g, "transmit_time", path, 1, "iu", RawFileError)
     size = path.stat().st_size
     n = min(rx.shape[0], tx.shape[0])
     n = min(n, _on_disk(rx, n, size), _on_disk(tx, n, size))
@@ -896,10 +636,10 @@ def _read_state(path: Path) -> dict:
     run._open_and_validate()
     try:
         try:
-            times, text = run._nmea
-            n = min(times.shape[0], text.shape[0])
+            times, sentences = run._nmea
+            n = min(times.shape[0], sentences.shape[0])
             run._nmea_list = [(int(t), s.decode("ascii", "replace"))
-                              for t, s in zip(times[:n], text[:n])]
+                              for t, s in zip(times[:n], sentences[:n])]
             run._shape = tuple(run._samples.shape[1:])
             run._events = _read_events(run._f, path)
             run._pd0_index = _read_pd0_index(run._f, path, run._notes)
@@ -907,7 +647,7 @@ def _read_state(path: Path) -> dict:
             for i in ({0, run.n_pings - 1} if run.n_pings else ()):
                 run._samples[i]
         except H5_ERRORS as exc:
-            raise RawFileError(f"{path}: cannot read the run ({_cause(exc)})") from None
+            raise RawFileError(f"{path}: cannot read the run ({cause(exc)})") from None
         return {k: getattr(run, k) for k in _STATE}
     finally:
         run._f.close()
@@ -923,13 +663,13 @@ class RawRunReader:
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
-        self.__dict__.update(in_child(self.path, lambda: _read_state(self.path)))
+        self.__dict__.update(in_child(self.path, lambda: _read_state(self.path), RawFileError))
         self._f, _ = _open_for_reading(self.path)
         try:
             self._samples = self._f[f"{BEAM}/backscatter_r"]
         except H5_ERRORS as exc:
             self._f.close()
-            raise RawFileError(f"{self.path}: cannot read the run ({_cause(exc)})") from None
+            raise RawFileError(f"{self.path}: cannot read the run ({cause(exc)})") from None
         if not self.clean:
             log.warning("%s was not closed by its writer; reading up to its last flush "
                         "(%d pings)", self.path, self.n_pings)
@@ -948,16 +688,17 @@ class RawRunReader:
             raise
         except H5_ERRORS as exc:
             self._f.close()
-            raise RawFileError(f"{self.path}: cannot read the run ({_cause(exc)})") from None
+            raise RawFileError(f"{self.path}: cannot read the run ({cause(exc)})") from None
 
     def _validate(self) -> None:
         f, path = self._f, self.path
-        fmt = _text(f.attrs.get("svss_format"))
+        fmt = text(f.attrs.get("svss_format"))
         if fmt != FORMAT:
             raise RawFileError(f"{path}: root attribute 'svss_format' is "
                                f"{shown(f.attrs.get('svss_format'))}; expected {FORMAT!r}")
-        format_version(f.attrs.get("svss_format_version"), path, (FORMAT_VERSION,))
-        self.beam = group(f, BEAM, path)
+        format_version(f.attrs.get("svss_format_version"), path, (FORMAT_VERSION,),
+                       RawFileError)
+        self.beam = group(f, BEAM, path, RawFileError)
         rate = self.beam.attrs.get("sample_rate_hz")
         try:
             self.sample_rate_hz = float(np.asarray(rate).reshape(()))
@@ -967,16 +708,16 @@ class RawRunReader:
             raise RawFileError(f"{path}: attribute '/{BEAM}' sample_rate_hz is {shown(rate)}; "
                                "expected a positive number")
         text_ds = dataset(f, "Vendor_specific/hardware_config_toml", path, 0, "SOU",
-                          what="the hardware configuration text")
-        text = _text(text_ds[()])
-        if text is None:
+                          RawFileError, what="the hardware configuration text")
+        toml = text(text_ds[()])
+        if toml is None:
             raise RawFileError(f"{path}: dataset '/Vendor_specific/hardware_config_toml' "
                                "is not a string")
-        self.hardware = loaded_from_text(HardwareConfig, text,
+        self.hardware = loaded_from_text(HardwareConfig, toml,
                                          f"{path}:/Vendor_specific/hardware_config_toml")
         dig = self.hardware.value.digitiser
         samples = dataset(self.beam, "backscatter_r", path, 3, "i",
-                          what="int32 samples (ping x channel x sample)")
+                          RawFileError, what="int32 samples (ping x channel x sample)")
         if samples.dtype != np.dtype("<i4"):
             raise RawFileError(f"{path}: dataset '/{BEAM}/backscatter_r' has dtype "
                                f"{samples.dtype}; expected int32 ADC codes")
@@ -985,9 +726,9 @@ class RawRunReader:
                 f"{path}: dataset '/{BEAM}/backscatter_r' has shape {samples.shape}; the "
                 f"stored hardware configuration records {dig.n_channels} channels x "
                 f"{dig.window_samples} samples per ping")
-        per_ping = {k: dataset(self.beam, k, path, 1, "iu") for k in _PER_PING}
-        plat = group(f, "Platform", path)
-        nav = {k: dataset(plat, k, path, 1, "iu" if k in ("time1", "quality") else "fiu")
+        per_ping = {k: dataset(self.beam, k, path, 1, "iu", RawFileError) for k in _PER_PING}
+        plat = group(f, "Platform", path, RawFileError)
+        nav = {k: dataset(plat, k, path, 1, "iu" if k in ("time1", "quality") else "fiu", RawFileError)
                for k in _NAV}
         lengths = {f"/{BEAM}/backscatter_r": samples.shape[0],
                    **{f"/{BEAM}/{k}": d.shape[0] for k, d in per_ping.items()},
@@ -1006,10 +747,10 @@ class RawRunReader:
                                f"lie within the file's {size} bytes; reading those")
             self.truncated += self.n_pings - on_disk
             self.n_pings = on_disk
-        nmea = group(plat, "NMEA", path)
-        self._nmea = (dataset(nmea, "time", path, 1, "iu"),
-                      dataset(nmea, "sentence", path, 1, "S"))
-        self.environment = dict(group(f, "Environment", path).attrs)
+        nmea = group(plat, "NMEA", path, RawFileError)
+        self._nmea = (dataset(nmea, "time", path, 1, "iu", RawFileError),
+                      dataset(nmea, "sentence", path, 1, "S", RawFileError))
+        self.environment = dict(group(f, "Environment", path, RawFileError).attrs)
         self._samples = samples
         self._meta = {k: d[: self.n_pings] for k, d in per_ping.items()}
         self._nav = {k: d[: self.n_pings] for k, d in nav.items()}
@@ -1029,7 +770,7 @@ class RawRunReader:
         n_min, n_max = lengths[short], max(lengths.values())
         others = sorted({n for k, n in lengths.items() if n != n_min})
         if "pings_flushed" in self.beam:
-            flushed = dataset(self.beam, "pings_flushed", path, 1, "iu")
+            flushed = dataset(self.beam, "pings_flushed", path, 1, "iu", RawFileError)
             if flushed.shape != (1,) or flushed[0] < 0:
                 raise RawFileError(f"{path}: dataset '/{FLUSHED}' holds "
                                    f"{shown(flushed[()])}; expected one count >= 0")
@@ -1086,7 +827,7 @@ class RawRunReader:
             return NavSnapshot(time_ns=int(self._nav["time1"][i]), **kw)
         except (TypeError, ValueError) as exc:
             raise RawFileError(f"{self.path}: navigation of ping {i} in '/Platform' is "
-                               f"invalid ({_cause(exc)})") from None
+                               f"invalid ({cause(exc)})") from None
 
     def ping(self, i: int) -> Ping:
         if not 0 <= i < self.n_pings:
@@ -1095,7 +836,7 @@ class RawRunReader:
             samples = self._samples[i]
         except H5_ERRORS as exc:
             raise RawFileError(f"{self.path}: cannot read ping {i} of "
-                               f"'/{BEAM}/backscatter_r' ({_cause(exc)})") from None
+                               f"'/{BEAM}/backscatter_r' ({cause(exc)})") from None
         return Ping(sequence=int(self._meta["ping_sequence"][i]),
                     projector=int(self._meta["transmit_projector"][i]),
                     transmit_time_ns=int(self._meta["ping_time"][i]),
@@ -1144,7 +885,7 @@ class RawRunReader:
             stream = self._f[f"{PD0}/stream"][:end].tobytes()
         except H5_ERRORS as exc:
             raise RawFileError(f"{self.path}: cannot read '/{PD0}/stream' "
-                               f"({_cause(exc)})") from None
+                               f"({cause(exc)})") from None
         return [(int(t), stream[o:o + z]) for t, o, z in
                 zip(times.tolist(), offsets.tolist(), sizes.tolist())]
 
@@ -1155,11 +896,28 @@ class RawRunReader:
         return list(self._clock_list)
 
     @property
+    def run_id(self) -> str:
+        """The run this file belongs to: the root attribute ``run_id`` (written by the
+        acquisition daemon), else the file's stem."""
+        return text(self.attrs.get("run_id")) or self.path.stem
+
+    @property
+    def segment(self) -> int:
+        """The file's segment number within its run: the root attribute ``segment``,
+        else 0. Raises :class:`RawFileError` when it is not an integer."""
+        seg = self.attrs.get("segment", 0)
+        try:
+            return int(np.asarray(seg).reshape(()))
+        except (TypeError, ValueError):
+            raise RawFileError(f"{self.path}: root attribute 'segment' is {seg!r}; "
+                               "expected an integer") from None
+
+    @property
     def navigation_config(self) -> str | None:
         """The navigation configuration (TOML text of the devices configuration's
         ``[navigation]`` table) the acquisition daemon posed the pings with; None when
         the run does not record it."""
-        return _text(self.attrs.get(NAV_CONFIG_ATTR))
+        return text(self.attrs.get(NAV_CONFIG_ATTR))
 
     @property
     def summary(self) -> dict | None:
@@ -1168,9 +926,9 @@ class RawRunReader:
         (:func:`summary_path`, written when the file could not take it); None when the
         run has none (e.g. a daemon killed before it closed the file)."""
         import json
-        text = _text(self.attrs.get("acquisition_summary"))
+        summary_text = text(self.attrs.get("acquisition_summary"))
         where = "root attribute 'acquisition_summary'"
-        if text is None:
+        if summary_text is None:
             side = summary_path(self.path)
             if not side.is_file():
                 return None
@@ -1179,12 +937,12 @@ class RawRunReader:
                 if side.stat().st_size > MAX_SUMMARY_BYTES:
                     raise RawFileError(f"{self.path}: {side} has {side.stat().st_size} "
                                        f"bytes; a summary has at most {MAX_SUMMARY_BYTES}")
-                text = side.read_text(encoding="utf-8")
+                summary_text = side.read_text(encoding="utf-8")
             except (OSError, UnicodeDecodeError) as exc:
                 raise RawFileError(f"{self.path}: cannot read its summary {side} "
                                    f"({exc})") from None
         try:
-            out = json.loads(text)
+            out = json.loads(summary_text)
         except (ValueError, RecursionError):
             raise RawFileError(f"{self.path}: {where} is not JSON") from None
         if not isinstance(out, dict):
@@ -1202,18 +960,7 @@ class RawRunReader:
 
 
 def run_of(path: str | Path) -> tuple[str, int]:
-    """(run id, segment number) of a raw file: the root attributes ``run_id`` (else the
-    file's stem) and ``segment`` (else 0)."""
-    path = Path(path)
+    """(run id, segment number) of a raw file (:attr:`RawRunReader.run_id`,
+    :attr:`RawRunReader.segment`)."""
     with RawRunReader(path) as r:
-        run_id, seg = r.attrs.get("run_id"), r.attrs.get("segment", 0)
-    if isinstance(run_id, np.ndarray) and run_id.shape == ():
-        run_id = run_id.item()
-    if isinstance(run_id, bytes):
-        run_id = run_id.decode("utf-8", "replace")
-    try:
-        seg = int(np.asarray(seg).reshape(()))
-    except (TypeError, ValueError):
-        raise RawFileError(f"{path}: root attribute 'segment' is {seg!r}; expected an "
-                           "integer") from None
-    return (run_id if isinstance(run_id, str) and run_id else path.stem), seg
+        return r.run_id, r.segment

@@ -531,39 +531,3 @@ class RunRecorder:
             if seg not in self._readers:
                 self._readers[seg] = RawRunReader(self.segments[seg])
             return self._readers[seg].ping(row)
-
-
-class RecordingStore:
-    """The catch-up service's view of a recording daemon: the run being recorded (read
-    back from :class:`RunRecorder`) and the runs recorded earlier in the same folder
-    (raw-run files, :class:`~svss_daq.ping_service.RawRunStore`)."""
-
-    def __init__(self, recorder: RunRecorder):
-        from .ping_service import RawRunStore
-        self.recorder = recorder
-        earlier = sorted(p for p in recorder.out_dir.glob("*.h5")
-                         if p not in recorder.segments and not p.name.startswith(
-                             recorder.run_id + "_"))
-        self.earlier = None
-        if earlier:
-            try:
-                self.earlier = RawRunStore(earlier)
-            except Exception as exc:          # a damaged old file must not stop a run
-                log.warning("catch-up: earlier runs in %s not served (%s)",
-                            recorder.out_dir, exc)
-
-    def runs(self) -> list:
-        from .ping_service import RunInfo
-        out = list(self.earlier.runs()) if self.earlier else []
-        out.append(RunInfo(**self.recorder.info()))
-        return out
-
-    def sequences(self, run_id: str, first: int, last: int) -> list[int]:
-        if run_id == self.recorder.run_id:
-            return self.recorder.recorded(first, last)
-        return self.earlier.sequences(run_id, first, last) if self.earlier else []
-
-    def read(self, run_id: str, sequence: int) -> Ping | None:
-        if run_id == self.recorder.run_id:
-            return self.recorder.read(sequence)
-        return self.earlier.read(run_id, sequence) if self.earlier else None

@@ -300,7 +300,7 @@ UNSAFE_ATTRIBUTES = {"send_pyobj", "recv_pyobj", "read_pickle", "to_pickle",
 
 #: reviewed exceptions: (file, finding) -> why it is not on the wire or in a file
 ALLOWED = {
-    ("svss_daq/rawfile.py", "import pickle"):
+    ("svss_daq/untrusted_hdf5.py", "import pickle"):
         "in_child: the result of a read passes from the process's own fork to it over "
         "an os.pipe; the bytes are written by pickle.dumps in that fork, never read "
         "from a file or a socket",

@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from svss_daq.rawfile import RawRunReader, hdf5_superblock, lookup3
+from svss_daq.rawfile import RawRunReader, lookup3
+from svss_daq.untrusted_hdf5 import hdf5_superblock
 from svss_daq.recorder import (RunRecorder, close_interrupted_runs, free_run_id, lock_path,
                                reserve_path)
 

@@ -28,7 +28,7 @@ from hypothesis import strategies as st
 
 from svss.score import score_tiles
 from svss.summary import summarise
-from svss_daq import rawfile
+from svss_daq import untrusted_hdf5
 from svss_daq.rawfile import RawFileError, RawRunReader, RawRunWriter
 from svss_proc.products.chain import save_tile
 from svss_proc.tiles import (
@@ -599,7 +599,7 @@ def fuzz_runs(tmp_path_factory, hardware):
 @pytest.fixture
 def quick_refusal(monkeypatch):
     """A damaged file that keeps HDF5 busy is refused after 2 s (not 10) while fuzzing."""
-    monkeypatch.setattr(rawfile, "PROBE_TIMEOUT_S", 2.0)
+    monkeypatch.setattr(untrusted_hdf5, "PROBE_TIMEOUT_S", 2.0)
 
 
 def _bounded(fn):

@@ -17,7 +17,8 @@ import pytest
 import zmq
 
 from svss_daq import messages
-from svss_daq.ping_service import PingService, RawRunStore, ReplayStore
+from svss_daq.catchup_stores import RawRunStore, ReplayStore
+from svss_daq.ping_service import PingService
 from svss_daq.publisher import PingPublisher
 from svss_daq.rawfile import RawRunWriter
 from svss_proc.worker import MANIFEST, process_raw, serve

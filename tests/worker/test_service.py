@@ -12,8 +12,8 @@ import pytest
 import zmq
 
 from svss_daq import messages
-from svss_daq.ping_service import (PingFetcher, PingService, RawRunStore, ReplayStore,
-                                   ServiceError)
+from svss_daq.catchup_stores import RawRunStore, ReplayStore
+from svss_daq.ping_service import PingFetcher, PingService, ServiceError
 from svss_daq.rawfile import RawRunReader
 
 from .conftest import simulate

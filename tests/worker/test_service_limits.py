@@ -19,7 +19,8 @@ from pathlib import Path
 import pytest
 import zmq
 
-from svss_daq.ping_service import PingFetcher, PingService, RawRunStore, ServiceError
+from svss_daq.catchup_stores import RawRunStore
+from svss_daq.ping_service import PingFetcher, PingService, ServiceError
 
 from .conftest import ROOT
 

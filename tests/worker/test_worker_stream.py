@@ -18,7 +18,8 @@ import zmq
 
 from svss_daq import messages
 from svss_daq.config import HardwareConfig, config_path, load_with_text
-from svss_daq.ping_service import PingService, RawRunStore, ReplayStore
+from svss_daq.catchup_stores import RawRunStore, ReplayStore
+from svss_daq.ping_service import PingService
 from svss_daq.publisher import PingPublisher
 from svss_daq.rawfile import RawRunReader
 from svss_proc.worker import JOURNAL, MANIFEST, serve
