@@ -33,7 +33,8 @@ a :class:`RawFileError`; what was flushed before stays readable.
 Files are untrusted: a reader checks the HDF5 superblock's end-of-file address against
 the file's size before opening it, bounds HDF5's metadata read retries, validates the
 layout (groups, datasets, shapes, dtypes, attributes) up front and turns every failure
-into a :class:`RawFileError` naming the file and the path.
+into a :class:`RawFileError` naming the file and the path (with the pieces of
+:mod:`svss_daq.untrusted_hdf5`, which the tile reader shares).
 """
 
 from __future__ import annotations
@@ -566,7 +567,8 @@ def _on_disk(ds: h5py.Dataset, n: int, size: int) -> int:
     return n
 
 
-#: what a reader keeps of a run, read in a child process (:func:`in_child`)
+#: what a reader keeps of a run, read in a child process
+#: (:func:`~svss_daq.untrusted_hdf5.in_child`)
 _STATE = ("clean", "sample_rate_hz", "hardware", "n_pings", "environment", "attrs",
           "_provenance", "_meta", "_nav", "_nmea_list", "_shape", "_events", "_pd0_index",
           "_clock_list", "_notes", "truncated")
@@ -657,9 +659,9 @@ class RawRunReader:
     """Read a raw-run file, also one whose writer died (up to its last flush).
 
     The layout is validated when the file is opened, in a child process
-    (:func:`in_child`) that reads everything but the samples; this process then reads
-    only the samples, ping by ping. Any failure to read the file (also later, reading a
-    ping) raises :class:`RawFileError` naming the file."""
+    (:func:`~svss_daq.untrusted_hdf5.in_child`) that reads everything but the samples;
+    this process then reads only the samples, ping by ping. Any failure to read the file
+    (also later, reading a ping) raises :class:`RawFileError` naming the file."""
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
