@@ -399,7 +399,7 @@ class DaqConfig:
     recorder: RecorderConfig = spec("raw-run recorder")
     service: ServiceConfig | None = spec("catch-up ping service for the tile worker "
                                          "(omitted: none)")
-    security: _security.CurveConfig | None = spec("ZeroMQ CURVE keys of the endpoints "
+    security: CurveConfig | None = spec("ZeroMQ CURVE keys of the endpoints "
                                                   "(omitted: disabled; docs/security.md)")
 
 
@@ -592,10 +592,22 @@ def loaded_from_text(cls: type[T], text: str, source: str) -> Loaded[T]:
     return Loaded(loads(cls, text, source), text, source)
 
 
-# The [security] table's schema (CurveConfig) lives in svss_daq.security, which imports
-# spec and ConfigError from here: imported as a module, after them, so that either module
-# may be imported first (DaqConfig's annotation is resolved only when a file is loaded).
-from svss_daq import security as _security  # noqa: E402
+# -------------------------------------------------------------------------- security
+
+
+@dataclass(frozen=True)
+class CurveConfig:
+    """The ``[security]`` table of daq.toml."""
+    enabled: bool = spec("secure the ZeroMQ endpoints with CURVE (false: plain TCP, "
+                         "for loopback and a trusted boat LAN only)")
+    server_secret_key: str = spec("server side: the server's secret key file (zcert, "
+                                  "'svss keys --name server' writes server.key_secret)")
+    authorized_clients: str = spec("server side: folder of the public key files (*.key) "
+                                   "of the clients allowed to connect")
+    server_public_key: str = spec("client side: the server's public key file "
+                                  "(server.key)")
+    client_secret_key: str = spec("client side: this client's secret key file "
+                                  "(NAME.key_secret)")
 
 
 # -------------------------------------------------------------------------- devices

@@ -18,7 +18,8 @@ import zmq
 from . import messages
 from .endpoints import check_endpoint
 from .ping import Ping
-from .security import CurveConfig, secure_server
+from .config import CurveConfig
+from .security import secure_server
 
 log = logging.getLogger(__name__)
 

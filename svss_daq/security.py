@@ -24,7 +24,6 @@ import hashlib
 import logging
 import os
 import threading
-from dataclasses import dataclass
 from pathlib import Path
 
 import zmq
@@ -32,28 +31,13 @@ import zmq.auth
 import zmq.utils.z85
 from zmq.auth.thread import ThreadAuthenticator
 
-from .config import ConfigError, config_dir, spec
+from .config import ConfigError, CurveConfig, config_dir
 
 log = logging.getLogger(__name__)
 
 PUBLIC_SUFFIX = ".key"
 SECRET_SUFFIX = ".key_secret"
 _Z85_KEY_CHARS = 40   # a 32-byte CURVE key in Z85
-
-
-@dataclass(frozen=True)
-class CurveConfig:
-    """The ``[security]`` table of daq.toml."""
-    enabled: bool = spec("secure the ZeroMQ endpoints with CURVE (false: plain TCP, "
-                         "for loopback and a trusted boat LAN only)")
-    server_secret_key: str = spec("server side: the server's secret key file (zcert, "
-                                  "'svss keys --name server' writes server.key_secret)")
-    authorized_clients: str = spec("server side: folder of the public key files (*.key) "
-                                   "of the clients allowed to connect")
-    server_public_key: str = spec("client side: the server's public key file "
-                                  "(server.key)")
-    client_secret_key: str = spec("client side: this client's secret key file "
-                                  "(NAME.key_secret)")
 
 
 def _active(curve: CurveConfig | None) -> bool:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import zmq
 
 from .endpoints import check_endpoint
-from .security import CurveConfig, secure_client
+from .config import CurveConfig
+from .security import secure_client
 
 TOPIC_PREFIX = b"svss."
 

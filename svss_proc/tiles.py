@@ -36,7 +36,7 @@ from .imaging.grid import TileGrid
 
 if TYPE_CHECKING:
     from .imaging.coverage import Coverage
-    from .products.chain import Products
+    from .products.tile_products import Products
 
 log = logging.getLogger(__name__)
 

@@ -17,10 +17,9 @@ import pytest
 import zmq
 
 from svss_daq import messages
-from svss_daq.config import ConfigError, DaqConfig, loads
+from svss_daq.config import ConfigError, CurveConfig, DaqConfig, loads
 from svss_daq.publisher import PingPublisher
 from svss_daq.security import (
-    CurveConfig,
     generate_keys,
     load_key_file,
     secure_client,

@@ -11,7 +11,6 @@ import logging
 import math
 import os
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -24,38 +23,13 @@ from .background import kernel_voxels, median_background
 from .detect import Footprint, detect
 from ..imaging.coverage import full_fraction
 from .quicklook import mip_png, products_png
+from .tile_products import Products
 from ..tiles import MIPS, Tile, TileFileError, temporary_path, tile_name, write_tile
 
 log = logging.getLogger(__name__)
 
 #: ``detection.min_coverage_fraction`` when the configuration omits it
 DEFAULT_MIN_COVERAGE = 0.5
-
-
-@dataclass
-class Products:
-    """A tile's products. Volumes are along x cross x depth; ``background`` in uPa
-    (None when not kept), ``level`` the normalised level in dB re background (no display
-    gain), ``drc`` display values 0..1 (None when not kept), ``mips`` the maximum
-    intensity projections (:data:`svss_proc.tiles.MIPS`) of level + gain (dB),
-    ``detections`` a :data:`svss_proc.products.detect.DTYPE` table, ``timings`` seconds per
-    stage."""
-    method: str
-    kernel_m: tuple[float, float, float]
-    kernel_voxels: tuple[int, int, int]
-    boundary: str
-    ignore_zeros: bool
-    max_error_db: float
-    floor_upa: float
-    background: np.ndarray | None
-    level: np.ndarray
-    gain_db: np.ndarray
-    drc: np.ndarray | None
-    mips: dict[str, np.ndarray]
-    detections: np.ndarray
-    drc_attrs: dict = field(default_factory=dict)
-    detection_attrs: dict = field(default_factory=dict)
-    timings: dict[str, float] = field(default_factory=dict)
 
 
 def coverage_settings(cfg: ProductsConfig) -> tuple[bool, float, bool]:
