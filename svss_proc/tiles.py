@@ -16,6 +16,7 @@ import functools
 import json
 import logging
 import os
+import re
 import secrets
 import time
 from dataclasses import dataclass, field
@@ -54,6 +55,17 @@ PARTIAL = ".partial-"
 #: root attributes every tile has (and the scorer and the summary need)
 REQUIRED_ATTRS = ("tile_index", "line_origin_north_m", "line_origin_east_m",
                   "line_heading_rad", "interface_down_m", "voxel_m")
+
+
+#: the names of a tile's files (:func:`tile_name`, :func:`tile_file_paths`): the one place
+#: they are spelled
+TILE_PREFIX = "tile_"
+TILE_SUFFIX = ".h5"
+QUICKLOOK_SUFFIX = "_mip.png"
+TILE_GLOB = f"{TILE_PREFIX}*{TILE_SUFFIX}"
+#: name prefixes of a tile's files, finished or being written (:func:`temporary_path`)
+TILE_FILE_PREFIXES = (TILE_PREFIX, f".{TILE_PREFIX}")
+_TILE_FILE = re.compile(rf"{TILE_PREFIX}(-?\d+){re.escape(TILE_SUFFIX)}")
 
 
 class TileFileError(ValueError):
@@ -113,7 +125,33 @@ def tile_line(attrs: dict) -> TrackLine:
 
 
 def tile_name(index: int) -> str:
-    return f"tile_{index:04d}"
+    """The stem of tile ``index``'s files: ``tile_NNNN``."""
+    return f"{TILE_PREFIX}{index:04d}"
+
+
+def tile_file_paths(folder: str | Path, index: int) -> tuple[Path, Path]:
+    """(tile file, quicklook) of tile ``index`` in ``folder``: ``tile_NNNN.h5`` and
+    ``tile_NNNN_mip.png``."""
+    name = tile_name(index)
+    folder = Path(folder)
+    return folder / f"{name}{TILE_SUFFIX}", folder / f"{name}{QUICKLOOK_SUFFIX}"
+
+
+def finished_tile_paths(folder: str | Path) -> list[Path]:
+    """The finished tile files of ``folder`` (``tile_*.h5``; files being written, which
+    :func:`temporary_path` names, excluded), sorted."""
+    return sorted(p for p in Path(folder).glob(TILE_GLOB) if not is_temporary(p))
+
+
+def finished_tiles_by_index(folder: str | Path) -> dict[int, Path]:
+    """The finished tile files of ``folder`` by the tile index their names carry (files
+    whose names carry none are left out)."""
+    out = {}
+    for p in Path(folder).glob(TILE_GLOB):
+        m = _TILE_FILE.fullmatch(p.name)
+        if m:
+            out[int(m.group(1))] = p
+    return out
 
 
 def _attach(ds: h5py.Dataset, f: h5py.Group, dims: tuple[str, ...]) -> None:

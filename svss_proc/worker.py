@@ -55,7 +55,8 @@ from .preflight import preflight
 from .products.chain import save_tile
 from .products.run_products import run_products_at_end
 from .survey_index import write_survey_index
-from .tiles import is_temporary, tile_name
+from .tiles import (TILE_FILE_PREFIXES, finished_tiles_by_index, is_temporary,
+                    tile_file_paths)
 
 log = logging.getLogger(__name__)
 
@@ -63,9 +64,6 @@ MANIFEST = "manifest.json"
 JOURNAL = "worker_state.json"
 JOURNAL_SCHEMA = "svss.worker_state"
 JOURNAL_VERSION = 1
-#: names of files a worker writes into its output folder (besides the manifest)
-OUTPUT_PREFIXES = ("tile_", ".tile_")
-_TILE_FILE = re.compile(r"tile_(-?\d+)\.h5")
 #: at a run's end, how long pings the recording has not flushed yet are waited for, s
 END_WAIT_S = 10.0
 #: the navigation's pose flags counted over the imaged pings (manifest ``pose_flags``)
@@ -134,7 +132,7 @@ def prepare_output_dir(out: Path, force: bool = False, *, resume: bool = False) 
         remove_temporaries(d)
     old = sorted(p for p in out.iterdir()
                  if p.is_file() and (p.name in (MANIFEST, JOURNAL)
-                                     or p.name.startswith(OUTPUT_PREFIXES)))
+                                     or p.name.startswith(TILE_FILE_PREFIXES)))
     if not old and not runs:
         return
     if resume and not force and ((out / JOURNAL).is_file()
@@ -153,16 +151,6 @@ def prepare_output_dir(out: Path, force: bool = False, *, resume: bool = False) 
         shutil.rmtree(d)
     log.warning("%s: removed %d file(s) and %d run folder(s) of an earlier run (--force)",
                 out, len(old), len(runs))
-
-
-def tile_files(folder: Path) -> dict[int, Path]:
-    """The finished tiles in ``folder`` by index (temporary files are never finished)."""
-    out = {}
-    for p in folder.glob("tile_*.h5"):
-        m = _TILE_FILE.fullmatch(p.name)
-        if m:
-            out[int(m.group(1))] = p
-    return out
 
 
 def read_journal(folder: Path) -> dict | None:
@@ -274,15 +262,15 @@ class Worker:
             self.skipped_unlisted = int(j.get("skipped_unlisted", 0))
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{path}: malformed journal ({exc})") from None
-        files = tile_files(self.out)
+        files = finished_tiles_by_index(self.out)
         for k in sorted(redo & set(files)):
             # written only because the worker was stopped: imaged again from the resume
             # point
             files.pop(k).unlink()
-            self.out.joinpath(f"{tile_name(k)}_mip.png").unlink(missing_ok=True)
+            tile_file_paths(self.out, k)[1].unlink(missing_ok=True)
         self.imager.schedule.mark_done(files)
         self.written = [p for k in sorted(files) for p in
-                        (files[k], files[k].with_name(f"{tile_name(k)}_mip.png"))]
+                        (files[k], tile_file_paths(self.out, k)[1])]
         log.info("%s: resuming run %s from ping %s (%d tile(s) done%s)", self.out,
                  self.run_id, self.resume_sequence, len(files),
                  f", {len(redo)} redone" if redo else "")

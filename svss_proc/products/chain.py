@@ -24,7 +24,8 @@ from .detect import Footprint, detect
 from ..imaging.coverage import full_fraction
 from .quicklook import mip_png, products_png
 from .tile_products import Products
-from ..tiles import MIPS, Tile, TileFileError, temporary_path, tile_name, write_tile
+from ..tiles import (MIPS, Tile, TileFileError, temporary_path, tile_file_paths, tile_name,
+                     write_tile)
 
 log = logging.getLogger(__name__)
 
@@ -180,7 +181,7 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
     ident = (f"line origin N {tile.line.origin_ne[0]:.2f} E {tile.line.origin_ne[1]:.2f} m,"
              f" heading {np.degrees(tile.line.heading):.1f} deg\nconfigs: hardware "
              f"{hardware.id}, processing {processing.id}")
-    h5, png = out / f"{name}.h5", out / f"{name}_mip.png"
+    h5, png = tile_file_paths(out, tile.grid.index)
     g = tile.grid
     prods = None
     if pcfg is not None:

@@ -49,8 +49,8 @@ from svss_daq.config import (
 from svss_daq.frames import TrackLine
 from svss_daq.navigation import geodetic_to_ned, ned_to_geodetic
 
-from ..tiles import (TileFileError, is_temporary, read_tile_views, temporary_path,
-                     tile_line)
+from ..tiles import (TileFileError, finished_tile_paths, read_tile_views,
+                     temporary_path, tile_line)
 from .chain import DEFAULT_MIN_COVERAGE, coverage_settings, footprint_for
 from .detect import Footprint, sidelobe_filter
 from .drc import compress
@@ -104,14 +104,9 @@ class TileView:
         return float(self.data["attrs"]["voxel_m"])
 
 
-def tile_paths(tiles_dir: str | Path) -> list[Path]:
-    """Finished tile files of a folder (``tile_*.h5``; files being written excluded)."""
-    return sorted(p for p in Path(tiles_dir).glob("tile_*.h5") if not is_temporary(p))
-
-
 def load_views(tiles_dir: str | Path) -> list[TileView]:
     """Every tile of ``tiles_dir`` (:func:`read_tile_views`)."""
-    return [TileView(p, read_tile_views(p)) for p in tile_paths(tiles_dir)]
+    return [TileView(p, read_tile_views(p)) for p in finished_tile_paths(tiles_dir)]
 
 
 # ----------------------------------------------------------------------- geometry
