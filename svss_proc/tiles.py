@@ -29,8 +29,8 @@ import numpy as np
 from svss_daq import __version__
 from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
 from svss_daq.frames import TrackLine
-from svss_daq.rawfile import (H5_ERRORS, RawFileError, abandon, dataset, format_version,
-                              group, hdf5_superblock, in_child, shown)
+from svss_daq.untrusted_hdf5 import (H5_ERRORS, abandon, cause, dataset, format_version,
+                                     group, hdf5_superblock, in_child, shown)
 
 from .products import detect
 from .imaging.grid import TileGrid
@@ -184,14 +184,14 @@ def write_tile(path: str | Path, tile: Tile, hardware: Loaded[HardwareConfig],
         kept.clear()
         f.close()
         os.replace(tmp, path)
-    except (*H5_ERRORS, RawFileError) as exc:
+    except H5_ERRORS as exc:
         if f is not None:
             abandon(f)
         kept.clear()
         tmp.unlink(missing_ok=True)
-        cause = " ".join(str(exc).split())
+        why = " ".join(str(exc).split())
         raise TileFileError(f"{path}: writing tile {tile_name(tile.grid.index)} failed "
-                            f"({cause}); no file written") from None
+                            f"({why}); no file written") from None
     except BaseException:
         if f is not None:
             abandon(f)
@@ -331,7 +331,7 @@ def _open_tile(path: Path) -> h5py.File:
     try:
         f = h5py.File(path, "r")
     except H5_ERRORS as exc:
-        raise TileFileError(f"{path}: not a readable HDF5 file ({_cause(exc)})") from None
+        raise TileFileError(f"{path}: not a readable HDF5 file ({cause(exc)})") from None
     try:
         fmt = f.attrs.get("svss_format")
         if fmt is None or _text(fmt) != TILE_FORMAT:
@@ -344,19 +344,15 @@ def _open_tile(path: Path) -> h5py.File:
         f.close()
         if isinstance(exc, H5_ERRORS) and not isinstance(exc, TileFileError):
             raise TileFileError(f"{path}: cannot read its root attributes "
-                                f"({_cause(exc)})") from None
+                                f"({cause(exc)})") from None
         raise
     return f
-
-
-def _cause(exc: Exception) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 def _read(path: str | Path, body):
     """Open the tile at ``path`` and return ``body(f, path)``; any failure to read it
     becomes a :class:`TileFileError` naming the file. The read runs in a child process
-    (:func:`svss_daq.rawfile.in_child`), so that a damaged file that would hang or
+    (:func:`svss_daq.untrusted_hdf5.in_child`), so that a damaged file that would hang or
     crash HDF5 is refused instead."""
     path = Path(path)
     return in_child(path, lambda: _read_now(path, body), TileFileError)
@@ -369,7 +365,7 @@ def _read_now(path: Path, body):
         except TileFileError:
             raise
         except H5_ERRORS as exc:
-            raise TileFileError(f"{path}: cannot read the tile ({_cause(exc)})") from None
+            raise TileFileError(f"{path}: cannot read the tile ({cause(exc)})") from None
 
 
 def _volume(f: h5py.File, name: str, path: Path, shape: tuple[int, ...], kinds: str,
