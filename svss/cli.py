@@ -99,22 +99,20 @@ def cmd_batch(args) -> int:
 
 
 def cmd_worker(args) -> int:
-    from svss_proc.worker import (GAP_WAIT_S, MAX_LISTED_GAPS, MAX_SEQUENCE_JUMP,
-                                  REORDER_PINGS, serve)
+    from svss_proc.worker import serve
 
     daq = load(DaqConfig, config_path("daq.toml"))
     sub = daq.subscriber
-    timeout = daq.service.request_timeout_s if daq.service is not None else 10.0
-    gap_wait = args.gap_wait if args.gap_wait is not None else (
-        sub.gap_wait_s if sub.gap_wait_s is not None else GAP_WAIT_S)
+    gap_wait = args.gap_wait if args.gap_wait is not None else sub.gap_wait_s
     files = serve(args.connect, args.out, _hardware(args), _processing(args),
                   idle_timeout_s=args.idle_timeout, receive_hwm=sub.receive_hwm,
-                  force=args.force, service=args.service, service_timeout_s=timeout,
+                  force=args.force, service=args.service,
                   curve=daq.security, runs=args.runs, gap_wait_s=gap_wait,
-                  reorder_pings=sub.reorder_pings or REORDER_PINGS,
-                  max_sequence_jump=sub.max_sequence_jump or MAX_SEQUENCE_JUMP,
-                  max_listed_gaps=sub.max_listed_gaps or MAX_LISTED_GAPS,
-                  **({"max_pings_per_reply": daq.service.max_pings_per_reply,
+                  reorder_pings=sub.reorder_pings,
+                  max_sequence_jump=sub.max_sequence_jump,
+                  max_listed_gaps=sub.max_listed_gaps,
+                  **({"service_timeout_s": daq.service.request_timeout_s,
+                      "max_pings_per_reply": daq.service.max_pings_per_reply,
                       "progress_interval_s": daq.service.progress_interval_s}
                      if daq.service is not None else {}))
     for p in files:

@@ -7,7 +7,9 @@ dataclass, rejecting unknown keys, missing keys, wrong types and out-of-range va
 with a :class:`ConfigError` that names the file, the dotted key and what was expected.
 
 Schema fields carry no defaults: defaults live in the config files. A field whose type
-is ``X | None`` may be omitted.
+is ``X | None`` may be omitted: :func:`load` then gives it the ``default`` of its
+:func:`spec` (the one place a default of an omitted key is written), or None where the
+spec has none (omitted meaning "none", e.g. ``extended_min_m3``).
 """
 
 from __future__ import annotations
@@ -33,11 +35,19 @@ class ConfigError(ValueError):
 
 def spec(doc: str, lo: float | None = None, hi: float | None = None,
          choices: tuple | None = None, length: int | None = None,
-         min_length: int | None = None) -> Any:
+         min_length: int | None = None, default: Any = None) -> Any:
     """Declare a schema field: ``doc`` with units, inclusive range, allowed values,
-    exact or minimum sequence length."""
+    exact or minimum sequence length, and for an optional (``X | None``) field the value
+    :func:`load` gives it when the file omits it."""
     return field(metadata={"doc": doc, "lo": lo, "hi": hi, "choices": choices,
-                           "length": length, "min_length": min_length})
+                           "length": length, "min_length": min_length,
+                           "default": default})
+
+
+def omitted_default(cls: type, name: str) -> Any:
+    """The value :func:`load` gives field ``name`` of schema ``cls`` when a file omits
+    it (its :func:`spec` ``default``; None where it has none)."""
+    return {f.name: f for f in dataclasses.fields(cls)}[name].metadata.get("default")
 
 
 # --------------------------------------------------------------------------- hardware
@@ -202,7 +212,7 @@ class BackgroundConfig:
     coverage_whitening: bool | None = spec(
         "divide each magnitude by the square root of the ping-channel pairs that reached "
         "the voxel before the median, and multiply the median back (the background then "
-        "follows the coverage; omitted: true)")
+        "follows the coverage; omitted: true)", default=True)
 
 
 @dataclass(frozen=True)
@@ -238,7 +248,8 @@ class DetectionConfig:
     sidelobe_m: float = spec("sidelobe suppression radius, m (0: none)", lo=0.0, hi=100)
     sidelobe_footprint: bool | None = spec(
         "also take for a sidelobe a contact sidelobe_db weaker (peak magnitude) that one "
-        "ping's projector cone sees together with the stronger one (omitted: true)")
+        "ping's projector cone sees together with the stronger one (omitted: true)",
+        default=True)
     point_threshold_db: float | None = spec(
         "a region above threshold_db is a contact only if its peak reaches this level "
         "or it is an extended object (extended_min_m3), dB re background (omitted: "
@@ -248,7 +259,7 @@ class DetectionConfig:
         "peak, m^3 (omitted: none)", lo=0.0, hi=1e3)
     min_coverage_fraction: float | None = spec(
         "voxels imaged by fewer pings than this fraction of the full coverage at their "
-        "depth never detect (omitted: 0.5)", lo=0.0, hi=1.0)
+        "depth never detect (omitted: 0.5)", lo=0.0, hi=1.0, default=0.5)
     max_per_tile: int = spec("most contacts kept per tile (strongest first)", lo=1,
                              hi=10**6)
     match_radius_m: float = spec("scoring: a detection within this distance of a true "
@@ -261,7 +272,8 @@ class QuicklookConfig:
                                              "slices shown, m", min_length=0)
     dpi: int = spec("PNG resolution, dots per inch", lo=20, hi=600)
     max_labels: int | None = spec("contacts labelled on the views, strongest first (the "
-                                  "rest are listed; omitted: 12)", lo=0, hi=1000)
+                                  "rest are listed; omitted: 12)", lo=0, hi=1000,
+                                  default=12)
 
 
 @dataclass(frozen=True)
@@ -344,17 +356,19 @@ class SubscriberConfig:
                             lo=1, hi=10**6)
     gap_wait_s: float | None = spec("tile worker without a catch-up service: seconds a "
                                     "sequence gap is waited for before it is skipped "
-                                    "(omitted: 2.0)", lo=0.0, hi=3600)
+                                    "(omitted: 2.0)", lo=0.0, hi=3600, default=2.0)
     reorder_pings: int | None = spec("tile worker: pings held at most in its reorder "
-                                     "buffer (480 kB each; omitted: 200)", lo=1, hi=100000)
+                                     "buffer (480 kB each; omitted: 200)", lo=1, hi=100000,
+                                     default=200)
     max_sequence_jump: int | None = spec(
         "tile worker: a ping more than this many sequences past the run's expected one "
         "(plus the pings sent since that last moved) is refused and counted unless the "
-        "catch-up service's recording holds it (omitted: 1000)", lo=1, hi=10**9)
+        "catch-up service's recording holds it (omitted: 1000)", lo=1, hi=10**9,
+        default=1000)
     max_listed_gaps: int | None = spec(
         "tile worker: ranges of skipped pings (never imaged) listed in a run's journal "
         "and manifest at most; beyond, their pings are counted (omitted: 100)", lo=1,
-        hi=10**6)
+        hi=10**6, default=100)
 
 
 @dataclass(frozen=True)
@@ -500,7 +514,7 @@ def _build(cls: type[T], data: dict, prefix: str, file: str) -> T:
         if name not in data:
             optional = typing.get_origin(tp) in (types.UnionType, typing.Union)
             if optional:
-                kwargs[name] = None
+                kwargs[name] = f.metadata.get("default")
                 continue
             if typing.get_origin(tp) is tuple and f.metadata.get("min_length") == 0:
                 kwargs[name] = ()

@@ -34,7 +34,8 @@ from typing import Iterable
 import zmq
 
 from svss_daq import messages
-from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
+from svss_daq.config import (HardwareConfig, Loaded, ProcessingConfig, SubscriberConfig,
+                             omitted_default)
 from svss_daq.endpoints import check_endpoint
 from svss_daq.frames import TrackLine
 from svss_daq import ping as _ping
@@ -72,12 +73,12 @@ POSE_FLAG_NAMES = tuple((getattr(_ping, f"NAV_{n.upper()}"), n) for n in (
     "heading_from_compass", "held", "clock_retimed", "smoothed", "fused"))
 #: what a run's pings were posed with, when nothing else is said (manifest ``poses``)
 LIVE_POSES = "recorded live poses"
-#: defaults of daq.toml's [subscriber] gap_wait_s, reorder_pings, max_sequence_jump and
-#: max_listed_gaps
-GAP_WAIT_S = 2.0
-REORDER_PINGS = 200
-MAX_SEQUENCE_JUMP = 1000
-MAX_LISTED_GAPS = 100
+#: daq.toml's [subscriber] gap_wait_s, reorder_pings, max_sequence_jump and
+#: max_listed_gaps where a caller gives none: the loader's defaults for the omitted keys
+GAP_WAIT_S = omitted_default(SubscriberConfig, "gap_wait_s")
+REORDER_PINGS = omitted_default(SubscriberConfig, "reorder_pings")
+MAX_SEQUENCE_JUMP = omitted_default(SubscriberConfig, "max_sequence_jump")
+MAX_LISTED_GAPS = omitted_default(SubscriberConfig, "max_listed_gaps")
 
 
 def _atomic_json(path: Path, obj: dict) -> None:

@@ -29,18 +29,11 @@ from ..tiles import (MIPS, Tile, TileFileError, temporary_path, tile_file_paths,
 
 log = logging.getLogger(__name__)
 
-#: ``detection.min_coverage_fraction`` when the configuration omits it
-DEFAULT_MIN_COVERAGE = 0.5
-
-
 def coverage_settings(cfg: ProductsConfig) -> tuple[bool, float, bool]:
-    """(coverage_whitening, min_coverage_fraction, sidelobe_footprint) of ``cfg``, with
-    their defaults where the configuration omits them."""
+    """(coverage_whitening, min_coverage_fraction, sidelobe_footprint) of ``cfg`` (the
+    loader fills them where the file omits them)."""
     b, d = cfg.background, cfg.detection
-    return (True if b.coverage_whitening is None else b.coverage_whitening,
-            DEFAULT_MIN_COVERAGE if d.min_coverage_fraction is None
-            else d.min_coverage_fraction,
-            True if d.sidelobe_footprint is None else d.sidelobe_footprint)
+    return b.coverage_whitening, d.min_coverage_fraction, d.sidelobe_footprint
 
 
 def whitened_background(mag: np.ndarray, channels: np.ndarray | None, kernel, bcfg

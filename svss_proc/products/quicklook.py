@@ -79,8 +79,6 @@ def mip_png(path: str | Path, image: np.ndarray, grid: TileGrid, title: str,
 
 #: colour of voxels no ping imaged (RGBA): distinct from every colour of the map
 NO_DATA_RGBA = (0.62, 0.66, 0.70, 1.0)
-#: contacts labelled on the views when ``quicklook.max_labels`` is omitted
-DEFAULT_MAX_LABELS = 12
 #: panel heights, inches: a 2 m axis of a 15 m tile gets at least MIN_PANEL_IN
 MIN_PANEL_IN, MAX_PANEL_IN = 2.4, 3.0
 #: figure width, inches: about one inch per metre of tile, within these bounds
@@ -165,8 +163,7 @@ def products_png(path: str | Path, mips: dict[str, np.ndarray], level: np.ndarra
     and ``identity``: the tile's name and provenance lines.
     """
     d = cfg.drc
-    maxl = cfg.quicklook.max_labels
-    max_labels = DEFAULT_MAX_LABELS if maxl is None else maxl
+    max_labels = cfg.quicklook.max_labels
     a, c, z = grid.along, grid.cross, grid.depth
     ea, ec, ed = _edges(a, voxel_m), _edges(c, voxel_m), _edges(z, voxel_m)
     la, lc, ld = ea[1] - ea[0], ec[1] - ec[0], ed[1] - ed[0]

@@ -51,10 +51,10 @@ from svss_daq.navigation import geodetic_to_ned, ned_to_geodetic
 
 from ..tiles import (TileFileError, finished_tile_paths, read_tile_views,
                      temporary_path, tile_line)
-from .chain import DEFAULT_MIN_COVERAGE, coverage_settings, footprint_for
+from .chain import coverage_settings, footprint_for
 from .detect import Footprint, sidelobe_filter
 from .drc import compress
-from .quicklook import DEFAULT_MAX_LABELS, choose_labels, save_png
+from .quicklook import choose_labels, save_png
 
 log = logging.getLogger(__name__)
 
@@ -402,7 +402,7 @@ def write_mosaic_h5(path: Path, m: dict, origin) -> Path:
 
 
 def write_mosaic_png(path: Path, m: dict, contacts: list[dict], pcfg: ProductsConfig,
-                     title: str, max_labels: int = DEFAULT_MAX_LABELS) -> Path:
+                     title: str, max_labels: int) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -470,7 +470,6 @@ def write_run_products(tiles_dir: str | Path, out_dir: str | Path | None = None,
     contacts, summary = run_contacts(views, origin)
     origin = summary["origin"]
     m = run_mosaic(views)
-    maxl = pcfg.quicklook.max_labels
     title = (f"SVSS run mosaic: {len(views)} tile(s) from {tiles_dir.name}, "
              f"{len(contacts)} contact(s) (from {summary['tile_detections']} tile "
              f"detections); cell {m['cell_m'] * 100:.0f} cm")
@@ -479,8 +478,7 @@ def write_run_products(tiles_dir: str | Path, out_dir: str | Path | None = None,
                CONTACTS_GEOJSON: lambda p: p.write_text(geojson),
                MOSAIC_H5: lambda p: write_mosaic_h5(p, m, origin),
                MOSAIC_PNG: lambda p: write_mosaic_png(p, m, contacts, pcfg, title,
-                                                      DEFAULT_MAX_LABELS if maxl is None
-                                                      else maxl)}
+                                                      pcfg.quicklook.max_labels)}
     files = []
     for name, write in writers.items():
         final = out / name
@@ -510,7 +508,6 @@ def run_products_at_end(tiles_dir: str | Path) -> list[Path]:
 
 __all__ = [
     "CONTACT_FIELDS",
-    "DEFAULT_MIN_COVERAGE",
     "filter_contacts",
     "run_contacts",
     "run_mosaic",

@@ -9,11 +9,10 @@ import matplotlib.image
 import numpy as np
 import pytest
 
-from svss_daq.config import ProcessingConfig, config_path, load
+from svss_daq.config import ProcessingConfig, QuicklookConfig, config_path, load, omitted_default
 from svss_proc.imaging.grid import tile_grid
 from svss_proc.products import detect
 from svss_proc.products.quicklook import (
-    DEFAULT_MAX_LABELS,
     MAX_PANEL_IN,
     MIN_PANEL_IN,
     NO_DATA_RGBA,
@@ -22,6 +21,8 @@ from svss_proc.products.quicklook import (
     view_rgba,
 )
 from svss_proc.tiles import MIPS
+
+DEFAULT_MAX_LABELS = omitted_default(QuicklookConfig, "max_labels")
 
 
 @pytest.fixture(scope="module")
