@@ -31,7 +31,7 @@ from svss_daq.rawfile import RawFileError, RawRunReader
 from svss_daq.signals import stop_once
 from svss_proc.products.run_products import (CONTACTS_CSV, CONTACTS_GEOJSON, MOSAIC_H5,
                                            MOSAIC_PNG)
-from svss_proc.worker import prepare_output_dir, run_folder_name
+from svss_proc.run_folder import prepare_output_dir, run_folder_name
 
 log = logging.getLogger(__name__)
 

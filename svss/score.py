@@ -29,7 +29,7 @@ from svss_proc.products.run_products import TileView, run_contacts
 
 log = logging.getLogger(__name__)
 
-#: the worker's list of the files it wrote (``svss_proc.worker.MANIFEST``)
+#: the worker's list of the files it wrote (``svss_proc.run_folder.MANIFEST``)
 MANIFEST = "manifest.json"
 
 

@@ -31,7 +31,7 @@ from svss_daq.progress import Progress
 
 from ..products.run_products import MOSAIC_H5, run_products_at_end
 from ..survey_index import INDEX_NAME, find_tiles, write_survey_index
-from ..worker import _atomic_json, remove_temporaries, run_folder_name
+from ..run_folder import atomic_json as _atomic_json, remove_temporaries, run_folder_name
 from .plan import TilePlan, group_runs, plan_run
 from .task import PingsRefused, image_tile, tile_paths
 

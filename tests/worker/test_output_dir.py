@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from svss_proc.worker import JOURNAL, MANIFEST, prepare_output_dir, run_folder_name
+from svss_proc.run_folder import JOURNAL, MANIFEST, prepare_output_dir, run_folder_name
 
 
 def test_folder_of_another_kind_is_refused_unless_forced(tmp_path):

@@ -21,7 +21,8 @@ from svss_daq.catchup_stores import RawRunStore, ReplayStore
 from svss_daq.ping_service import PingService
 from svss_daq.publisher import PingPublisher
 from svss_daq.rawfile import RawRunWriter
-from svss_proc.worker import MANIFEST, process_raw, serve
+from svss_proc.run_folder import MANIFEST
+from svss_proc.worker import process_raw, serve
 
 from .conftest import N_SHORT, assert_same_tiles
 

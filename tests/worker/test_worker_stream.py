@@ -22,7 +22,8 @@ from svss_daq.catchup_stores import RawRunStore, ReplayStore
 from svss_daq.ping_service import PingService
 from svss_daq.publisher import PingPublisher
 from svss_daq.rawfile import RawRunReader
-from svss_proc.worker import JOURNAL, MANIFEST, serve
+from svss_proc.run_folder import JOURNAL, MANIFEST
+from svss_proc.worker import serve
 
 from .conftest import N_SHORT, assert_same_tiles, svss, write_pings
 
