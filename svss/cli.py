@@ -414,7 +414,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--out", help="raw-run folder replacing run.out_dir")
     sp.add_argument("--hardware", help="hardware TOML replacing run.hardware")
     sp.add_argument("--run-id", help="run id (default: run.name and the UTC start time)")
-    sp.add_argument("--pings", type=int, default=None, help="stop after this many pings")
+    sp.add_argument("--pings", type=int, default=None,
+                    help="stop once this many pings were delivered (pings delivered "
+                    "beside the last one are recorded too)")
     sp.add_argument("--duration", type=float, default=None, help="stop after this many "
                     "seconds")
     sp.add_argument("--ephemeral-ports", action="store_true", help="bind the publisher, "

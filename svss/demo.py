@@ -32,6 +32,7 @@ from svss_daq.signals import stop_once
 from svss_proc.products.run_products import (CONTACTS_CSV, CONTACTS_GEOJSON, MOSAIC_H5,
                                            MOSAIC_PNG)
 from svss_proc.run_folder import prepare_output_dir, run_folder_name
+from svss_proc.tiles import finished_tile_paths
 
 log = logging.getLogger(__name__)
 
@@ -129,7 +130,7 @@ def _after_stop(procs: dict[str, subprocess.Popen], killed: list[str], runs: Pat
     if problems:
         raise DemoError(f"svss demo stopped by {why}, but not cleanly: "
                         + "; ".join(problems))
-    n = len(list(folder.glob("tile_*.h5"))) if folder.is_dir() else 0
+    n = len(finished_tile_paths(folder)) if folder.is_dir() else 0
     log.info("svss demo stopped by %s: the worker wrote %d tile(s) and its manifest "
              "(incomplete) in %s, the acquisition closed the recording", why, n, folder)
 

@@ -125,7 +125,7 @@ def tile_paths(tiles_dir: str | Path) -> list[Path]:
     warning naming them); without a manifest every ``tile_*.h5`` (with a warning).
     Temporary files of tiles being written are never included."""
     tiles_dir = Path(tiles_dir)
-    found = sorted(p for p in tiles_dir.glob("tile_*.h5") if not tiles.is_temporary(p))
+    found = tiles.finished_tile_paths(tiles_dir)
     manifest = tiles_dir / MANIFEST
     if not manifest.is_file():
         if found:

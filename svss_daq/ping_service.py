@@ -176,7 +176,7 @@ class PingService:
     """Serves a :class:`PingStore` on ``endpoint`` (a ROUTER socket bound now, checked by
     :func:`~svss_daq.endpoints.check_endpoint`; ``tcp://127.0.0.1:*`` picks a free port,
     :attr:`endpoint` says which) from a thread, until :meth:`close`. ``curve``: a
-    :class:`~svss_daq.security.CurveConfig` (None or disabled: plain). Malformed
+    :class:`~svss_daq.config.CurveConfig` (None or disabled: plain). Malformed
     requests are answered with ``svss.error``, logged and counted (:attr:`errors`).
 
     Nothing a client does blocks the serving thread or grows the service without bound

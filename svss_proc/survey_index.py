@@ -15,7 +15,7 @@ from pathlib import Path
 
 from svss_daq.config import ProcessingConfig, loads
 
-from .tiles import is_temporary, read_tile_header, temporary_path
+from .tiles import TILE_GLOB, is_temporary, read_tile_header, temporary_path
 
 log = logging.getLogger(__name__)
 
@@ -81,9 +81,9 @@ def find_tiles(folder: Path) -> list[tuple[str, Path]]:
     """(run, tile file) of the finished tiles in ``folder`` (the run: the folder's
     name) and in its sub-folders (the run: the sub-folder's name)."""
     folder = Path(folder)
-    out = [(folder.name, p) for p in sorted(folder.glob("tile_*.h5"))]
+    out = [(folder.name, p) for p in sorted(folder.glob(TILE_GLOB))]
     for d in sorted(p for p in folder.iterdir() if p.is_dir()):
-        out += [(d.name, p) for p in sorted(d.glob("tile_*.h5"))]
+        out += [(d.name, p) for p in sorted(d.glob(TILE_GLOB))]
     return [(r, p) for r, p in out if not is_temporary(p)]
 
 

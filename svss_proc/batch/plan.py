@@ -169,7 +169,7 @@ def _pose_ping(reader: RawRunReader, i: int, meta: dict, zeros: np.ndarray,
 def group_runs(paths: list[str | Path]) -> dict[str, list[Path]]:
     """Raw files grouped into runs, each run's segment files in segment order, runs in
     the order of their first file given; as the catch-up service groups them
-    (:class:`svss_daq.ping_service.RawRunStore`). A missing or unreadable file raises
+    (:class:`svss_daq.catchup_stores.RawRunStore`). A missing or unreadable file raises
     :class:`~svss_daq.rawfile.RawFileError` naming it; two files claiming the same
     segment of one run (two runs of one name) a ValueError naming both."""
     if not paths:

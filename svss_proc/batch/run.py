@@ -31,7 +31,7 @@ from svss_daq.progress import Progress
 
 from ..products.run_products import MOSAIC_H5, run_products_at_end
 from ..survey_index import INDEX_NAME, find_tiles, write_survey_index
-from ..run_folder import atomic_json as _atomic_json, remove_temporaries, run_folder_name
+from ..run_folder import atomic_json, remove_temporaries, run_folder_name
 from .plan import TilePlan, group_runs, plan_run
 from .task import PingsRefused, image_tile, tile_paths
 
@@ -217,7 +217,7 @@ def run_batch(paths: list[str | Path], out: str | Path,
                 "processing_config_id": processing.id,
                 "processing_source": processing.source, "runs": {**kept, **mine}}
 
-    _atomic_json(out / STATE, {**state_of(), "complete": False})
+    atomic_json(out / STATE, {**state_of(), "complete": False})
     results: list[dict] = []
     errors: list[tuple[TilePlan, BaseException]] = []
     t_cluster0 = time.perf_counter()
@@ -258,7 +258,7 @@ def run_batch(paths: list[str | Path], out: str | Path,
                                          renavigate, excluded[run_id])
                 todo += _replanned(out, old, plans[run_id])
             if todo:
-                _atomic_json(out / STATE, {**state_of(), "complete": False})
+                atomic_json(out / STATE, {**state_of(), "complete": False})
                 n_todo += len(todo)
     finally:
         if own and client is not None:
@@ -301,7 +301,7 @@ def run_batch(paths: list[str | Path], out: str | Path,
         "task_pids": sorted({r["pid"] for r in results}),
         "results": sorted(results, key=lambda r: r["key"]),
     }
-    _atomic_json(out / STATE, {**state, "complete": not errors, "summary": summary})
+    atomic_json(out / STATE, {**state, "complete": not errors, "summary": summary})
     if errors:
         raise BatchError(_failure_report(errors, n_todo, imaged))
     log.info("batch: %d tile(s) (%d imaged, %d skipped), %d detection(s), %.1f s",

@@ -31,7 +31,7 @@ from svss_daq.rawfile import RawFileError, RawRunReader
 
 from ..imaging.imager import TileImager
 from ..products.chain import save_tile
-from ..tiles import read_tile_header, tile_name
+from ..tiles import read_tile_header, tile_file_paths
 from .plan import PlanMismatch, TilePlan
 
 log = logging.getLogger(__name__)
@@ -55,9 +55,7 @@ class PingsRefused(RuntimeError):
 
 def tile_paths(out: Path, plan: TilePlan) -> tuple[Path, Path]:
     """(tile .h5, quicklook .png) of ``plan`` under the batch output folder ``out``."""
-    d = Path(out) / plan.folder
-    name = tile_name(plan.index)
-    return d / f"{name}.h5", d / f"{name}_mip.png"
+    return tile_file_paths(Path(out) / plan.folder, plan.index)
 
 
 def _result(plan: TilePlan, h5: Path, detections: int, t0: float, skipped: bool) -> dict:
