@@ -44,7 +44,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from svss_daq.config import ProcessingConfig, config_path, load_with_text
 from svss_proc.batch.run import run_batch
 from svss_proc.tiles import read_tile
-from svss_proc.worker import process_raw
+from svss_proc.run_worker import process_raw
 
 log = logging.getLogger("bench_batch")
 

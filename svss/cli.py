@@ -74,7 +74,7 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_process(args) -> int:
-    from svss_proc.worker import process_raw
+    from svss_proc.run_worker import process_raw
 
     files = process_raw(args.run, args.out, _processing(args), force=args.force,
                         renavigate=args.renavigate)

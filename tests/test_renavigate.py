@@ -37,7 +37,7 @@ from svss_daq.nav.renavigate import (RenavigationError, navigation_config_from_t
 from svss_daq.ping import (NAV_BOTTOM_LOCK, NAV_CLOCK_RETIMED, NAV_GPS_FIX, NAV_SMOOTHED,
                            NavSnapshot, Ping)
 from svss_daq.rawfile import NAV_CONFIG_ATTR, RawRunReader, RawRunWriter
-from svss_proc.worker import process_raw
+from svss_proc.run_worker import process_raw
 
 ROOT = Path(__file__).resolve().parents[1]
 T0 = int(datetime(2026, 5, 1, 12, 0, 0, tzinfo=timezone.utc).timestamp()) * 10**9
@@ -277,7 +277,7 @@ def test_a_recorded_configuration_today_refuses_is_a_renavigation_error(tmp_path
                        "'dvl_min_beams'"):
         renavigate(run)
     # svss process then images with the recorded poses (by default), logged
-    from svss_proc.worker import run_poses
+    from svss_proc.run_worker import run_poses
     with RawRunReader(run) as r:
         assert run_poses([r], None) == (None, "recorded live poses")
         with pytest.raises(RenavigationError):

@@ -35,7 +35,7 @@ from svss_daq.rawfile import RawFileError, RawRunReader, run_of
 
 from ..imaging.pose_check import check_pose_flags
 from ..imaging.schedule import TileSchedule
-from ..worker import LIVE_POSES, run_poses
+from ..run_worker import LIVE_POSES, run_poses
 
 log = logging.getLogger(__name__)
 
@@ -196,7 +196,7 @@ def plan_run(run_id: str, folder: str, paths: list[Path],
              processing: Loaded[ProcessingConfig], renavigate: bool | None = None,
              exclude: dict[tuple[str, int], str] | None = None) -> RunPlan:
     """Plan the tiles of one run (its segment files, in order) for ``processing``, its
-    pings posed as :func:`svss_proc.worker.run_poses` decides (``renavigate``: the
+    pings posed as :func:`svss_proc.run_worker.run_poses` decides (``renavigate``: the
     whole run, every segment's instrument records together). ``exclude``: pings found
     refused for their samples, (raw file, index) -> reason: refused here as the
     streaming worker's gate refuses them (counted in ``refused``)."""

@@ -20,7 +20,7 @@ from svss_daq.config import ProcessingConfig, load_with_text
 from svss_daq.ping_service import PingFetcher
 from svss_daq.rawfile import RawRunReader
 from svss_proc.tiles import read_tile
-from svss_proc.worker import process_raw
+from svss_proc.run_worker import process_raw
 
 from .conftest import CONFIG, ROOT, acquire_toml
 from .test_daemon import device_stats
@@ -100,7 +100,7 @@ def warm_kernels(tmp_path_factory, hardware):
     so that a worker process is not still compiling when the run it should image ends."""
     from sim_device.environment_source import EnvironmentSource
     from sim_device.scene import load_scene
-    from svss_proc.worker import Worker
+    from svss_proc.run_worker import Worker
     src = EnvironmentSource(hardware, load_scene(CONFIG / "scenes" / "demo.toml"))
     warm = tmp_path_factory.mktemp("warm")
     worker = Worker(hardware, load_with_text(ProcessingConfig, coarse_processing(warm)),

@@ -20,7 +20,7 @@ import pytest
 from svss_daq.config import ProcessingConfig, load_with_text
 from svss_daq.ping_service import PingFetcher
 from svss_daq.rawfile import RawRunReader
-from svss_proc.worker import process_raw
+from svss_proc.run_worker import process_raw
 from tests.worker.conftest import assert_same_tiles
 
 from .conftest import ROOT, acquire_toml

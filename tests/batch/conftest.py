@@ -60,7 +60,7 @@ def survey(tmp_path_factory) -> dict:
 @pytest.fixture(scope="session")
 def reference(survey, coarse_proc, tmp_path_factory) -> dict:
     """`svss process` (in process: the same function) of run A and of run B whole."""
-    from svss_proc.worker import process_raw
+    from svss_proc.run_worker import process_raw
     out = {}
     for run, key in (("lineA", "A"), ("lineB", "B_whole")):
         out[run] = tmp_path_factory.mktemp(f"process-{run}")

@@ -295,7 +295,7 @@ def test_runs_with_instrument_records_are_renavigated_and_say_so(client, coarse_
     run_batch(segs, out, coarse_proc, client=client, kernel_threads=1)
     state = json.loads((out / STATE).read_text())
     assert state["runs"]["inst"]["poses"] == renav.description
-    from svss_proc.worker import process_raw
+    from svss_proc.run_worker import process_raw
     ref = tmp_path / "ref"
     process_raw(whole, ref, coarse_proc)
     assert_same_tiles(ref, out / "inst")

@@ -30,7 +30,7 @@ BAD = 15
 def corrupted(survey, coarse_proc, tmp_path_factory) -> dict:
     """Run A with ping 15's samples beyond the 24-bit ADC range (a corrupted ping: the
     file is otherwise whole), and svss process's tiles of it."""
-    from svss_proc.worker import process_raw
+    from svss_proc.run_worker import process_raw
     d = tmp_path_factory.mktemp("corrupted")
     path = d / "lineA.h5"
     shutil.copy(survey["A"], path)

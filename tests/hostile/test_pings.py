@@ -30,7 +30,8 @@ from svss_daq.publisher import PingPublisher
 from svss_proc.imaging.pose_check import TrackGuard
 from svss_proc.tiles import read_tile
 from svss_proc.run_folder import MANIFEST
-from svss_proc.worker import Worker, serve
+from svss_proc.run_worker import Worker
+from svss_proc.worker import serve
 
 from .conftest import svss_calls
 

@@ -38,7 +38,7 @@ def test_test_field_every_object_detected_no_false_alarm(tmp_path, hardware):
     from sim_device.environment_source import EnvironmentSource
     from sim_device.scene import load_scene
     from svss_daq.rawfile import RawRunWriter
-    from svss_proc.worker import process_raw
+    from svss_proc.run_worker import process_raw
     scene = load_scene(SCENE)
     raw = tmp_path / "field.h5"
     with RawRunWriter(raw, hardware, run_attrs={}) as rec:

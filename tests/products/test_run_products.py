@@ -43,7 +43,7 @@ def demo_run(tmp_path_factory, hardware, demo_processing):
     function (demo tiles, 2 cm voxels)."""
     from sim_device.environment_source import EnvironmentSource
     from svss_daq.rawfile import RawRunWriter
-    from svss_proc.worker import process_raw
+    from svss_proc.run_worker import process_raw
     raw = tmp_path_factory.mktemp("raw") / "demo.h5"
     scene = load_scene(SCENE)
     with RawRunWriter(raw, hardware, run_attrs={}) as rec:

@@ -104,7 +104,7 @@ def first_pings(short_run) -> list:
 @pytest.fixture(scope="session")
 def processed(raw_run, small_proc, tmp_path_factory) -> Path:
     """`svss process` of the raw run (in process: the same function)."""
-    from svss_proc.worker import process_raw
+    from svss_proc.run_worker import process_raw
     out = tmp_path_factory.mktemp("processed")
     process_raw(raw_run, out, small_proc)
     return out
@@ -113,7 +113,7 @@ def processed(raw_run, small_proc, tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def short_processed(short_run, small_proc, tmp_path_factory) -> Path:
     """`svss process` of :func:`short_run` (in process: the same function)."""
-    from svss_proc.worker import process_raw
+    from svss_proc.run_worker import process_raw
     out = tmp_path_factory.mktemp("short-processed")
     process_raw(short_run, out, small_proc)
     return out

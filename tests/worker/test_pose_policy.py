@@ -19,7 +19,7 @@ from svss_daq.ping import (NAV_BOTTOM_LOCK, NAV_CLOCK_RETIMED, NAV_DEAD_RECKONED
                            NAV_NO_HEADING)
 from svss_daq.rawfile import RawRunWriter
 from svss_proc.batch.plan import plan_run
-from svss_proc.worker import Worker, process_raw
+from svss_proc.run_worker import Worker, process_raw
 
 from .conftest import stream_processing_text
 from .test_tile_closing import pings

@@ -22,7 +22,8 @@ from svss_daq.ping_service import PingService
 from svss_daq.publisher import PingPublisher
 from svss_daq.rawfile import RawRunWriter
 from svss_proc.run_folder import MANIFEST
-from svss_proc.worker import process_raw, serve
+from svss_proc.run_worker import process_raw
+from svss_proc.worker import serve
 
 from .conftest import N_SHORT, assert_same_tiles
 
@@ -52,10 +53,13 @@ class _Lines(logging.Handler):
 @pytest.fixture
 def lines():
     h = _Lines()
-    logger = logging.getLogger("svss_proc.worker")
-    logger.addHandler(h)
+    # the stream worker's records and those of the run worker it feeds
+    loggers = [logging.getLogger(n) for n in ("svss_proc.worker", "svss_proc.run_worker")]
+    for logger in loggers:
+        logger.addHandler(h)
     yield h
-    logger.removeHandler(h)
+    for logger in loggers:
+        logger.removeHandler(h)
 
 
 def _write(path, hardware, pings, run_id):

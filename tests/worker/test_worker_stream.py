@@ -223,7 +223,7 @@ def test_sequences_the_recording_lacks_are_skipped_and_counted(first_pings, hw, 
     """A recording with holes (pings the daemon never got): the service says they are
     missing, the worker skips them at once (no wait) and its tiles equal `svss
     process`'s of the same file."""
-    from svss_proc.worker import process_raw
+    from svss_proc.run_worker import process_raw
 
     raw = write_pings(tmp_path / "holes.h5",
                       [p for p in first_pings if p.sequence not in {10, 11, 25}])

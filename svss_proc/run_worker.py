@@ -1,0 +1,337 @@
+"""One run's pings into one folder of tiles, with the files that say how far it got.
+
+- :class:`Worker` images one run's pings, fed in sequence order, into one folder: tiles
+  are written atomically (the .h5 rename is the commit point) and, for a run with an id,
+  a journal (``worker_state.json``) records the tile frame, the written tiles and the
+  resume point after each tile, so that a killed worker resumes with no missing and no
+  duplicated tile; at the end it writes the run's manifest and run products.
+- :func:`run_poses`: what a recorded run is imaged with (re-navigated or live poses).
+- :func:`process_raw`: ``svss process RUN.h5 --out DIR`` (tiles directly in DIR).
+
+Nothing here speaks ZeroMQ: :mod:`svss_proc.worker` feeds a :class:`Worker` per run from
+the stream (docs/worker.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from pathlib import Path
+from typing import Iterable
+
+from svss_daq import ping as _ping
+from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig, SubscriberConfig, \
+    omitted_default
+from svss_daq.frames import TrackLine
+from svss_daq.nav.renavigate import RenavigationError, records_problem, renavigation
+from svss_daq.ping import NavSnapshot, Ping
+from svss_daq.ping_gate import PingGate, PingRejected
+from svss_daq.progress import Progress
+from svss_daq.rawfile import RawRunReader, run_of
+
+from .imaging.imager import TileImager
+from .imaging.pose_check import check_pose_flags
+from .products.chain import save_tile
+from .products.run_products import run_products_at_end
+from .run_folder import (JOURNAL, JOURNAL_SCHEMA, JOURNAL_VERSION, MANIFEST, atomic_json,
+                         prepare_output_dir, read_journal)
+from .survey_index import write_survey_index
+from .tiles import finished_tiles_by_index, tile_file_paths
+
+log = logging.getLogger(__name__)
+
+#: daq.toml's [subscriber] max_listed_gaps where a caller gives none (the loader's
+#: default for the omitted key)
+MAX_LISTED_GAPS = omitted_default(SubscriberConfig, "max_listed_gaps")
+#: the navigation's pose flags counted over the imaged pings (manifest ``pose_flags``)
+POSE_FLAG_NAMES = tuple((getattr(_ping, f"NAV_{n.upper()}"), n) for n in (
+    "gps_fix", "dead_reckoned", "bottom_lock", "simulated", "heading_from_course",
+    "heading_from_compass", "held", "clock_retimed", "smoothed", "fused"))
+#: what a run's pings were posed with, when nothing else is said (manifest ``poses``)
+LIVE_POSES = "recorded live poses"
+
+
+class Worker:
+    """Images one run's pings, fed in sequence order, into tile files in ``out_dir``.
+
+    Every ping passes the :class:`~svss_daq.ping_gate.PingGate` and the imager's pose
+    checks first; a refused ping is logged, counted (``manifest.json``'s ``refused``) and
+    skipped, and the run goes on. ``force`` replaces an earlier run's outputs in
+    ``out_dir`` (otherwise refused).
+
+    With a ``run_id`` the worker keeps a journal (``worker_state.json``, written
+    atomically when the tile frame is set and after each tile): the tile frame, the
+    written tiles and the resume point (the first sequence of the earliest still-open
+    tile). ``resume``: continue from the journal in ``out_dir``; the tile files present
+    are the truth for what is done, tiles written only because the worker was stopped
+    are redone; feed the pings again from :attr:`resume_sequence`."""
+
+    def __init__(self, hardware: Loaded[HardwareConfig], processing: Loaded[ProcessingConfig],
+                 out_dir: str | Path, *, force: bool = False, run_id: str | None = None,
+                 resume: bool = False, poses: str = LIVE_POSES,
+                 max_listed_gaps: int = MAX_LISTED_GAPS):
+        self.hardware, self.processing = hardware, processing
+        #: ranges [first, last] of the run's pings skipped (never imaged: lost on the
+        #: stream and not fetched), the first ``max_listed_gaps``; the rest counted
+        self.skipped_ranges: list[list[int]] = []
+        self.skipped_unlisted = 0            # pings in ranges beyond the listed ones
+        self.max_listed_gaps = max_listed_gaps
+        #: why the run is incomplete though it was finished (manifest ``incomplete``)
+        self.incomplete_reason: str | None = None
+        #: what the pings are posed with (tile provenance and manifest ``poses``)
+        self.poses = poses
+        #: imaged pings per navigation flag (:data:`POSE_FLAG_NAMES`)
+        self.pose_flags: dict[str, int] = {}
+        self.out = Path(out_dir)
+        self.run_id = run_id
+        self.imager = TileImager(hardware, processing.value, source=processing.source)
+        prepare_output_dir(self.out, force, resume=resume)
+        self.gate = PingGate(hardware, name="worker")
+        self.written: list[Path] = []
+        self.last_sequence: int | None = None
+        self.gaps = 0
+        self.imaging_errors = 0
+        self.malformed_messages = 0
+        self.resume_sequence: int | None = None
+        self.resumed = 0
+        self._journal_line = False
+        if resume:
+            self._resume()
+
+    # ------------------------------------------------------------------ journal
+    def _resume(self) -> None:
+        j = read_journal(self.out)
+        if j is None:
+            return
+        path = self.out / JOURNAL
+        if j.get("processing_config_id") != self.processing.id:
+            raise ValueError(f"{path}: written with processing configuration "
+                             f"{j.get('processing_config_id')}, not {self.processing.id} "
+                             f"({self.processing.source}); resume with the same "
+                             "configuration or pass --force")
+        try:
+            line = j.get("line")
+            if line is not None:
+                self.imager.schedule.fix_frame(
+                    TrackLine(tuple(float(v) for v in line["origin_ne"]),
+                              float(line["heading"]), float(line["interface_down"])))
+                self._journal_line = True
+            redo = {int(k) for k in j.get("stopped_open", [])}
+            self.resume_sequence = j.get("resume_sequence")
+            if self.resume_sequence is not None:
+                self.resume_sequence = int(self.resume_sequence)
+            self.resumed = int(j.get("resumed", 0)) + 1
+            # pings skipped before the resume point stay skipped (their tiles are
+            # written); those after it are fed again
+            upto = self.resume_sequence if self.resume_sequence is not None else 0
+            for a, b in j.get("skipped", [])[:self.max_listed_gaps]:
+                if int(a) < upto:
+                    self.skipped_ranges.append([int(a), min(int(b), upto - 1)])
+            self.skipped_unlisted = int(j.get("skipped_unlisted", 0))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{path}: malformed journal ({exc})") from None
+        files = finished_tiles_by_index(self.out)
+        for k in sorted(redo & set(files)):
+            # written only because the worker was stopped: imaged again from the resume
+            # point
+            files.pop(k).unlink()
+            tile_file_paths(self.out, k)[1].unlink(missing_ok=True)
+        self.imager.schedule.mark_done(files)
+        self.written = [p for k in sorted(files) for p in
+                        (files[k], tile_file_paths(self.out, k)[1])]
+        log.info("%s: resuming run %s from ping %s (%d tile(s) done%s)", self.out,
+                 self.run_id, self.resume_sequence, len(files),
+                 f", {len(redo)} redone" if redo else "")
+
+    def _write_journal(self, complete: bool = False, stopped_open: Iterable[int] = (),
+                       resume: int | None = None) -> None:
+        if self.run_id is None:
+            return
+        line = self.imager.line
+        resume = resume if resume is not None else self.imager.resume_sequence()
+        if resume is None:
+            resume = (self.last_sequence + 1 if self.last_sequence is not None
+                      else self.resume_sequence)
+        atomic_json(self.out / JOURNAL, {
+            "schema": JOURNAL_SCHEMA, "version": JOURNAL_VERSION, "run_id": self.run_id,
+            "complete": complete,
+            "line": None if line is None else {
+                "origin_ne": list(line.origin_ne), "heading": line.heading,
+                "interface_down": line.interface_down},
+            "written": sorted(self.imager.done - set(stopped_open)),
+            "stopped_open": sorted(stopped_open),
+            "resume_sequence": resume, "last_sequence": self.last_sequence,
+            "resumed": self.resumed, "skipped": self.skipped_ranges,
+            "skipped_unlisted": self.skipped_unlisted,
+            "hardware_config_id": self.hardware.id,
+            "processing_config_id": self.processing.id,
+            "updated_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})
+
+    # ------------------------------------------------------------------ imaging
+    def add(self, ping: Ping) -> bool:
+        """Gate and image one ping, writing the tiles it completes; False when refused.
+        The pose's navigation flags are judged first
+        (:func:`~svss_proc.imaging.pose_check.pose_flags_problem`: a pose without a
+        position would otherwise be refused by the gate for its NaN alone)."""
+        tiles = []
+        ok = False
+        try:
+            check_pose_flags(ping, self.processing.value.ping_gate)
+            flags_ok = True
+        except PingRejected as exc:
+            self.gate.refuse(exc)
+            flags_ok = False
+        if flags_ok and self.gate.admit(ping):
+            try:
+                tiles = self.imager.add(ping)
+                ok = True
+            except PingRejected as exc:
+                self.gate.refuse(exc)
+            except Exception:                    # a defect must not lose the open tiles
+                self.imaging_errors += 1
+                log.exception("ping %d: imaging failed; ping skipped", ping.sequence)
+        seq = getattr(ping, "sequence", None)
+        if ok:
+            self._tally_flags(ping.nav.quality)
+            if self.last_sequence is not None and seq != self.last_sequence + 1:
+                self.gaps += 1
+                log.warning("ping sequence jumps from %d to %d: %d ping(s) missing",
+                            self.last_sequence, seq, seq - self.last_sequence - 1)
+        if type(seq) is int and (self.last_sequence is None or seq > self.last_sequence):
+            self.last_sequence = seq
+        for tile in tiles:
+            tile.poses = self.poses
+            self.written += save_tile(tile, self.out, self.hardware, self.processing)
+        if tiles or (self.imager.line is not None and not self._journal_line):
+            self._journal_line = True
+            self._write_journal()
+        return ok
+
+    def skip(self, first: int, last: int) -> None:
+        """Pings ``first``..``last`` of the run will never be imaged here (lost on the
+        stream and not fetched): listed (the first ``max_listed_gaps`` ranges; beyond,
+        counted) in the journal and the manifest, and the run is not complete."""
+        if last < first:
+            return
+        if self.skipped_ranges and self.skipped_ranges[-1][1] + 1 == first:
+            self.skipped_ranges[-1][1] = last
+        elif len(self.skipped_ranges) < self.max_listed_gaps:
+            self.skipped_ranges.append([first, last])
+        else:
+            self.skipped_unlisted += last - first + 1
+
+    @property
+    def skipped_pings(self) -> int:
+        """Pings of the run skipped (:meth:`skip`)."""
+        return sum(b - a + 1 for a, b in self.skipped_ranges) + self.skipped_unlisted
+
+    def _tally_flags(self, quality: int) -> None:
+        for bit, name in POSE_FLAG_NAMES:
+            if quality & bit:
+                self.pose_flags[name] = self.pose_flags.get(name, 0) + 1
+
+    def finish(self, complete: bool = True) -> list[Path]:
+        """Write every open tile and the manifest; ``complete`` False when stopped early
+        (the journal then says the open tiles were written only because of the stop, and
+        a resume redoes them)."""
+        open_tiles = sorted(self.imager.active)
+        resume = self.imager.resume_sequence()
+        if not complete:
+            self._write_journal(stopped_open=open_tiles)    # intent first
+        for tile in self.imager.finish():
+            tile.poses = self.poses
+            self.written += save_tile(tile, self.out, self.hardware, self.processing)
+        refused = dict(self.gate.refused)
+        if self.gate.n_refused or self.imaging_errors or self.imager.late_pings:
+            log.warning("%d ping(s) refused %s, %d failed in imaging, %d reached only "
+                        "tiles already written", self.gate.n_refused, refused,
+                        self.imaging_errors, self.imager.late_pings)
+        self._write_journal(complete=complete, stopped_open=() if complete else open_tiles,
+                            resume=resume)
+        atomic_json(self.out / MANIFEST, self.summary(complete))
+        run_products_at_end(self.out)     # contacts and mosaic of the run (docs/products.md)
+        return self.written
+
+    def summary(self, complete: bool) -> dict:
+        return {
+            "complete": complete, "run_id": self.run_id, "pings": self.imager.n_pings,
+            "poses": self.poses, "pose_flags": dict(sorted(self.pose_flags.items())),
+            "pings_refused": self.gate.n_refused, "refused": dict(self.gate.refused),
+            "imaging_errors": self.imaging_errors, "late_pings": self.imager.late_pings,
+            "malformed_messages": self.malformed_messages,
+            "track_reanchored": self.imager.track.reanchored,
+            "sequence_gaps": self.gaps, "voxel_channel_updates": self.imager.updates,
+            "resumed": self.resumed, "incomplete": self.incomplete_reason,
+            "skipped_pings": self.skipped_pings, "skipped": self.skipped_ranges,
+            "skipped_unlisted": self.skipped_unlisted,
+            "files": sorted({p.name for p in self.written})}
+
+    def run(self, pings: Iterable[Ping], total: int | None = None) -> list[Path]:
+        """Image every ping of ``pings``; on SIGINT (KeyboardInterrupt) write the open
+        tiles and the manifest (marked incomplete) and re-raise."""
+        progress = Progress("imaging", total, log)
+        try:
+            for ping in pings:
+                self.add(ping)
+                progress.update()
+        except KeyboardInterrupt:
+            self.stop()
+            raise
+        return self.finish()
+
+    def stop(self) -> list[Path]:
+        """Stopped early (a signal): write the open tiles and the manifest, marked
+        incomplete."""
+        log.warning("stopped: writing %d open tile(s)", len(self.imager.active))
+        return self.finish(complete=False)
+
+
+def run_poses(readers: list[RawRunReader], renavigate: bool | None
+              ) -> tuple[list[NavSnapshot] | None, str]:
+    """The poses a recorded run (its segment readers, in order) is imaged with: (one
+    pose per ping, or None for the poses recorded with the pings; what they are, for
+    the logs, the tile provenance and the manifest). ``renavigate``: True re-navigates
+    from the run's instrument records (:mod:`svss_daq.nav.renavigate`) and raises
+    :class:`~svss_daq.nav.renavigate.RenavigationError` naming the file when it has
+    none; False keeps the recorded poses; None (the default) re-navigates where the
+    records exist and keeps the recorded poses otherwise (logged)."""
+    where = str(readers[0].path)
+    if renavigate is False:
+        log.info("%s: imaged with its %s (re-navigation not asked for)", where, LIVE_POSES)
+        return None, LIVE_POSES
+    problem = records_problem(readers)
+    if problem is not None:
+        if renavigate:
+            raise RenavigationError(f"cannot re-navigate: {problem}")
+        log.info("%s: imaged with its %s (not re-navigated: %s)", where, LIVE_POSES,
+                 problem)
+        return None, LIVE_POSES
+    try:
+        renav = renavigation(readers)
+    except RenavigationError as exc:
+        if renavigate:
+            raise
+        log.warning("%s; imaged with its %s", exc, LIVE_POSES)
+        return None, LIVE_POSES
+    log.info("%s: imaged with poses %s", where, renav.description)
+    return renav.poses, renav.description
+
+
+def process_raw(path: str | Path, out_dir: str | Path,
+                processing: Loaded[ProcessingConfig], *, force: bool = False,
+                renavigate: bool | None = None) -> list[Path]:
+    """Image a recorded raw run with the hardware configuration it was recorded with,
+    into ``out_dir`` directly (the same tiles as the worker's ``OUT/RUN_ID/``), and
+    the folder's survey index (``survey_index.csv``, :mod:`.survey_index`). The pings
+    are posed as :func:`run_poses` decides (``renavigate``); the manifest's and the
+    tiles' ``poses`` say with what."""
+    with RawRunReader(path) as run:
+        poses, what = run_poses([run], renavigate)
+        worker = Worker(run.hardware, processing, out_dir, force=force, poses=what)
+        pings = iter(run) if poses is None else (
+            dataclasses.replace(p, nav=nav) for p, nav in zip(run, poses, strict=True))
+        files = worker.run(pings, total=len(run))
+    run_id, _ = run_of(Path(path))          # as svss batch names it in its index
+    write_survey_index(out_dir, [(run_id, p) for p in files if p.suffix == ".h5"])
+    return files
