@@ -243,6 +243,7 @@ class AcquisitionDaemon:
         self.n_events = 0
         self.event_counts: collections.Counter = collections.Counter()
         self.state = "starting"
+        self._stop_done = False          # stop() ran to its end (then it does nothing)
         self.failure: str | None = None
         self._watch = _Watch()
         self._tx: dict[int, PingEvent] = {}
@@ -881,8 +882,9 @@ class AcquisitionDaemon:
 
     def stop(self) -> None:
         """Stop pinging, drain pings in flight, flush and close everything, end the
-        run. Safe to call twice."""
-        if self.state in ("stopped",):
+        run. Safe to call twice: a second call after a finished one does nothing (the
+        first may have ended "failed", e.g. a stop signal inside a segment's creation)."""
+        if self._stop_done:
             return
         failed = self.state == "failed"
         self.state = "stopping"
@@ -943,6 +945,7 @@ class AcquisitionDaemon:
             self.service.close()
         if self.status_pub is not None:
             self.status_pub.close()
+        self._stop_done = True
         log.info("run %s: %d pings delivered, %d recorded in %d file(s), %d published, "
                  "%d dropped on the stream, %d device event(s)", self.run_id,
                  self.counters.delivered, self.counters.recorded,
