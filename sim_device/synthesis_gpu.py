@@ -35,6 +35,7 @@ import numpy as np
 from numba import config, cuda
 
 from svss_daq.conventions import ECHO_PHASE_SIGN
+from svss_proc.imaging.gpu_shared import DeviceBuffers
 
 from . import layered_rays, synthesis
 from .synthesis import IMG_DIR, IMG_H, IMG_NB, IMG_RS, IMG_X, IMG_Y, MED_INTERFACE
@@ -176,24 +177,14 @@ class GpuAccumulator:
                                "(install the 'gpu' extra, numba-cuda, on a machine with an "
                                "NVIDIA GPU, or set it to 'cpu')")
         self._buffers: dict[str, object] = {}
+        self._rows = DeviceBuffers()     # the per-scatterer inputs, by role
         self._tables: dict[str, tuple[np.ndarray, object]] = {}
         self.last_times: dict[str, float] = {}
 
     def _upload(self, role: str, host: np.ndarray, dtype) -> object:
         """``host`` in the device buffer of ``role`` (grown to 5/4 of the need when too
         small); returns the device view of its shape."""
-        host = np.ascontiguousarray(host, dtype=dtype)
-        n = host.shape[0]
-        d = self._buffers.get(role)
-        if d is None or d.shape[0] < n or d.shape[1:] != host.shape[1:] or d.dtype != dtype:
-            cap = max(n + n // 4, 1)
-            log.debug("GPU buffer %s: %s %s", role, (cap, *host.shape[1:]), np.dtype(dtype))
-            d = cuda.device_array((cap, *host.shape[1:]), dtype=dtype)
-            self._buffers[role] = d
-        view = d[:n]
-        if n:
-            view.copy_to_device(host)
-        return view
+        return self._rows.upload_rows(role, host, dtype)
 
     def _table(self, role: str, host: np.ndarray, dtype) -> object:
         """A scene table on the device, uploaded again only for another table object."""
