@@ -54,7 +54,7 @@ from .nav.renavigate import navigation_config_text
 from .rawfile import NAV_CONFIG_ATTR
 from .recorder import (RESERVE_MIB, RecordingStopped, RunRecorder,
                        close_interrupted_runs, free_run_id)
-from .signals import raise_if_stopped
+from .signals import deferred_stop, raise_if_stopped
 from .status import StatusPublisher
 
 log = logging.getLogger(__name__)
@@ -463,15 +463,16 @@ class AcquisitionDaemon:
             item = self.digitiser.ping_queue.get(timeout=timeout_s)
         except queue.Empty:
             item = None
-        while item is not None:
-            self._take(item)
-            if len(self._pending) > self.limits.pending_pings:
-                self._assemble_due(final=False)
-            try:
-                item = self.digitiser.ping_queue.get_nowait()
-            except queue.Empty:
-                item = None
-        self._assemble_due(final=False)
+        with deferred_stop():       # no ping taken off the queue and dropped by a stop
+            while item is not None:
+                self._take(item)
+                if len(self._pending) > self.limits.pending_pings:
+                    self._assemble_due(final=False)
+                try:
+                    item = self.digitiser.ping_queue.get_nowait()
+                except queue.Empty:
+                    item = None
+            self._assemble_due(final=False)
         self._flush_due()
         self._watch_devices()
         self._nav_notices()
@@ -483,11 +484,12 @@ class AcquisitionDaemon:
         ping came to flush it), then publish what it made recorded."""
         if self._unflushed and time.monotonic() - self._unflushed[0][2] >= \
                 self.setup.daq.recorder.flush_interval_s:
-            try:
-                self.recorder.flush()
-            except RecordingStopped as exc:
-                self._recording_failed(exc)
-            self._publish_recorded()
+            with deferred_stop():
+                try:
+                    self.recorder.flush()
+                except RecordingStopped as exc:
+                    self._recording_failed(exc)
+                self._publish_recorded()
 
     def _recording_failed(self, exc: RecordingStopped) -> None:
         if self.failure is None:
@@ -498,14 +500,15 @@ class AcquisitionDaemon:
     def _publish_recorded(self) -> None:
         """Publish the pings the recording holds now (flushed), in order."""
         n = self.recorder.n_flushed
-        while self._unflushed and self._unflushed[0][0] < n:
-            _, ping, _ = self._unflushed.popleft()
-            self.counters.recorded += 1
-            self._times.append(time.monotonic())
-            if self.publisher.publish(ping, run_id=self.run_id):
-                self.counters.published += 1
-            else:
-                self.counters.publish_dropped += 1
+        with deferred_stop():       # no ping taken off the list and left unpublished
+            while self._unflushed and self._unflushed[0][0] < n:
+                _, ping, _ = self._unflushed.popleft()
+                self.counters.recorded += 1
+                self._times.append(time.monotonic())
+                if self.publisher.publish(ping, run_id=self.run_id):
+                    self.counters.published += 1
+                else:
+                    self.counters.publish_dropped += 1
 
     def _note_requests(self) -> None:
         # replies sent whole: a client that does not read keeps nothing up
@@ -615,16 +618,17 @@ class AcquisitionDaemon:
                        f"before {seq} never delivered")
         self._last_seq = seq if self._last_seq is None else max(seq, self._last_seq)
         self._tally_nav(nav)
-        index = self.recorder.n_recorded
-        try:
-            self.recorder.append(ping)
-        except RecordingStopped as exc:
-            self._recording_failed(exc)
-        if self.recorder.n_recorded > index:     # appended: published once flushed
-            self._unflushed.append((index, ping, time.monotonic()))
-        else:
-            self.counters.not_recorded += 1
-        self._publish_recorded()
+        with deferred_stop():       # a stop signal after the file and the counts agree
+            index = self.recorder.n_recorded
+            try:
+                self.recorder.append(ping)
+            except RecordingStopped as exc:
+                self._recording_failed(exc)
+            if self.recorder.n_recorded > index:     # appended: published once flushed
+                self._unflushed.append((index, ping, time.monotonic()))
+            else:
+                self.counters.not_recorded += 1
+            self._publish_recorded()
 
     def _nav_caught_up(self, t_ns: int) -> bool:
         """Whether every navigation link has data at or after ``t_ns`` (a pose between

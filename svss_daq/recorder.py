@@ -26,6 +26,7 @@ reads it.
 from __future__ import annotations
 
 import bisect
+import contextlib
 import errno
 import fcntl
 import glob
@@ -35,12 +36,14 @@ import re
 import shutil
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 from .config import HardwareConfig, Loaded
 from .ping import Ping
 from .rawfile import (RawFileError, RawRunReader, RawRunWriter, close_interrupted,
                       hdf5_superblock, summary_path, write_summary, write_summary_beside)
+from .signals import deferred_stop
 
 log = logging.getLogger(__name__)
 
@@ -270,6 +273,14 @@ class RunRecorder:
 
     # -- writing -----------------------------------------------------------------------
 
+    @contextlib.contextmanager
+    def _writing(self) -> Iterator[None]:
+        """The recorder's lock, and a stop signal deferred until the write is whole (one
+        landing inside HDF5 would fail the segment, or leave a ping in the file that the
+        bookkeeping does not count)."""
+        with deferred_stop(), self.lock:
+            yield
+
     def _free(self) -> int:
         return shutil.disk_usage(self.out_dir).free
 
@@ -390,7 +401,7 @@ class RunRecorder:
     def append(self, ping: Ping) -> None:
         """Record one ping (raises :class:`RecordingStopped` when recording cannot go
         on; every flushed ping stays readable)."""
-        with self.lock:
+        with self._writing():
             if self.stopped:
                 raise RecordingStopped(self.stopped)
             if self.writer is None:
@@ -432,7 +443,7 @@ class RunRecorder:
         self._side("append_clock_reference", receive_ns, transmit_ns)
 
     def _side(self, method: str, *args) -> None:
-        with self.lock:
+        with self._writing():
             if self.stopped or self.ended:
                 return
             if self.writer is None:
@@ -445,7 +456,7 @@ class RunRecorder:
 
     def flush(self) -> None:
         """Flush the open segment (what was appended is then recorded)."""
-        with self.lock:
+        with self._writing():
             if self.writer is not None and not self.stopped:
                 w = self.writer
                 try:
@@ -458,7 +469,7 @@ class RunRecorder:
     def close_files(self) -> None:
         """Close the current segment (flushing it): every ping appended is then
         recorded, unless a write fails (then :attr:`stopped` says why). Idempotent."""
-        with self.lock:
+        with self._writing():
             self.ended = True
             if self.writer is not None:
                 w, self.writer = self.writer, None
@@ -478,7 +489,7 @@ class RunRecorder:
         the file; beside it, ``<segment>.summary.json``, for a segment whose writer
         stopped on a failed write or whose file cannot take it); release the reserve and
         the run's lock."""
-        with self.lock:
+        with self._writing():
             self.close_files()
             self._release_reserve()              # room for the summaries on a full disk
             if summary is not None:

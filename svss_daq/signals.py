@@ -11,6 +11,11 @@ swallows it there when that is a weakref callback or a ``__del__`` ("Exception i
 in ..."): the command would then run on as if never signalled (a daemon went on recording
 for 20 s after SIGTERM). Every handler here therefore also records the request
 (:func:`note_stop`), and long loops call :func:`raise_if_stopped` each round.
+
+Some writing must not be cut at all: a KeyboardInterrupt that lands inside HDF5 comes out
+of h5py as an HDF5 error (a segment being created is then "failed", a ping half-appended
+leaves the recorder's bookkeeping behind the file). Within :func:`deferred_stop` a stop
+signal is only noted; it is raised when the block ends.
 """
 
 from __future__ import annotations
@@ -27,6 +32,8 @@ log = logging.getLogger(__name__)
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 _requested: str | None = None        # "signal SIGTERM" once a stop signal came
+_deferring = 0                       # depth of deferred_stop blocks (main thread)
+_deferred: str | None = None         # a stop signal that came inside one
 
 
 def note_stop(signum: int) -> str:
@@ -40,8 +47,8 @@ def note_stop(signum: int) -> str:
 
 def clear_stop() -> None:
     """Forget an earlier stop request (a command starting in a process that ran one)."""
-    global _requested
-    _requested = None
+    global _requested, _deferred
+    _requested = _deferred = None
 
 
 def stop_requested() -> str | None:
@@ -68,9 +75,46 @@ def quiet_unraisable(unraisable) -> None:
     sys.__unraisablehook__(unraisable)
 
 
+def _interrupt(signum: int) -> None:
+    """Stop the main thread for signal ``signum``: KeyboardInterrupt now, or at the end
+    of the :func:`deferred_stop` block it is in."""
+    global _deferred
+    reason = note_stop(signum)
+    if _deferring:
+        _deferred = _deferred or reason
+        log.debug("%s inside a write that must not be cut: stopping after it", reason)
+        return
+    raise KeyboardInterrupt(reason)
+
+
 def stop_handler(signum, frame) -> None:
     """The handler ``svss`` commands install for SIGINT and SIGTERM."""
-    raise KeyboardInterrupt(note_stop(signum))
+    _interrupt(signum)
+
+
+@contextlib.contextmanager
+def deferred_stop() -> Iterator[None]:
+    """Within the block a stop signal (from :func:`stop_handler` or :func:`stop_once`'s
+    first) is noted, not raised; the :class:`KeyboardInterrupt` comes when the block ends
+    (unless it ends with its own exception, which goes on: the request stays noted for
+    :func:`raise_if_stopped`). Blocks nest; only the main thread receives signals, so
+    elsewhere this does nothing. Keep the block short: it delays the stop."""
+    global _deferring, _deferred
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    _deferring += 1
+    try:
+        yield
+    except BaseException:
+        _deferring -= 1
+        if not _deferring:
+            _deferred = None                # noted in _requested; this exception goes on
+        raise
+    _deferring -= 1
+    if not _deferring and _deferred is not None:
+        reason, _deferred = _deferred, None
+        raise KeyboardInterrupt(reason)
 
 
 @contextlib.contextmanager
@@ -90,7 +134,7 @@ def stop_once(what: str) -> Iterator[None]:
     def first(signum, frame):
         for s in STOP_SIGNALS:
             signal.signal(s, later)
-        raise KeyboardInterrupt(note_stop(signum))
+        _interrupt(signum)
 
     old = {s: signal.signal(s, first) for s in STOP_SIGNALS}
     try:
@@ -100,6 +144,6 @@ def stop_once(what: str) -> Iterator[None]:
             signal.signal(s, h)
 
 
-__all__ = ["STOP_SIGNALS", "clear_stop", "note_stop", "quiet_unraisable", "raise_if_stopped",
+__all__ = ["STOP_SIGNALS", "clear_stop", "deferred_stop", "note_stop", "quiet_unraisable", "raise_if_stopped",
            "stop_handler",
            "stop_once", "stop_requested"]

@@ -144,8 +144,10 @@ def _stop(proc):
             proc.wait()
 
 
-@pytest.mark.parametrize("sig", [signal.SIGKILL,
-                                 pytest.param(signal.SIGTERM, marks=pytest.mark.extended)])
+# extended: tests/acquire/test_chain.py's SIGKILL mid-run resume makes the check through the
+# real daemon in the default run
+@pytest.mark.extended
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
 def test_stopped_worker_resumes_with_every_tile_once(sig, raw_run, processed,
                                                      small_proc_path, tmp_path):
     """SIGKILL: the tiles written stay, the open ones are imaged again from the resume
