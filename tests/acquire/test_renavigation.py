@@ -13,6 +13,7 @@ import sys
 import numpy as np
 import pytest
 
+from sim_device.devices.instruments_config import load_instruments
 from sim_device.scene import load_scene
 from sim_device.track import parse_utc_ns, pose_at
 from svss_daq.config import DevicesConfig, HardwareConfig, config_path, load
@@ -94,7 +95,7 @@ def test_daemon_recording_renavigates_to_the_truth_and_svss_process_uses_it(rig,
     types = {s[3:6] for _, s in nmea}
     assert {"GGA", "RMC", "HDT"} <= types
     assert len(clock) >= N_PINGS and {tx for _, tx in clock} >= {p.time_ns for p in live}
-    # re-navigated: the scene's true track, as close as the live poses or closer
+    # re-navigated: the scene's true track, within what averaging the GPS fixes allows
     renav = renavigation(files)
     assert renav.n_pd0 == len(pd0) and renav.n_nmea == len(nmea) and renav.n_bad_pd0 == 0
     assert [p.time_ns for p in renav.poses] == [p.time_ns for p in live]
@@ -106,8 +107,20 @@ def test_daemon_recording_renavigates_to_the_truth_and_svss_process_uses_it(rig,
     print(f"horizontal error: re-navigated mean {err_renav.mean():.3f} m max "
           f"{err_renav.max():.3f} m; live mean {err_live.mean():.3f} m max "
           f"{err_live.max():.3f} m")
-    # (measured: re-navigated 4.1 cm mean, 5.1 cm max; live 6.9 cm mean; GPS 0.3 m)
-    assert err_renav.max() < 0.3 and err_renav.mean() <= err_live.mean() + 0.02
+    # The absolute position is the GPS's: the smoother averages the recording's fixes
+    # (white noise sigma per axis, the simulated receiver's), so its offset from the
+    # truth is Rayleigh with scale sigma / sqrt(N) at best; 3.5 scales are exceeded with
+    # probability exp(-3.5^2 / 2) = 0.2 %. A comparison with the live poses' offset is
+    # no test: both are single draws of that noise, and which one is nearer the truth
+    # changes with the fixes a run happens to hold (a loaded machine starts the pinging
+    # at another time: re-navigated 11.1 cm against live 8.2 cm once; quiet, 5.3 cm
+    # against 16.4 cm).
+    sigma = load_instruments(dev.out.parent / "sim-device.toml").gps.position_sigma_m
+    n_fixes = sum(1 for _, s in nmea if s[3:6] == "GGA" and s.split(",")[6] not in ("", "0"))
+    bound = 3.5 * sigma / np.sqrt(n_fixes)
+    print(f"{n_fixes} GPS fixes of sigma {sigma} m: bound {bound:.3f} m")
+    assert n_fixes >= 20                             # 5 Hz, over the pinging at least
+    assert err_renav.max() < bound, (err_renav.max(), bound)
     # the 4 s of pings are one synthetic aperture: their relative geometry within lambda/8
     # (the GPS-minus-DR offset smoother moved them by 20-38 mm)
     spread_renav = max_aperture_spread(renav.poses, scene, t0)
