@@ -234,8 +234,9 @@ def cmd_demo(args) -> int:
     from svss.demo import DemoError, run_demo
 
     try:
+        lead = {} if args.lead is None else {"lead_s": args.lead}
         files = run_demo(Path(args.out), scene=args.scene, hardware=args.hardware,
-                         processing=args.processing, force=args.force)
+                         processing=args.processing, force=args.force, **lead)
     except DemoError as exc:
         log.error("%s", exc)
         return 1
@@ -401,6 +402,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "tiles and PNGs")
     sp.add_argument("--out", required=True, help="output folder")
     sp.add_argument("--scene", help="scene TOML (default: config/scenes/demo.toml)")
+    sp.add_argument("--lead", type=float, default=None, metavar="S",
+                    help="simulated seconds before the track's first ping, for the "
+                    "acquisition to start (default 12; a shorter lead on a busy machine "
+                    "can miss the first pings and their targets: the demo warns)")
     force(sp, "the demo's earlier outputs in --out")
     common(sp)
     sp.set_defaults(func=cmd_demo)

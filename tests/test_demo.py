@@ -115,6 +115,9 @@ def test_targets_at_true_positions(demo):
         assert near.any(), (k, peak)
 
 
+# extended: the worker's tiles equal svss process's voxel for voxel in the default run
+# through the real daemon (tests/acquire/test_daemon_restart.py, test_chain.py)
+@pytest.mark.extended
 def test_process_recorded_run_gives_the_same_tiles(demo, tmp_path):
     """``svss process`` through the command's function in this process (its kernels
     compiled once for the session; the real command runs in tests/test_renavigate.py)."""

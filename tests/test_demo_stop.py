@@ -43,7 +43,9 @@ def test_ctrl_c_on_the_demo_flushes_what_it_says(tmp_path):
     out = tmp_path / "demo"
     err = tmp_path / "demo.err"
     with open(err, "wb") as fh:
-        demo = subprocess.Popen([sys.executable, "-m", "svss", "demo", "--out", str(out)],
+        # --lead 3: the test stops the demo once it images, whichever ping comes first
+        demo = subprocess.Popen([sys.executable, "-m", "svss", "demo", "--out", str(out),
+                                 "--lead", "3"],
                                 cwd=ROOT, stdout=subprocess.PIPE, stderr=fh,
                                 start_new_session=True)        # its own process group
     try:
