@@ -1,0 +1,2 @@
+"""Micronavigation: the array's ping-to-ping motion from the echoes themselves
+(docs/micronavigation.md)."""
