@@ -39,6 +39,7 @@ into a :class:`RawFileError` naming the file and the path (with the pieces of
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import time
@@ -50,6 +51,7 @@ import numpy as np
 from . import __version__
 from .config import ConfigError, HardwareConfig, Loaded, loaded_from_text
 from .ping import NAV_FIELDS, NavSnapshot, Ping
+from .signals import deferred_stop
 from .untrusted_hdf5 import (H5_ERRORS, abandon, cause, dataset, format_version, group,
                              hdf5_superblock, in_child, open_swmr, shown, text)
 
@@ -96,6 +98,18 @@ def _appendable(group: h5py.Group, name: str, dtype, shape_tail=(), chunk=1024, 
     return ds
 
 
+def _whole(method):
+    """A writer's method that a stop signal does not cut: a KeyboardInterrupt landing
+    inside HDF5 comes out of h5py as an HDF5 error (the file then failed, the command's
+    exit 1 instead of 130); the signal is raised once the write is whole
+    (:func:`~svss_daq.signals.deferred_stop`)."""
+    @functools.wraps(method)
+    def whole(self, *args, **kwargs):
+        with deferred_stop():
+            return method(self, *args, **kwargs)
+    return whole
+
+
 class RawRunWriter:
     """Append pings (and the raw NMEA sentences and PD0 ensembles the navigation used)
     to a new raw-run file.
@@ -107,6 +121,7 @@ class RawRunWriter:
     before (``n_flushed``) stay readable and nothing more is written.
     """
 
+    @_whole
     def __init__(self, path: str | Path, hardware: Loaded[HardwareConfig], *,
                  flush_every_pings: int = 10, flush_interval_s: float = 1.0,
                  environment: dict | None = None, run_attrs: dict | None = None,
@@ -236,6 +251,7 @@ class RawRunWriter:
         log.error("%s", err)
         return err
 
+    @_whole
     def append(self, ping: Ping) -> None:
         """Append one ping; flushes according to the policy."""
         self._check_usable()
@@ -268,6 +284,7 @@ class RawRunWriter:
                 or time.monotonic() - self._last_flush >= self.flush_interval):
             self.flush()
 
+    @_whole
     def append_nmea(self, time_ns: int, sentence: str) -> None:
         """Record one raw NMEA sentence (truncated to 96 bytes)."""
         self._check_usable()
@@ -281,6 +298,7 @@ class RawRunWriter:
         except H5_ERRORS as exc:
             raise self._fail(f"writing NMEA sentence {i}", exc) from None
 
+    @_whole
     def append_pd0(self, time_ns: int, ensemble: bytes) -> None:
         """Record one PD0 ensemble as received (its bytes, header to checksum) with its
         host receive time; durable at the next flush."""
@@ -301,6 +319,7 @@ class RawRunWriter:
         except H5_ERRORS as exc:
             raise self._fail(f"writing PD0 ensemble {i}", exc) from None
 
+    @_whole
     def append_clock_reference(self, receive_ns: int, transmit_ns: int) -> None:
         """Record one ping-clock event: a transmit record of ping time ``transmit_ns``
         received at host time ``receive_ns``; durable at the next flush."""
@@ -314,6 +333,7 @@ class RawRunWriter:
         except H5_ERRORS as exc:
             raise self._fail(f"writing ping-clock event {i}", exc) from None
 
+    @_whole
     def append_event(self, time_ns: int, kind: str, detail: str) -> None:
         """Record one device event (kind up to 32, detail up to 200 bytes, truncated);
         durable at the next flush."""
@@ -350,6 +370,7 @@ class RawRunWriter:
                     window_start_ns=meta["window_start_ns"], samples=samples,
                     nav=NavSnapshot(**nav), config_id=self.hardware.id)
 
+    @_whole
     def flush(self) -> None:
         """Make everything appended so far durable on disk, then record the count of
         pings on disk (``pings_flushed``)."""
@@ -365,6 +386,7 @@ class RawRunWriter:
         self.n_flushed = self.n_pings
         self._last_flush = time.monotonic()
 
+    @_whole
     def close(self) -> None:
         """Flush and close the file (after a failure: only release it)."""
         if self.failed or not self._f.id.valid:

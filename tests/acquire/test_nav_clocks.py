@@ -22,6 +22,7 @@ import pytest
 
 from sim_device.devices.serial_device import SerialDevice
 from svss_daq.acquire_config import load_acquire
+from svss_daq.config import DevicesConfig, load
 from svss_daq.daemon import AcquisitionDaemon
 from svss_daq.protocols.pd0 import Pd0StreamParser, decode_ensemble
 from svss_daq.ping import (NAV_BOTTOM_LOCK, NAV_CLOCK_RETIMED, NAV_GPS_FIX, NAV_HELD,
@@ -146,7 +147,11 @@ def test_dvl_clock_years_off_is_named_retimed_and_posed(rig, tmp_path):
     sol = last["navigation"]["solution"]
     assert sol["clock_retimed"] == ["dvl"], sol
     assert -9.6 < sol["clock_offset_s"]["dvl"] / YEAR_S < -9.4
-    assert abs(sol["clock_offset_s"]["gps"]) < 1.0
+    # the GPS's offset is its transport latency on the ping clock: 0.2-0.5 s quiet, 1.8 s
+    # with two CPU hogs beside the suite (host delays doubled by the time scale of 2);
+    # within the limit the navigation judges clocks by, so it is measured, not re-timed
+    limit = load(DevicesConfig, devices).navigation.clock_max_offset_s
+    assert abs(sol["clock_offset_s"]["gps"]) < limit
     assert "navigation.clock_offset" in last["event_counts"]
     assert "clock offset" in format_status(last) and "dvl" in format_status(last)
     # the poses: the re-timed DVL gives bottom lock and altitude, flagged re-timed

@@ -67,6 +67,72 @@ print(json.dumps({"outcome": outcome, "recorded": rec.n_recorded, "flushed": rec
 """
 
 
+# the same for RawRunWriter alone, as ``svss simulate`` writes: flushed every ping
+WRITER = """
+import json, os, signal, sys, threading, time
+from svss_daq.config import HardwareConfig, config_path, load_with_text
+from svss_daq.rawfile import RawRunWriter
+from svss_daq.signals import stop_handler
+from tests.hostile.conftest import ping_for
+
+def in_append(frame):
+    while frame is not None:
+        if frame.f_code is APPEND:
+            return True
+        frame = frame.f_back
+    return False
+
+def handler(signum, frame):
+    if in_append(frame):
+        stop_handler(signum, frame)
+
+APPEND = getattr(RawRunWriter.append, "__wrapped__", RawRunWriter.append).__code__
+hw = load_with_text(HardwareConfig, config_path("hardware.toml"))
+rec = RawRunWriter(sys.argv[1] + "/run.h5", hw, flush_every_pings=1, flush_interval_s=3600)
+pings = [ping_for(hw, i) for i in range(int(sys.argv[2]))]
+done = threading.Event()
+def hammer():
+    while not done.is_set():
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(0.001)
+signal.signal(signal.SIGTERM, handler)
+threading.Thread(target=hammer, daemon=True).start()
+outcome = []
+for ping in pings:
+    n = rec.n_pings
+    try:
+        rec.append(ping)
+        outcome.append("whole")
+    except KeyboardInterrupt:
+        outcome.append("stopped after" if rec.n_pings > n else "stopped before")
+done.set()
+time.sleep(0.05)
+signal.signal(signal.SIGTERM, signal.SIG_IGN)
+recorded, flushed = rec.n_pings, rec.n_flushed
+rec.close()
+print(json.dumps({"outcome": outcome, "recorded": recorded, "flushed": flushed}))
+"""
+
+
+def test_stop_signals_inside_a_raw_writers_appends_leave_a_whole_file(tmp_path):
+    """``svss simulate`` writes through RawRunWriter directly (under two CPU hogs it
+    exited 1, not 130, on SIGTERM: the signal had landed inside HDF5)."""
+    script = WRITER
+    res = subprocess.run([sys.executable, "-c", script, str(tmp_path), str(N_PINGS)],
+                         cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-3000:]
+    out = json.loads(res.stdout.strip().splitlines()[-1])
+    outcome = out["outcome"]
+    print({k: outcome.count(k) for k in set(outcome)})
+    assert outcome.count("stopped after") >= N_PINGS // 2, outcome
+    assert outcome.count("stopped before") <= 2, outcome
+    expected = [i for i, o in enumerate(outcome) if o != "stopped before"]
+    assert out["recorded"] == out["flushed"] == len(expected)
+    with RawRunReader(tmp_path / "run.h5") as run:
+        assert run.clean
+        assert [run.ping(k).sequence for k in range(len(run))] == expected
+
+
 def test_stop_signals_inside_appends_fail_no_segment_and_leave_file_and_counts_agreeing(
         tmp_path):
     res = subprocess.run([sys.executable, "-c", RECORDER, str(tmp_path), str(N_PINGS)],
