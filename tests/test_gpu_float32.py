@@ -175,6 +175,10 @@ def _check_gpu(far_tile, tmp_path, simulator, half):
     assert err < TOL and n_bad == 0, (err, n_bad)
 
 
+# extended: by default the CUDA simulator runs the GPU kernel at the cone edges
+# (tests/test_cone_edges.py), the scalar functions' float32 types are checked below, and a
+# lent GPU runs the whole far tile (test_real_gpu_..., benchmarks/gpu_check.sh)
+@pytest.mark.extended
 def test_gpu_simulator_float32_far_tile_matches_float64(far_tile, tmp_path):
     _check_gpu(far_tile, tmp_path, simulator=True, half=HALF)
 
