@@ -9,8 +9,9 @@ Reference tile: bench_imaging.py's (750 x 100 x 100 voxels at 2 cm, 80 channels,
 demo's points, default processing but ``imaging.device = "cuda"``), pings 90-339.
 
 1. End to end: ``TileImager`` with the device set to cuda (conditioning, tap planes,
-   geometry, uploads, kernel, count read-back for every ping), best of ``--repeat``
-   passes; rate = voxel-channel updates / seconds.
+   geometry, uploads, kernel; the update counts kept on the device and read once per
+   tile), best of ``--repeat`` passes; rate = voxel-channel updates / seconds; and the
+   same with a wait for every kernel and its count (how it ran before), as a ratio.
 2. Kernel only: the kernel calls of one pass recorded (kernel arguments on the host) and
    replayed with their uploads, then the launches alone with everything already on the
    device (one synchronisation at the end).
@@ -58,26 +59,36 @@ def settings(proc: ProcessingConfig, device: str, precision: str) -> ProcessingC
         proc.imaging, device=device, precision=precision))
 
 
-def image(hw, proc, pings, record=False):
+def image(hw, proc, pings, record=False, wait_each_ping=False):
     """Image the pings; return the fullest tile (host), the updates, the seconds and
-    (``record``) the kernel calls of that tile."""
+    (``record``) the kernel calls of that tile. ``wait_each_ping``: the GPU kernel's
+    front door called without a device counter, so that each call waits for its kernel
+    and reads its count back (as before the counts stayed on the device)."""
     imager = TileImager(hw, proc)
     calls = []
+    run = imager.accumulator.kernel
     if record:
-        run = imager.accumulator.kernel
-
         def recording(*args, **kw):
-            calls.append((args, kw))
+            calls.append((args, {k: v for k, v in kw.items() if k != "count"}))
             return run(*args, **kw)
         imager.accumulator.kernel = recording
+    elif wait_each_ping:
+        waited = [0]
+
+        def waiting(*args, count=None, **kw):
+            waited[0] += run(*args, **kw)
+        imager.accumulator.kernel = waiting
     t0 = time.perf_counter()
     tiles = []
     for p in pings:
         tiles += imager.add(p)
     tiles += imager.finish()
+    n = imager.updates                      # (on the GPU: waits for the last kernels)
     el = time.perf_counter() - t0
+    if wait_each_ping:
+        return None, waited[0], el, calls
     tile = max(tiles, key=lambda t: t.updates)
-    return tile, imager.updates, el, calls
+    return tile, n, el, calls
 
 
 def profile_pass(hw, proc, pings, top=25) -> list[dict]:
@@ -180,7 +191,7 @@ def ptx_counts(proc_pings, hw, proc) -> dict:
                                 if k.split(".")[0] in ("fma", "mul", "add", "sub", "sqrt")
                                 and "f32" in k},
                 "lines": ptx.count("\n")}
-    # the default setting: float64 where meant (the refraction table's bilinear lookup,
+    # the default setting: float64 where meant (the refraction table's row in offset,
     # cone decisions at an edge); straight rays ungated: float32 alone
     out = counts(G.kernel_for(kd.interp, delays.code, kw.get("gating", True),
                               kd.halvings))
@@ -266,6 +277,14 @@ def main(argv=None) -> int:
         row = {"updates": n, "seconds": el, "seconds_all_passes": [p[2] for p in passes],
                "end_to_end_updates_per_s": n / el, **agreement(tile.image, ref),
                "updates_equal_cpu": n == n_ref}
+        # the same passes with a wait for each kernel and its count (the way before the
+        # counts stayed on the device), side by side in this run
+        waits = [image(hw, gproc, pings, wait_each_ping=True)
+                 for _ in range(args.repeat if not SIMULATOR else 1)]
+        el_wait = min(w[2] for w in waits)
+        row["waiting_for_each_kernel"] = {
+            "updates": waits[0][1], "seconds": el_wait, "updates_per_s": waits[0][1] / el_wait,
+            "deferred_over_waiting_speed": el_wait / el}
         # every tile has the same shape: the calls replay into one pair of planes
         row.update(kernel_only(passes[0][3], args.repeat if not SIMULATOR else 1))
         if args.profile and precision == "float32":
@@ -291,6 +310,9 @@ def main(argv=None) -> int:
               f"end, kernel alone {k:.3e}, max error {r['max_error_over_peak']:.2e} of "
               f"peak, {r['voxels_off_by_1pct_of_peak']} voxels off by 1 %, updates equal "
               f"CPU: {r['updates_equal_cpu']}{note}")
+        w = r["waiting_for_each_kernel"]
+        print(f"    waiting for each kernel and its count: {w['updates_per_s']:.3e} "
+              f"updates/s (counts on the device: {w['deferred_over_waiting_speed']:.2f}x)")
     print(f"saved {args.out}")
     return 0
 

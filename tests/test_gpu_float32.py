@@ -236,7 +236,7 @@ def test_real_gpu_float32_kernel_has_no_float64_instructions(tmp_path):
     float32 arithmetic, and for straight rays without cone gating no float64 instruction
     at all (the old kernel: 16 fma.rn.f64, 11 mul.f64, 13 cvt.f64.f32 among others in
     every setting). The default setting keeps float64 where it is meant: the refraction
-    table's bilinear lookup and the cone decisions at an edge (tests/test_cone_edges.py)."""
+    table's row in offset and the cone decisions at an edge (tests/test_cone_edges.py)."""
     import json
     out = tmp_path / "ptx.json"
     res = subprocess.run([sys.executable, "benchmarks/bench_gpu.py", "--ptx-only", "--quick",

@@ -154,8 +154,9 @@ def _make_voxel_kernel(interp: int, mode: int, gating: bool, halvings: int,
         ax, cy, dz, h_tx, rx_dx, rx_dy, rx_h, apod, bore, cos_tx, cos_rx = (
             g.ax, g.cy, g.dz, g.h_tx, g.rx_dx, g.rx_dy, g.rx_h, g.apod, g.bore, g.cos_tx,
             g.cos_rx)
-        inv_cw, cw, cs, ttab, etab, inv_drho, z0, inv_dz, h_ref = (
-            d.inv_cw, d.cw, d.cs, d.time, d.eta, d.inv_drho, d.z0, d.inv_dz, d.h_ref)
+        inv_cw, cw, cs, ttab, etab, inv_drho, z0, inv_dz, h_ref, tzd, ezd = (
+            d.inv_cw, d.cw, d.cs, d.time, d.eta, d.inv_drho, d.z0, d.inv_dz, d.h_ref, d.tz,
+            d.ez)
         c = args.gate
         gx, gy, gz, gh, gdx, gdy, gdh, gb, gct, gcr = (
             c.ax, c.cy, c.dz, c.h_tx, c.rx_dx, c.rx_dy, c.rx_h, c.bore, c.cos_tx, c.cos_rx)
@@ -170,7 +171,7 @@ def _make_voxel_kernel(interp: int, mode: int, gating: bool, halvings: int,
                            VoxelGeometry(ax, cy, dz, h_tx, rx_dx, rx_dy, rx_h, apod, bore,
                                          cos_tx, cos_rx),
                            TravelTimes(inv_cw, cw, cs, ttab, etab, inv_drho, z0, inv_dz,
-                                       h_ref),
+                                       h_ref, tzd, ezd),
                            ConeGate(gx, gy, gz, gh, gdx, gdy, gdh, gb, gct, gcr))
             ia = ia0 + k
             n_upd = 0

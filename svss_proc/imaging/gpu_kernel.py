@@ -12,7 +12,12 @@ geometry in one more, both into device buffers reused from ping to ping (no allo
 per ping); the refraction table is uploaded once per table. The launch covers only the
 voxel columns the projector cone can reach (the along-track range the imager gives and
 the cross-track range of the cone at the tile's deepest voxel); the update count is
-reduced on the device (a block sum, one atomic add per block) and 8 bytes come back.
+reduced on the device (a block sum, one atomic add per block) into a counter that the
+imager reads once per tile, so that no ping waits for its kernel (``count=``). With
+table delays the kernel reads the table already interpolated at the tile's voxel depths
+(:func:`~svss_proc.imaging.kernel_args.depth_table`, uploaded once per table): per
+channel a linear look-up in offset, in the kernel precision, from neighbouring addresses
+for neighbouring threads.
 Float32 planes keep every operation in float32 (:func:`~svss_proc.imaging.kernel_math.kernel_one`).
 """
 
@@ -113,7 +118,8 @@ def _gate_to_device(c: ConeGate) -> ConeGate:
 def _to_device(args: KernelArgs) -> KernelArgs:
     d = args.delays
     delays = TravelTimes(d.inv_cw, d.cw, d.cs, _BUFFERS.table(d.time),
-                         _BUFFERS.table(d.eta), d.inv_drho, d.z0, d.inv_dz, d.h_ref)
+                         _BUFFERS.table(d.eta), d.inv_drho, d.z0, d.inv_dz, d.h_ref,
+                         _BUFFERS.table(d.tz), _BUFFERS.table(d.ez))
     return KernelArgs(_planes_to_device(args.planes), _geometry_to_device(args.geometry),
                       delays, _gate_to_device(args.gate))
 
@@ -138,10 +144,18 @@ def cross_range(args: KernelArgs, gating: bool) -> tuple[int, int]:
     return max(int(inside[0]) - 1, 0), min(int(inside[-1]) + 2, nc)
 
 
+def device_counter() -> "cuda.devicearray.DeviceNDArray":
+    """A zeroed int64 update counter on the GPU, for ``run_ping_gpu(count=)``."""
+    return cuda.to_device(np.zeros(1, dtype=np.int64))
+
+
 def run_ping_gpu(out: ImageSlice, kd: KernelData, array: PingArray, delays: DelayModel, *,
-                 gating: bool = True) -> int:
+                 gating: bool = True, count=None) -> int | None:
     """GPU counterpart of :func:`svss_proc.imaging.cpu_kernel.run_ping`; the image planes
-    of ``out`` are device arrays (:func:`device_zeros`) that accumulate across pings."""
+    of ``out`` are device arrays (:func:`device_zeros`) that accumulate across pings.
+    ``count``: a device counter (:func:`device_counter`) the updates are added into, and
+    the call returns None without waiting for the kernel; None: the call waits and
+    returns the updates."""
     if kd.dtype != out.re.dtype:
         raise ValueError(f"kernel data is {kd.dtype}, the image planes are {out.re.dtype}")
     check_call(out)
@@ -149,10 +163,12 @@ def run_ping_gpu(out: ImageSlice, kd: KernelData, array: PingArray, delays: Dela
     ic0, ic1 = cross_range(args, gating)
     ia0, ia1 = out.ia0, out.ia1
     n = (ia1 - ia0) * (ic1 - ic0) * len(out.axes.depth)
+    deferred = count is not None
     if n <= 0:
-        return 0
-    count = _BUFFERS.upload("count", np.zeros(1, dtype=np.int64))
+        return None if deferred else 0
+    if not deferred:
+        count = _BUFFERS.upload("count", np.zeros(1, dtype=np.int64))
     kernel = kernel_for(kd.interp, delays.code, gating, kd.halvings)
     kernel[math.ceil(n / THREADS), THREADS](out.re, out.im, _to_device(args), ia0, ia1,
                                             ic0, ic1, count)
-    return int(count.copy_to_host()[0])
+    return None if deferred else int(count.copy_to_host()[0])

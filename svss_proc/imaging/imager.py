@@ -77,9 +77,15 @@ class PingAccumulator:
         self._dtype = np.float32 if processing.imaging.precision == "float32" else np.float64
         self._apod = receive_apodisation(geometry.receivers, processing.imaging.apodisation)
         self._tables: dict[int, TravelTimeTable] = {}
+        #: on the GPU a tile's updates are counted on the device (``count=`` of the
+        #: kernel's front door) and read when the tile is handed back or
+        #: :attr:`updates` is read, so that no ping waits for its kernel to finish: the
+        #: next ping's conditioning and the coverage run while it does
+        self._device_counter = None
         if processing.imaging.device == "cuda":
             from . import gpu_kernel            # numba-cuda only when asked for
             kernel, self._zeros = gpu_kernel.run_ping_gpu, gpu_kernel.device_zeros
+            self._device_counter = gpu_kernel.device_counter
         else:
             kernel, self._zeros = run_ping, np.zeros
         #: the kernel's front door, ``kernel(out: ImageSlice, kd, array: PingArray,
@@ -87,6 +93,7 @@ class PingAccumulator:
         #: :func:`~.gpu_kernel.run_ping_gpu`); benchmarks and tests may wrap it
         self.kernel = kernel
         self._updates = 0
+        self._pending: dict[int, tuple[Tile, object]] = {}   # id(tile): (tile, counter)
 
     # read-only views
     @property
@@ -111,8 +118,19 @@ class PingAccumulator:
 
     @property
     def updates(self) -> int:
-        """Voxel-channel updates made so far."""
+        """Voxel-channel updates made so far (on the GPU: waits for the kernels)."""
+        self.settle()
         return self._updates
+
+    def settle(self, tile: Tile | None = None) -> None:
+        """Read the device-side update counts of ``tile`` (None: of every tile) into the
+        tile's and this accumulator's totals; nothing to do on the CPU."""
+        for key in ([id(tile)] if tile is not None else list(self._pending)):
+            entry = self._pending.pop(key, None)
+            if entry is not None:
+                n = int(entry[1].copy_to_host()[0])      # waits for the tile's kernels
+                entry[0].updates += n
+                self._updates += n
 
     def condition(self, ping: Ping) -> Conditioned:
         """The ping's analytic signal at its arrival times (its channels)."""
@@ -131,7 +149,8 @@ class PingAccumulator:
     def image(self, ping: Ping, cond: Conditioned, step: PingStep,
               tiles: dict[int, Tile]) -> int:
         """Image ``ping`` (conditioned ``cond``) into the slices of ``step`` (tiles by
-        index); returns the voxel-channel updates."""
+        index); returns the voxel-channel updates (0 on the GPU, where they are counted
+        on the device: :meth:`settle`)."""
         if not step.slices:
             return 0
         im, geo = self._proc.imaging, self._geometry
@@ -149,8 +168,15 @@ class PingAccumulator:
         total = 0
         for s in step.slices:
             tile = tiles[s.tile]
-            n = self.kernel(ImageSlice(tile.re, tile.im, tile.grid, s.ia0, s.ia1), kd,
-                            array, delays, gating=im.beam_gating)
+            out = ImageSlice(tile.re, tile.im, tile.grid, s.ia0, s.ia1)
+            if self._device_counter is not None:
+                entry = self._pending.get(id(tile))
+                if entry is None:
+                    entry = self._pending[id(tile)] = (tile, self._device_counter())
+                self.kernel(out, kd, array, delays, gating=im.beam_gating, count=entry[1])
+                n = 0
+            else:
+                n = self.kernel(out, kd, array, delays, gating=im.beam_gating)
             # which voxels this ping reached (geometry only; the image is not touched)
             tile.coverage.add(tile.grid, s.ia0, s.ia1, placed, geo, window, im, ping.nav)
             tile.pings.append(ping.sequence)
@@ -272,7 +298,9 @@ class TileImager:
         return out + [self._hand_back(k) for k in step.closed]
 
     def _hand_back(self, k: int) -> Tile:
-        return self._active.pop(k).to_host()
+        tile = self._active.pop(k)
+        self.accumulator.settle(tile)
+        return tile.to_host()
 
     def finish(self) -> list[Tile]:
         """Return every tile still being formed."""

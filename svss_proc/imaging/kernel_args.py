@@ -71,6 +71,11 @@ class VoxelGeometry(NamedTuple):
     cos_rx: float         # cosine of the receiver cone's half angle
 
 
+_EMPTY_TABLE = np.zeros((2, 2))
+_EMPTY_DEPTH_TABLE = {np.dtype(t).str: np.zeros((2, 2), dtype=t)
+                      for t in (np.float32, np.float64)}
+
+
 class TravelTimes(NamedTuple):
     """The travel-time model: water and sediment speeds and, for table delays, the
     refraction table (float64)."""
@@ -83,6 +88,12 @@ class TravelTimes(NamedTuple):
     z0: float             # table first depth, m
     inv_dz: float         # 1 / table depth step, 1/m
     h_ref: float          # table element height, m
+    #: the table's times and slownesses interpolated in depth at the tile's voxel depths,
+    #: (n_rho, n_depth) in the kernel precision (:func:`depth_table`): the voxel-order
+    #: kernels (GPU, exact-path CPU) then interpolate in offset alone, in the kernel
+    #: precision, reading neighbouring depths from neighbouring addresses
+    tz: np.ndarray = _EMPTY_TABLE
+    ez: np.ndarray = _EMPTY_TABLE
 
 
 class ConeGate(NamedTuple):
@@ -168,9 +179,6 @@ def prepare(cond: Conditioned, interp: str, dtype) -> KernelData:
     return KernelData(TapPlanes(both[0], both[1], ft(cond.axis.start_s),
                                 ft(1.0 / cond.axis.step_s), ft(theta)),
                       code, halvings)
-
-
-_EMPTY_TABLE = np.zeros((2, 2))
 
 
 #: largest coordinate the kernels accept, m (float32 keeps 0.1 mm at 1 km)
@@ -279,8 +287,36 @@ def kernel_args(kd: KernelData, array: PingArray, axes, delays: DelayModel) -> K
         cast(gate.bore), ft(cos_tx), ft(cos_rx))
     t = delays.table
     if delays.code == TABLE:
-        tables = (t.time, t.eta, 1.0 / t.drho, float(t.z0), 1.0 / t.dz, float(t.h_ref))
+        tables = (t.time, t.eta, 1.0 / t.drho, float(t.z0), 1.0 / t.dz, float(t.h_ref),
+                  *depth_table(t, geo.dz))
     else:
-        tables = (_EMPTY_TABLE, _EMPTY_TABLE, 1.0, 0.0, 1.0, 0.0)
+        empty = _EMPTY_DEPTH_TABLE[np.dtype(ft).str]   # one object: the GPU uploads it once
+        tables = (_EMPTY_TABLE, _EMPTY_TABLE, 1.0, 0.0, 1.0, 0.0, empty, empty)
     cw, cs = float(delays.water_sound_speed), float(delays.sediment_sound_speed)
     return KernelArgs(kd.planes, geo, TravelTimes(ft(1.0 / cw), cw, cs, *tables), gate)
+
+
+_DEPTH_TABLES: dict = {}
+
+
+def depth_table(table: TravelTimeTable, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The refraction table's times and slownesses linearly interpolated in depth at
+    ``depth`` (the voxel depths in the kernel precision), (n_rho, n_depth) each in that
+    precision: the arithmetic of the CPU column kernel's own per-call interpolation
+    (float64 weights from the kernel-precision depth, rounded once). Kept per table and
+    depth axis (the same arrays from ping to ping, so that the GPU uploads them once)."""
+    depth = np.asarray(depth)
+    key = (id(table), depth.dtype.str, depth.tobytes())
+    hit = _DEPTH_TABLES.get(key)
+    if hit is not None and hit[0] is table:
+        return hit[1], hit[2]
+    n_z = table.time.shape[1]
+    v = np.clip((depth.astype(np.float64) - table.z0) * (1.0 / table.dz), 0.0, n_z - 1.001)
+    j = v.astype(np.int64)
+    b = v - j
+    tz = ((1 - b) * table.time[:, j] + b * table.time[:, j + 1]).astype(depth.dtype)
+    ez = ((1 - b) * table.eta[:, j] + b * table.eta[:, j + 1]).astype(depth.dtype)
+    if len(_DEPTH_TABLES) >= 32:
+        _DEPTH_TABLES.clear()
+    _DEPTH_TABLES[key] = (table, tz, ez)
+    return tz, ez

@@ -5,7 +5,8 @@ kernels, a CUDA device decorator for the GPU kernel).
 Phase factor: (cos x, sin x) by a Taylor series for |x| <= 1.4 rad, after ``halvings``
 halvings of the angle, squared back. Interpolation weights: nearest, linear, and Keys'
 cubic convolution (a = -1/2). Travel times: straight rays, a refraction table with a
-first-order height correction, or the exact Fermat path.
+first-order height correction (interpolated at the voxel depths beforehand for the voxel
+sum: :func:`~svss_proc.imaging.kernel_args.depth_table`), or the exact Fermat path.
 """
 
 from __future__ import annotations
@@ -156,6 +157,22 @@ def build(jit, refr):
         return cast_like(one, one_way_time(np.float64(h), rho, np.float64(z), tt.cw, tt.cs))
 
     @jit
+    def depth_table_time(dx, dy, iz, h, tt, one):
+        """One-way time from the refraction table interpolated at the voxel depth index
+        ``iz`` (``tt.tz``, ``tt.ez``): the offset's row and weight in float64 (as the
+        CPU column kernel's ``_table_row``), then linear in offset and first-order in
+        the element height ``h`` in the kernel precision."""
+        tz = tt.tz
+        ez = tt.ez
+        rho = math.sqrt(np.float64(dx) * dx + np.float64(dy) * dy)
+        ur = min(max(rho * tt.inv_drho, 0.0), tz.shape[0] - 1.001)
+        ir = int(ur)
+        a = cast_like(one, ur - ir)
+        dh = cast_like(one, h - tt.h_ref)
+        return ((one - a) * (tz[ir, iz] + dh * ez[ir, iz])
+                + a * (tz[ir + 1, iz] + dh * ez[ir + 1, iz]))
+
+    @jit
     def tx_inside64(c, ia, ic, iz):
         """Voxel (ia, ic, iz) inside the projector's cone, decided in float64 from the
         float64 geometry ``c`` (:class:`~svss_proc.imaging.kernel_args.ConeGate`), as the
@@ -215,7 +232,10 @@ def build(jit, refr):
         # channel adds its own leg (relative quantities only: no absolute time is
         # formed and differenced)
         inv_dt = p.inv_dt
-        u1 = (travel_time(mode, x, y, z, g.h_tx, tt) - p.t0) * inv_dt
+        if mode == TABLE:
+            u1 = (depth_table_time(x, y, iz, g.h_tx, tt, one) - p.t0) * inv_dt
+        else:
+            u1 = (travel_time(mode, x, y, z, g.h_tx, tt) - p.t0) * inv_dt
         acc_re = zero
         acc_im = zero
         n_upd = 0
@@ -231,7 +251,10 @@ def build(jit, refr):
                     w = w if rx_inside64(args.gate, ia, ic, iz, ch) else zero
                 else:
                     w = w if m2 >= zero else zero
-            u = u1 + travel_time(mode, ex, ey, z, rx_h[ch], tt) * inv_dt
+            if mode == TABLE:
+                u = u1 + depth_table_time(ex, ey, iz, rx_h[ch], tt, one) * inv_dt
+            else:
+                u = u1 + travel_time(mode, ex, ey, z, rx_h[ch], tt) * inv_dt
             sr, si, valid = sample(re, im, ch, u, interp, halvings, p.theta, nt, one)
             w = w * valid
             acc_re += w * sr
@@ -240,5 +263,6 @@ def build(jit, refr):
         return acc_re, acc_im, n_upd
 
     return SimpleNamespace(cis=cis, weights=weights, sample=sample, travel_time=travel_time,
+                           depth_table_time=depth_table_time,
                            tx_inside64=tx_inside64, rx_inside64=rx_inside64,
                            voxel_sum=voxel_sum)
