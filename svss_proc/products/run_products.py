@@ -1,5 +1,11 @@
 """Run-level products of a folder of tiles: the run's contact list (CSV and GeoJSON, with
-latitude and longitude) and a mosaic of the tiles' plan-view MIPs (PNG and HDF5).
+latitude and longitude) and a mosaic of the tiles' plan-view MIPs (PNG and HDF5); with a
+survey origin, the map products in its UTM zone (:mod:`.georef`: the mosaic as a
+GeoTIFF, the contacts as a GeoPackage layer).
+
+Each contact names its run (the tiles' ``run_id``), its tile and the UTC time of the
+closest pass (:func:`closest_pass` on the run's ping track, :func:`run_track`); values
+are rounded to their meaningful precision (:data:`CONTACT_FIELDS`).
 
 Contacts (docs/products.md "Run products"). Each tile's detections are placed in the
 survey frame through the tile's line, then into the run frame (the first tile's line),
@@ -642,15 +648,20 @@ def write_run_products(tiles_dir: str | Path, out_dir: str | Path | None = None,
                MOSAIC_H5: lambda p: write_mosaic_h5(p, m, origin),
                MOSAIC_PNG: lambda p: write_mosaic_png(p, m, contacts, pcfg, title,
                                                       pcfg.quicklook.max_labels)}
+    projection = None
     if origin is not None:                 # the map products (docs/products.md)
-        projection = SurveyProjection(tuple(origin))
+        try:
+            projection = SurveyProjection(tuple(origin))
+        except ValueError as exc:
+            log.warning("%s: no %s or %s: %s", tiles_dir, MOSAIC_TIF, CONTACTS_GPKG, exc)
+    if projection is not None:
         um = utm_mosaic(views, projection)
         what = (f"{title}; run {summary['run_id'] or 'unknown'}; plan-view MIP in dB re "
                 f"background, WGS 84 / UTM (EPSG:{projection.epsg})")
         writers[MOSAIC_TIF] = lambda p: write_mosaic_geotiff(p, um, projection.epsg, what)
         writers[CONTACTS_GPKG] = lambda p: write_contacts_gpkg(
             p, contacts, [k for k, *_ in CONTACT_FIELDS], projection)
-    else:
+    elif origin is None:
         log.info("%s: no survey origin (no ping with a geodetic position, no --origin): "
                  "no %s or %s", tiles_dir, MOSAIC_TIF, CONTACTS_GPKG)
     files = []

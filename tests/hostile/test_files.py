@@ -250,6 +250,11 @@ TILE_DAMAGE = {
     "no along": (_delete("along"), "dataset '/along' missing"),
     "no depth": (_delete("depth"), "dataset '/depth' missing"),
     "no pings": (_delete("ping_sequence"), "dataset '/ping_sequence' missing"),
+    "track length": (lambda f: f.create_dataset(
+        "ping_time", data=np.zeros(f["ping_sequence"].shape[0] + 2, np.int64)),
+        "dataset '/ping_time' has shape"),
+    "track text": (lambda f: f.create_dataset("ping_north_m", data=np.array([b"x"])),
+                   "dataset '/ping_north_m' has dtype"),
     "no image": (_delete("image"), "dataset '/image' missing"),
     "no detections": (_delete("detections"),
                       "group '/detections' missing; expected it in a tile with products"),
