@@ -288,8 +288,8 @@ def run_of_views(views: list[TileView]) -> str:
 
 
 def utc_text(time_ns: int) -> str:
-    """ISO 8601 UTC of a time in ns since the Unix epoch, to the millisecond."""
-    t = np.datetime64(int(time_ns), "ns").astype("datetime64[ms]")
+    """ISO 8601 UTC of a time in ns since the Unix epoch, to the nearest millisecond."""
+    t = np.datetime64(int(time_ns) + 500_000, "ns").astype("datetime64[ms]")
     return f"{np.datetime_as_string(t, unit='ms')}Z"
 
 
