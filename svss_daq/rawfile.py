@@ -72,6 +72,11 @@ READABLE_VERSIONS = (1, 2)
 TIME_UNITS = "nanoseconds since 1970-01-01 00:00:00Z"
 #: the SONAR-netCDF4 version whose structure the file follows (deviations: docs/formats.md)
 SONAR_NETCDF4_VERSION = "2.0"
+#: root attributes the writer sets itself (the rest are the run's: run_id, segment, ...)
+WRITER_ATTRS = ("Conventions", "sonar_convention_authority", "sonar_convention_name",
+                "sonar_convention_version", "svss_format", "svss_format_version", "title",
+                "summary", "date_created", "sonar_model", "hardware_config_id",
+                "software_name", "software_version")
 #: the name HDF5 dimension scales of netCDF-4 give a dimension that has no variable
 _NOT_A_VARIABLE = "This is a netCDF dimension but not a netCDF variable."
 BEAM = "Sonar/Beam_group1"
