@@ -29,8 +29,8 @@ from sim_device.scene import load_scene
 from svss_daq.config import config_path
 from svss_daq.rawfile import RawFileError, RawRunReader
 from svss_daq.signals import stop_once
-from svss_proc.products.run_products import (CONTACTS_CSV, CONTACTS_GEOJSON, MOSAIC_H5,
-                                           MOSAIC_PNG)
+from svss_proc.products.run_products import (CONTACTS_CSV, CONTACTS_GEOJSON, CONTACTS_GPKG,
+                                           MOSAIC_H5, MOSAIC_PNG, MOSAIC_TIF)
 from svss_proc.run_folder import prepare_output_dir, run_folder_name
 from svss_proc.tiles import finished_tile_paths
 
@@ -182,7 +182,8 @@ def run_demo(out: Path, scene: str | None = None, hardware: str | None = None,
                     "missing", first.group(1), lead_s)
     folder = tiles / run_folder_name(DEMO_RUN)
     manifest = json.loads((folder / "manifest.json").read_text())
-    run_products = [folder / n for n in (CONTACTS_CSV, CONTACTS_GEOJSON, MOSAIC_PNG, MOSAIC_H5)
+    run_products = [folder / n for n in (CONTACTS_CSV, CONTACTS_GEOJSON, MOSAIC_PNG, MOSAIC_H5,
+                                         MOSAIC_TIF, CONTACTS_GPKG)
                     if (folder / n).exists()]
     return (sorted(runs.glob(f"{DEMO_RUN}_*.h5")) + [folder / n for n in manifest["files"]]
             + run_products)

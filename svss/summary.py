@@ -138,7 +138,7 @@ def summarise_raw(path: str | Path) -> dict:
             "kind": "raw", "file": str(path), "clean": run.clean,
             "format_version": _plain(run.attrs.get("svss_format_version")),
             "run_attrs": {k: _plain(v) for k, v in run.attrs.items()
-                          if k not in ("Conventions", "svss_format", "svss_format_version")},
+                          if k not in rawfile.WRITER_ATTRS},
             "hardware": {"name": hw.value.name, "config_id": hw.id,
                          "channels": int(channels), "samples_per_ping": int(samples),
                          "sample_rate_hz": run.sample_rate_hz},

@@ -2,8 +2,9 @@
 
 Layout (see docs/formats.md)::
 
-    /                       attrs: Conventions, svss_format, svss_format_version
-    /Sonar/Beam_group1      backscatter_r (ping_time x channel x sample, int32 codes),
+    /                       attrs: Conventions, svss_format, svss_format_version, the
+                            run's attributes (title, run_id, sonar, ...)
+    /Sonar/Beam_group1      backscatter_r (ping_time x beam x sample, int32 codes),
                             ping_time (int64 ns), ping_sequence, transmit_projector,
                             window_start_ns; attrs sample_rate_hz, ...
     /Platform               time1 (int64 ns) and the navigation snapshot of each ping
@@ -20,6 +21,12 @@ Layout (see docs/formats.md)::
                             kind, detail of every device fault and recovery the
                             acquisition daemon saw); root attribute
                             ``acquisition_summary`` (JSON counters, written at close)
+
+Version 2 (:data:`FORMAT_VERSION`) opens as netCDF-4 (``xarray.open_dataset(path,
+group="Sonar/Beam_group1", engine="h5netcdf")``): every dataset has named dimensions
+(HDF5 dimension scales, :func:`_dims`), every variable ``units`` and ``long_name``, and
+every time variable CF units (:data:`TIME_UNITS`, decoded to datetime64). Version 1
+files (the same datasets without them) still read.
 
 Every dataset is chunked by ping and appended ping by ping. The writer runs in HDF5's
 single-writer/multiple-reader mode, so the file on disk is consistent at every flush: a
@@ -58,7 +65,20 @@ from .untrusted_hdf5 import (H5_ERRORS, abandon, cause, dataset, format_version,
 log = logging.getLogger(__name__)
 
 FORMAT = "svss-raw"
-FORMAT_VERSION = 1
+#: 2: netCDF-4 dimension scales, CF time units, units and long names (docs/formats.md)
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
+#: CF units of every time variable (int64 ns since the Unix epoch, UTC), as SONAR-netCDF4
+TIME_UNITS = "nanoseconds since 1970-01-01 00:00:00Z"
+#: the SONAR-netCDF4 version whose structure the file follows (deviations: docs/formats.md)
+SONAR_NETCDF4_VERSION = "2.0"
+#: root attributes the writer sets itself (the rest are the run's: run_id, segment, ...)
+WRITER_ATTRS = ("Conventions", "sonar_convention_authority", "sonar_convention_name",
+                "sonar_convention_version", "svss_format", "svss_format_version", "title",
+                "summary", "date_created", "sonar_model", "hardware_config_id",
+                "software_name", "software_version")
+#: the name HDF5 dimension scales of netCDF-4 give a dimension that has no variable
+_NOT_A_VARIABLE = "This is a netCDF dimension but not a netCDF variable."
 BEAM = "Sonar/Beam_group1"
 NMEA_LEN = 96
 #: the instrument records a run keeps for re-navigation (docs/formats.md)
@@ -76,12 +96,31 @@ EVENTS = "Vendor_specific/events"
 #: 1-element int64: pings known to be on disk (written after each successful flush)
 FLUSHED = f"{BEAM}/pings_flushed"
 
-_PER_PING = {  # name: (dtype, description)
-    "ping_time": ("<i8", "transmit time, ns since the Unix epoch (UTC)"),
-    "ping_sequence": ("<i8", "ping sequence number"),
-    "transmit_projector": ("<i2", "index of the projector that transmitted"),
-    "window_start_ns": ("<i8", "receive-window start after transmit, ns"),
+_PER_PING = {  # name: (dtype, long name, units)
+    "ping_time": ("<i8", "transmit time of the ping (UTC)", TIME_UNITS),
+    "ping_sequence": ("<i8", "ping sequence number", "1"),
+    "transmit_projector": ("<i2", "index of the projector that transmitted", "1"),
+    "window_start_ns": ("<i8", "receive-window start after transmit", "ns"),
 }
+#: units of the navigation snapshot's fields (``/Platform``), by name
+_NAV_UNITS = {"north_m": "m", "east_m": "m", "down_m": "m", "vel_north_m_s": "m/s",
+              "vel_east_m_s": "m/s", "vel_down_m_s": "m/s", "roll_rad": "rad",
+              "pitch_rad": "rad", "heading_rad": "rad", "altitude_m": "m",
+              "latitude_deg": "degrees_north", "longitude_deg": "degrees_east",
+              "quality": "1"}
+_NAV_LONG_NAMES = {
+    "north_m": "north of the body origin in the survey frame (local NED)",
+    "east_m": "east of the body origin in the survey frame (local NED)",
+    "down_m": "down of the body origin in the survey frame (local NED)",
+    "vel_north_m_s": "velocity north", "vel_east_m_s": "velocity east",
+    "vel_down_m_s": "velocity down",
+    "roll_rad": "roll, starboard down positive (ZYX Euler)",
+    "pitch_rad": "pitch, nose up positive (ZYX Euler)",
+    "heading_rad": "heading from true north (ZYX Euler)",
+    "altitude_m": "altitude of the body origin above the water-sediment interface",
+    "latitude_deg": "WGS-84 latitude of the body origin (NaN: unknown)",
+    "longitude_deg": "WGS-84 longitude of the body origin (NaN: unknown)",
+    "quality": "navigation quality bit flags (svss_daq/ping.py NAV_*)"}
 
 
 class RawFileError(ValueError):
@@ -90,11 +129,40 @@ class RawFileError(ValueError):
 
 
 
-def _appendable(group: h5py.Group, name: str, dtype, shape_tail=(), chunk=1024, doc=""):
+def _appendable(group: h5py.Group, name: str, dtype, shape_tail=(), chunk=1024, doc="",
+                units: str | None = None):
     ds = group.create_dataset(name, shape=(0, *shape_tail), maxshape=(None, *shape_tail),
                               dtype=dtype, chunks=(chunk, *shape_tail))
     if doc:
         ds.attrs["long_name"] = doc
+    if units is not None:
+        ds.attrs["units"] = units
+    if units == TIME_UNITS:
+        ds.attrs.update({"standard_name": "time", "calendar": "standard", "axis": "T"})
+    return ds
+
+
+def _dimension(group: h5py.Group, name: str, size: int | None) -> h5py.Dataset:
+    """A netCDF-4 dimension without a variable (``size`` None: unlimited): an empty
+    dimension scale named as netCDF-4 names them, which netCDF readers show as a
+    dimension only."""
+    ds = group.create_dataset(name, shape=(size or 0,),
+                              maxshape=(None if size is None else size,), dtype="<f4",
+                              chunks=(1024,) if size is None else None)
+    ds.make_scale(f"{_NOT_A_VARIABLE}{size or 0:10d}")
+    return ds
+
+
+def _dims(ds: h5py.Dataset, *scales: h5py.Dataset) -> None:
+    """Name the dimensions of ``ds`` by attaching the dimension scales ``scales``
+    (one per axis), as netCDF-4 does."""
+    for axis, scale in enumerate(scales):
+        ds.dims[axis].attach_scale(scale)
+
+
+def _coordinate(ds: h5py.Dataset, name: str) -> h5py.Dataset:
+    """Make ``ds`` the coordinate variable of its own dimension ``name``."""
+    ds.make_scale(name)
     return ds
 
 
@@ -158,8 +226,20 @@ class RawRunWriter:
     def _create(self, hardware, environment, run_attrs) -> None:
         dig = hardware.value.digitiser
         f = self._f
-        f.attrs.update({"Conventions": "SONAR-netCDF4-like", "svss_format": FORMAT,
-                        "svss_format_version": FORMAT_VERSION})
+        created = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+        f.attrs.update({
+            "Conventions": "CF-1.8, ACDD-1.3",
+            "sonar_convention_authority": "ICES",
+            "sonar_convention_name": "SONAR-netCDF4",
+            "sonar_convention_version": SONAR_NETCDF4_VERSION,
+            "svss_format": FORMAT, "svss_format_version": FORMAT_VERSION,
+            "title": f"SVSS raw run ({hardware.value.name})",
+            "summary": ("Raw element-level ADC samples of every ping of a Sediment Volume "
+                        "Search Sonar run, with the navigation of each ping and the "
+                        "instrument records it was computed from"),
+            "date_created": created, "sonar_model": hardware.value.name,
+            "hardware_config_id": hardware.id,
+            "software_name": "svss", "software_version": __version__})
         for k, v in (run_attrs or {}).items():
             f.attrs[k] = v
         sonar = f.create_group("Sonar")
@@ -169,70 +249,103 @@ class RawRunWriter:
         beam.attrs.update({"sample_rate_hz": dig.sample_rate_hz,
                            "beam_mode": "element", "conversion_equation_type": "counts",
                            "adc_bits": dig.bits})
+        self._per_ping = {k: _appendable(beam, k, dt, doc=doc, units=units)
+                          for k, (dt, doc, units) in _PER_PING.items()}
+        ping_time = _coordinate(self._per_ping["ping_time"], "ping_time")
+        channel = _coordinate(beam.create_dataset(
+            "beam", data=np.arange(self.n_channels, dtype="<i4")), "beam")
+        channel.attrs.update({"long_name": "receive channel (element) number",
+                              "units": "1"})
+        sample = _coordinate(beam.create_dataset(
+            "sample", data=np.arange(self.n_samples, dtype="<i4")), "sample")
+        sample.attrs.update({"long_name": ("sample number in the receive window (time "
+                                           "after transmit: window_start_ns + sample / "
+                                           "sample_rate_hz)"), "units": "1"})
         self._samples = beam.create_dataset(
             "backscatter_r", shape=(0, self.n_channels, self.n_samples),
             maxshape=(None, self.n_channels, self.n_samples), dtype="<i4",
             chunks=(1, self.n_channels, self.n_samples))
-        self._samples.attrs["long_name"] = "raw ADC codes (24-bit carried in int32)"
-        self._samples.attrs["dimensions"] = "ping_time channel sample"
-        self._per_ping = {k: _appendable(beam, k, dt, doc=doc)
-                          for k, (dt, doc) in _PER_PING.items()}
+        self._samples.attrs.update({"long_name": "raw ADC codes (24-bit carried in int32)",
+                                    "units": "1"})
+        _dims(self._samples, ping_time, channel, sample)
+        for k, ds in self._per_ping.items():
+            if k != "ping_time":
+                _dims(ds, ping_time)
         plat = f.create_group("Platform")
-        self._nav = {"time1": _appendable(plat, "time1", "<i8",
-                                          doc="navigation snapshot time, ns (UTC)")}
+        time1 = _coordinate(_appendable(plat, "time1", "<i8", units=TIME_UNITS,
+                                        doc="navigation snapshot time (UTC)"), "time1")
+        self._nav = {"time1": time1}
         for name in NAV_FIELDS:
             if name == "time_ns":
                 continue
-            self._nav[name] = _appendable(plat, name, "<i8" if name == "quality" else "<f8")
+            ds = _appendable(plat, name, "<i8" if name == "quality" else "<f8",
+                             doc=_NAV_LONG_NAMES[name], units=_NAV_UNITS[name])
+            _dims(ds, time1)
+            self._nav[name] = ds
         nmea = plat.create_group("NMEA")
-        self._nmea_time = _appendable(nmea, "time", "<i8", doc="receive time, ns (UTC)")
-        self._nmea_text = _appendable(nmea, "sentence", f"S{NMEA_LEN}",
+        self._nmea_time = _coordinate(_appendable(nmea, "time", "<i8", units=TIME_UNITS,
+                                                  doc="host receive time (UTC)"), "time")
+        self._nmea_text = _appendable(nmea, "sentence", f"S{NMEA_LEN}", units="1",
                                       doc="raw NMEA 0183 sentence")
+        _dims(self._nmea_text, self._nmea_time)
         pd0 = plat.create_group("PD0")
         pd0.attrs["long_name"] = ("Teledyne RDI PD0 ensembles as received from the DVL "
                                   "(header to checksum), for re-navigation")
-        self._pd0_stream = _appendable(pd0, "stream", "u1", chunk=PD0_CHUNK,
+        self._pd0_stream = _appendable(pd0, "stream", "u1", chunk=PD0_CHUNK, units="1",
                                        doc="the ensembles' bytes, concatenated")
-        self._pd0_offset = _appendable(pd0, "offset", "<i8", chunk=256,
+        _dims(self._pd0_stream, _dimension(pd0, "stream_byte", None))
+        self._pd0_time = _coordinate(_appendable(pd0, "time", "<i8", chunk=256,
+                                                 units=TIME_UNITS,
+                                                 doc="host receive time (UTC)"), "time")
+        self._pd0_offset = _appendable(pd0, "offset", "<i8", chunk=256, units="1",
                                        doc="byte offset of the ensemble in 'stream'")
-        self._pd0_size = _appendable(pd0, "n_bytes", "<i4", chunk=256,
+        self._pd0_size = _appendable(pd0, "n_bytes", "<i4", chunk=256, units="1",
                                      doc="length of the ensemble, bytes")
-        self._pd0_time = _appendable(pd0, "time", "<i8", chunk=256,
-                                     doc="host receive time, ns (UTC)")
+        _dims(self._pd0_offset, self._pd0_time)
+        _dims(self._pd0_size, self._pd0_time)
         clock = plat.create_group("ping_clock")
         clock.attrs["long_name"] = ("ping-clock events as the host received them (the "
                                     "sequencer's transmit records): instrument clocks are "
                                     "judged against the ping clock through them")
+        self._clock_rx = _coordinate(_appendable(
+            clock, "receive_time", "<i8", chunk=256, units=TIME_UNITS,
+            doc="host receive time of the transmit record (UTC)"), "receive_time")
         self._clock_ping = _appendable(clock, "transmit_time", "<i8", chunk=256,
-                                       doc="transmit time on the ping clock, ns")
-        self._clock_rx = _appendable(clock, "receive_time", "<i8", chunk=256,
-                                     doc="host receive time of the transmit record, ns")
+                                       units=TIME_UNITS,
+                                       doc="transmit time on the ping clock (UTC)")
+        _dims(self._clock_ping, self._clock_rx)
         env = f.create_group("Environment")
         for k, v in (environment or {}).items():
             env.attrs[k] = v
         prov = f.create_group("Provenance")
         prov.attrs.update({"software_name": "svss", "software_version": __version__,
-                           "creation_time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ",
-                                                              time.gmtime())})
+                           "creation_time_utc": created})
         vendor = f.create_group("Vendor_specific")
         # kept open until the flush below: closing a dataset whose (sieve-buffered) data
         # cannot be written fails inside h5py's finaliser, where nobody sees it
         self._text = vendor.create_dataset("hardware_config_toml", data=hardware.text)
+        self._text.attrs.update({"long_name": "hardware configuration (TOML) of the run",
+                                 "units": "1"})
         vendor.attrs["hardware_config_id"] = hardware.id
         vendor.attrs["hardware_config_source"] = hardware.source
         events = vendor.create_group("events")
         events.attrs["long_name"] = ("device faults and recoveries seen while recording "
                                      "(svss acquire)")
-        self._events = (_appendable(events, "time", "<i8", chunk=64,
-                                    doc="event time, ns since the Unix epoch (UTC)"),
+        ev_time = _coordinate(_appendable(events, "time", "<i8", chunk=64, units=TIME_UNITS,
+                                          doc="event time (UTC)"), "time")
+        self._events = (ev_time,
                         _appendable(events, "kind", f"S{EVENT_KIND_LEN}", chunk=64,
-                                    doc="event kind, e.g. digitiser.reconnect"),
+                                    units="1", doc="event kind, e.g. digitiser.reconnect"),
                         _appendable(events, "detail", f"S{EVENT_DETAIL_LEN}", chunk=64,
-                                    doc="what happened"))
+                                    units="1", doc="what happened"))
+        for ds in self._events[1:]:
+            _dims(ds, ev_time)
         # created before SWMR mode, which forbids new objects
         self._flushed = beam.create_dataset("pings_flushed", data=np.zeros(1, "<i8"))
-        self._flushed.attrs["long_name"] = ("pings known to be on disk: written after each "
-                                            "successful flush; a reader reads no more")
+        self._flushed.attrs.update({"long_name": ("pings known to be on disk: written after "
+                                                  "each successful flush; a reader reads "
+                                                  "no more"), "units": "1"})
+        _dims(self._flushed, _dimension(beam, "flush_count", 1))
         f.flush()
         f.swmr_mode = True
 
@@ -720,7 +833,7 @@ class RawRunReader:
         if fmt != FORMAT:
             raise RawFileError(f"{path}: root attribute 'svss_format' is "
                                f"{shown(f.attrs.get('svss_format'))}; expected {FORMAT!r}")
-        format_version(f.attrs.get("svss_format_version"), path, (FORMAT_VERSION,),
+        format_version(f.attrs.get("svss_format_version"), path, READABLE_VERSIONS,
                        RawFileError)
         self.beam = group(f, BEAM, path, RawFileError)
         rate = self.beam.attrs.get("sample_rate_hz")

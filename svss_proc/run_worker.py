@@ -70,7 +70,7 @@ class Worker:
     def __init__(self, hardware: Loaded[HardwareConfig], processing: Loaded[ProcessingConfig],
                  out_dir: str | Path, *, force: bool = False, run_id: str | None = None,
                  resume: bool = False, poses: str = LIVE_POSES,
-                 max_listed_gaps: int = MAX_LISTED_GAPS):
+                 max_listed_gaps: int = MAX_LISTED_GAPS, run_label: str | None = None):
         self.hardware, self.processing = hardware, processing
         #: ranges [first, last] of the run's pings skipped (never imaged: lost on the
         #: stream and not fetched), the first ``max_listed_gaps``; the rest counted
@@ -85,6 +85,9 @@ class Worker:
         self.pose_flags: dict[str, int] = {}
         self.out = Path(out_dir)
         self.run_id = run_id
+        #: the run the tiles name (tile attribute ``run_id``, the contacts' ``run_id``):
+        #: ``run_label``, else ``run_id`` ("" unknown); no journal without ``run_id``
+        self.run_label = run_label or run_id or ""
         self.imager = TileImager(hardware, processing.value, source=processing.source)
         prepare_output_dir(self.out, force, resume=resume)
         self.gate = PingGate(hardware, name="worker")
@@ -201,7 +204,7 @@ class Worker:
         if type(seq) is int and (self.last_sequence is None or seq > self.last_sequence):
             self.last_sequence = seq
         for tile in tiles:
-            tile.poses = self.poses
+            tile.poses, tile.run_id = self.poses, self.run_label
             self.written += save_tile(tile, self.out, self.hardware, self.processing)
         if tiles or (self.imager.line is not None and not self._journal_line):
             self._journal_line = True
@@ -240,7 +243,7 @@ class Worker:
         if not complete:
             self._write_journal(stopped_open=open_tiles)    # intent first
         for tile in self.imager.finish():
-            tile.poses = self.poses
+            tile.poses, tile.run_id = self.poses, self.run_label
             self.written += save_tile(tile, self.out, self.hardware, self.processing)
         refused = dict(self.gate.refused)
         if self.gate.n_refused or self.imaging_errors or self.imager.late_pings:
@@ -328,7 +331,8 @@ def process_raw(path: str | Path, out_dir: str | Path,
     tiles' ``poses`` say with what."""
     with RawRunReader(path) as run:
         poses, what = run_poses([run], renavigate)
-        worker = Worker(run.hardware, processing, out_dir, force=force, poses=what)
+        worker = Worker(run.hardware, processing, out_dir, force=force, poses=what,
+                        run_label=run.run_id)
         pings = iter(run) if poses is None else (
             dataclasses.replace(p, nav=nav) for p, nav in zip(run, poses, strict=True))
         files = worker.run(pings, total=len(run))

@@ -29,6 +29,7 @@ import numpy as np
 from svss_daq import __version__
 from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
 from svss_daq.frames import TrackLine
+from svss_daq.rawfile import TIME_UNITS
 from svss_daq.untrusted_hdf5 import (H5_ERRORS, abandon, cause, dataset, format_version,
                                      group, hdf5_superblock, in_child, shown)
 
@@ -52,6 +53,8 @@ DRC_SCALE = np.float32(1.0 / 255.0)
 _GZIP = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
 #: marks a file being written: ``.NAME.partial-XXXX.SUFFIX``; readers ignore such names
 PARTIAL = ".partial-"
+#: per ping of the tile (absent in tiles written before they were kept): dtype kinds
+TRACK = {"ping_time": "i", "ping_north_m": "f", "ping_east_m": "f"}
 #: root attributes every tile has (and the scorer and the summary need)
 REQUIRED_ATTRS = ("tile_index", "line_origin_north_m", "line_origin_east_m",
                   "line_heading_rad", "interface_down_m", "voxel_m")
@@ -101,6 +104,10 @@ class Tile:
     #: what the pings were posed with (provenance attribute ``poses``), e.g. "recorded
     #: live poses" or "re-navigated from N NMEA sentences and M PD0 ensembles"
     poses: str = ""
+    #: the run the tile belongs to (root attribute ``run_id``; "" unknown)
+    run_id: str = ""
+    #: per ping of :attr:`pings`: (transmit time ns UTC, body origin north m, east m)
+    track: list[tuple[int, float, float]] = field(default_factory=list)
 
     @functools.cached_property
     def image(self) -> np.ndarray:
@@ -230,8 +237,25 @@ def _write(f: h5py.File, tile: Tile, hardware: Loaded[HardwareConfig],
         ds.make_scale(name)
     pings = keep(f.create_dataset("ping_sequence",
                                   data=np.asarray(tile.pings, dtype=np.int64)))
-    pings.attrs["long_name"] = "sequence numbers of the pings that went into the tile"
+    pings.attrs.update({"long_name": "sequence numbers of the pings that went into the tile",
+                        "units": "1"})
     pings.make_scale("ping_sequence")
+    if tile.run_id:
+        f.attrs["run_id"] = tile.run_id
+    if tile.track and len(tile.track) == len(tile.pings):
+        track = np.asarray(tile.track, dtype=np.float64)
+        for name, data, units, long_name in (
+                ("ping_time", np.asarray([t for t, _, _ in tile.track], dtype=np.int64),
+                 TIME_UNITS, "transmit time of the ping (UTC)"),
+                ("ping_north_m", track[:, 1], "m", "body origin north at the ping (survey "
+                                                   "frame)"),
+                ("ping_east_m", track[:, 2], "m", "body origin east at the ping (survey "
+                                                  "frame)")):
+            ds = keep(f.create_dataset(name, data=data))
+            ds.attrs.update({"units": units, "long_name": long_name})
+            if units == TIME_UNITS:
+                ds.attrs.update({"standard_name": "time", "calendar": "standard"})
+            _attach(ds, f, ("ping_sequence",))
     image = keep(f.create_dataset("image", data=tile.image, chunks=True, **_GZIP))
     image.attrs.update({"long_name": "complex backprojected image (coherent sum of "
                                      "matched-filter outputs)", "units": "uPa"})
@@ -382,6 +406,14 @@ def _header(f: h5py.File, path: Path) -> dict:
     out = {k: dataset(f, k, path, 1, "f", TileFileError, what="voxel centres, m")[()]
            for k in DIMS}
     out["ping_sequence"] = dataset(f, "ping_sequence", path, 1, "iu", TileFileError)[()]
+    n_pings = out["ping_sequence"].shape
+    for k, kinds in TRACK.items():          # absent in tiles written before they were kept
+        if k in f:
+            ds = dataset(f, k, path, 1, kinds, TileFileError)
+            if ds.shape != n_pings:
+                raise TileFileError(f"{path}: dataset '/{k}' has shape {ds.shape}; "
+                                    f"expected {n_pings} like '/ping_sequence'")
+            out[k] = ds[()]
     attrs = dict(f.attrs)
     for k in REQUIRED_ATTRS:
         v = attrs.get(k)

@@ -53,9 +53,10 @@ def test_demo_writes_run_tiles_and_pngs(demo):
     tiles = [p for p in listed if p.suffix == ".h5" and p.name.startswith("tile_")]
     pngs = [p for p in listed if p.suffix == ".png"]
     assert len(tiles) >= 2 and len([p for p in pngs if p.name.startswith("tile_")]) == len(tiles)
-    # the run's products: contacts with latitude and longitude, the mosaic
-    assert {"contacts.csv", "contacts.geojson", "mosaic.png", "mosaic.h5"} <= {
-        p.name for p in listed}
+    # the run's products: contacts with latitude and longitude, the mosaic, and (the
+    # pings carry geodetic positions) the map products
+    assert {"contacts.csv", "contacts.geojson", "mosaic.png", "mosaic.h5", "mosaic.tif",
+            "contacts.gpkg"} <= {p.name for p in listed}
     for p in listed:
         assert p.is_file() and p.stat().st_size > 0
     for p in pngs:

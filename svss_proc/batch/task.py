@@ -126,7 +126,7 @@ def image_tile(plan: TilePlan, out: str, processing: Loaded[ProcessingConfig],
         raise PlanMismatch(f"run {plan.run_id} tile {plan.index}: imaged pings "
                            f"{got[:5]}... ({len(got)}), the plan has {plan.sequences[:5]}... "
                            f"({len(plan.sequences)})")
-    tile.poses = plan.pose_source
+    tile.poses, tile.run_id = plan.pose_source, plan.run_id
     save_tile(tile, h5.parent, hardware, processing)
     dets = len(read_tile_header(h5)["detections"])
     log.info("%s: tile %d of run %s, %d pings, %d detections, %.2f s", h5, plan.index,

@@ -41,7 +41,10 @@ FIELDS = (
     ("along_m", "f8", "m", "along-track position of the peak (tile frame)"),
     ("cross_m", "f8", "m", "cross-track position of the peak, starboard positive"),
     ("depth_m", "f8", "m", "depth of the peak below the interface"),
-    ("peak_db", "f4", "dB re 1 uPa", "image magnitude at the peak voxel"),
+    ("peak_db", "f4", "dB re 1 uPa", ("image magnitude at the peak voxel (uncalibrated: "
+                                      "the coherent sum over pings and channels of "
+                                      "matched-filter outputs; for comparing contacts "
+                                      "within a run, not a target strength)")),
     ("background_db", "f4", "dB re 1 uPa", "background (median) at the peak voxel"),
     ("excess_db", "f4", "dB", "signal excess: normalised level at the peak, dB re "
                                "background"),

@@ -1,5 +1,11 @@
 """Run-level products of a folder of tiles: the run's contact list (CSV and GeoJSON, with
-latitude and longitude) and a mosaic of the tiles' plan-view MIPs (PNG and HDF5).
+latitude and longitude) and a mosaic of the tiles' plan-view MIPs (PNG and HDF5); with a
+survey origin, the map products in its UTM zone (:mod:`.georef`: the mosaic as a
+GeoTIFF, the contacts as a GeoPackage layer).
+
+Each contact names its run (the tiles' ``run_id``), its tile and the UTC time of the
+closest pass (:func:`closest_pass` on the run's ping track, :func:`run_track`); values
+are rounded to their meaningful precision (:data:`CONTACT_FIELDS`).
 
 Contacts (docs/products.md "Run products"). Each tile's detections are placed in the
 survey frame through the tile's line, then into the run frame (the first tile's line),
@@ -54,6 +60,8 @@ from ..tiles import (TileFileError, finished_tile_paths, read_tile_views,
 from .chain import coverage_settings, footprint_for
 from .detect import Footprint, sidelobe_filter
 from .drc import compress
+from .georef import (CONTACTS_GPKG, MOSAIC_TIF, SurveyProjection, utm_grid,
+                     write_contacts_gpkg, write_mosaic_geotiff)
 from .quicklook import choose_labels, save_png
 
 log = logging.getLogger(__name__)
@@ -65,27 +73,48 @@ MOSAIC_H5 = "mosaic.h5"
 #: most cells along either side of the mosaic grid (coarser cells beyond)
 MAX_MOSAIC_CELLS = 4000
 
-#: contact columns: (name, units, meaning)
+#: contact columns: (name, units, meaning, decimals written: None not a float). The
+#: decimals are the meaningful precision: 1e-7 deg (1 cm) for latitude and longitude,
+#: 1 mm for positions and sizes (the detections' sub-voxel peaks on 2 cm voxels),
+#: 0.01 dB, 0.001 of coverage; the tiles' float32 values carry no more.
 CONTACT_FIELDS = (
-    ("contact", "1", "contact number in the run, strongest excess first"),
-    ("latitude_deg", "deg", "WGS-84 latitude of the peak (empty: no geodetic origin)"),
-    ("longitude_deg", "deg", "WGS-84 longitude of the peak"),
-    ("depth_below_seabed_m", "m", "depth of the peak below the water-sediment interface"),
-    ("size_along_m", "m", "along-track extent above the threshold"),
-    ("size_cross_m", "m", "cross-track extent above the threshold"),
-    ("size_depth_m", "m", "depth extent above the threshold"),
-    ("excess_db", "dB", "signal excess: normalised level at the peak, dB re background"),
-    ("peak_db", "dB re 1 uPa", "image magnitude at the peak"),
-    ("north_m", "m", "survey-frame north of the peak"),
-    ("east_m", "m", "survey-frame east of the peak"),
-    ("along_m", "m", "along-track position in the run frame (the first tile's line)"),
-    ("cross_m", "m", "cross-track position in the run frame, starboard positive"),
+    ("contact", "1", "contact number in the run, strongest excess first", None),
+    ("run_id", "", "the run (survey line) the contact was found in (empty: not known)",
+     None),
+    ("tile", "", "tile file the contact was detected in", None),
+    ("time_utc", "", ("UTC time of the closest pass: when the body origin was "
+                      "horizontally closest to the peak, on the run's ping track (ISO "
+                      "8601, ms; empty: tiles written before their pings' track was "
+                      "kept)"), None),
+    ("latitude_deg", "deg", "WGS-84 latitude of the peak (empty: no geodetic origin)", 7),
+    ("longitude_deg", "deg", "WGS-84 longitude of the peak", 7),
+    ("depth_below_seabed_m", "m", "depth of the peak below the water-sediment interface",
+     3),
+    ("size_along_m", "m", "along-track extent above the threshold", 3),
+    ("size_cross_m", "m", "cross-track extent above the threshold", 3),
+    ("size_depth_m", "m", "depth extent above the threshold", 3),
+    ("excess_db", "dB", ("signal excess: the level at the peak over the local background "
+                         "(3-D median of the image magnitude), dB"), 2),
+    ("north_m", "m", "survey-frame north of the peak", 3),
+    ("east_m", "m", "survey-frame east of the peak", 3),
+    ("along_m", "m", "along-track position in the run frame (the first tile's line)", 3),
+    ("cross_m", "m", "cross-track position in the run frame, starboard positive", 3),
+    ("closest_pass_m", "m", ("horizontal distance from the body origin to the peak at the "
+                             "closest pass"), 3),
     ("coverage_fraction", "1", ("pings that imaged the peak over the run's full coverage "
-                                "at its depth")),
-    ("tile", "", "tile file the contact was detected in"),
-    ("tile_row", "1", "row of the tile's detection table"),
-    ("n_tiles", "1", "tiles whose detections were merged into the contact"),
+                                "at its depth"), 3),
+    ("tile_row", "1", "row of the tile's detection table", None),
+    ("n_tiles", "1", "tiles whose detections were merged into the contact", None),
 )
+_DECIMALS = {name: d for name, _, _, d in CONTACT_FIELDS}
+
+
+def _rounded(name: str, value):
+    """A contact column's value at its meaningful precision (NaN stays NaN)."""
+    d = _DECIMALS.get(name)
+    if d is None or not isinstance(value, float) or not math.isfinite(value):
+        return value
+    return round(value, d)
 
 
 @dataclass
@@ -196,6 +225,14 @@ def place_plan(values: np.ndarray, along: np.ndarray, cross: np.ndarray, voxel_m
     """A tile's plan view ``values`` (along x cross) sampled at the grid's cell centres
     (nearest voxel): (values, NaN outside the tile; inside the tile), each (north, east)."""
     nn, ee = np.meshgrid(north, east, indexing="ij")
+    return place_plan_at(values, along, cross, voxel_m, line, nn, ee)
+
+
+def place_plan_at(values: np.ndarray, along: np.ndarray, cross: np.ndarray,
+                  voxel_m: float, line: TrackLine, nn: np.ndarray, ee: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`place_plan` at any cell centres: survey north ``nn``, east ``ee`` (same
+    shape)."""
     atd = line.ned_to_tile(np.stack([nn, ee, np.zeros_like(nn)], axis=-1))
     ia = np.floor((atd[..., 0] - (along[0] - voxel_m / 2)) / voxel_m).astype(np.int64)
     ic = np.floor((atd[..., 1] - (cross[0] - voxel_m / 2)) / voxel_m).astype(np.int64)
@@ -233,6 +270,72 @@ def _configs(view: TileView) -> tuple[ProductsConfig | None, HardwareConfig | No
 
 
 # ----------------------------------------------------------------------- contacts
+
+
+def run_of_views(views: list[TileView]) -> str:
+    """The run the tiles belong to: their root attribute ``run_id`` ("" when none has
+    one: tiles written before it was kept); the first tile's when they differ (logged)."""
+    ids = []
+    for v in views:
+        rid = v.data["attrs"].get("run_id")
+        rid = rid.decode(errors="replace") if isinstance(rid, bytes) else rid
+        if isinstance(rid, str) and rid and rid not in ids:
+            ids.append(rid)
+    if len(ids) > 1:
+        log.warning("tiles of %d runs in one folder (%s); the contacts name the first",
+                    len(ids), ", ".join(ids))
+    return ids[0] if ids else ""
+
+
+def utc_text(time_ns: int) -> str:
+    """ISO 8601 UTC of a time in ns since the Unix epoch, to the nearest millisecond."""
+    t = np.datetime64(int(time_ns) + 500_000, "ns").astype("datetime64[ms]")
+    return f"{np.datetime_as_string(t, unit='ms')}Z"
+
+
+def run_track(views: list[TileView]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The run's track: (transmit time ns, body origin north m, east m) of every ping of
+    its tiles, once each, in time order; empty arrays when no tile keeps its pings'
+    track (tiles written before it was kept)."""
+    seq, t, n, e = [], [], [], []
+    for v in views:
+        d = v.data
+        if all(k in d for k in ("ping_time", "ping_north_m", "ping_east_m")):
+            seq.append(d["ping_sequence"])
+            t.append(d["ping_time"])
+            n.append(d["ping_north_m"])
+            e.append(d["ping_east_m"])
+    if not seq:
+        return (np.zeros(0, np.int64), np.zeros(0), np.zeros(0))
+    t, n, e = np.concatenate(t), np.concatenate(n), np.concatenate(e)
+    _, first = np.unique(np.concatenate(seq), return_index=True)
+    keep = first[np.argsort(t[first], kind="stable")]
+    ok = np.isfinite(n[keep]) & np.isfinite(e[keep])
+    keep = keep[ok]
+    return t[keep].astype(np.int64), n[keep], e[keep]
+
+
+def closest_pass(track: tuple[np.ndarray, np.ndarray, np.ndarray], ned: np.ndarray
+                 ) -> tuple[str, float]:
+    """(UTC time, horizontal distance m) of the closest pass of the body origin to the
+    point ``ned`` (survey frame): the nearest point of the run's ``track``
+    (:func:`run_track`) taken as straight between successive pings, its time
+    interpolated between theirs. ("", NaN) without a track."""
+    t, n, e = track
+    if t.size == 0:
+        return "", float("nan")
+    if t.size == 1:
+        return utc_text(int(t[0])), float(np.hypot(n[0] - ned[0], e[0] - ned[1]))
+    a = np.stack([n[:-1], e[:-1]], axis=1)
+    seg = np.stack([np.diff(n), np.diff(e)], axis=1)
+    p = np.asarray(ned[:2], dtype=np.float64)
+    length2 = np.einsum("ij,ij->i", seg, seg)
+    u = np.clip(np.einsum("ij,ij->i", p - a, seg) / np.where(length2 > 0, length2, 1.0),
+                0.0, 1.0)
+    dist = np.hypot(*(a + u[:, None] * seg - p).T)
+    k = int(np.argmin(dist))
+    when = int(t[k]) + int(round(float(u[k]) * float(t[k + 1] - t[k])))
+    return utc_text(when), float(dist[k])
 
 
 def run_contacts(views: list[TileView],
@@ -282,6 +385,8 @@ def run_contacts(views: list[TileView],
         refs = [v.data["attrs"]["geodetic_ref"] for v in views
                 if "geodetic_ref" in v.data["attrs"]]
         origin = survey_origin(refs[0]) if refs else None
+    run_id = run_of_views(views)
+    track = run_track(views)
     out = []
     for k, r in enumerate(kept):
         lat = lon = float("nan")
@@ -289,15 +394,20 @@ def run_contacts(views: list[TileView],
             la, lo, _ = ned_to_geodetic(r["ned"], origin)
             lat, lon = float(la), float(lo)
         size = r["hi"] - r["lo"]
-        out.append({"contact": k, "latitude_deg": lat, "longitude_deg": lon,
-                    "depth_below_seabed_m": r["depth_m"], "size_along_m": float(size[0]),
-                    "size_cross_m": float(size[1]), "size_depth_m": float(size[2]),
-                    "excess_db": r["excess_db"], "peak_db": r["peak_db"],
-                    "north_m": float(r["ned"][0]), "east_m": float(r["ned"][1]),
-                    "along_m": float(r["run_m"][0]), "cross_m": float(r["run_m"][1]),
-                    "coverage_fraction": float(r["coverage_fraction"]), "tile": r["tile"],
-                    "tile_row": r["tile_row"], "n_tiles": r["n_tiles"]})
+        when, dist = closest_pass(track, r["ned"])
+        c = {"contact": k, "run_id": run_id, "tile": r["tile"], "time_utc": when,
+             "latitude_deg": lat, "longitude_deg": lon,
+             "depth_below_seabed_m": r["depth_m"], "size_along_m": float(size[0]),
+             "size_cross_m": float(size[1]), "size_depth_m": float(size[2]),
+             "excess_db": r["excess_db"],
+             "north_m": float(r["ned"][0]), "east_m": float(r["ned"][1]),
+             "along_m": float(r["run_m"][0]), "cross_m": float(r["run_m"][1]),
+             "closest_pass_m": dist,
+             "coverage_fraction": float(r["coverage_fraction"]),
+             "tile_row": r["tile_row"], "n_tiles": r["n_tiles"]}
+        out.append({name: _rounded(name, c[name]) for name, *_ in CONTACT_FIELDS})
     summary = {"tiles": len(views), "tile_detections": n_tile_detections,
+               "run_id": run_id,
                "contacts": len(out), "origin": None if origin is None else list(origin),
                "min_coverage_fraction": min_fraction,
                "run_full_coverage_pings": None if full is None else int(full.max()),
@@ -307,16 +417,20 @@ def run_contacts(views: list[TileView],
     return out, summary
 
 
+def _csv_value(name: str, v) -> str:
+    if isinstance(v, float):
+        return f"{v:.{_DECIMALS[name]}f}" if math.isfinite(v) else ""
+    return str(v)
+
+
 def write_contacts_csv(path: Path, contacts: list[dict]) -> Path:
-    """One row per contact, :data:`CONTACT_FIELDS` columns (NaN written empty)."""
+    """One row per contact, :data:`CONTACT_FIELDS` columns, each at its precision (NaN
+    written empty)."""
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow([name for name, _, _ in CONTACT_FIELDS])
+        w.writerow([name for name, *_ in CONTACT_FIELDS])
         for c in contacts:
-            w.writerow(["" if isinstance(c[k], float) and not math.isfinite(c[k])
-                        else (f"{c[k]:.8f}" if k in ("latitude_deg", "longitude_deg")
-                              else (f"{c[k]:.4f}" if isinstance(c[k], float) else c[k]))
-                        for k, _, _ in CONTACT_FIELDS])
+            w.writerow([_csv_value(k, c[k]) for k, *_ in CONTACT_FIELDS])
     return path
 
 
@@ -326,20 +440,58 @@ def contacts_geojson(contacts: list[dict], summary: dict) -> dict:
     feats = []
     for c in contacts:
         ok = math.isfinite(c["latitude_deg"]) and math.isfinite(c["longitude_deg"])
-        props = {k: (None if isinstance(c[k], float) and not math.isfinite(c[k]) else c[k])
-                 for k, _, _ in CONTACT_FIELDS if k not in ("latitude_deg", "longitude_deg")}
+        props = {k: (None if isinstance(c[k], float) and not math.isfinite(c[k])
+                     else _rounded(k, c[k]))
+                 for k, *_ in CONTACT_FIELDS if k not in ("latitude_deg", "longitude_deg")}
         feats.append({"type": "Feature", "id": c["contact"],
                       "geometry": ({"type": "Point",
-                                    "coordinates": [round(c["longitude_deg"], 9),
-                                                    round(c["latitude_deg"], 9)]}
+                                    "coordinates": [_rounded("longitude_deg",
+                                                             c["longitude_deg"]),
+                                                    _rounded("latitude_deg",
+                                                             c["latitude_deg"])]}
                                    if ok else None),
                       "properties": props})
     return {"type": "FeatureCollection", "features": feats,
-            "svss_run": {k: summary.get(k) for k in ("tiles", "tile_detections",
+            "svss_run": {k: summary.get(k) for k in ("run_id", "tiles", "tile_detections",
                                                      "contacts", "origin")}}
 
 
 # ----------------------------------------------------------------------- mosaic
+
+
+def _plan(v: TileView) -> np.ndarray | None:
+    """A tile's plan view for the mosaic: its ``mip_depth``, NaN where no ping reached
+    the column (None: the tile has none)."""
+    d = v.data
+    plan = d.get("mip_depth")
+    if plan is not None and "coverage_plan" in d:
+        plan = np.where(d["coverage_plan"] > 0, plan, np.nan)
+    return plan
+
+
+def _composite(views: list[TileView], shape: tuple[int, int], box_of, ne_of) -> dict:
+    """The tiles' plan views on one grid of ``shape``: each cell from the tile that
+    shows the most there. ``box_of(view)``: the (row, column) slices of the cells the
+    tile may cover; ``ne_of(rows, cols)``: survey north, east of those cells' centres."""
+    mip = np.full(shape, np.nan, dtype=np.float32)
+    which = np.full(shape, -1, dtype=np.int32)
+    imaged = np.zeros(shape, dtype=bool)
+    for k, v in enumerate(views):
+        plan = _plan(v)
+        if plan is None:
+            continue
+        box = box_of(v)
+        nn, ee = ne_of(*box)
+        placed, inside = place_plan_at(plan, v.data["along"], v.data["cross"], v.voxel_m,
+                                       v.line, nn, ee)
+        cur, who = mip[box], which[box]
+        better = inside & ~np.isnan(placed) & ~(placed <= cur)     # NaN-aware maximum
+        cur[better] = placed[better]
+        who[inside & (who < 0)] = k
+        who[better] = k
+        imaged[box] |= ~np.isnan(placed)
+    return {"mip_db": mip, "tile": which, "imaged": imaged,
+            "tiles": [v.path.name for v in views]}
 
 
 def run_mosaic(views: list[TileView]) -> dict:
@@ -351,31 +503,47 @@ def run_mosaic(views: list[TileView]) -> dict:
     cell = min(v.voxel_m for v in views)
     north, east, cell = mosaic_grid((corners[:, 0].min(), corners[:, 0].max(),
                                      corners[:, 1].min(), corners[:, 1].max()), cell)
-    mip = np.full((north.size, east.size), np.nan, dtype=np.float32)
-    which = np.full(mip.shape, -1, dtype=np.int32)
-    imaged = np.zeros(mip.shape, dtype=bool)
-    for k, v in enumerate(views):
-        d = v.data
-        plan = d.get("mip_depth")
-        if plan is None:
-            continue
-        if "coverage_plan" in d:
-            plan = np.where(d["coverage_plan"] > 0, plan, np.nan)
-        # only the cells of the tile's bounding box
+
+    def box_of(v: TileView):               # only the cells of the tile's bounding box
         cn = tile_corners_ne(v)
         i0, i1 = np.searchsorted(north, [cn[:, 0].min() - cell, cn[:, 0].max() + cell])
         j0, j1 = np.searchsorted(east, [cn[:, 1].min() - cell, cn[:, 1].max() + cell])
-        box = (slice(i0, i1), slice(j0, j1))
-        placed, inside = place_plan(plan, d["along"], d["cross"], v.voxel_m, v.line,
-                                    north[box[0]], east[box[1]])
-        cur, who = mip[box], which[box]
-        better = inside & ~np.isnan(placed) & ~(placed <= cur)     # NaN-aware maximum
-        cur[better] = placed[better]
-        who[inside & (who < 0)] = k
-        who[better] = k
-        imaged[box] |= ~np.isnan(placed)
-    return {"north": north, "east": east, "mip_db": mip, "tile": which, "imaged": imaged,
-            "cell_m": cell, "tiles": [v.path.name for v in views]}
+        return slice(i0, i1), slice(j0, j1)
+
+    def ne_of(rows: slice, cols: slice):
+        return np.meshgrid(north[rows], east[cols], indexing="ij")
+
+    out = _composite(views, (north.size, east.size), box_of, ne_of)
+    out.update({"north": north, "east": east, "cell_m": cell})
+    return out
+
+
+def utm_mosaic(views: list[TileView], projection: SurveyProjection) -> dict:
+    """:func:`run_mosaic` on a grid of the survey's UTM zone (``projection``): ``x``
+    (easting of the column centres, west to east), ``y`` (northing of the row centres,
+    north to south), ``mip_db``, ``tile``, ``imaged`` (row x column), ``cell_m``,
+    ``epsg``. Each cell centre is taken to the survey frame through latitude and
+    longitude (:mod:`.georef`)."""
+    corners = np.concatenate([tile_corners_ne(v) for v in views])
+    cx, cy = projection.ne_to_utm(corners[:, 0], corners[:, 1])
+    x, y, cell = utm_grid(np.stack([cx, cy], axis=1), min(v.voxel_m for v in views),
+                          MAX_MOSAIC_CELLS)
+
+    def box_of(v: TileView):
+        tx, ty = projection.ne_to_utm(*tile_corners_ne(v).T)
+        j0 = int(np.clip(math.floor((tx.min() - x[0]) / cell) - 1, 0, x.size))
+        j1 = int(np.clip(math.ceil((tx.max() - x[0]) / cell) + 2, 0, x.size))
+        i0 = int(np.clip(math.floor((y[0] - ty.max()) / cell) - 1, 0, y.size))
+        i1 = int(np.clip(math.ceil((y[0] - ty.min()) / cell) + 2, 0, y.size))
+        return slice(i0, i1), slice(j0, j1)
+
+    def ne_of(rows: slice, cols: slice):
+        xx, yy = np.meshgrid(x[cols], y[rows])
+        return projection.utm_to_ne(xx, yy)
+
+    out = _composite(views, (y.size, x.size), box_of, ne_of)
+    out.update({"x": x, "y": y, "cell_m": cell, "epsg": projection.epsg})
+    return out
 
 
 def write_mosaic_h5(path: Path, m: dict, origin) -> Path:
@@ -453,7 +621,8 @@ def write_run_products(tiles_dir: str | Path, out_dir: str | Path | None = None,
                        origin: tuple[float, float, float] | None = None) -> list[Path]:
     """Write the run products of the tiles in ``tiles_dir`` into ``out_dir`` (default:
     the same folder): ``contacts.csv``, ``contacts.geojson``, ``mosaic.png`` and
-    ``mosaic.h5``. ``origin``: survey origin (lat deg, lon deg, height m) when the
+    ``mosaic.h5``, and with a survey origin the map products ``mosaic.tif`` (GeoTIFF)
+    and ``contacts.gpkg`` (GeoPackage), in the survey's UTM zone. ``origin``: survey origin (lat deg, lon deg, height m) when the
     tiles carry no geodetic reference. Returns the files written (none when the
     folder has no tiles with products)."""
     tiles_dir = Path(tiles_dir)
@@ -479,6 +648,22 @@ def write_run_products(tiles_dir: str | Path, out_dir: str | Path | None = None,
                MOSAIC_H5: lambda p: write_mosaic_h5(p, m, origin),
                MOSAIC_PNG: lambda p: write_mosaic_png(p, m, contacts, pcfg, title,
                                                       pcfg.quicklook.max_labels)}
+    projection = None
+    if origin is not None:                 # the map products (docs/products.md)
+        try:
+            projection = SurveyProjection(tuple(origin))
+        except ValueError as exc:
+            log.warning("%s: no %s or %s: %s", tiles_dir, MOSAIC_TIF, CONTACTS_GPKG, exc)
+    if projection is not None:
+        um = utm_mosaic(views, projection)
+        what = (f"{title}; run {summary['run_id'] or 'unknown'}; plan-view MIP in dB re "
+                f"background, WGS 84 / UTM (EPSG:{projection.epsg})")
+        writers[MOSAIC_TIF] = lambda p: write_mosaic_geotiff(p, um, projection.epsg, what)
+        writers[CONTACTS_GPKG] = lambda p: write_contacts_gpkg(
+            p, contacts, [k for k, *_ in CONTACT_FIELDS], projection)
+    elif origin is None:
+        log.info("%s: no survey origin (no ping with a geodetic position, no --origin): "
+                 "no %s or %s", tiles_dir, MOSAIC_TIF, CONTACTS_GPKG)
     files = []
     for name, write in writers.items():
         final = out / name
@@ -507,11 +692,15 @@ def run_products_at_end(tiles_dir: str | Path) -> list[Path]:
 
 
 __all__ = [
+    "CONTACTS_GPKG",
     "CONTACT_FIELDS",
+    "MOSAIC_TIF",
+    "closest_pass",
     "filter_contacts",
     "run_contacts",
     "run_mosaic",
     "run_products_at_end",
+    "utm_mosaic",
     "survey_origin",
     "write_run_products",
 ]

@@ -22,8 +22,10 @@ from svss_daq.config import config_path
 from svss_proc.products.run_products import (
     CONTACTS_CSV,
     CONTACTS_GEOJSON,
+    CONTACTS_GPKG,
     MOSAIC_H5,
     MOSAIC_PNG,
+    MOSAIC_TIF,
     load_views,
     survey_origin,
     tile_corners_ne,
@@ -83,7 +85,8 @@ def test_six_points_all_detected_and_no_false_alarm(demo_run):
 
 def test_contacts_at_the_true_latitude_and_longitude(demo_run, tmp_path):
     files = write_run_products(demo_run, tmp_path, origin=ORIGIN)
-    assert {p.name for p in files} == {CONTACTS_CSV, CONTACTS_GEOJSON, MOSAIC_H5, MOSAIC_PNG}
+    assert {p.name for p in files} == {CONTACTS_CSV, CONTACTS_GEOJSON, MOSAIC_H5, MOSAIC_PNG,
+                                       MOSAIC_TIF, CONTACTS_GPKG}
     scene = load_scene(SCENE)
     truth = scene_truth(scene)
     ned = truth_line(scene.track).tile_to_ned(np.array([t["scene_m"] for t in truth]))
@@ -98,6 +101,8 @@ def test_contacts_at_the_true_latitude_and_longitude(demo_run, tmp_path):
         lat, lon = float(row["latitude_deg"]), float(row["longitude_deg"])
         assert feat["geometry"]["type"] == "Point"
         assert feat["geometry"]["coordinates"] == pytest.approx([lon, lat], abs=1e-8)
+        for v in feat["geometry"]["coordinates"]:               # 1e-7 deg: 1 cm
+            assert len(repr(v).split(".")[-1]) <= 7, v
         assert feat["properties"]["excess_db"] == pytest.approx(float(row["excess_db"]),
                                                                 abs=1e-3)
         err = np.hypot((true_ll[:, 0] - lat) * m_per_deg[0],
@@ -108,6 +113,81 @@ def test_contacts_at_the_true_latitude_and_longitude(demo_run, tmp_path):
         for key in ("size_along_m", "size_cross_m", "size_depth_m"):
             assert 0.0 < float(row[key]) < 1.0
         assert float(row["excess_db"]) > 14.0
+
+
+def test_contacts_name_the_run_and_the_time_of_the_closest_pass(demo_run):
+    """Run id, UTC time of the closest pass, no float32 noise, no ``peak_db``: the
+    demo's track runs along its line at a constant speed from its first ping, so the
+    closest pass of a point at ``along`` is ``along / speed`` after the first ping."""
+    scene = load_scene(SCENE)
+    gj = json.loads((demo_run / CONTACTS_GEOJSON).read_text())
+    with open(demo_run / CONTACTS_CSV, newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert "peak_db" not in rows[0] and gj["svss_run"]["run_id"] == "demo"
+    views = load_views(demo_run)
+    t0 = min(int(v.data["ping_time"].min()) for v in views)
+    speed = scene.track.speed_m_s
+    for row, feat in zip(rows, gj["features"]):
+        p = feat["properties"]
+        assert row["run_id"] == p["run_id"] == "demo"         # the raw file's stem
+        assert row["tile"].startswith("tile_") and row["time_utc"] == p["time_utc"]
+        when = np.datetime64(row["time_utc"].rstrip("Z"), "ns").astype(np.int64)
+        first_line = t0 + int(float(row["along_m"]) / speed * 1e9)
+        assert abs(int(when) - first_line) <= 2e6, row       # ns: the ms of the text
+        assert float(row["closest_pass_m"]) == pytest.approx(abs(float(row["cross_m"])),
+                                                             abs=2e-3)
+        for k, v in p.items():                                # meaningful digits only
+            if isinstance(v, float):
+                assert len(repr(v).split(".")[-1]) <= 3, (k, v)
+        assert feat["geometry"] is None                      # no origin in the run
+
+
+def test_map_products_read_back_with_gdal_at_the_navigations_place(demo_run, tmp_path):
+    """The GeoTIFF mosaic and the GeoPackage contacts, read back with rasterio and
+    pyogrio (GDAL): UTM zone 19N, the mosaic's edges within one cell outside the tiles'
+    corners as the navigation places them (latitude and longitude by
+    ``svss_daq.navigation``, projected by GDAL), every contact on its bright spot of
+    the mosaic and at its CSV latitude and longitude."""
+    rasterio = pytest.importorskip("rasterio")
+    import rasterio.warp
+    pyogrio_raw = pytest.importorskip("pyogrio.raw")
+    import struct
+    from svss_daq.navigation import ned_to_geodetic
+    write_run_products(demo_run, tmp_path, origin=ORIGIN)
+    with rasterio.open(tmp_path / MOSAIC_TIF) as ds:
+        assert ds.crs.to_epsg() == 32619                     # -70.671 E: zone 19, north
+        img, transform, bounds, cell = ds.read(1), ds.transform, ds.bounds, ds.res[0]
+        assert ds.res[0] == ds.res[1] == pytest.approx(0.02)  # the voxel
+        assert ds.tags(1)["units"] == "dB re background"
+    corners = np.concatenate([tile_corners_ne(v) for v in load_views(demo_run)])
+    lat, lon, _ = ned_to_geodetic(np.c_[corners, np.zeros(len(corners))], ORIGIN)
+    x, y = (np.asarray(v) for v in rasterio.warp.transform("EPSG:4326", "EPSG:32619",
+                                                           lon, lat))
+    # the grid's edges lie on whole cells: each edge at most one cell beyond the corners
+    for margin in (x.min() - bounds.left, bounds.right - x.max(),
+                   y.min() - bounds.bottom, bounds.top - y.max()):
+        assert 0.0 <= margin < cell + 1e-6, margin
+    with h5py.File(demo_run / MOSAIC_H5, "r") as f:       # the same area imaged
+        imaged = np.isfinite(f["mip_db"][()]).sum() * float(f.attrs["cell_m"]) ** 2
+    assert np.isfinite(img).sum() * cell ** 2 == pytest.approx(imaged, rel=0.02)
+    meta, _, geometry, fields = pyogrio_raw.read(tmp_path / CONTACTS_GPKG)
+    assert meta["crs"] == "EPSG:32619" and meta["geometry_type"] == "Point"
+    with open(tmp_path / CONTACTS_CSV, newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert len(geometry) == len(rows) == 6
+    names = list(meta["fields"])
+    excess = fields[names.index("excess_db")]
+    pts = np.array([struct.unpack("<BIdd", g[:21])[2:] for g in geometry])
+    cx, cy = rasterio.warp.transform("EPSG:4326", "EPSG:32619",
+                                     [float(r["longitude_deg"]) for r in rows],
+                                     [float(r["latitude_deg"]) for r in rows])
+    # 1e-7 degree in the CSV: at most 6 mm of rounding
+    assert np.abs(pts - np.c_[cx, cy]).max() < 0.01
+    for (px, py), e in zip(pts, excess):
+        row, col = rasterio.transform.rowcol(transform, px, py)
+        spot = np.nanmax(img[row - 1:row + 2, col - 1:col + 2])
+        assert spot >= e - 0.5, (e, spot)                   # the contact's own peak
+        assert spot > np.nanmedian(img) + 20.0
 
 
 def test_survey_origin_recovered_from_a_geodetic_reference():

@@ -32,6 +32,9 @@ def planted(demo_processing):
     for t in targets:
         plant(img, axes, t, rayleigh_median(1.0) * 10 ** (30 / 20))
     tile = make_tile(grid, LINE, img, pings=range(7, 40), updates=12345)
+    tile.track = [(1_700_000_000_000_000_000 + 100_000_000 * k, 0.1 * k, 0.05 * k)
+                  for k in range(len(tile.pings))]
+    tile.run_id = "line3"
     return tile, targets
 
 
@@ -68,6 +71,14 @@ def test_xarray_opens_the_tile_with_dimensions_and_coordinates(tile_file, demo_p
         np.testing.assert_array_equal(ds.mip_depth.values, prods.mips["mip_depth"])
         assert ds.depth_gain_db.dims == ("depth",)
         np.testing.assert_array_equal(ds.ping_sequence.values, np.arange(7, 40))
+        # the pings' track: CF times decoded to datetime64, positions in metres
+        assert ds.ping_time.dims == ("ping_sequence",)
+        assert ds.ping_time.dtype == np.dtype("datetime64[ns]")
+        np.testing.assert_array_equal(ds.ping_time.values.astype(np.int64),
+                                      [t for t, _, _ in tile.track])
+        np.testing.assert_array_equal(ds.ping_north_m.values, [n for _, n, _ in tile.track])
+        assert ds.ping_east_m.attrs["units"] == "m"
+        assert ds.attrs["run_id"] == "line3"
         # selecting by coordinate works in metres
         v = ds.magnitude.sel(along=g.along[40], cross=g.cross[15], depth=g.depth[12])
         assert float(v) == pytest.approx(abs(tile.image[40, 15, 12]))
