@@ -156,7 +156,7 @@ def check_navigation(s: dict, lim: AlarmLimits) -> list[Alarm]:
     devices = s.get("devices") or {}
     has_gps, has_dvl = "gps" in devices, "dvl" in devices
     if not isinstance(sol, dict) or not (has_gps or has_dvl) \
-            or s.get("state") not in ("recording", "starting"):
+            or s.get("state") != "recording":
         return []
     out = []
     mode = sol.get("mode")

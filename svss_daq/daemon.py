@@ -876,12 +876,13 @@ class AcquisitionDaemon:
                "clock_retimed": t.clock_retimed, "pose_errors": c.pose_errors}
         # "now" on the ping clock: the navigation's records are on it (a device whose
         # clock is not the host's, as the simulated one, is judged on its own time)
+        # (unknown before the first transmit record: no solution is judged then)
         with self._nav_lock:
-            ping_now = self.navigator.ping_clock.ping_time(utc_now_ns()) or utc_now_ns()
+            ping_now = self.navigator.ping_clock.ping_time(utc_now_ns())
         if self._last_pose is not None:
             nav["pose"] = pose_summary(self._last_pose, ping_now)
         quality = getattr(self.navigator, "quality", None)
-        if callable(quality):
+        if callable(quality) and ping_now is not None:
             try:
                 with self._nav_lock:
                     nav["solution"] = quality(ping_now)

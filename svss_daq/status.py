@@ -97,11 +97,11 @@ def _finite(v: float, digits: int) -> float | None:
     return round(float(v), digits) if math.isfinite(v) else None
 
 
-def pose_summary(nav, now_ns: int) -> dict:
+def pose_summary(nav, now_ns: int | None) -> dict:
     """The operator's view of a ping's pose (a :class:`~svss_daq.ping.NavSnapshot`):
-    time (UTC on the ping clock) and age at ``now_ns`` (same clock), latitude and
-    longitude, survey-frame position, speed and course over ground, heading, altitude
-    above the bottom, and where each came from (its quality flags): position ``gps``,
+    time (UTC on the ping clock) and age at ``now_ns`` (same clock; None: unknown),
+    latitude and longitude, survey-frame position, speed and course over ground,
+    heading, altitude above the bottom, and where each came from (its quality flags): position ``gps``,
     ``dead_reckoning``, ``held`` or ``none``; heading ``hdt``, ``dvl_compass``,
     ``gps_course`` or ``none``; speed ``dvl`` (bottom track) or ``gps``; altitude
     ``dvl`` (bottom lock) or ``none``. Unknown numbers are null."""
@@ -115,7 +115,8 @@ def pose_summary(nav, now_ns: int) -> dict:
     vn, ve = nav.vel_north_m_s, nav.vel_east_m_s
     speed = math.hypot(vn, ve)
     return {"time_utc": utc_text(nav.time_ns),
-            "age_s": round((int(now_ns) - int(nav.time_ns)) * 1e-9, 3),
+            "age_s": None if now_ns is None else round((int(now_ns) - int(nav.time_ns))
+                                                       * 1e-9, 3),
             "latitude_deg": _finite(nav.latitude_deg, 8),
             "longitude_deg": _finite(nav.longitude_deg, 8),
             "north_m": _finite(nav.north_m, 3), "east_m": _finite(nav.east_m, 3),
