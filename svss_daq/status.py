@@ -34,6 +34,8 @@ log = logging.getLogger(__name__)
 TOPIC = b"svss.status"
 SCHEMA = "svss.status"
 VERSION = 1
+#: at close, how long the last status may wait to reach subscribers, ms
+CLOSE_LINGER_MS = 200
 
 
 class StatusPublisher:
@@ -65,7 +67,8 @@ class StatusPublisher:
             pass
 
     def close(self) -> None:
-        self.sock.close(linger=0)
+        # a moment for the last status (the run's end) to reach its subscribers
+        self.sock.close(linger=CLOSE_LINGER_MS)
 
 
 def decode_status(frames: list[bytes]) -> dict:

@@ -159,6 +159,10 @@ def test_alarms_raise_and_clear_through_real_processes_and_follow_survives_runs(
         talker.join()
         fetcher.close()
         acq.stop()
+        # the run's last status: its file named, closed (not "recording: None")
+        s = follower.until(lambda s: s["state"] in ("stopped", "failed"), "run1 stopped")
+        assert s["run_id"] == "run1" and s["recorder"]["closed"]
+        assert s["recorder"]["file"].endswith("run1_000.h5")
         assert follower.proc.poll() is None          # the run ended: still following
         [f] = acq.files()
         with RawRunReader(f) as rr:
