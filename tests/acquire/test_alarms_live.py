@@ -1,5 +1,5 @@
 """Alarms raised and cleared through real processes: ``svss sim-device`` with a faults
-file (the sonar stops delivering pings, a GPS outage), ``svss acquire``, a tile worker
+file (the sonar stops delivering pings, a GPS outage, a DVL dropout), ``svss acquire``, a tile worker
 that falls behind and reaches its memory bound (its progress messages to the real
 catch-up service), a disk floor above the free space; and ``svss status --follow``
 started before any daemon, through one run's end and the next run's start."""
@@ -27,7 +27,7 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"),
                                 reason="needs Linux pseudo-terminals")
 
 # simulated seconds after the sequencer's START (10 pings/s): the sonar delivers no
-# ping for 2 s, then the GPS loses its fix for 3 s
+# ping for 2 s, the GPS loses its fix for 3 s, the DVL drops out for 2.5 s
 FAULTS = """
 [[fault]]
 at_s = 2.0
@@ -39,6 +39,11 @@ pings = 20
 at_s = 6.0
 kind = "gps.outage"
 seconds = 3.0
+
+[[fault]]
+at_s = 11.0
+kind = "dvl.vanish"
+seconds = 2.5
 """
 DEADLINE_S = 90.0        # a loaded machine; each wait below ends as soon as it is met
 
@@ -58,11 +63,14 @@ class Follower:
              endpoint, "--timeout", "1"], stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL, cwd=ROOT, text=True)
         self.lines: queue.Queue = queue.Queue()
+        self.seen: set[str] = set()        # every alarm name any status listed
         threading.Thread(target=self._read, daemon=True).start()
 
     def _read(self) -> None:
         for line in self.proc.stdout:
-            self.lines.put(json.loads(line))
+            s = json.loads(line)
+            self.seen |= {a["name"] for a in s["alarms"]}
+            self.lines.put(s)
 
     def until(self, pred, what: str, timeout_s: float = DEADLINE_S) -> dict:
         """The first status (from now) for which ``pred`` holds."""
@@ -102,6 +110,7 @@ def test_alarms_raise_and_clear_through_real_processes_and_follow_survives_runs(
                    .replace('"tcp://127.0.0.1:5556"', '"tcp://127.0.0.1:*"')
                    .replace('"tcp://127.0.0.1:5557"', '"tcp://127.0.0.1:*"'))
     alarms = {"recent_s": 2.0, "clear_after_s": 0.5, "worker_max_backlog_s": 1.0,
+              "device_silent_s": 1.0,
               "disk_min_free_mib": 0.0, "disk_min_time_left_s": 0.0}
     common = {"run": {"daq": str(daq)}, "status": {"endpoint": endpoint},
               "catch_up": {"linger_s": 0.0}}
@@ -148,15 +157,23 @@ def test_alarms_raise_and_clear_through_real_processes_and_follow_survives_runs(
         (tmp_path / "status.txt").write_text(text)
         worker.update(done=True, extras={"open_tiles": 2, "max_open_tiles": 4,
                                          "memory_bound_age_s": 30.0})
-        s = follower.until(not_alarmed("navigation.no_gps_fix", "worker.behind",
-                                       "worker.memory_bound"), "the alarms cleared")
-        # the GPS fix age on the devices' own clock, the position and its sources
+        follower.until(not_alarmed("navigation.no_gps_fix", "worker.behind",
+                                   "worker.memory_bound"), "the alarms cleared")
+        # pings posed on GPS again (their poses lag the solution): the GPS fix age on
+        # the devices' own clock (not the host's), the position and its sources
+        s = follower.until(lambda s: s["navigation"]["pose"]["position_source"] == "gps"
+                           and s["navigation"]["solution"]["mode"] == "gps",
+                           "a ping posed on GPS after the outage")
         sol, pose = s["navigation"]["solution"], s["navigation"]["pose"]
-        assert sol["mode"] == "gps" and 0 <= sol["gps_fix_age_s"] < 5
-        assert pose["position_source"] == "gps" and -90 <= pose["latitude_deg"] <= 90
+        assert 0 <= sol["gps_fix_age_s"] < 5 and 0 <= pose["age_s"] < 10
+        assert -90 <= pose["latitude_deg"] <= 90 and -180 <= pose["longitude_deg"] <= 360
         assert pose["altitude_source"] == "dvl" and pose["speed_m_s"] is not None
         stop.set()
         talker.join()
+        # the DVL drops out: silent, no bottom lock; both clear when it is back
+        dvl = ("dvl.silent", "navigation.no_bottom_lock")
+        follower.until(lambda s: set(dvl) <= follower.seen and not_alarmed(*dvl)(s),
+                       "the DVL dropout's alarms raised and cleared")
         fetcher.close()
         acq.stop()
         # the run's last status: its file named, closed (not "recording: None")
@@ -169,7 +186,7 @@ def test_alarms_raise_and_clear_through_real_processes_and_follow_survives_runs(
             events = rr.events()
         trail = [(k, d.split(":")[0]) for _, k, d in events if k.startswith("alarm.")]
         for name in ("pings.stopped", "pings.lost", "worker.behind", "worker.memory_bound",
-                     "navigation.no_gps_fix"):
+                     "navigation.no_gps_fix", *dvl):
             assert ("alarm.raised", name) in trail and ("alarm.cleared", name) in trail, (
                 name, trail)
             assert trail.index(("alarm.raised", name)) < trail.index(
