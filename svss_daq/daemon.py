@@ -989,8 +989,11 @@ class AcquisitionDaemon:
         status = self.status()
         for what, alarm in self.alarms.update(evaluate(status, self.alarm_limits), now,
                                               settle=settle):
-            self.event(f"alarm.{what}", f"{alarm.name}: {alarm.message}",
-                       logging.WARNING if what == "raised" else logging.INFO)
+            if what == "raised":
+                self.event("alarm.raised", f"{alarm.name}: {alarm.message}")
+            else:
+                self.event("alarm.cleared", f"{alarm.name}: the condition has gone (last "
+                           f"said: {alarm.message})", logging.INFO)
         status["n_events"] = self.n_events
         if self.status_pub is not None:
             self.status_pub.publish({"alarms": self.alarms.listing(now), **status})
