@@ -215,7 +215,7 @@ def cmd_acquire(args) -> int:
 def cmd_status(args) -> int:
     import json
 
-    from svss_daq.status import format_status, read_status
+    from svss_daq.status import StatusSubscriber, format_status
 
     endpoint = args.connect
     if endpoint is None:
@@ -223,11 +223,31 @@ def cmd_status(args) -> int:
         endpoint = load(AcquireConfig, args.config or config_path("acquire.toml")
                         ).status.endpoint
     curve = load(DaqConfig, config_path("daq.toml")).security
-    while True:
-        s = read_status(endpoint, timeout_s=args.timeout, curve=curve)
-        print(json.dumps(s, indent=2) if args.json else format_status(s), flush=True)
+    with StatusSubscriber(endpoint, curve=curve) as sub:
         if not args.follow:
+            s = sub.next(args.timeout)
+            if s is None:
+                log.error("no status message from %s within %g s (is svss acquire "
+                          "running?)", endpoint, args.timeout)
+                return 1
+            print(json.dumps(s, indent=2) if args.json else format_status(s), flush=True)
             return 0
+        # --follow: until SIGINT/SIGTERM, through daemons coming up, runs starting and
+        # ending; a quiet stream is said once, then waited on
+        quiet, run = False, None
+        while True:
+            s = sub.next(args.timeout)
+            if s is None:
+                if not quiet:
+                    log.warning("no status from %s for %g s: %s; waiting", endpoint,
+                                args.timeout, "no daemon yet" if run is None else
+                                f"run {run} is over or its daemon stopped")
+                quiet = True
+                continue
+            if quiet or s.get("run_id") != run:
+                log.info("status of run %s from %s", s.get("run_id"), endpoint)
+            quiet, run = False, s.get("run_id")
+            print(json.dumps(s) if args.json else format_status(s) + "\n", flush=True)
 
 
 def cmd_demo(args) -> int:
@@ -434,9 +454,13 @@ def build_parser() -> argparse.ArgumentParser:
     sp = sub.add_parser("status", help="print the acquisition daemon's status")
     sp.add_argument("--connect", help="status endpoint (default: acquire.toml's)")
     sp.add_argument("--config", help="acquisition TOML naming the status endpoint")
-    sp.add_argument("--timeout", type=float, default=5.0, help="seconds to wait")
-    sp.add_argument("--follow", action="store_true", help="keep printing")
-    sp.add_argument("--json", action="store_true", help="print the status as JSON")
+    sp.add_argument("--timeout", type=float, default=5.0,
+                    help="seconds to wait for a status (--follow: before saying none came)")
+    sp.add_argument("--follow", action="store_true",
+                    help="keep printing, waiting for a daemon and across runs, until "
+                    "interrupted")
+    sp.add_argument("--json", action="store_true",
+                    help="print the status as JSON (--follow: one object a line)")
     sp.set_defaults(func=cmd_status)
 
     sp = sub.add_parser("simulate", help="simulate a scene into a raw-run file")

@@ -106,6 +106,47 @@ class LimitsSection:
                                 lo=1, hi=10**7)
 
 
+@dataclass(frozen=True)
+class AlarmsSection:
+    """Thresholds of the named alarms (:mod:`svss_daq.alarms`, docs/operator.md). Every
+    key may be omitted: its default is the ``default`` here, the one place it is
+    written."""
+    no_ping_intervals: float | None = spec(
+        "alarm pings.stopped: no ping for this many ping intervals (hardware "
+        "sequencer.ping_interval_s) while recording", lo=1, hi=10000, default=5.0)
+    min_rate_fraction: float | None = spec(
+        "alarm pings.rate_low: the ping rate over status.rate_window_s below this "
+        "fraction of the schedule's", lo=0.0, hi=1.0, default=0.8)
+    recent_s: float | None = spec(
+        "alarms pings.lost, stream.dropped and worker.memory_bound: raised while what "
+        "they count happened within this long, s", lo=0.5, hi=86400, default=10.0)
+    disk_min_free_mib: float | None = spec(
+        "alarm disk.low: free space below this, MiB (recording stops at "
+        "disk.min_free_mib)", lo=0, hi=1e9, default=4096.0)
+    disk_min_time_left_s: float | None = spec(
+        "alarm disk.low (critical): less than this left at the current rate before "
+        "recording stops, s", lo=0, hi=1e7, default=1800.0)
+    dead_reckoning_max_s: float | None = spec(
+        "alarm navigation.dead_reckoning: dead reckoning without a GPS fix for longer "
+        "than this, s", lo=0, hi=86400, default=60.0)
+    device_silent_s: float | None = spec(
+        "alarm <device>.silent: nothing received from a connected device for this long "
+        "while recording, s", lo=0.1, hi=3600, default=3.0)
+    worker_max_backlog_s: float | None = spec(
+        "alarm worker.behind: a tile worker this far behind the recording (its backlog "
+        "in pings times the ping interval), s", lo=0.1, hi=86400, default=20.0)
+    clear_after_s: float | None = spec(
+        "an alarm clears once its condition has been absent this long (hysteresis), s",
+        lo=0, hi=3600, default=3.0)
+
+
+def alarms_section(cfg: "AcquireConfig") -> AlarmsSection:
+    """The ``[alarms]`` thresholds of ``cfg``: its table, or every default when it has
+    none."""
+    return cfg.alarms if cfg.alarms is not None else from_dict(AlarmsSection, {},
+                                                               "[alarms] defaults")
+
+
 #: [limits] when the acquisition TOML has none (config/acquire.toml holds the same)
 DEFAULT_LIMITS = LimitsSection(pending_pings=200, transmit_records=1000,
                                duplicate_window=100000, records_waiting=10000)
@@ -122,6 +163,8 @@ class AcquireConfig:
     catch_up: CatchUpSection = spec("the catch-up service after the run")
     limits: LimitsSection | None = spec("bounds of the daemon's queues (omitted: "
                                         "DEFAULT_LIMITS)")
+    alarms: AlarmsSection | None = spec("thresholds of the named alarms (omitted: every "
+                                        "default of AlarmsSection)")
 
 
 @dataclass(frozen=True)

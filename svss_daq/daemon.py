@@ -36,7 +36,8 @@ import time
 from dataclasses import dataclass, field
 
 from . import messages
-from .acquire_config import DEFAULT_LIMITS, AcquireSetup
+from .acquire_config import DEFAULT_LIMITS, AcquireSetup, alarms_section
+from .alarms import AlarmLimits, AlarmTracker, evaluate
 from .assembly import AssemblyError, PingAssembler
 from .drivers.digitiser import DigitiserClient
 from .protocols.nmea import NmeaStreamParser
@@ -54,8 +55,9 @@ from .nav.renavigate import navigation_config_text
 from .rawfile import NAV_CONFIG_ATTR
 from .recorder import (RESERVE_MIB, RecordingStopped, RunRecorder,
                        close_interrupted_runs, free_run_id)
+from .recent import RecentChange
 from .signals import deferred_stop, raise_if_stopped
-from .status import StatusPublisher
+from .status import StatusPublisher, pose_summary, utc_text
 
 log = logging.getLogger(__name__)
 
@@ -276,6 +278,18 @@ class AcquisitionDaemon:
         self._requests_seen = 0
         self._last_request = -float("inf")     # monotonic time of the last catch-up request
         self._next_status = 0.0
+        # alarms (svss_daq.alarms): thresholds, the active ones, and what the status
+        # snapshot needs for them
+        self.alarm_limits = AlarmLimits.from_setup(setup)
+        self.alarms = AlarmTracker(alarms_section(acq).clear_after_s)
+        self._recent = RecentChange(self.alarm_limits.recent_s)     # drops
+        self._disk = RecentChange(acq.status.rate_window_s)         # free space
+        self._recording_at: float | None = None     # monotonic: state became recording
+        self._last_ping_at: float | None = None     # monotonic: the last ping delivered
+        self._last_recorded_seq: int | None = None
+        self._last_pose: NavSnapshot | None = None   # the last ping's pose
+        self._transmits = 0                          # transmit records received
+        self._heard: dict[str, tuple[int, float]] = {}   # device: (records, when changed)
 
     # -- events --------------------------------------------------------------------------
 
@@ -339,6 +353,7 @@ class AcquisitionDaemon:
                 wait_subscribers, self.setup.acquire.pairing.start_timeout_s)
         self._open_devices()
         self.state = "recording"
+        self._recording_at = time.monotonic()
         self._publish_status(force=True)
         return self
 
@@ -417,6 +432,7 @@ class AcquisitionDaemon:
 
     def _on_transmit(self, ev: PingEvent) -> None:
         now = utc_now_ns()
+        self._transmits += 1
         with self._tx_lock:
             self._tx[ev.sequence] = ev
         with self._nav_lock:        # the ping clock as the host sees it (instrument clocks)
@@ -504,6 +520,7 @@ class AcquisitionDaemon:
             while self._unflushed and self._unflushed[0][0] < n:
                 _, ping, _ = self._unflushed.popleft()
                 self.counters.recorded += 1
+                self._last_recorded_seq = ping.sequence
                 self._times.append(time.monotonic())
                 if self.publisher.publish(ping, run_id=self.run_id):
                     self.counters.published += 1
@@ -529,6 +546,7 @@ class AcquisitionDaemon:
         if not isinstance(item, dg.CompletePing):
             return
         self.counters.delivered += 1
+        self._last_ping_at = time.monotonic()
         self._pending.append((time.monotonic(), item))
 
     def _assemble_due(self, final: bool) -> None:
@@ -659,6 +677,7 @@ class AcquisitionDaemon:
     def _tally_nav(self, nav: NavSnapshot) -> None:
         t, q = self.nav_tally, nav.quality
         t.last_quality = q
+        self._last_pose = nav
         gps, dr, lock = bool(q & NAV_GPS_FIX), bool(q & NAV_DEAD_RECKONED), bool(q & NAV_BOTTOM_LOCK)
         held = bool(q & NAV_HELD)
         t.mode = ("gps" if gps else "dead_reckoning" if dr else "held" if held else "none")
@@ -820,8 +839,11 @@ class AcquisitionDaemon:
         return (len(self._times) - 1) / max(self._times[-1] - self._times[0], 1e-9)
 
     def status(self) -> dict:
+        """The status snapshot (the status stream's message, less its alarms: see
+        :meth:`_publish_status`). Ages are seconds; times UTC text."""
         c = self.counters
         rec = self.recorder
+        now = time.monotonic()
         devices = {}
         if self.sequencer is not None:
             ls = self.sequencer.link.stats
@@ -829,7 +851,9 @@ class AcquisitionDaemon:
                                     "reopens": max(ls.connects - 1, 0),
                                     "events_missing": self.sequencer.missed_pings,
                                     "garbage_bytes":
-                                        self.sequencer.parser.stats.bytes_discarded}
+                                        self.sequencer.parser.stats.bytes_discarded,
+                                    "silent_s": self._silent("sequencer", self._transmits,
+                                                             now)}
         if self.digitiser is not None:
             d = self.digitiser
             devices["digitiser"] = {"connected": d.connected,
@@ -843,44 +867,137 @@ class AcquisitionDaemon:
                 devices[name] = {"connected": link.connected,
                                  "reopens": max(link.stats.connects - 1, 0),
                                  "records": link.stats.records,
-                                 "garbage_bytes": parser.stats.bytes_discarded}
+                                 "garbage_bytes": parser.stats.bytes_discarded,
+                                 "silent_s": self._silent(name, link.stats.records, now)}
         t = self.nav_tally
         nav = {"mode": t.mode, "last_quality": t.last_quality,
                "dead_reckoned": t.dead_reckoned, "no_gps_fix": t.no_gps_fix,
                "no_bottom_lock": t.no_bottom_lock, "held": t.held,
                "clock_retimed": t.clock_retimed, "pose_errors": c.pose_errors}
+        # "now" on the ping clock: the navigation's records are on it (a device whose
+        # clock is not the host's, as the simulated one, is judged on its own time)
+        # (unknown before the first transmit record: no solution is judged then)
+        with self._nav_lock:
+            ping_now = self.navigator.ping_clock.ping_time(utc_now_ns())
+        if self._last_pose is not None:
+            nav["pose"] = pose_summary(self._last_pose, ping_now)
         quality = getattr(self.navigator, "quality", None)
-        if callable(quality):
+        if callable(quality) and ping_now is not None:
             try:
                 with self._nav_lock:
-                    nav["solution"] = quality(utc_now_ns())
+                    nav["solution"] = quality(ping_now)
             except Exception as exc:             # status must never stop acquisition
                 log.debug("navigation quality: %s", exc)
+        interval = self.hardware.value.sequencer.ping_interval_s
+        recording_s = None if self._recording_at is None else now - self._recording_at
+        last_ping = self._last_ping_at if self._last_ping_at is not None \
+            else self._recording_at
+        # recent drops (alarms pings.lost, stream.dropped)
+        dig_dropped = self.digitiser.dropped if self.digitiser is not None else 0
+        self._recent.add(now, {"never_delivered": c.never_delivered,
+                               "incomplete": c.incomplete, "not_recorded": c.not_recorded,
+                               "driver_queue_full": dig_dropped,
+                               "stream_dropped": c.publish_dropped})
+        change, _ = self._recent.change()
+        stream_dropped = int(change.pop("stream_dropped", 0))
+        file = None
+        if rec is not None:
+            file = rec.writer.path if rec.writer else (rec.segments[-1] if rec.segments
+                                                       else None)
+        free_mib = rec.free_bytes / 2**20 if rec else NAN
+        disk = self._disk_rate(now, free_mib)
         return {
-            "time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "time_utc": utc_text(utc_now_ns()),
             "run_id": self.run_id, "state": self.state,
-            "uptime_s": round(time.monotonic() - self._t_start, 3),
+            "uptime_s": round(now - self._t_start, 3),
+            "recording_s": None if recording_s is None else round(recording_s, 3),
             "ping_rate_hz": round(self.ping_rate(), 3),
+            "schedule_rate_hz": round(1.0 / interval, 3), "ping_interval_s": interval,
+            "last_ping_age_s": None if last_ping is None else round(now - last_ping, 3),
+            "last_sequence": self._last_recorded_seq,
             "counters": c.as_dict(), "endpoints": dict(self.endpoints),
             "subscribers": self.publisher.subscriptions if self.publisher else 0,
-            "recorder": {"file": str(rec.writer.path) if rec and rec.writer else None,
+            "recent": {"window_s": self.alarm_limits.recent_s,
+                       "lost": {k: int(v) for k, v in change.items()},
+                       "stream_dropped": stream_dropped},
+            "recorder": {"file": None if file is None else str(file),
+                         "closed": bool(rec is not None and rec.writer is None
+                                        and rec.ended),
                          "segment": len(rec.segments) - 1 if rec else None,
                          "recorded": rec.n_recorded if rec else 0,
                          "flushed": rec.n_flushed if rec else 0,
-                         "free_mib": rec.free_bytes / 2**20 if rec else NAN,
+                         "free_mib": free_mib, **disk,
                          "stopped": rec.stopped if rec else None},
-            "devices": devices, "navigation": nav, "n_events": self.n_events,
-            "events": [list(e) for e in self.events],
+            "devices": devices, "navigation": nav, "workers": self._workers(interval),
+            "n_events": self.n_events,
+            "events": [{"time_utc": utc_text(te), "kind": k, "detail": d}
+                       for te, k, d in self.events],
             "event_counts": dict(self.event_counts),
             "failure": self.failure,
         }
 
-    def _publish_status(self, force: bool = False) -> None:
+    def _silent(self, name: str, records: int, now: float) -> float | None:
+        """Seconds since device ``name``'s count of records last changed (since
+        recording began when it never did); None before recording."""
+        old = self._heard.get(name)
+        if old is None or old[0] != records:
+            self._heard[name] = (records, now)
+        if self._recording_at is None:
+            return None
+        return round(now - max(self._heard[name][1], self._recording_at), 3)
+
+    def _disk_rate(self, now: float, free_mib: float) -> dict:
+        """How fast the disk fills (over status.rate_window_s) and the time left at
+        that rate before recording stops (disk.min_free_mib)."""
+        if not free_mib == free_mib:                      # NaN: no recorder
+            return {"fill_mib_s": None, "time_left_s": None}
+        self._disk.add(now, {"free": free_mib})
+        change, dt = self._disk.change()
+        if dt <= 0:
+            return {"fill_mib_s": None, "time_left_s": None}
+        rate = -change["free"] / dt
+        room = free_mib - self.setup.acquire.disk.min_free_mib
+        left = max(room, 0.0) / rate if rate > 1e-6 else None
+        return {"fill_mib_s": round(rate, 4),
+                "time_left_s": None if left is None else round(left, 1)}
+
+    def _workers(self, interval: float) -> list[dict]:
+        """The tile workers the catch-up service hears from, with their backlog on this
+        run (pings recorded that they still lack, and those pings' time)."""
+        if self.service is None:
+            return []
+        out = []
+        for w in self.service.workers():
+            backlog = None
+            if w["run_id"] == self.run_id:
+                last = self._last_recorded_seq
+                backlog = 0 if w["done"] or last is None else max(last + 1 - w["next"], 0)
+            out.append({**w, "backlog_pings": backlog,
+                        "backlog_s": None if backlog is None else round(backlog * interval,
+                                                                        3)})
+        return out
+
+    def _publish_status(self, force: bool = False, settle: bool = False) -> None:
+        """Publish the status when due (``force``: now), its alarms first, after
+        evaluating them (:mod:`svss_daq.alarms`); every alarm raised or cleared is an
+        event (``alarm.raised`` / ``alarm.cleared``). ``settle``: alarms whose
+        condition is gone clear at once (the run ended)."""
         now = time.monotonic()
-        if self.status_pub is None or (not force and now < self._next_status):
+        if not force and now < self._next_status:
             return
         self._next_status = now + self.setup.acquire.status.interval_s
-        self.status_pub.publish(self.status())
+        status = self.status()
+        for what, alarm in self.alarms.update(evaluate(status, self.alarm_limits), now,
+                                              settle=settle):
+            if what == "raised":
+                self.event("alarm.raised", f"{alarm.name}: {alarm.message}")
+            else:
+                self.event("alarm.cleared", f"{alarm.name}: the condition has gone (last "
+                           f"said: {alarm.message})", logging.INFO)
+        status["n_events"] = self.n_events
+        if self.status_pub is not None:
+            self.status_pub.publish({"alarms": self.alarms.listing(now), **status})
+
 
     # -- stop ----------------------------------------------------------------------------
 
@@ -914,6 +1031,8 @@ class AcquisitionDaemon:
             self.event("digitiser.stop_failed", str(exc))
         self._watch_devices()
         self._nav_notices()
+        # the alarms of a run being recorded clear with its end (in its events)
+        self._publish_status(force=True, settle=True)
         if self.recorder is not None:
             # the last pings are recorded (or lost with a failed write) before the
             # summary counts them; what is recorded is published before the end marker
@@ -989,6 +1108,7 @@ class AcquisitionDaemon:
                              "max_linger_s %.0f s)", self.run_id, len(waiting),
                              "; ".join(sorted(waiting.values())), cfg.max_linger_s)
                 time.sleep(0.1)
+                self._publish_status()      # the workers' backlog, while they catch up
                 if self.service.replies != seen:
                     seen, quiet_since = self.service.replies, time.monotonic()
                     if not logged and cfg.linger_s > 0:

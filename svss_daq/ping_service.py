@@ -35,6 +35,7 @@ stores a service serves from (raw-run files, a replay, a daemon's recording) are
 from __future__ import annotations
 
 import collections
+import dataclasses
 import json
 import logging
 import re
@@ -155,11 +156,19 @@ def _int_field(req: dict, name: str) -> int:
 @dataclass
 class _Progress:
     """A worker's latest progress message: its run, the first sequence it lacks,
-    whether it needs nothing more, when it came (monotonic)."""
+    whether it needs nothing more, when it came (monotonic), and what else it said of
+    itself (:data:`PROGRESS_EXTRAS`)."""
     run_id: str
     next: int
     done: bool
     at: float
+    extras: dict = dataclasses.field(default_factory=dict)
+
+
+#: optional fields of a worker's progress message, each a number >= 0 or null: its open
+#: tiles, the most its memory bound (limits.memory_gib) allows, and how long ago it
+#: last reached that bound (closed a tile early or refused a ping for it)
+PROGRESS_EXTRAS = ("open_tiles", "max_open_tiles", "memory_bound_age_s")
 
 
 @dataclass
@@ -415,6 +424,12 @@ class PingService:
                     and isinstance(run_id, str) and isinstance(done, bool)):
                 raise RequestError("expected 'client' (1 to 64 of A-Z a-z 0-9 . _ : -), "
                                    "'run_id' (a string) and 'done' (true or false)")
+            extras = {k: req[k] for k in PROGRESS_EXTRAS if k in req}
+            for k, v in extras.items():
+                if v is not None and not (isinstance(v, (int, float))
+                                          and not isinstance(v, bool) and 0 <= v < 1e12):
+                    raise RequestError(f"field '{k}' expected a number >= 0 or null, got "
+                                       f"{messages._show(v)}")
         except RequestError as exc:
             self.progress_refused += 1
             _log_count(self.progress_refused, logging.WARNING, "catch-up service: a "
@@ -433,7 +448,7 @@ class PingService:
                                "service: worker %s not tracked: %d are (daq.toml "
                                "service.max_workers)", client, len(self._workers))
                     return
-            self._workers[client] = _Progress(run_id, nxt, done, now)
+            self._workers[client] = _Progress(run_id, nxt, done, now, extras)
             self._workers.move_to_end(client)
         self.progress += 1
         if not known:
@@ -449,6 +464,17 @@ class PingService:
             return {k: f"{w.run_id} at ping {w.next}" for k, w in self._workers.items()
                     if not (w.run_id == run_id and w.done)
                     and now - w.at <= self.worker_silence_s}
+
+    def workers(self) -> list[dict]:
+        """The workers heard from within ``worker_silence_s``: ``client``, ``run_id``,
+        ``next`` (the first sequence it lacks), ``done``, ``heard_s`` (since its latest
+        progress message) and what else it said (:data:`PROGRESS_EXTRAS`)."""
+        now = time.monotonic()
+        with self._workers_lock:
+            return [{"client": k, "run_id": w.run_id, "next": w.next, "done": w.done,
+                     "heard_s": round(now - w.at, 3), **w.extras}
+                    for k, w in self._workers.items()
+                    if now - w.at <= self.worker_silence_s]
 
     def _fetch(self, ident: bytes, req: dict) -> None:
         run_id = req.get("run_id")
@@ -674,18 +700,22 @@ class PingFetcher:
         except ValueError as exc:
             raise ServiceError(f"catch-up service {self.endpoint}: {exc}") from None
 
-    def progress(self, client: str, run_id: str, next_seq: int, done: bool) -> bool:
+    def progress(self, client: str, run_id: str, next_seq: int, done: bool,
+                 extras: dict | None = None) -> bool:
         """Tell the service where this worker is in run ``run_id`` (``next_seq``: the
         first sequence it still lacks; ``done``: it needs nothing more of the run), so
         that a daemon keeps its service up while the worker lacks pings. Never waits and
         never answered; sent only to a service that said it takes them (:meth:`runs`).
+        ``extras``: what else the worker says of itself (:data:`PROGRESS_EXTRAS`).
         Whether it was sent."""
         if not self.takes_progress or self.sock is None:
             return False
         try:
             self.sock.send(json.dumps({
                 "schema": "svss.progress", "version": VERSION, "client": client,
-                "run_id": run_id, "next": int(next_seq), "done": bool(done)}).encode(),
+                "run_id": run_id, "next": int(next_seq), "done": bool(done),
+                **{k: v for k, v in (extras or {}).items() if k in PROGRESS_EXTRAS}}
+                ).encode(),
                 zmq.NOBLOCK)
         except zmq.ZMQError:             # the queue to a gone service is full
             return False

@@ -84,6 +84,18 @@ class _Run:
     ask_at: float = 0.0
 
 
+def memory_state(worker: Worker | None, now: float) -> dict:
+    """What a worker says of its memory in its progress messages (the daemon's alarm
+    worker.memory_bound): its open tiles, the most limits.memory_gib allows, and how
+    long ago (s) it last reached that bound (None: never)."""
+    if worker is None:
+        return {}
+    sched = worker.imager.schedule
+    at = sched.memory_bound_at
+    return {"open_tiles": len(worker.imager.active), "max_open_tiles": sched.max_open_tiles,
+            "memory_bound_age_s": None if at is None else round(now - at, 3)}
+
+
 class StreamWorker:
     """Feeds pings from the stream, run by run, to a :class:`Worker` per run folder,
     strictly in sequence order.
@@ -311,7 +323,8 @@ class StreamWorker:
             return
         now = time.monotonic()
         if done or now - r.said_at >= self.progress_interval_s:
-            if self.fetcher.progress(self.client_id, r.run_id, r.next_seq, done):
+            if self.fetcher.progress(self.client_id, r.run_id, r.next_seq, done,
+                                     memory_state(r.worker, now)):
                 r.said_at = now
 
     def _plausible(self, r: _Run, seq: int) -> bool:

@@ -26,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -127,6 +128,9 @@ class TileSchedule:
     def __init__(self, hardware: Loaded[HardwareConfig], processing: ProcessingConfig, *,
                  source: str = "processing configuration"):
         self.max_open_tiles = preflight(processing, source)
+        #: when (monotonic) the memory bound was last reached: a tile closed early, or a
+        #: ping refused for reaching more tiles than fit (None: never)
+        self.memory_bound_at: float | None = None
         self.hardware = hardware
         self.proc = processing
         self.geometry = array_geometry(hardware.value)
@@ -224,6 +228,7 @@ class TileSchedule:
         k_lo, k_hi = tile_index(tcfg, lo), tile_index(tcfg, hi)
         limit = self.max_open_tiles
         if k_hi - k_lo + 1 > limit:
+            self.memory_bound_at = time.monotonic()
             raise PingRejected(ping.sequence, f"reaches {k_hi - k_lo + 1} tiles (along-track "
                                f"{lo:.1f} to {hi:.1f} m), more than the {limit} that fit "
                                "in limits.memory_gib")
@@ -279,6 +284,8 @@ class TileSchedule:
                         k, len(self._opened_by) + len(new), limit)
             self._close(k)
             closed.append(k)
+        if closed:
+            self.memory_bound_at = time.monotonic()
         return closed
 
     def _close(self, k: int) -> None:

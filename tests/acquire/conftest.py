@@ -36,7 +36,7 @@ def acquire_toml(tmp: Path, **sections) -> Path:
         "navigation": {"history_s": 60.0, "wait_s": 0.5},
         "catch_up": {"linger_s": 15.0, "max_linger_s": 120.0}}
     for k, v in sections.items():
-        tables[k].update(v)
+        tables.setdefault(k, {}).update(v)
     lines = []
     for name, table in tables.items():
         lines.append(f"[{name}]")
@@ -51,7 +51,8 @@ class AcquireProcess:
     what it bound (publisher, service, status) and its run id."""
 
     def __init__(self, tmp: Path, devices: Path, *extra: str, run_id: str = "run1",
-                 config: Path | None = None, preexec_fn=None, wait: bool = True):
+                 config: Path | None = None, preexec_fn=None, wait: bool = True,
+                 ephemeral: bool = True):
         self.tmp = tmp
         self.ep_file = tmp / f"{run_id}.endpoints.json"
         self.log = tmp / f"{run_id}.acquire.log"
@@ -59,7 +60,8 @@ class AcquireProcess:
         self.run_id = run_id
         cmd = [sys.executable, "-m", "svss", "acquire", "--config",
                str(config or acquire_toml(tmp)), "--devices", str(devices), "--out",
-               str(self.out), "--run-id", run_id, "--ephemeral-ports", "--endpoints-out",
+               str(self.out), "--run-id", run_id,
+               *(["--ephemeral-ports"] if ephemeral else []), "--endpoints-out",
                str(self.ep_file), *extra]
         with open(self.log, "wb") as err:
             self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, cwd=ROOT,

@@ -130,3 +130,28 @@ def test_reversing_boat(hw):
         assert all(q < i for q in s)
     # tiles left behind on the way back close after the hold, before the run ends
     assert any(i >= 60 for i, _ in closed.values())
+
+
+def test_the_memory_bound_reached_is_said_to_the_daemon(hw):
+    """Tiles closed early for ``limits.memory_gib`` (and pings refused for it) mark the
+    bound reached: the worker's progress messages carry it (alarm worker.memory_bound)."""
+    from types import SimpleNamespace
+
+    from svss_proc.preflight import GIB, plane_bytes, product_bytes
+    from svss_proc.imaging.schedule import TileSchedule
+    from svss_proc.worker import memory_state
+
+    base = proc(100).value          # a long hold: tiles stay open behind the boat
+    gib = (product_bytes(base) + 2.5 * plane_bytes(base)) / GIB     # room for 2 tiles
+    p = dataclasses.replace(base, limits=dataclasses.replace(base.limits, memory_gib=gib))
+    sched = TileSchedule(hw, p)
+    assert sched.max_open_tiles == 2 and sched.memory_bound_at is None
+    worker = SimpleNamespace(imager=SimpleNamespace(schedule=sched, active={}))
+    ps = pings(hw, [0.1 * i for i in range(40)])              # 4 m forward: 3 tiles
+    for ping in ps[:5]:
+        sched.step(ping)
+    assert memory_state(worker, 0.0)["memory_bound_age_s"] is None
+    early = [k for ping in ps[5:] for k in sched.step(ping).closed_early]
+    assert early and sched.memory_bound_at is not None
+    state = memory_state(worker, sched.memory_bound_at + 1.5)
+    assert state == {"open_tiles": 0, "max_open_tiles": 2, "memory_bound_age_s": 1.5}
