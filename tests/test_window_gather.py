@@ -1,11 +1,22 @@
-"""The window gather against numpy indexing, on both of its paths."""
+"""The window gather against numpy indexing, on each of its paths: the one this machine
+compiles (AVX-512 here), and in subprocesses an AVX2-only target (numba's CPU name and
+features; no AVX-512 instruction may appear) and the lane-by-lane loads."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numba as nb
 import numpy as np
 import pytest
 
-from svss_proc.imaging.window_gather import (HAS_AVX512, LANES, WINDOW, window_gather_1,
-                                     window_gather_2, window_gather_4)
+from svss_proc.imaging.window_gather import (AVX2_TARGET, HALF, HALF_WINDOW, LANES, PATH,
+                                             PATH_VARIABLE, WINDOW, choose_path,
+                                             window_gather_1, window_gather_2,
+                                             window_gather_4)
+
+ROOT = Path(__file__).resolve().parents[1]
 
 GATHERS = {1: window_gather_1, 2: window_gather_2, 4: window_gather_4}
 N = 200
@@ -55,9 +66,58 @@ def test_window_gather_matches_indexing(taps, dtype):
     np.testing.assert_array_equal(rows[:taps, :idx.size], re[:, 1, idx])
     np.testing.assert_array_equal(rows[taps:, :idx.size], im[:, 1, idx])
     assert np.isnan(rows[:, idx.size:]).all()          # nothing written past the lanes
-    fast = dtype == np.float32 and HAS_AVX512
-    expected = [int(fits and fast) for _, _, fits in cases]
-    assert flags.tolist() == expected, [c[0] for c in cases]
+    expected = [int(dtype == np.float32 and _fits(PATH, np.asarray(c[1]), N))
+                for c in cases]
+    assert flags.tolist() == expected, (PATH, [c[0] for c in cases])
+    if PATH == "avx512":           # the premise: the cases' own window verdicts
+        assert expected[:len(cases)] == [int(dtype == np.float32 and c[2]) for c in cases]
+
+
+def _fits(path: str, idx: np.ndarray, n: int) -> bool:
+    """Whether ``path`` serves these 16 indices from its windows (the reference)."""
+    if path == "avx512":
+        return bool(np.all((idx - idx[0] >= 0) & (idx - idx[0] < WINDOW))
+                    and idx[0] + WINDOW <= n)
+    if path == "avx2":
+        return all(bool(np.all((h - h[0] >= 0) & (h - h[0] < HALF_WINDOW))
+                        and h[0] + HALF_WINDOW <= n) for h in (idx[:HALF], idx[HALF:]))
+    return False
+
+
+def test_avx2_cases_take_both_verdicts():
+    """The premise for the AVX2 path: the cases fit its 16-sample halves and miss them."""
+    verdicts = {_fits("avx2", np.asarray(c[1]), N) for c in _chunks()}
+    assert verdicts == {True, False}
+
+
+@pytest.mark.parametrize("env", [AVX2_TARGET, {PATH_VARIABLE: "loads"}],
+                         ids=["avx2 target", "loads"])
+def test_window_gather_on_the_other_paths(env, tmp_path):
+    """This module's gather test in a process that compiles another path (its own numba
+    cache: the cache does not know the path)."""
+    full = {**os.environ, **env, "NUMBA_CACHE_DIR": str(tmp_path / "cache"),
+            "PYTHONPATH": os.pathsep.join([str(ROOT)] + [p for p in [
+                os.environ.get("PYTHONPATH")] if p])}
+    code = ("import sys, pytest; from svss_proc.imaging.window_gather import PATH; "
+            "print('PATH', PATH); sys.exit(pytest.main(['-q', '-p', 'no:cacheprovider', "
+            "'-n', '0', '-k', 'matches_indexing', sys.argv[1]]))")
+    res = subprocess.run([sys.executable, "-c", code, __file__], cwd=ROOT, env=full,
+                         capture_output=True, text=True, timeout=600)
+    want = "avx2" if "NUMBA_CPU_NAME" in env else env[PATH_VARIABLE]
+    assert f"PATH {want}" in res.stdout, res.stdout[-2000:] + res.stderr[-2000:]
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-2000:]
+    assert "6 passed" in res.stdout, res.stdout[-2000:]
+
+
+def test_path_choice():
+    assert choose_path(frozenset({"avx2", "avx512f"}), None) == "avx512"
+    assert choose_path(frozenset({"avx2", "fma"}), "auto") == "avx2"
+    assert choose_path(frozenset({"sse4.2"}), None) == "loads"
+    assert choose_path(frozenset({"avx2", "avx512f"}), "avx2") == "avx2"
+    with pytest.raises(ValueError, match=PATH_VARIABLE + ".*lacks it"):
+        choose_path(frozenset({"avx2"}), "avx512")
+    with pytest.raises(ValueError, match="expected auto or one of"):
+        choose_path(frozenset({"avx2"}), "sse")
 
 
 def test_window_gather_rejects_mixed_precision():
