@@ -154,7 +154,7 @@ class TileConfig:
     close_after_pings: int | None = spec(
         "a tile is complete once this many consecutive pings' along-track reach has "
         "stayed clear of it (works forward, reversing and stopped; omitted: 20; "
-        "docs/worker.md)", lo=1, hi=100000)
+        "docs/worker.md)", lo=1, hi=100000, default=20)
 
 
 @dataclass(frozen=True)

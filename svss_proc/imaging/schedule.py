@@ -32,7 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
+from svss_daq.config import (HardwareConfig, Loaded, ProcessingConfig, TileConfig,
+                             omitted_default)
 from svss_daq.frames import TrackLine
 from svss_daq.geometry import PlacedArray, array_geometry, cone_reach, place_array
 from svss_daq.ping import Ping
@@ -47,8 +48,9 @@ from .pose_check import TrackGuard
 log = logging.getLogger(__name__)
 
 #: consecutive pings that must stay clear of a tile before it is complete, when the
-#: processing configuration's ``tile.close_after_pings`` is omitted
-CLOSE_AFTER_PINGS = 20
+#: processing configuration's ``tile.close_after_pings`` is omitted (the schema's default,
+#: which the loader fills in; this serves configurations built in code)
+CLOSE_AFTER_PINGS = omitted_default(TileConfig, "close_after_pings")
 
 
 def along_reach(tx_tile: np.ndarray, bore: np.ndarray, half_angle: float,

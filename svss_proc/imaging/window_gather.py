@@ -57,9 +57,10 @@ PATH_VARIABLE = "SVSS_WINDOW_GATHER"
 def target_features() -> frozenset[str]:
     """The CPU features numba compiles for: ``NUMBA_CPU_FEATURES`` where set, else the
     host's (LLVM's names: ``avx512f``, ``avx2``, ``fma``, ...)."""
-    text = config.CPU_FEATURES if config.CPU_FEATURES is not None \
-        else get_host_cpu_features()
-    return frozenset(f[1:] for f in str(text).split(",") if f.startswith("+"))
+    numba_features = config.CPU_FEATURES        # numba's setting, not this project's:
+    if numba_features is None:                  # numba then compiles for the host's
+        numba_features = get_host_cpu_features()
+    return frozenset(f[1:] for f in str(numba_features).split(",") if f.startswith("+"))
 
 
 def choose_path(features: frozenset[str], forced: str | None) -> str:
@@ -72,8 +73,9 @@ def choose_path(features: frozenset[str], forced: str | None) -> str:
         raise ValueError(f"{PATH_VARIABLE}={forced!r}: expected auto or one of "
                          f"{', '.join(PATHS)}")
     if PATHS.index(forced) < PATHS.index(best):
-        raise ValueError(f"{PATH_VARIABLE}={forced!r}: the target CPU ("
-                         f"{config.CPU_NAME or 'host'}) lacks it; widest is {best!r}")
+        target = f"NUMBA_CPU_NAME={config.CPU_NAME}" if config.CPU_NAME else "the host"
+        raise ValueError(f"{PATH_VARIABLE}={forced!r}: the target CPU ({target}) lacks "
+                         f"it; widest is {best!r}")
     return forced
 
 

@@ -74,8 +74,10 @@ def image(hw, pings, processing):
 
 
 def test_default_hold_when_omitted():
-    assert TileImager.__init__ and CLOSE_AFTER_PINGS == 20
-    assert proc().value.tile.close_after_pings is None
+    """One definition: the schema's default, which the loader gives an omitted key and
+    the schedule gives a configuration built in code without one."""
+    assert CLOSE_AFTER_PINGS == 20
+    assert proc().value.tile.close_after_pings == 20
 
 
 def test_forward_tiles_close_in_order_after_the_hold(hw):
