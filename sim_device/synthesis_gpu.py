@@ -22,7 +22,9 @@ stays on the CPU; its results go up once per ping.
 :class:`GpuAccumulator` keeps its device buffers from ping to ping (grown when a ping
 needs more, never shrunk) and uploads the scene's fixed tables (refraction, reflection,
 beam and scattering-strength tables) once per table object. The echo count is reduced
-per block on the device (one atomic add per block).
+per block on the device (one atomic add per block) by the imaging kernel's block sum
+(:mod:`svss_proc.imaging.gpu_shared`: block size, block sum and device buffers written
+once for both).
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ import numpy as np
 from numba import config, cuda
 
 from svss_daq.conventions import ECHO_PHASE_SIGN
-from svss_proc.imaging.gpu_shared import DeviceBuffers
+from svss_proc.imaging.gpu_shared import THREADS, DeviceBuffers, block_count_for
 
 from . import layered_rays, synthesis
 from .synthesis import IMG_DIR, IMG_H, IMG_NB, IMG_RS, IMG_X, IMG_Y, MED_INTERFACE
@@ -54,8 +56,8 @@ _greater = _rays._greater     # max(a, b) (numba.cuda cannot compile the builtin
 #: media a leg may cross (scratch arrays of the ray solver are this long, per thread)
 MAX_MEDIA = 15
 _HBUF = MAX_MEDIA + 1
-#: threads per block; the count reduction assumes a power of two
-THREADS = 128
+#: the block sum of gpu_shared, compiled with this module's globals (simulator-safe)
+block_count = block_count_for(globals())
 #: blocks of the buffer-zeroing kernel (few under the CUDA simulator, a thread each)
 ZERO_BLOCKS = 2 if config.ENABLE_CUDASIM else 512
 
@@ -75,7 +77,6 @@ def _receive_kernel(sx, sy, sz, smed, tau_t, amp_t, img, allowed, zmax, c, rho_m
     """Receive legs and echoes of scatterer i // n_ch on channel i % n_ch (module
     docstring); ``count[0]`` gains the echoes added."""
     i = cuda.grid(1)
-    t = cuda.threadIdx.x
     part = cuda.shared.array(THREADS, dtype=np.int64)
     nch = img.shape[0]
     nr = img.shape[1]
@@ -142,16 +143,7 @@ def _receive_kernel(sx, sy, sz, smed, tau_t, amp_t, img, allowed, zmax, c, rho_m
                 cuda.atomic.add(buf_re, (i1 + 2, ch), np.float32(er * w3))
                 cuda.atomic.add(buf_im, (i1 + 2, ch), np.float32(ei * w3))
                 n_add += 1
-    part[t] = n_add                                # the block's echoes, summed here
-    cuda.syncthreads()
-    s = THREADS // 2
-    while s > 0:
-        if t < s:
-            part[t] += part[t + s]
-        cuda.syncthreads()
-        s //= 2
-    if t == 0 and part[0] != 0:
-        cuda.atomic.add(count, 0, part[0])
+    block_count(part, n_add, count)                # the block's echoes, one atomic add
 
 
 @cuda.jit
