@@ -1,0 +1,299 @@
+"""Autofocus on prominent points: smooth cross-track and vertical corrections of the
+array's track that bring the pings of strong, isolated responses back into phase
+(docs/micronavigation.md, "Autofocus").
+
+A synthetic aperture focuses a point when every ping's contribution to its voxel,
+c_k = sum over channels of the weighted, remodulated echo at the voxel's delays, arrives
+with the same phase. A displacement d_k of ping k's array from where the navigation put
+it changes the two-way path to the point by about -(u_tx + u_rx) . d_k and so turns c_k
+by a phase g_k . d_k (g_k ~ 4 pi / lambda along the look direction). The corrections are
+found where the navigation is least sure and the data are sharpest:
+
+1. For each point p (the brightest isolated responses of the image, or given) and each
+   ping k that reaches it, the imaging kernel itself gives c_pk at the navigated pose and
+   at poses displaced by ``PROBE_M`` cross-track and vertically: the phase slopes
+   g_pk = (dphi/dy, dphi/dz) come from the same chain as the image (refraction table,
+   delays, conventions), not from a model of it.
+2. The corrections are a smooth function of time, piecewise linear between knots
+   ``knot_s`` apart (cross-track y and vertical z in the tile frame), a = (y_j, z_j).
+   They maximise the sharpness J(a) = sum_p |sum_k c_pk exp(j g_pk . d_k(a))|^2 / E_p
+   (E_p = sum_k |c_pk|^2, so that each point counts alike) less a roughness penalty
+   ``smooth`` * sum (second differences)^2, by L-BFGS with its analytic gradient, from
+   long knot spacings to the requested one (coarse to fine, past the phase wraps a
+   direct fine solve can stop at).
+3. **Guard.** The points are imaged again with the corrected poses (the kernel, not the
+   phase model); the corrections are kept only if every point's peak is no lower than
+   ``1 - guard`` of its level with the navigated poses and the sum of the points' peak
+   powers has grown. Otherwise the navigation is kept and the result says why.
+
+Along-track errors and rotations are not estimated (the points constrain them weakly and
+the navigation's along-track is good to millimetres over an aperture); the corrections
+are meant for the vertical and cross-track wander of a noisy or missing DVL.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize
+
+from svss_daq.frames import TrackLine
+from svss_daq.geometry import place_array
+from svss_daq.ping import Ping
+
+from ..imaging.kernel_args import DelayModel, ImageSlice, PingArray, VoxelAxes, prepare
+from ..imaging.schedule import along_reach, ping_frame
+
+log = logging.getLogger(__name__)
+
+#: displacement used for the phase slopes (m): small against a wavelength (5.5 cm)
+PROBE_M = 1e-3
+#: the pull toward the navigation: corrections of ``prior_m`` rms over the knots cost
+#: this much sharpness (the sharpness of each point is at most 1)
+PRIOR_WEIGHT = 0.05
+
+__all__ = ["AutofocusResult", "autofocus", "bright_points", "point_contributions",
+           "shifted"]
+
+
+@dataclass(frozen=True)
+class AutofocusResult:
+    """What :func:`autofocus` found: the corrected pings (the input pings when it
+    refused), the corrections per ping (m, tile frame: cross-track, down), the points'
+    peak levels before and after (linear, same points), and whether it kept them."""
+    pings: list
+    cross_m: np.ndarray
+    down_m: np.ndarray
+    before: np.ndarray
+    after: np.ndarray
+    kept: bool
+    reason: str
+
+    @property
+    def gain_db(self) -> np.ndarray:
+        """Per point, the peak's change (dB) of the corrected poses over the navigated."""
+        return 20 * np.log10(np.maximum(self.after, 1e-300) / np.maximum(self.before, 1e-300))
+
+
+def shifted(ping: Ping, line: TrackLine, cross_m: float, down_m: float) -> Ping:
+    """``ping`` with its body origin moved ``cross_m`` across the track line and
+    ``down_m`` down (its altitude above the seabed less by as much: the array moved, the
+    seabed did not)."""
+    nav = ping.nav
+    ch, sh = math.cos(line.heading), math.sin(line.heading)
+    return dataclasses.replace(ping, nav=dataclasses.replace(
+        nav, north_m=nav.north_m - cross_m * sh, east_m=nav.east_m + cross_m * ch,
+        down_m=nav.down_m + down_m, altitude_m=nav.altitude_m - down_m))
+
+
+class _Sampler:
+    """Each ping's contribution at single points, with an imager's accumulator (its
+    conditioner, geometry, tables and kernel), in the tile frame ``line``."""
+
+    def __init__(self, accumulator, processing, line: TrackLine):
+        self.acc = accumulator
+        self.proc = processing
+        self.line = line
+        self._kd: dict = {}
+
+    def _prepared(self, p: Ping):
+        key = id(p.samples)
+        if key not in self._kd:
+            cond = self.acc.condition(p)
+            self._kd[key] = prepare(cond, self.proc.imaging.interpolation, self.acc.dtype)
+        return self._kd[key]
+
+    def reach(self, p: Ping) -> tuple[float, float]:
+        """The projector's along-track position and reach (m) of ping ``p``."""
+        geo = self.acc.geometry
+        placed = place_array(geo, p.nav, p.projector, ping_frame(self.line, p.nav, self.proc))
+        depth = self.proc.tile.top_m + self.proc.tile.depth_m
+        return float(placed.tx[0]), along_reach(placed.tx, placed.bore,
+                                                geo.projector_half_angle, depth)
+
+    def value(self, p: Ping, point: np.ndarray) -> complex:
+        """Ping ``p``'s contribution at ``point`` (tile frame: along, cross, depth)."""
+        im, acc = self.proc.imaging, self.acc
+        geo = acc.geometry
+        placed = place_array(geo, p.nav, p.projector, ping_frame(self.line, p.nav, self.proc))
+        kd = self._prepared(p)
+        re_ = np.zeros((1, 1, 1), dtype=acc.dtype)
+        im_ = np.zeros_like(re_)
+        depth = self.proc.tile.top_m + self.proc.tile.depth_m
+        reach = along_reach(placed.tx, placed.bore, geo.projector_half_angle, depth)
+        delays = DelayModel(im.delays, im.water_sound_speed_m_s, im.sediment_sound_speed_m_s,
+                            acc.travel_table(placed.tx, placed.rx, reach)
+                            if im.delays == "table" else None)
+        axes = VoxelAxes(*(np.array([float(v)]) for v in point))
+        acc.kernel(ImageSlice(re_, im_, axes, 0, 1), kd,
+                   PingArray(placed.tx, placed.rx, placed.bore,
+                             math.cos(geo.projector_half_angle),
+                             math.cos(geo.receiver_half_angle), acc.apod),
+                   delays, gating=im.beam_gating)
+        return complex(float(re_[0, 0, 0]), float(im_[0, 0, 0]))
+
+
+def point_contributions(sampler: _Sampler, pings: list, points: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For every point (rows) and ping (columns): the contribution c at the navigated
+    pose and its phase slopes (rad/m) for a cross-track and a vertical displacement
+    (zero where the ping does not reach the point)."""
+    n_p, n_k = len(points), len(pings)
+    c = np.zeros((n_p, n_k), dtype=np.complex128)
+    gy = np.zeros((n_p, n_k))
+    gz = np.zeros((n_p, n_k))
+    for k, p in enumerate(pings):
+        x0, reach = sampler.reach(p)
+        near = [i for i, pt in enumerate(points) if abs(pt[0] - x0) <= reach]
+        if not near:
+            continue
+        py = shifted(p, sampler.line, PROBE_M, 0.0)
+        pz = shifted(p, sampler.line, 0.0, PROBE_M)
+        for i in near:
+            v0 = sampler.value(p, points[i])
+            if v0 == 0:
+                continue
+            c[i, k] = v0
+            gy[i, k] = np.angle(sampler.value(py, points[i]) / v0) / PROBE_M
+            gz[i, k] = np.angle(sampler.value(pz, points[i]) / v0) / PROBE_M
+    return c, gy, gz
+
+
+def _hat_basis(t: np.ndarray, knots: np.ndarray) -> np.ndarray:
+    """(len(t), len(knots)) piecewise-linear interpolation weights of ``t`` between the
+    ``knots`` (constant beyond the ends)."""
+    b = np.zeros((t.size, knots.size))
+    if knots.size == 1:
+        b[:, 0] = 1.0
+        return b
+    j = np.clip(np.searchsorted(knots, t, side="right") - 1, 0, knots.size - 2)
+    w = np.clip((t - knots[j]) / (knots[j + 1] - knots[j]), 0.0, 1.0)
+    rows = np.arange(t.size)
+    b[rows, j] = 1.0 - w
+    b[rows, j + 1] += w
+    return b
+
+
+def _solve(c, gy, gz, basis, smooth, prior_m, start):
+    """Knot values (y_j then z_j) maximising the phase-model sharpness from ``start``."""
+    weight = 1.0 / np.maximum((np.abs(c) ** 2).sum(axis=1), 1e-300)      # per point
+    nk = basis.shape[1]
+    d2 = np.diff(np.eye(nk), 2, axis=0) if nk > 2 else np.zeros((0, nk))
+    # roughness, and a weak pull toward the navigation (what the points cannot tell
+    # apart, e.g. cross-track against vertical under a near-vertical look, stays put)
+    rough = smooth * (d2.T @ d2) + np.eye(nk) * (PRIOR_WEIGHT / (nk * prior_m ** 2))
+
+    def cost(a):
+        y, z = basis @ a[:nk], basis @ a[nk:]
+        e = c * np.exp(1j * (gy * y + gz * z))
+        s = e.sum(axis=1)
+        j = float((weight * np.abs(s) ** 2).sum())
+        # dJ/dd_k = sum_p w_p 2 Re(conj(s_p) j g_pk e_pk)
+        common = weight[:, None] * 2 * np.real(np.conj(s)[:, None] * 1j * e)
+        grad_y = basis.T @ (common * gy).sum(axis=0)
+        grad_z = basis.T @ (common * gz).sum(axis=0)
+        pen_y, pen_z = a[:nk] @ rough @ a[:nk], a[nk:] @ rough @ a[nk:]
+        f = -j + pen_y + pen_z
+        g = np.concatenate([-grad_y + 2 * rough @ a[:nk], -grad_z + 2 * rough @ a[nk:]])
+        return f, g
+
+    res = minimize(cost, start, jac=True, method="L-BFGS-B")
+    return res.x
+
+
+def bright_points(tiles: list, n: int, *, min_separation_m: float = 0.5,
+                  min_contrast_db: float = 20.0) -> np.ndarray:
+    """Up to ``n`` of the brightest voxels of the tiles (tile frame: along, cross,
+    depth) at least ``min_separation_m`` apart and ``min_contrast_db`` above the
+    median magnitude of their tile: the strong, isolated responses to focus on."""
+    cands = []
+    for t in tiles:
+        mag = np.abs(t.image)
+        floor = float(np.median(mag[mag > 0])) if np.any(mag > 0) else 0.0
+        flat = np.argsort(mag, axis=None)[::-1][:2000]
+        for f in flat:
+            ia, ic, iz = np.unravel_index(int(f), mag.shape)
+            level = float(mag[ia, ic, iz])
+            if floor <= 0 or 20 * math.log10(level / floor) < min_contrast_db:
+                break
+            cands.append((level, np.array([t.grid.along[ia], t.grid.cross[ic],
+                                           t.grid.depth[iz]])))
+    cands.sort(key=lambda c: -c[0])
+    chosen: list[np.ndarray] = []
+    for _, pos in cands:
+        if all(np.linalg.norm(pos - q) >= min_separation_m for q in chosen):
+            chosen.append(pos)
+        if len(chosen) == n:
+            break
+    return np.array(chosen).reshape(-1, 3)
+
+
+def autofocus(accumulator, processing, line: TrackLine, pings: list, points: np.ndarray,
+              *, knot_s: float = 0.5, smooth: float = 1e-3, prior_m: float = 0.02,
+              guard: float = 0.05, outer: int = 3
+              ) -> AutofocusResult:
+    """Corrections of ``pings``' cross-track and vertical positions (module docstring)
+    that focus ``points`` (tile frame of ``line``: along, cross, depth; e.g. from
+    :func:`bright_points`), with ``accumulator`` (a
+    :class:`~svss_proc.imaging.imager.PingAccumulator`) and ``processing`` as they image
+    the tiles. Knots every ``knot_s`` seconds of ping time."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    n = len(pings)
+    zero = np.zeros(n)
+    if not len(points) or n < 3:
+        return AutofocusResult(list(pings), zero, zero, np.zeros(len(points)),
+                               np.zeros(len(points)), False,
+                               "no point to focus on" if not len(points) else
+                               "fewer than 3 pings")
+    sampler = _Sampler(accumulator, processing, line)
+    c, gy, gz = point_contributions(sampler, pings, points)
+    before = np.abs(c.sum(axis=1))
+    seen = (c != 0).sum(axis=1)
+    if np.any(seen < 3):
+        return AutofocusResult(list(pings), zero, zero, before, before, False,
+                               f"points {np.flatnonzero(seen < 3).tolist()} are reached by "
+                               f"fewer than 3 pings")
+    t = np.array([p.nav.time_ns for p in pings], dtype=np.float64) * 1e-9
+    t = t - t[0]
+    span = max(float(t[-1]), 1e-9)
+    dy, dz = zero.copy(), zero.copy()
+    moved = list(pings)
+    for _ in range(outer):          # the phase model linearised again at each solution
+        a = None
+        basis = None
+        spacing = span
+        while True:                              # coarse to fine: knots twice as dense
+            knots = np.linspace(0.0, span, max(2, int(round(span / spacing)) + 1))
+            new = _hat_basis(t, knots)
+            if a is None:
+                start = np.zeros(2 * knots.size)
+            else:                                # the coarse solution on the new knots
+                y, z = basis @ a[:basis.shape[1]], basis @ a[basis.shape[1]:]
+                fit = np.linalg.lstsq(new, np.column_stack([y, z]), rcond=None)[0]
+                start = np.concatenate([fit[:, 0], fit[:, 1]])
+            basis = new
+            a = _solve(c, gy, gz, basis, smooth, prior_m, start)
+            if spacing <= knot_s * 1.001:
+                break
+            spacing = max(spacing / 2, knot_s)
+        nk = basis.shape[1]
+        dy, dz = dy + basis @ a[:nk], dz + basis @ a[nk:]
+        moved = [shifted(p, line, float(y), float(z)) for p, y, z in zip(pings, dy, dz)]
+        c, gy, gz = point_contributions(sampler, moved, points)
+    after = np.abs(c.sum(axis=1))
+    worst = float(np.min(after / np.maximum(before, 1e-300)))
+    grew = float((after ** 2).sum()) > float((before ** 2).sum())
+    if grew and worst >= 1 - guard:
+        log.info("autofocus: %d points, peaks %+.2f dB (mean), corrections rms %.1f mm "
+                 "cross, %.1f mm down", len(points),
+                 float(np.mean(20 * np.log10(after / before))),
+                 1e3 * float(np.sqrt(np.mean(dy ** 2))), 1e3 * float(np.sqrt(np.mean(dz ** 2))))
+        return AutofocusResult(moved, dy, dz, before, after, True, "sharper")
+    why = (f"a point's peak fell to {worst:.3f} of its level" if worst < 1 - guard
+           else "the points' peak power did not grow")
+    log.info("autofocus: corrections refused (%s); the navigation is kept", why)
+    return AutofocusResult(list(pings), zero, zero, before, after, False, why)
