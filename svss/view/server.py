@@ -28,6 +28,7 @@ from __future__ import annotations
 import json
 import logging
 import mimetypes
+import sys
 import threading
 import time
 from collections import deque
@@ -384,27 +385,33 @@ class Handler(BaseHTTPRequestHandler):
 
     def _events(self, query) -> None:
         """Server-Sent Events: ``status`` whenever a status arrives (or the stream goes
-        quiet), ``tiles`` whenever the tiles change; a comment every KEEPALIVE_S."""
+        quiet), ``tiles`` whenever the tiles change (the map's new address with them),
+        ``map`` when the boat has moved (at most every MAP_TRACK_EVERY_S); a comment
+        every KEEPALIVE_S."""
         self.send_response(HTTPStatus.OK)
         self.send_header("Content-Type", "text/event-stream")
         self.send_header("Cache-Control", "no-store")
         self.end_headers()
         st = self.state
-        seen_status, seen_tiles = -1, -1
+        seen_status, seen_tiles, seen_track = -1, -1, -1
         try:
             while not self.server.stopping.is_set():
                 with st.cond:
                     st.cond.wait_for(lambda: st.status_seq != seen_status
                                      or st.tiles_seq != seen_tiles
+                                     or st.track_version != seen_track
                                      or self.server.stopping.is_set(),
                                      timeout=KEEPALIVE_S)
                     status_seq, tiles_seq = st.status_seq, st.tiles_seq
+                    track = st.track_version
                 out = []
                 if status_seq != seen_status:
                     out.append(("status", st.status_message()))
                 if tiles_seq != seen_tiles:
                     out.append(("tiles", st.tiles_message()))
-                seen_status, seen_tiles = status_seq, tiles_seq
+                elif track != seen_track:           # the boat moved: the map redrawn
+                    out.append(("map", {"map": st.tiles_message()["map"]}))
+                seen_status, seen_tiles, seen_track = status_seq, tiles_seq, track
                 chunk = "".join(f"event: {k}\ndata: {json.dumps(v)}\n\n" for k, v in out)
                 self.wfile.write((chunk or ": keep-alive\n\n").encode())
                 self.wfile.flush()
@@ -424,6 +431,14 @@ def _text(v):
 class ViewServer(ThreadingHTTPServer):
     daemon_threads = True
     allow_reuse_address = True
+
+    def handle_error(self, request, client_address) -> None:
+        exc = sys.exc_info()[1]
+        if isinstance(exc, (BrokenPipeError, ConnectionResetError)):
+            # a browser that left, or dropped an image it no longer wants (a newer map)
+            log.debug("%s went away: %s", client_address, exc)
+            return
+        log.exception("svss view: a request from %s failed", client_address[0])
 
 
 def serve(endpoint: str | None, tiles_dir: Path | None, address: str, port: int, *,

@@ -138,12 +138,15 @@ function onTiles(m) {
   $("contacts").replaceChildren(contactsTable(m.contacts),
     m.contacts_note ? el("div", {}, m.contacts_note) : "");
   $("map-note").textContent = m.run ? `(run ${m.run})` : "";
-  if (m.map !== mapSrc) {
-    mapSrc = m.map;
-    const img = $("map");
-    img.onload = loadRegions;
-    img.src = m.map;
-  }
+  showMap(m.map);
+}
+
+function showMap(src) {
+  if (src === mapSrc) return;
+  mapSrc = src;
+  const img = $("map");
+  img.onload = loadRegions;
+  img.src = src;
 }
 
 function openTile(name) {
@@ -168,6 +171,7 @@ document.addEventListener("keydown", (e) => { if (e.key === "Escape") $("tile-vi
 const events = new EventSource("/events");
 events.addEventListener("status", (e) => onStatus(JSON.parse(e.data)));
 events.addEventListener("tiles", (e) => onTiles(JSON.parse(e.data)));
+events.addEventListener("map", (e) => showMap(JSON.parse(e.data).map));
 events.onerror = () => {
   const conn = $("conn");
   conn.className = "conn quiet";
