@@ -446,6 +446,8 @@ def serve(endpoint: str | None, tiles_dir: Path | None, address: str, port: int,
     """Serve the page until KeyboardInterrupt (SIGINT/SIGTERM). ``ready(url)`` is called
     once the server listens."""
     host, port = http_address(address, port)
+    if endpoint is not None:
+        check_endpoint(endpoint, bind=False)       # an error now, not in a thread
     state = ViewState(endpoint, tiles_dir)
     handler = type("BoundHandler", (Handler,), {"state": state})
     try:

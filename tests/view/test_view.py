@@ -221,6 +221,9 @@ def test_page_in_headless_chromium(view, tmp_path):
             glance = page.inner_text("#glance")
             assert RUN in glance and "recording" in glance and "(gps)" in glance
             assert "ALARMS (1):" in page.inner_text("#status-text")
+            # live: the next status replaces this one (the daemon's time moves on)
+            first = page.inner_text("#glance")
+            until(lambda: page.inner_text("#glance") != first, "a status update")
             js_until("document.getElementById('map').complete && "
                      "document.getElementById('map').naturalWidth > 0", "the map drawn")
             page.screenshot(path=str(screens / "1_status_and_alarm.png"), full_page=True)
