@@ -56,7 +56,7 @@ POLL_S = 0.5
 #: live poses kept for the track
 TRACK_POSES = 20000
 #: the map is redrawn for a moved boat at most this often, s
-MAP_TRACK_EVERY_S = 2.0
+MAP_TRACK_EVERY_S = 5.0
 #: seconds between keep-alive comments on an idle event stream
 KEEPALIVE_S = 10.0
 STATIC = "static"
