@@ -53,6 +53,7 @@ class StatusFeed:
         self.run_id, self.interval_s = run_id, interval_s
         self.tracker = AlarmTracker(0.5)
         self._stop = threading.Event()
+        self.paused = threading.Event()       # set: nothing published (a run over)
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.thread.start()
 
@@ -75,6 +76,9 @@ class StatusFeed:
     def _run(self) -> None:
         k = 0
         while not self._stop.is_set():
+            if self.paused.is_set():
+                self._stop.wait(self.interval_s)
+                continue
             s = self.snapshot(k)
             now = time.monotonic()
             self.tracker.update(evaluate(s, LIM), now)
@@ -83,6 +87,7 @@ class StatusFeed:
             self._stop.wait(self.interval_s)
 
     def stop(self) -> None:
-        self._stop.set()
-        self.thread.join(5)
-        self.pub.close()
+        if not self._stop.is_set():
+            self._stop.set()
+            self.thread.join(5)
+            self.pub.close()

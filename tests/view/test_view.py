@@ -67,8 +67,8 @@ def get_json(url: str):
 class View:
     """``svss view`` as a process on a free loopback port."""
 
-    def __init__(self, endpoint: str, tiles: Path):
-        self.tiles = tiles
+    def __init__(self, endpoint: str, tiles: Path, feed: StatusFeed | None = None):
+        self.tiles, self.feed = tiles, feed
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "svss", "view", "--connect", endpoint, "--tiles",
              str(tiles), "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -101,7 +101,7 @@ def view(tmp_path_factory):
     out = tmp_path_factory.mktemp("worker_out")
     (out / RUN).mkdir()                  # the worker's run folder (svss worker --out OUT)
     feed = StatusFeed(RUN)
-    v = View(feed.endpoint, out)
+    v = View(feed.endpoint, out, feed)
     try:
         yield v
     finally:
@@ -246,6 +246,17 @@ def test_page_in_headless_chromium(view, tmp_path):
             assert "tile_0000" in page.inner_text("#tile-title")
             assert "tile_0000.h5" in page.inner_text("#tile-contacts")
             page.screenshot(path=str(screens / "3_tile_opened.png"))
+            page.keyboard.press("Escape")
+            # the stream goes quiet (a run over, a daemon stopped): the page says so, and
+            # goes live again with the next status
+            view.feed.paused.set()
+            try:
+                page.wait_for_selector("#conn.quiet", timeout=ms)
+                assert "no status" in page.inner_text("#conn")
+                page.screenshot(path=str(screens / "4_stream_quiet.png"))
+            finally:
+                view.feed.paused.clear()
+            page.wait_for_selector("#conn.live", timeout=ms)
             assert not errors, errors
         finally:
             browser.close()

@@ -73,6 +73,7 @@ function showGlance(s) {
 
 function onStatus(m) {
   const conn = $("conn");
+  document.body.classList.toggle("stale", !!m.quiet);
   if (m.quiet) {
     conn.className = "conn quiet";
     conn.textContent = m.status ? `no status from ${m.endpoint} for ${num(m.received_age_s, 0, " s")}`
@@ -181,6 +182,7 @@ events.onerror = () => {
 setInterval(() => {
   if (lastStatusAt && Date.now() - lastStatusAt > 3000 && $("conn").classList.contains("live")) {
     $("conn").className = "conn quiet";
+    document.body.classList.add("stale");
     $("conn").textContent = `no status for ${Math.round((Date.now() - lastStatusAt) / 1000)} s`;
   }
 }, 1000);
