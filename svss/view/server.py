@@ -317,6 +317,10 @@ class Handler(BaseHTTPRequestHandler):
         self.do_GET()
 
     def do_GET(self) -> None:
+        if self.server.loopback and not _loopback_host(self.headers.get("Host", "")):
+            # served on loopback, asked for under another name: a web page elsewhere
+            # rebinding its name to this machine (DNS rebinding) is refused
+            return self._send(b"forbidden host\n", "text/plain", HTTPStatus.FORBIDDEN)
         url = urlsplit(self.path)
         path = url.path
         if path in ("/", "/index.html"):
@@ -423,6 +427,12 @@ class Handler(BaseHTTPRequestHandler):
             pass
 
 
+def _loopback_host(host: str) -> bool:
+    """Whether an HTTP Host header names this machine's loopback."""
+    name = urlsplit(f"//{host}").hostname or ""
+    return name in ("localhost", "127.0.0.1", "::1") or name.startswith("127.")
+
+
 def _text(v):
     return v.decode(errors="replace") if isinstance(v, bytes) else (
         None if v is None else str(v))
@@ -456,6 +466,7 @@ def serve(endpoint: str | None, tiles_dir: Path | None, address: str, port: int,
         raise OSError(f"svss view: cannot serve on {host}:{port}: {exc.strerror or exc}"
                       ) from None
     httpd.stopping = threading.Event()
+    httpd.loopback = _loopback_host(host if ":" not in host else f"[{host}]")
     threads = []
     if endpoint is not None:
         threads.append(threading.Thread(target=follow_status, name="view-status",

@@ -25,6 +25,7 @@ import subprocess
 import sys
 import threading
 import time
+import urllib.error
 import urllib.request
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -166,6 +167,11 @@ def test_page_assets_status_and_a_tile_over_http(view):
         with pytest.raises(urllib.error.HTTPError) as e:
             get(view.url + bad)
         assert e.value.code == 404
+    # served on loopback: a request naming another host (DNS rebinding) is refused
+    req = urllib.request.Request(view.url, headers={"Host": f"evil.example:{u.port}"})
+    with pytest.raises(urllib.error.HTTPError) as e:
+        urllib.request.urlopen(req, timeout=10)
+    assert e.value.code == 403
 
 
 def chromium_path() -> str | None:
