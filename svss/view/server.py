@@ -275,6 +275,9 @@ def watch_tiles(state: ViewState, stop: threading.Event) -> None:
                         contacts, _ = run_contacts([v for _, (_, v) in sorted(views.items())])
                     except TileFileError as exc:       # tiles without products
                         note = str(exc)
+                    except Exception as exc:       # the tiles are shown all the same
+                        log.exception("%s: the run's contacts failed", folder)
+                        note = f"the run's contacts could not be computed: {exc}"
                 contacts = [{k: (None if isinstance(v, float) and not np.isfinite(v)
                                  else v) for k, v in c.items()} for c in contacts]
                 state.set_tiles(folder, dict(views), contacts, note)
