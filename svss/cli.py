@@ -3,6 +3,7 @@
     svss demo --out DIR                  whole chain on the built-in scene
     svss acquire [--config FILE] [--devices FILE] [--pings N | --duration S]
     svss status [--connect ENDPOINT] [--json] [--follow]
+    svss view [--tiles DIR] [--connect ENDPOINT] [--address A] [--port N]
     svss simulate --scene FILE --out RUN.h5
     svss process RUN.h5 --out DIR [--renavigate | --no-renavigate]
     svss batch RUN.h5 [RUN2.h5 ...] --out DIR [--scheduler ADDRESS] [--workers N]
@@ -250,6 +251,27 @@ def cmd_status(args) -> int:
             print(json.dumps(s) if args.json else format_status(s) + "\n", flush=True)
 
 
+def cmd_view(args) -> int:
+    from svss_daq.acquire_config import AcquireConfig, view_section
+    from svss.view.server import serve
+
+    cfg = load(AcquireConfig, args.config or config_path("acquire.toml"))
+    view = view_section(cfg)
+    endpoint = args.connect or cfg.status.endpoint
+    curve = load(DaqConfig, config_path("daq.toml")).security
+    tiles = Path(args.tiles) if args.tiles else None
+    if tiles is not None and not tiles.is_dir():
+        log.warning("%s: no such folder yet; the page shows its tiles once the worker "
+                    "makes it", tiles)
+
+    def ready(url: str) -> None:
+        print(url, flush=True)
+
+    serve(endpoint, tiles, args.address or view.address,
+          view.port if args.port is None else args.port, curve=curve, ready=ready)
+    return 0
+
+
 def cmd_demo(args) -> int:
     from svss.demo import DemoError, run_demo
 
@@ -462,6 +484,17 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--json", action="store_true",
                     help="print the status as JSON (--follow: one object a line)")
     sp.set_defaults(func=cmd_status)
+
+    sp = sub.add_parser("view", help="serve the operator's live web page (alarms, "
+                        "status, survey map, tiles and contacts) on loopback")
+    sp.add_argument("--tiles", help="the tile worker's output folder (svss worker --out)")
+    sp.add_argument("--connect", help="status endpoint (default: acquire.toml's)")
+    sp.add_argument("--config", help="acquisition TOML naming the status endpoint and "
+                    "the page's [view] address and port")
+    sp.add_argument("--address", help="address to serve on, replacing [view] address")
+    sp.add_argument("--port", type=int, help="port to serve on, replacing [view] port "
+                    "(0: a free port; the URL is printed)")
+    sp.set_defaults(func=cmd_view)
 
     sp = sub.add_parser("simulate", help="simulate a scene into a raw-run file")
     sp.add_argument("--scene", required=True, help="scene TOML")

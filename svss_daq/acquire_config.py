@@ -140,6 +140,25 @@ class AlarmsSection:
         lo=0, hi=3600, default=3.0)
 
 
+@dataclass(frozen=True)
+class ViewSection:
+    """Where ``svss view`` serves the operator's web page (docs/operator.md). Every key
+    may be omitted: its default is the ``default`` here, the one place it is written.
+    The bind rules of the ZeroMQ endpoints apply (:func:`~svss_daq.endpoints.check_endpoint`):
+    loopback unless configured otherwise, another address logged as a warning."""
+    address: str | None = spec(
+        "address the page's HTTP server binds: an IPv4 address, a bracketed IPv6 address "
+        "or a host name; 127.0.0.1 keeps it on this machine, 0.0.0.0 every interface",
+        default="127.0.0.1")
+    port: int | None = spec("TCP port of the page", lo=1, hi=65535, default=8558)
+
+
+def view_section(cfg: "AcquireConfig") -> ViewSection:
+    """The ``[view]`` settings of ``cfg``: its table, or every default when it has none."""
+    return cfg.view if cfg.view is not None else from_dict(ViewSection, {},
+                                                           "[view] defaults")
+
+
 def alarms_section(cfg: "AcquireConfig") -> AlarmsSection:
     """The ``[alarms]`` thresholds of ``cfg``: its table, or every default when it has
     none."""
@@ -165,6 +184,8 @@ class AcquireConfig:
                                         "DEFAULT_LIMITS)")
     alarms: AlarmsSection | None = spec("thresholds of the named alarms (omitted: every "
                                         "default of AlarmsSection)")
+    view: ViewSection | None = spec("where svss view serves the operator's page (omitted: "
+                                    "every default of ViewSection)")
 
 
 @dataclass(frozen=True)
