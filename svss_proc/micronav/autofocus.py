@@ -14,13 +14,16 @@ found where the navigation is least sure and the data are sharpest:
    at poses displaced by ``PROBE_M`` cross-track and vertically: the phase slopes
    g_pk = (dphi/dy, dphi/dz) come from the same chain as the image (refraction table,
    delays, conventions), not from a model of it.
-2. The corrections are a smooth function of time, piecewise linear between knots
-   ``knot_s`` apart (cross-track y and vertical z in the tile frame), a = (y_j, z_j).
+2. The corrections are piecewise linear in time between knots ``knot_s`` apart (one per
+   ping by default; cross-track y and vertical z in the tile frame), a = (y_j, z_j).
    They maximise the sharpness J(a) = sum_p |sum_k c_pk exp(j g_pk . d_k(a))|^2 / E_p
-   (E_p = sum_k |c_pk|^2, so that each point counts alike) less a roughness penalty
-   ``smooth`` * sum (second differences)^2, by L-BFGS with its analytic gradient, from
-   long knot spacings to the requested one (coarse to fine, past the phase wraps a
-   direct fine solve can stop at).
+   (E_p = sum_k |c_pk|^2, so that each point counts alike, at most 1) less two
+   penalties, each about one point's sharpness when the corrections are as rough
+   (second differences between knots, ``rough_m``) and as large (``prior_m``) as
+   expected: what the points cannot tell apart (cross-track against vertical under a
+   near-vertical look) stays near the navigation. L-BFGS with the analytic gradient,
+   from one knot over the whole span to the requested spacing, halving it (coarse to
+   fine, past the phase wraps a direct fine solve stops at).
 3. **Guard.** The points are imaged again with the corrected poses (the kernel, not the
    phase model); the corrections are kept only if every point's peak is no lower than
    ``1 - guard`` of its level with the navigated poses and the sum of the points' peak
@@ -52,12 +55,13 @@ log = logging.getLogger(__name__)
 
 #: displacement used for the phase slopes (m): small against a wavelength (5.5 cm)
 PROBE_M = 1e-3
-#: the pull toward the navigation: corrections of ``prior_m`` rms over the knots cost
-#: this much sharpness (the sharpness of each point is at most 1)
-PRIOR_WEIGHT = 0.05
+#: what corrections as large (``prior_m``) and as rough (``rough_m``) as expected cost,
+#: in sharpness (each point's is at most 1)
+PRIOR_WEIGHT = 1.0
+ROUGH_WEIGHT = 1.0
 
-__all__ = ["AutofocusResult", "autofocus", "bright_points", "point_contributions",
-           "shifted"]
+__all__ = ["AutofocusResult", "accept", "autofocus", "bright_points",
+           "point_contributions", "shifted"]
 
 
 @dataclass(frozen=True)
@@ -178,14 +182,19 @@ def _hat_basis(t: np.ndarray, knots: np.ndarray) -> np.ndarray:
     return b
 
 
-def _solve(c, gy, gz, basis, smooth, prior_m, start):
-    """Knot values (y_j then z_j) maximising the phase-model sharpness from ``start``."""
+def _solve(c, gy, gz, basis, rough_m, prior_m, start):
+    """Knot values (y_j then z_j) maximising the phase-model sharpness from ``start``;
+    ``rough_m`` and ``prior_m``: the (cross, down) expected rms second difference of the
+    corrections between knots and their expected rms size (m)."""
     weight = 1.0 / np.maximum((np.abs(c) ** 2).sum(axis=1), 1e-300)      # per point
     nk = basis.shape[1]
     d2 = np.diff(np.eye(nk), 2, axis=0) if nk > 2 else np.zeros((0, nk))
-    # roughness, and a weak pull toward the navigation (what the points cannot tell
-    # apart, e.g. cross-track against vertical under a near-vertical look, stays put)
-    rough = smooth * (d2.T @ d2) + np.eye(nk) * (PRIOR_WEIGHT / (nk * prior_m ** 2))
+    # roughness, and a pull toward the navigation (what the points cannot tell apart,
+    # e.g. cross-track against vertical under a near-vertical look, stays put): each
+    # costs about one point's sharpness when the corrections are as rough and as large
+    # as expected
+    pen = [ROUGH_WEIGHT / nk * (d2.T @ d2) / rough_m[i] ** 2
+           + PRIOR_WEIGHT / nk * np.eye(nk) / prior_m[i] ** 2 for i in (0, 1)]
 
     def cost(a):
         y, z = basis @ a[:nk], basis @ a[nk:]
@@ -196,13 +205,18 @@ def _solve(c, gy, gz, basis, smooth, prior_m, start):
         common = weight[:, None] * 2 * np.real(np.conj(s)[:, None] * 1j * e)
         grad_y = basis.T @ (common * gy).sum(axis=0)
         grad_z = basis.T @ (common * gz).sum(axis=0)
-        pen_y, pen_z = a[:nk] @ rough @ a[:nk], a[nk:] @ rough @ a[nk:]
+        pen_y, pen_z = a[:nk] @ pen[0] @ a[:nk], a[nk:] @ pen[1] @ a[nk:]
         f = -j + pen_y + pen_z
-        g = np.concatenate([-grad_y + 2 * rough @ a[:nk], -grad_z + 2 * rough @ a[nk:]])
+        g = np.concatenate([-grad_y + 2 * pen[0] @ a[:nk], -grad_z + 2 * pen[1] @ a[nk:]])
         return f, g
 
-    res = minimize(cost, start, jac=True, method="L-BFGS-B")
-    return res.x
+    def scaled(u):                   # in millimetres: a well-scaled problem for L-BFGS
+        f, g = cost(u * 1e-3)
+        return f, g * 1e-3
+
+    res = minimize(scaled, np.asarray(start) * 1e3, jac=True, method="L-BFGS-B",
+                   options={"maxiter": 2000})
+    return res.x * 1e-3
 
 
 def bright_points(tiles: list, n: int, *, min_separation_m: float = 0.5,
@@ -232,9 +246,20 @@ def bright_points(tiles: list, n: int, *, min_separation_m: float = 0.5,
     return np.array(chosen).reshape(-1, 3)
 
 
+def accept(before: np.ndarray, after: np.ndarray, guard: float) -> tuple[bool, str]:
+    """The guard: corrections that leave every point's peak at ``1 - guard`` of its
+    level or more and raise the points' summed peak power are kept; the reason."""
+    worst = float(np.min(after / np.maximum(before, 1e-300)))
+    if worst < 1 - guard:
+        return False, f"a point's peak fell to {worst:.3f} of its level"
+    if float((after ** 2).sum()) <= float((before ** 2).sum()):
+        return False, "the points' peak power did not grow"
+    return True, "sharper"
+
+
 def autofocus(accumulator, processing, line: TrackLine, pings: list, points: np.ndarray,
-              *, knot_s: float = 0.5, smooth: float = 1e-3, prior_m: float = 0.02,
-              guard: float = 0.05, outer: int = 3
+              *, knot_s: float = 0.1, rough_m: tuple = (0.002, 0.005),
+              prior_m: tuple = (0.01, 0.03), guard: float = 0.05, outer: int = 1
               ) -> AutofocusResult:
     """Corrections of ``pings``' cross-track and vertical positions (module docstring)
     that focus ``points`` (tile frame of ``line``: along, cross, depth; e.g. from
@@ -276,7 +301,7 @@ def autofocus(accumulator, processing, line: TrackLine, pings: list, points: np.
                 fit = np.linalg.lstsq(new, np.column_stack([y, z]), rcond=None)[0]
                 start = np.concatenate([fit[:, 0], fit[:, 1]])
             basis = new
-            a = _solve(c, gy, gz, basis, smooth, prior_m, start)
+            a = _solve(c, gy, gz, basis, rough_m, prior_m, start)
             if spacing <= knot_s * 1.001:
                 break
             spacing = max(spacing / 2, knot_s)
@@ -285,15 +310,12 @@ def autofocus(accumulator, processing, line: TrackLine, pings: list, points: np.
         moved = [shifted(p, line, float(y), float(z)) for p, y, z in zip(pings, dy, dz)]
         c, gy, gz = point_contributions(sampler, moved, points)
     after = np.abs(c.sum(axis=1))
-    worst = float(np.min(after / np.maximum(before, 1e-300)))
-    grew = float((after ** 2).sum()) > float((before ** 2).sum())
-    if grew and worst >= 1 - guard:
+    kept, why = accept(before, after, guard)
+    if kept:
         log.info("autofocus: %d points, peaks %+.2f dB (mean), corrections rms %.1f mm "
                  "cross, %.1f mm down", len(points),
                  float(np.mean(20 * np.log10(after / before))),
                  1e3 * float(np.sqrt(np.mean(dy ** 2))), 1e3 * float(np.sqrt(np.mean(dz ** 2))))
         return AutofocusResult(moved, dy, dz, before, after, True, "sharper")
-    why = (f"a point's peak fell to {worst:.3f} of its level" if worst < 1 - guard
-           else "the points' peak power did not grow")
     log.info("autofocus: corrections refused (%s); the navigation is kept", why)
     return AutofocusResult(list(pings), zero, zero, before, after, False, why)
