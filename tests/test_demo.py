@@ -70,7 +70,12 @@ def test_demo_writes_run_tiles_and_pngs(demo):
         assert run.clean and len(run) >= scene.track.n_pings
         assert run.summary["counters"]["recorded"] == len(run)
         seq = run.ping_table()["ping_sequence"]
-    assert seq.tolist() == list(range(len(seq)))
+        c = run.summary["counters"]
+        lost = c["never_delivered"] + c["not_recorded"] + c["assembly_errors"]
+    # every sequence in order; a gap only where a ping was lost and the daemon's summary
+    # counts it (the simulated sonar, loaded, once never delivered ping 29)
+    assert seq[0] == 0 and np.all(np.diff(seq) >= 1)
+    assert int(seq[-1]) + 1 - len(seq) == lost, c
 
 
 def expected_in_tile(pt, scene, attrs) -> np.ndarray:

@@ -416,10 +416,11 @@ def test_simulate_stopped_by_sigterm_leaves_a_clean_readable_run(tmp_path):
                 break
         proc.send_signal(signal.SIGTERM)
         rc = proc.wait(timeout=30)
+        rest = proc.stderr.read()
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert rc == 130
+    assert rc == 130, rest[-3000:]          # (once seen: 1 in a loaded, cold-cache suite)
     with RawRunReader(run) as r:
         assert r.clean and 0 < len(r) < 5000
         last = r.ping(len(r) - 1)
