@@ -90,11 +90,12 @@ def test_avx2_cases_take_both_verdicts():
     assert verdicts == {True, False}
 
 
-@pytest.mark.parametrize("env", [AVX2_TARGET, {PATH_VARIABLE: "loads"}],
-                         ids=["avx2 target", "loads"])
+@pytest.mark.parametrize("env", [AVX2_TARGET, pytest.param(
+    {PATH_VARIABLE: "loads"}, marks=pytest.mark.extended)], ids=["avx2 target", "loads"])
 def test_window_gather_on_the_other_paths(env, tmp_path):
     """This module's gather test in a process that compiles another path (its own numba
-    cache: the cache does not know the path)."""
+    cache: the cache does not know the path). (The lane loads run in this process too,
+    for every case outside the window; forcing them everywhere is an extended check.)"""
     full = {**os.environ, **env, "NUMBA_CACHE_DIR": str(tmp_path / "cache"),
             "PYTHONPATH": os.pathsep.join([str(ROOT)] + [p for p in [
                 os.environ.get("PYTHONPATH")] if p])}
