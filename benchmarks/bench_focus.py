@@ -37,8 +37,12 @@ Usage::
     python benchmarks/bench_focus.py --variants --out benchmarks/results/bench_focus.json
 
 ``--quick``: the demo scene, default instruments; without ``--variants`` both scenes
-with the default instruments; ``--variants`` adds the RTK GPS and the twice-noisier DVL
-(``--variants rtk`` one of them).
+with the default instruments; ``--variants`` adds the RTK GPS and the twice- and
+five-times-noisier DVL (``--variants rtk`` one of them); ``--scenes demo`` one scene;
+``--autofocus`` adds the poses ``af``: the re-navigated poses after the autofocus on the
+re-navigated image's six brightest points (:mod:`svss_proc.micronav.autofocus`), e.g.
+
+    python benchmarks/bench_focus.py --quick --variants dvl_noise_x5 --autofocus
 """
 
 from __future__ import annotations
@@ -93,8 +97,12 @@ VARIANTS = {
     # RTK fixed: ~2 cm horizontal, 3 cm vertical; GGA fix quality 4 (RTK fixed integer)
     "rtk": {"gps": {"position_sigma_m": 0.02, "height_sigma_m": 0.03, "fix_quality": 4}},
     "dvl_noise_x2": {"dvl": {"velocity_sigma_m_s": ("x", 2.0), "range_sigma_m": ("x", 2.0)}},
+    "dvl_noise_x5": {"dvl": {"velocity_sigma_m_s": ("x", 5.0), "range_sigma_m": ("x", 5.0)}},
 }
-POSES = ("true", "live", "renav")
+#: ``af``: the re-navigated poses (the live ones without re-navigation) after the
+#: autofocus on the image's brightest points (svss_proc.micronav.autofocus; --autofocus)
+POSES = ("true", "live", "renav", "af")
+AUTOFOCUS_POINTS = 6
 
 #: fine sampling around each peak (m): coarse-to-fine cubes and the width lines
 CUBE1_HALF, CUBE1_STEP = 0.030, 0.003
@@ -544,12 +552,18 @@ def run_case(scene_name: str, scene_path: Path, variant: str, sim_config: Path,
             "chain_wall_s": rec["chain_wall_s"], "renav_source": why, "poses": {}}
     gps = load_sim_device_config(sim_config).gps
     true_peaks = None
+    focused = {}
     for kind in POSES:
+        if kind == "af" and args.autofocus:
+            navs["af"], case["autofocus"] = autofocused_poses(
+                focused.get("renav") or focused["live"], processing, pings,
+                navs["renav" if "renav" in focused else "live"])
         if kind not in navs:
             case["poses"][kind] = None
             continue
         t0 = time.perf_counter()
-        focus = Focus(hardware, processing, pings, navs[kind], f"{scene_name}/{variant}/{kind}")
+        focus = focused[kind] = Focus(hardware, processing, pings, navs[kind],
+                                      f"{scene_name}/{variant}/{kind}")
         res = measure(focus, scene, true_peaks)
         if kind == "true":
             true_peaks = res["points"]
@@ -563,6 +577,26 @@ def run_case(scene_name: str, scene_path: Path, variant: str, sim_config: Path,
                  scene_name, variant, kind, s["mean_level_db"], s["worst_level_db"],
                  res["pings_imaged"], res["pings_refused"], res["wall_s"])
     return case
+
+
+def autofocused_poses(focus: Focus, processing, pings, navs) -> tuple[list, dict]:
+    """``navs`` after the autofocus of ``focus``'s image on its brightest points
+    (the pings ``focus`` refused keep theirs), and what the autofocus reported."""
+    from svss_proc.micronav.autofocus import autofocus, bright_points
+    t0 = time.perf_counter()
+    points = bright_points(focus.tiles, AUTOFOCUS_POINTS)
+    res = autofocus(focus.imager.accumulator, processing.value, focus.line, focus.pings,
+                    points)
+    by_seq = {p.sequence: p.nav for p in res.pings}
+    out = [by_seq.get(p.sequence, n) for p, n in zip(pings, navs)]
+    info = {"points": points.tolist(), "kept": res.kept, "reason": res.reason,
+            "gain_db": res.gain_db.tolist(),
+            "cross_rms_m": float(np.sqrt(np.mean(res.cross_m ** 2))),
+            "down_rms_m": float(np.sqrt(np.mean(res.down_m ** 2))),
+            "seconds": time.perf_counter() - t0}
+    log.info("autofocus: %s (%s), gains %s dB, %.0f s", "kept" if res.kept else "refused",
+             res.reason, np.round(res.gain_db, 2).tolist(), info["seconds"])
+    return out, info
 
 
 # --------------------------------------------------------------------------- report
@@ -633,12 +667,12 @@ def print_tables(cases: list[dict]) -> None:
                   f" {s['max_abs_horizontal_m'] * 1e3:6.1f} {s['max_abs_depth_m'] * 1e3:6.1f}"
                   f" {r['pings_refused']:7d}")
     print()
-    print("Per point: level (dB) against the true-pose peak, live / renav")
+    print("Per point: level (dB) against the true-pose peak, live / renav / af")
     for c in cases:
         row = []
         for i in range(len(c["poses"]["true"]["points"])):
             parts = []
-            for kind in ("live", "renav"):
+            for kind in ("live", "renav", "af"):
                 r = c["poses"].get(kind)
                 parts.append("n/a" if r is None else f"{r['points'][i]['level_db']:.1f}")
             row.append(f"p{i} {'/'.join(parts)}")
@@ -665,7 +699,7 @@ def print_tables(cases: list[dict]) -> None:
     print("Pose errors against the true poses (mm; std over the run / rms ping-to-ping "
           "change): along, cross, altitude (the imaged height)")
     for c in cases:
-        for kind in ("live", "renav"):
+        for kind in ("live", "renav", "af"):
             r = c["poses"].get(kind)
             if r is None:
                 continue
@@ -679,10 +713,15 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", help="JSON results file")
     ap.add_argument("--quick", action="store_true",
-                    help="the demo scene only, default instruments")
+                    help="the demo scene only (with --variants: those instruments too)")
     ap.add_argument("--variants", nargs="?", const="all", default=None,
                     help="instrument variants besides the default: all (bare --variants), "
                     f"or a comma list of {', '.join(v for v in VARIANTS if v != 'default')}")
+    ap.add_argument("--scenes", default=None,
+                    help="comma list of demo, motion (default both; demo with --quick)")
+    ap.add_argument("--autofocus", action="store_true",
+                    help="also image with the autofocused poses (af: the re-navigated "
+                    "ones, focused on the image's brightest points)")
     ap.add_argument("--processing", default=str(DEFAULT_PROCESSING),
                     help="processing TOML (default: config/processing-demo.toml, the demo's)")
     ap.add_argument("--hardware", default=str(config_path("hardware.toml")))
@@ -705,7 +744,7 @@ def main(argv=None) -> int:
                         datefmt="%H:%M:%S")
     log.setLevel(logging.INFO)
     variants = ["default"]
-    if args.variants and not args.quick:
+    if args.variants:
         extra = list(VARIANTS)[1:] if args.variants == "all" else args.variants.split(",")
         for v in extra:
             if v not in VARIANTS:
@@ -716,8 +755,13 @@ def main(argv=None) -> int:
     tmp = tempfile.TemporaryDirectory(prefix="bench-focus-") if not args.work else None
     work = Path(args.work or tmp.name).resolve()
     work.mkdir(parents=True, exist_ok=True)
-    scenes = {"demo": DEMO_SCENE}
-    if not args.quick:
+    names = (args.scenes or ("demo" if args.quick else "demo,motion")).split(",")
+    if set(names) - {"demo", "motion"}:
+        ap.error(f"--scenes: unknown {sorted(set(names) - {'demo', 'motion'})}")
+    scenes = {}
+    if "demo" in names:
+        scenes["demo"] = DEMO_SCENE
+    if "motion" in names:
         scenes["motion"] = write_motion_scene(DEMO_SCENE, work)
     cases = []
     try:
