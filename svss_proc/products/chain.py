@@ -11,6 +11,7 @@ import logging
 import math
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +22,7 @@ from svss_daq.config import (HardwareConfig, ImagingConfig, Loaded, ProcessingCo
 from . import drc as drc_mod
 from .background import kernel_voxels, median_background
 from .detect import Footprint, detect
-from ..imaging.coverage import full_fraction
+from ..imaging.coverage import aperture_fraction, full_fraction
 from .quicklook import mip_png, products_png
 from .tile_products import Products
 from ..tiles import (MIPS, Tile, TileFileError, temporary_path, tile_file_paths, tile_name,
@@ -54,16 +55,38 @@ def whitened_background(mag: np.ndarray, channels: np.ndarray | None, kernel, bc
     return (bg * w).astype(np.float32)
 
 
+@dataclass(frozen=True)
+class Before:
+    """What a tile's products take from the tile before it on the same line (the
+    previous along-track tile, finished first): its last along-track voxel planes
+    (``magnitude``, ``channels``: ping-channel pairs, or None), enough for every
+    background window of the tile's first planes to reach across the seam as it would
+    in one seamless volume, and its contacts (``positions`` (n, 3) along, cross, depth,
+    m, in the shared tile frame; ``peak_db``), stronger sources whose sidelobes reach
+    into this tile (docs/products.md, *Seams*)."""
+    index: int
+    line: object
+    magnitude: np.ndarray
+    channels: np.ndarray | None
+    positions: np.ndarray
+    peak_db: np.ndarray
+
+
 def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.ndarray],
                      voxel_m: float, cfg: ProductsConfig, keep_volumes: bool = True,
                      coverage: tuple[np.ndarray, np.ndarray] | None = None,
-                     footprint: Footprint | None = None) -> Products:
+                     footprint: Footprint | None = None,
+                     aperture: np.ndarray | None = None,
+                     before: Before | None = None) -> Products:
     """Products of one tile. ``image``: complex image or magnitude (along x cross x
     depth, uPa); ``axes``: voxel-centre coordinates (m); ``voxel_m``: voxel edge (m).
     ``keep_volumes``: return the background and compressed volumes (else None).
     ``coverage``: (pings, ping-channel pairs) per voxel (None: unknown; every voxel
     counts as fully imaged); ``footprint``: the sidelobe geometry (None: the
-    ``sidelobe_m`` radius only)."""
+    ``sidelobe_m`` radius only); ``aperture``: the fraction of each voxel's synthetic
+    aperture traversed (along x depth, :func:`~svss_proc.imaging.coverage.aperture_fraction`;
+    None: unknown), voxels below ``min_coverage_fraction`` do not detect; ``before``:
+    the previous tile's last planes and contacts (:class:`Before`; None: none known)."""
     t = {}
     t0 = time.perf_counter()
     mag = np.abs(image).astype(np.float32, copy=False)
@@ -71,7 +94,20 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
     whiten, min_fraction, use_footprint = coverage_settings(cfg)
     kernel = kernel_voxels(bcfg.kernel_m, voxel_m)
     pings, channels = coverage if coverage is not None else (None, None)
-    bg = whitened_background(mag, channels if whiten else None, kernel, bcfg)
+    halo = 0
+    if (before is not None and before.magnitude.shape[1:] == mag.shape[1:]
+            and (channels is None or not whiten or (before.channels is not None
+                                                     and before.channels.shape[1:]
+                                                     == mag.shape[1:]))):
+        # the previous tile's last planes in front: every window of this tile's first
+        # planes reaches across the seam as in one volume (exact for kernel // 2 planes)
+        halo = before.magnitude.shape[0]
+        mag_bg = np.concatenate([before.magnitude.astype(np.float32, copy=False), mag])
+        ch_bg = (None if channels is None or not whiten
+                 else np.concatenate([before.channels, channels]))
+        bg = whitened_background(mag_bg, ch_bg, kernel, bcfg)[halo:]
+    else:
+        bg = whitened_background(mag, channels if whiten else None, kernel, bcfg)
     t1 = time.perf_counter()
     t["background"] = t1 - t0
     floor = drc_mod.background_floor(bg, bcfg.floor_db)
@@ -90,9 +126,17 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
     t["compression_and_mips"] = t3 - t2
     dc = cfg.detection
     fraction = None if pings is None else full_fraction(pings)
+    detectable = None if fraction is None else fraction >= min_fraction
+    if aperture is not None:
+        # a partly imaged edge (the run starts or ends within the voxel's aperture)
+        # never detects, whatever the tile's own most-covered voxels got
+        part = np.asarray(aperture)[:, None, :] >= min_fraction
+        detectable = part if detectable is None else detectable & part
     table = detect(level, mag, bg, axes, dc.threshold_db, dc.min_voxels, dc.merge_m,
                    dc.max_per_tile, dc.sidelobe_db, dc.sidelobe_m,
-                   detectable=None if fraction is None else fraction >= min_fraction,
+                   detectable=detectable,
+                   context=None if before is None or not before.positions.size
+                   else (before.positions, before.peak_db),
                    coverage_pings=pings, coverage_fraction=fraction,
                    footprint=footprint if use_footprint else None,
                    point_threshold_db=dc.point_threshold_db,
@@ -117,6 +161,10 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
                          "extended_min_m3": (np.nan if dc.extended_min_m3 is None
                                              else dc.extended_min_m3),
                          "coverage_used": pings is not None,
+                         "aperture_rule": aperture is not None,
+                         "seam_halo_planes": halo,
+                         "seam_context_contacts": (0 if before is None
+                                                   else int(before.peak_db.size)),
                          "coverage_whitening": bool(whiten and channels is not None),
                          "sidelobe_footprint_height_m": (
                              np.nan if footprint is None or not use_footprint
@@ -157,14 +205,58 @@ def tile_footprint(tile: Tile, hardware: Loaded[HardwareConfig],
     return footprint_for(cov.mean_height_m, hardware.value, imaging)
 
 
+class Seams:
+    """What a run's tiles pass on along the line, for products without seams: the last
+    tile saved, as the :class:`Before` of the next one (its index one higher, on the
+    same line). The streaming worker keeps one per run; a tile saved alone (a batch
+    task) has none."""
+
+    def __init__(self) -> None:
+        self.last: Before | None = None
+
+    def before_for(self, tile: Tile) -> Before | None:
+        b = self.last
+        if b is None or b.index != tile.grid.index - 1 or b.line != tile.line:
+            return None
+        return b
+
+    def remember(self, tile: Tile, prods: Products | None, planes: int) -> None:
+        if prods is None or planes < 1:
+            self.last = None
+            return
+        cov = tile.coverage
+        d = prods.detections
+        self.last = Before(
+            tile.grid.index, tile.line,
+            np.abs(tile.image[-planes:]).astype(np.float32),
+            None if cov is None else cov.channels[-planes:].copy(),
+            np.stack([d["along_m"], d["cross_m"], d["depth_m"]], axis=1).astype(np.float64),
+            np.asarray(d["peak_db"], dtype=np.float64))
+
+
+def tile_aperture(tile: Tile, footprint: Footprint | None) -> np.ndarray | None:
+    """The fraction of each voxel's synthetic aperture the tile's pings traversed (along
+    x depth; :func:`~svss_proc.imaging.coverage.aperture_fraction`), None without
+    coverage or footprint."""
+    cov = tile.coverage
+    if cov is None or footprint is None or not np.isfinite(cov.tx_along_min_m):
+        return None
+    return aperture_fraction(tile.grid.along, tile.grid.depth,
+                             (cov.tx_along_min_m, cov.tx_along_max_m), footprint.height_m,
+                             footprint.tan_half_angle)
+
+
 def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
-              processing: Loaded[ProcessingConfig]) -> list[Path]:
+              processing: Loaded[ProcessingConfig], seams: Seams | None = None
+              ) -> list[Path]:
     """Compute the products (when the processing configuration has a ``[products]``
     table) and write ``tile_NNNN.h5`` and ``tile_NNNN_mip.png`` into ``out_dir``;
     return the paths. Both are written under temporary names and renamed into place
     only when both are complete, the .h5 last (the commit point); on failure no final
     .h5 is created and
-    :class:`~svss_proc.tiles.TileFileError` names the file."""
+    :class:`~svss_proc.tiles.TileFileError` names the file. ``seams``: the run's
+    :class:`Seams` (the previous tile's last planes and contacts; this tile's are
+    remembered for the next)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     name = tile_name(tile.grid.index)
@@ -179,11 +271,15 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
     prods = None
     if pcfg is not None:
         cov = tile.coverage
+        fp = tile_footprint(tile, hardware, processing.value.imaging)
         prods = compute_products(tile.image, (g.along, g.cross, g.depth), voxel, pcfg,
                                  keep_volumes=pcfg.store_volumes,
                                  coverage=None if cov is None else (cov.pings, cov.channels),
-                                 footprint=tile_footprint(tile, hardware,
-                                                                  processing.value.imaging))
+                                 footprint=fp, aperture=tile_aperture(tile, fp),
+                                 before=None if seams is None else seams.before_for(tile))
+    if seams is not None:
+        seams.remember(tile, prods, 0 if pcfg is None
+                       else kernel_voxels(pcfg.background.kernel_m, voxel)[0] // 2)
     tmp_png = temporary_path(png)
     try:
         try:
