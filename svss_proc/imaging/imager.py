@@ -25,6 +25,7 @@ from svss_daq.ping_gate import PingRejected, checked_ping_problem
 from svss_daq.waveform import make_waveform
 
 from ..conditioning import Conditioned, Conditioner
+from ..products.background import kernel_voxels
 from ..tiles import Tile
 from .coverage import Coverage
 from .cpu_kernel import run_ping
@@ -211,6 +212,15 @@ class PingAccumulator:
         return self._tables[key]
 
 
+def seam_planes(processing: ProcessingConfig) -> int:
+    """Along-track planes a tile's products need from the next tile for a background
+    without seams: half the background kernel (0 without products)."""
+    p = processing.products
+    if p is None:
+        return 0
+    return kernel_voxels(p.background.kernel_m, processing.tile.voxel_m)[0] // 2
+
+
 class TileImager:
     """Streaming imager: a :class:`~.schedule.TileSchedule` and a
     :class:`PingAccumulator` over the tiles being formed. Feed pings in time order with
@@ -229,6 +239,12 @@ class TileImager:
         #: conditions pings and runs the kernels (``condition``, ``kernel``)
         self.accumulator = PingAccumulator(hardware, processing, channels=channels)
         self._active: dict[int, Tile] = {}
+        #: per open tile, the number (1, 2, ...) of the last scheduled ping that reached
+        #: each along-track plane (0: none yet)
+        self._plane_last: dict[int, np.ndarray] = {}
+        #: planes of the next tile handed back with a tile (products without seams: half
+        #: the background kernel along-track; 0 without products)
+        self._seam_planes = seam_planes(processing)
 
     # read-only views of the tiles, the schedule and the accumulator
     @property
@@ -294,17 +310,46 @@ class TileImager:
         for k in step.reached:
             if k not in self._active:
                 self._active[k] = self.accumulator.new_tile(k, self.schedule.line)
+                self._plane_last[k] = np.zeros(self._active[k].grid.shape[0], dtype=np.int64)
         if step.slices:
             cond = cond or self.accumulator.condition(ping)
             self.accumulator.image(ping, cond, step, self._active)
-        return out + [self._hand_back(k) for k in step.closed]
+            for s in step.slices:
+                self._plane_last[s.tile][s.ia0:s.ia1] = self.schedule.n_pings
+        after = {k: self._next_planes(k, final=False) for k in step.closed}
+        return out + [self._hand_back(k, after[k]) for k in step.closed]
 
-    def _hand_back(self, k: int) -> Tile:
+    def _next_planes(self, k: int, final: bool):
+        """The first :attr:`_seam_planes` along-track planes of open tile ``k + 1``
+        (magnitude, ping-channel pairs) when every one of them is complete: the run has
+        ended (``final``), or each was reached and then ``close_after`` consecutive pings
+        stayed clear of it, the rule that completes a tile (None otherwise)."""
+        n = self._seam_planes
+        nxt = self._active.get(k + 1)
+        if n < 1 or nxt is None or nxt.grid.shape[0] < n:
+            return None
+        if not final:
+            last = self._plane_last[k + 1][:n]
+            if np.any(last == 0) or np.any(self.schedule.n_pings - last
+                                           < self.schedule.close_after):
+                return None
+        self.accumulator.settle(nxt)
+        re, im = nxt.re[:n], nxt.im[:n]
+        if hasattr(re, "copy_to_host"):
+            re, im = re.copy_to_host(), im.copy_to_host()
+        mag = np.hypot(np.asarray(re, dtype=np.float32), np.asarray(im, dtype=np.float32))
+        ch = None if nxt.coverage is None else nxt.coverage.channels[:n].copy()
+        return mag, ch
+
+    def _hand_back(self, k: int, after=None) -> Tile:
         tile = self._active.pop(k)
+        self._plane_last.pop(k, None)
         self.accumulator.settle(tile)
+        tile.after = after
         return tile.to_host()
 
     def finish(self) -> list[Tile]:
         """Return every tile still being formed."""
         self.schedule.finish()
-        return [self._hand_back(k) for k in sorted(self._active)]
+        after = {k: self._next_planes(k, final=True) for k in self._active}
+        return [self._hand_back(k, after[k]) for k in sorted(self._active)]

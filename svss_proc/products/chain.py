@@ -30,6 +30,17 @@ from ..tiles import (MIPS, Tile, TileFileError, temporary_path, tile_file_paths,
 
 log = logging.getLogger(__name__)
 
+def _planes(planes, mag: np.ndarray, channels: np.ndarray | None, whiten: bool):
+    """A neighbour's planes (magnitude, ping-channel pairs) when they fit this tile
+    (same cross-track and depth axes; channels known where whitening needs them)."""
+    if planes is None or planes[0].shape[1:] != mag.shape[1:] or not planes[0].shape[0]:
+        return None
+    m, c = planes
+    if channels is not None and whiten and (c is None or c.shape != m.shape):
+        return None
+    return np.asarray(m, dtype=np.float32), c
+
+
 def coverage_settings(cfg: ProductsConfig) -> tuple[bool, float, bool]:
     """(coverage_whitening, min_coverage_fraction, sidelobe_footprint) of ``cfg`` (the
     loader fills them where the file omits them)."""
@@ -77,7 +88,8 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
                      coverage: tuple[np.ndarray, np.ndarray] | None = None,
                      footprint: Footprint | None = None,
                      aperture: np.ndarray | None = None,
-                     before: Before | None = None) -> Products:
+                     before: Before | None = None,
+                     after: tuple[np.ndarray, np.ndarray | None] | None = None) -> Products:
     """Products of one tile. ``image``: complex image or magnitude (along x cross x
     depth, uPa); ``axes``: voxel-centre coordinates (m); ``voxel_m``: voxel edge (m).
     ``keep_volumes``: return the background and compressed volumes (else None).
@@ -86,7 +98,9 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
     ``sidelobe_m`` radius only); ``aperture``: the fraction of each voxel's synthetic
     aperture traversed (along x depth, :func:`~svss_proc.imaging.coverage.aperture_fraction`;
     None: unknown), voxels below ``min_coverage_fraction`` do not detect; ``before``:
-    the previous tile's last planes and contacts (:class:`Before`; None: none known)."""
+    the previous tile's last planes and contacts (:class:`Before`; None: none known);
+    ``after``: the next tile's first planes (magnitude, ping-channel pairs; None: not
+    known)."""
     t = {}
     t0 = time.perf_counter()
     mag = np.abs(image).astype(np.float32, copy=False)
@@ -94,24 +108,30 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
     whiten, min_fraction, use_footprint = coverage_settings(cfg)
     kernel = kernel_voxels(bcfg.kernel_m, voxel_m)
     pings, channels = coverage if coverage is not None else (None, None)
-    halo = 0
-    if (before is not None and before.magnitude.shape[1:] == mag.shape[1:]
-            and (channels is None or not whiten or (before.channels is not None
-                                                     and before.channels.shape[1:]
-                                                     == mag.shape[1:]))):
-        # the previous tile's last planes in front: every window of this tile's first
-        # planes reaches across the seam as in one volume (exact for kernel // 2 planes)
-        halo = before.magnitude.shape[0]
-        mag_bg = np.concatenate([before.magnitude.astype(np.float32, copy=False), mag])
-        ch_bg = (None if channels is None or not whiten
-                 else np.concatenate([before.channels, channels]))
-        bg = whitened_background(mag_bg, ch_bg, kernel, bcfg)[halo:]
-    else:
-        bg = whitened_background(mag, channels if whiten else None, kernel, bcfg)
+    # the neighbours' planes across the seams: every background window of this tile's
+    # planes reaches across a seam as in one seamless volume (exact for kernel // 2
+    # planes), and contacts peaking there are context (sources of sidelobes), never this
+    # tile's
+    lo_planes = _planes(before and (before.magnitude, before.channels), mag, channels, whiten)
+    hi_planes = _planes(after, mag, channels, whiten)
+    nb = 0 if lo_planes is None else lo_planes[0].shape[0]
+    na = 0 if hi_planes is None else hi_planes[0].shape[0]
+    mag_x = np.concatenate([p[0] for p in (lo_planes, (mag, channels), hi_planes)
+                            if p is not None]) if nb or na else mag
+    ch_x = None
+    if channels is not None and whiten:
+        ch_x = np.concatenate([p[1] for p in (lo_planes, (mag, channels), hi_planes)
+                               if p is not None]) if nb or na else channels
+    bg_x = whitened_background(mag_x, ch_x, kernel, bcfg)
+    core = slice(nb, nb + mag.shape[0])
+    bg = bg_x[core]
     t1 = time.perf_counter()
     t["background"] = t1 - t0
     floor = drc_mod.background_floor(bg, bcfg.floor_db)
     level = drc_mod.level_db(drc_mod.normalise(mag, bg, bcfg.floor_db))
+    # the neighbours' planes divided by the same floor as this tile's
+    level_x = level if not (nb or na) else drc_mod.level_db(
+        mag_x / np.where(np.isfinite(bg_x) & (bg_x > floor), bg_x, np.float32(floor)))
     t2 = time.perf_counter()
     t["normalisation"] = t2 - t1
     g = cfg.depth_gain
@@ -132,15 +152,35 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
         # never detects, whatever the tile's own most-covered voxels got
         part = np.asarray(aperture)[:, None, :] >= min_fraction
         detectable = part if detectable is None else detectable & part
-    table = detect(level, mag, bg, axes, dc.threshold_db, dc.min_voxels, dc.merge_m,
-                   dc.max_per_tile, dc.sidelobe_db, dc.sidelobe_m,
-                   detectable=detectable,
+    axes_x, pings_x, fraction_x, detectable_x = axes, pings, fraction, detectable
+    if nb or na:
+        v = float(voxel_m)
+        axes_x = (np.concatenate([axes[0][0] - v * np.arange(nb, 0, -1), axes[0],
+                                  axes[0][-1] + v * np.arange(1, na + 1)]), axes[1], axes[2])
+
+        def pad(x, fill):
+            if x is None:
+                return None
+            out = np.full((nb + x.shape[0] + na,) + x.shape[1:], fill, dtype=x.dtype)
+            out[core] = x
+            return out
+        pings_x, fraction_x = pad(pings, 0), pad(fraction, -1.0)
+        detectable_x = pad(detectable if detectable is not None
+                           else np.ones(mag.shape, dtype=bool), True)
+    table = detect(level_x, mag_x, bg_x, axes_x, dc.threshold_db, dc.min_voxels,
+                   dc.merge_m, 1 << 30, dc.sidelobe_db, dc.sidelobe_m,
+                   detectable=detectable_x,
                    context=None if before is None or not before.positions.size
                    else (before.positions, before.peak_db),
-                   coverage_pings=pings, coverage_fraction=fraction,
+                   coverage_pings=pings_x, coverage_fraction=fraction_x,
                    footprint=footprint if use_footprint else None,
                    point_threshold_db=dc.point_threshold_db,
                    extended_min_m3=dc.extended_min_m3)
+    if nb or na:        # contacts peaking in a neighbour's planes are that tile's
+        half = 0.5 * float(voxel_m)
+        table = table[(table["along_m"] >= axes[0][0] - half)
+                      & (table["along_m"] < axes[0][-1] + half)]
+    table = table[:dc.max_per_tile]
     t["detection"] = time.perf_counter() - t3
     return Products(
         method=bcfg.method, kernel_m=tuple(bcfg.kernel_m), kernel_voxels=kernel,
@@ -162,7 +202,7 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
                                              else dc.extended_min_m3),
                          "coverage_used": pings is not None,
                          "aperture_rule": aperture is not None,
-                         "seam_halo_planes": halo,
+                         "seam_planes_before": nb, "seam_planes_after": na,
                          "seam_context_contacts": (0 if before is None
                                                    else int(before.peak_db.size)),
                          "coverage_whitening": bool(whiten and channels is not None),
@@ -276,7 +316,8 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
                                  keep_volumes=pcfg.store_volumes,
                                  coverage=None if cov is None else (cov.pings, cov.channels),
                                  footprint=fp, aperture=tile_aperture(tile, fp),
-                                 before=None if seams is None else seams.before_for(tile))
+                                 before=None if seams is None else seams.before_for(tile),
+                                 after=tile.after)
     if seams is not None:
         seams.remember(tile, prods, 0 if pcfg is None
                        else kernel_voxels(pcfg.background.kernel_m, voxel)[0] // 2)
