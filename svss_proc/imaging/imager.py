@@ -216,7 +216,7 @@ def seam_planes(processing: ProcessingConfig) -> int:
     """Along-track planes a tile's products need from the next tile for a background
     without seams: half the background kernel (0 without products)."""
     p = processing.products
-    if p is None:
+    if p is None or not p.background.across_seams:
         return 0
     return kernel_voxels(p.background.kernel_m, processing.tile.voxel_m)[0] // 2
 

@@ -316,8 +316,9 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
                                  keep_volumes=pcfg.store_volumes,
                                  coverage=None if cov is None else (cov.pings, cov.channels),
                                  footprint=fp, aperture=tile_aperture(tile, fp),
-                                 before=None if seams is None else seams.before_for(tile),
-                                 after=tile.after)
+                                 before=(seams.before_for(tile) if seams is not None
+                                         and pcfg.background.across_seams else None),
+                                 after=tile.after if pcfg.background.across_seams else None)
     if seams is not None:
         seams.remember(tile, prods, 0 if pcfg is None
                        else kernel_voxels(pcfg.background.kernel_m, voxel)[0] // 2)
