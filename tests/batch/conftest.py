@@ -23,7 +23,7 @@ def coarse_processing_text() -> str:
            .replace("voxel_m = 0.02", "voxel_m = 0.05")
            # a batch task images its tile alone: svss process's tiles equal the batch's
            # when neither takes planes across the seams (docs/products.md, Seams)
-           .replace("coverage_whitening = true", "coverage_whitening = true\nacross_seams = false"))
+           .replace("across_seams = true", "across_seams = false"))
     assert new.count("0.05") > text.count("0.05") and "across_seams = false" in new
     return new
 
