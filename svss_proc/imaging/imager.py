@@ -356,7 +356,9 @@ class TileImager:
         re, im = nxt.re[:n], nxt.im[:n]
         if hasattr(re, "copy_to_host"):
             re, im = re.copy_to_host(), im.copy_to_host()
-        mag = np.hypot(np.asarray(re, dtype=np.float32), np.asarray(im, dtype=np.float32))
+        z = np.empty(re.shape, dtype=np.complex64)   # as Tile.image, so that the
+        z.real, z.imag = re, im                       # magnitude is bit for bit the
+        mag = np.abs(z).astype(np.float32)            # products' own (compute_products)
         ch = None if nxt.coverage is None else nxt.coverage.channels[:n].copy()
         return (mag, ch), False
 
