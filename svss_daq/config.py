@@ -213,6 +213,11 @@ class BackgroundConfig:
         "divide each magnitude by the square root of the ping-channel pairs that reached "
         "the voxel before the median, and multiply the median back (the background then "
         "follows the coverage; omitted: true)", default=True)
+    across_seams: bool | None = spec(
+        "take the neighbouring tiles' planes across each along-track seam into the "
+        "background windows and the previous tile's contacts as sidelobe sources, so that "
+        "a tile's edge is processed like its middle (the streaming worker and svss "
+        "process; a batch task images its tile alone; omitted: true)", default=True)
 
 
 @dataclass(frozen=True)

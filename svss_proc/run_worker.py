@@ -32,7 +32,7 @@ from svss_daq.rawfile import RawRunReader, run_of
 
 from .imaging.imager import TileImager
 from .imaging.pose_check import check_pose_flags
-from .products.chain import save_tile
+from .products.chain import Seams, save_tile
 from .products.run_products import run_products_at_end
 from .run_folder import (JOURNAL, JOURNAL_SCHEMA, JOURNAL_VERSION, MANIFEST, atomic_json,
                          prepare_output_dir, read_journal)
@@ -92,6 +92,7 @@ class Worker:
         prepare_output_dir(self.out, force, resume=resume)
         self.gate = PingGate(hardware, name="worker")
         self.written: list[Path] = []
+        self.seams = Seams()       # the previous tile, for products without seams
         self.last_sequence: int | None = None
         self.gaps = 0
         self.imaging_errors = 0
@@ -205,7 +206,8 @@ class Worker:
             self.last_sequence = seq
         for tile in tiles:
             tile.poses, tile.run_id = self.poses, self.run_label
-            self.written += save_tile(tile, self.out, self.hardware, self.processing)
+            self.written += save_tile(tile, self.out, self.hardware, self.processing,
+                                      self.seams)
         if tiles or (self.imager.line is not None and not self._journal_line):
             self._journal_line = True
             self._write_journal()
@@ -244,7 +246,8 @@ class Worker:
             self._write_journal(stopped_open=open_tiles)    # intent first
         for tile in self.imager.finish():
             tile.poses, tile.run_id = self.poses, self.run_label
-            self.written += save_tile(tile, self.out, self.hardware, self.processing)
+            self.written += save_tile(tile, self.out, self.hardware, self.processing,
+                                      self.seams)
         refused = dict(self.gate.refused)
         if self.gate.n_refused or self.imaging_errors or self.imager.late_pings:
             log.warning("%d ping(s) refused %s, %d failed in imaging, %d reached only "

@@ -108,6 +108,9 @@ class Tile:
     run_id: str = ""
     #: per ping of :attr:`pings`: (transmit time ns UTC, body origin north m, east m)
     track: list[tuple[int, float, float]] = field(default_factory=list)
+    #: the next tile's first along-track planes, complete when this tile was: (magnitude,
+    #: ping-channel pairs or None), for products without seams (None: not known)
+    after: "tuple[np.ndarray, np.ndarray | None] | None" = None
 
     @functools.cached_property
     def image(self) -> np.ndarray:

@@ -190,6 +190,11 @@ def run_batch(paths: list[str | Path], out: str | Path,
     t0 = time.perf_counter()
     out = Path(out).absolute()              # the tasks may run in another folder
     runs = group_runs(paths)
+    pcfg = processing.value.products
+    if pcfg is not None and pcfg.background.across_seams:
+        log.warning("products.background.across_seams: a batch task images its tile alone, "
+                    "so its products take nothing across the seams (svss process does; "
+                    "docs/products.md, Seams)")
     earlier = prepare_batch_dir(out, runs, processing, force)
     excluded = {run_id: _exclusions(earlier.get(run_id), ps) for run_id, ps in runs.items()}
     plans = {run_id: plan_run(run_id, run_folder_name(run_id), ps, processing, renavigate,

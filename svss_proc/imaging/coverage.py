@@ -219,6 +219,10 @@ class Coverage:
     corners: np.ndarray
     height_sum_m: float = 0.0
     n_pings: int = 0
+    #: along-track span (tile frame, m) of the projector positions of the pings added
+    #: (:func:`aperture_fraction`; inf, -inf: none)
+    tx_along_min_m: float = math.inf
+    tx_along_max_m: float = -math.inf
     geodetic_ref: tuple[float, float, float, float, float] | None = None
 
     @classmethod
@@ -246,6 +250,8 @@ class Coverage:
                  geometry.projector_half_angle, geometry.receiver_half_angle,
                  imaging.beam_gating, window_s, cw, cs)
         self.height_sum_m += float(-placed.tx[2])
+        self.tx_along_min_m = min(self.tx_along_min_m, float(placed.tx[0]))
+        self.tx_along_max_m = max(self.tx_along_max_m, float(placed.tx[0]))
         self.n_pings += 1
         lat, lon = getattr(nav, "latitude_deg", math.nan), getattr(nav, "longitude_deg",
                                                                     math.nan)
@@ -260,3 +266,29 @@ def full_fraction(pings: np.ndarray) -> np.ndarray:
     ref = pings.reshape(-1, pings.shape[-1]).max(axis=0).astype(np.float32)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(ref > 0, pings / np.where(ref > 0, ref, 1.0), 0.0).astype(np.float32)
+
+
+def aperture_fraction(along: np.ndarray, depth: np.ndarray, tx_along_span_m: tuple[float, float],
+                      height_m: float, tan_half_angle: float) -> np.ndarray:
+    """The fraction of each voxel's synthetic aperture that the platform traversed
+    (along x depth, float32; broadcast over cross-track).
+
+    A voxel at along-track ``a`` and depth ``z`` (below the interface; projectors
+    ``height_m`` above it) lies inside the projector cone of every ping whose projector
+    is within ``R(z) = (height_m + z) tan(half-angle)`` of it horizontally: its full
+    synthetic aperture is the along-track interval ``[a - R, a + R]`` of projector
+    positions. The tile's pings put the projector over ``tx_along_span_m`` (the first
+    and last along-track projector position, tile frame, m); the fraction is the length
+    of that interval's overlap with the aperture over ``2 R``. It does not count pings,
+    so it is independent of the ping rate and of the platform's speed; it is below 1
+    where the run starts or ends within a voxel's aperture (a partly imaged edge: the
+    tile's own most-covered voxels can then be partly imaged too, so the coverage rule's
+    count against the tile's own maximum does not see it)."""
+    lo, hi = tx_along_span_m
+    a = np.asarray(along, dtype=np.float64)[:, None]
+    reach = np.maximum((float(height_m) + np.asarray(depth, dtype=np.float64)) *
+                       float(tan_half_angle), 1e-9)[None, :]
+    if not (math.isfinite(lo) and math.isfinite(hi)) or hi < lo:
+        return np.zeros((a.shape[0], reach.shape[1]), dtype=np.float32)
+    overlap = np.clip(np.minimum(a + reach, hi) - np.maximum(a - reach, lo), 0.0, None)
+    return np.minimum(overlap / (2.0 * reach), 1.0).astype(np.float32)

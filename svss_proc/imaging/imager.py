@@ -25,6 +25,7 @@ from svss_daq.ping_gate import PingRejected, checked_ping_problem
 from svss_daq.waveform import make_waveform
 
 from ..conditioning import Conditioned, Conditioner
+from ..products.background import kernel_voxels
 from ..tiles import Tile
 from .coverage import Coverage
 from .cpu_kernel import run_ping
@@ -211,6 +212,15 @@ class PingAccumulator:
         return self._tables[key]
 
 
+def seam_planes(processing: ProcessingConfig) -> int:
+    """Along-track planes a tile's products need from the next tile for a background
+    without seams: half the background kernel (0 without products)."""
+    p = processing.products
+    if p is None or not p.background.across_seams:
+        return 0
+    return kernel_voxels(p.background.kernel_m, processing.tile.voxel_m)[0] // 2
+
+
 class TileImager:
     """Streaming imager: a :class:`~.schedule.TileSchedule` and a
     :class:`PingAccumulator` over the tiles being formed. Feed pings in time order with
@@ -229,12 +239,23 @@ class TileImager:
         #: conditions pings and runs the kernels (``condition``, ``kernel``)
         self.accumulator = PingAccumulator(hardware, processing, channels=channels)
         self._active: dict[int, Tile] = {}
+        #: tiles complete but held (with the ping count when they completed) until the
+        #: next tile's first planes are complete too (:meth:`_next_planes`)
+        self._held: dict[int, tuple[Tile, int]] = {}
+        #: per open tile, the number (1, 2, ...) of the last scheduled ping that reached
+        #: each along-track plane (0: none yet)
+        self._plane_last: dict[int, np.ndarray] = {}
+        #: planes of the next tile handed back with a tile (products without seams: half
+        #: the background kernel along-track; 0 without products)
+        self._seam_planes = seam_planes(processing)
 
     # read-only views of the tiles, the schedule and the accumulator
     @property
     def active(self) -> Mapping[int, Tile]:
-        """The tiles being formed, by index (read-only)."""
-        return MappingProxyType(self._active)
+        """The tiles being formed, by index (read-only); with them the tiles complete but
+        held until the next tile's first planes are (not written yet)."""
+        return MappingProxyType({**{k: t for k, (t, _) in self._held.items()},
+                                 **self._active})
 
     @property
     def line(self) -> TrackLine | None:
@@ -243,8 +264,8 @@ class TileImager:
 
     @property
     def done(self) -> frozenset[int]:
-        """The tiles closed (handed back or marked written), never opened again."""
-        return self.schedule.done
+        """The tiles closed and handed back (or marked written), never opened again."""
+        return self.schedule.done - frozenset(self._held)
 
     @property
     def n_pings(self) -> int:
@@ -270,7 +291,11 @@ class TileImager:
     def resume_sequence(self) -> int | None:
         """The first sequence of the earliest still-open tile (None: no tile open):
         imaging again from there rebuilds every open tile exactly."""
-        return self.schedule.resume_sequence()
+        first = [t.pings[0] for t, _ in self._held.values() if t.pings]
+        opened = self.schedule.resume_sequence()
+        if opened is not None:
+            first.append(opened)
+        return min(first) if first else None
 
     def add(self, ping: Ping) -> list[Tile]:
         """Image one ping into the tiles it reaches; return tiles now complete.
@@ -294,17 +319,60 @@ class TileImager:
         for k in step.reached:
             if k not in self._active:
                 self._active[k] = self.accumulator.new_tile(k, self.schedule.line)
+                self._plane_last[k] = np.zeros(self._active[k].grid.shape[0], dtype=np.int64)
         if step.slices:
             cond = cond or self.accumulator.condition(ping)
             self.accumulator.image(ping, cond, step, self._active)
-        return out + [self._hand_back(k) for k in step.closed]
+            for s in step.slices:
+                self._plane_last[s.tile][s.ia0:s.ia1] = self.schedule.n_pings
+        for k in step.closed:
+            # held until the next tile's first planes are complete too (products
+            # without seams); at most close_after pings more
+            self._held[k] = (self._active.pop(k), self.schedule.n_pings)
+        ready = []
+        for k in sorted(self._held):
+            planes, wait = self._next_planes(k, final=False)
+            if not wait or self.schedule.n_pings - self._held[k][1] >= self.schedule.close_after:
+                ready.append((k, planes))
+        return out + [self._hand_back(k, planes) for k, planes in ready]
 
-    def _hand_back(self, k: int) -> Tile:
-        tile = self._active.pop(k)
+    def _next_planes(self, k: int, final: bool):
+        """(planes, wait): the first :attr:`_seam_planes` along-track planes of tile
+        ``k + 1`` (magnitude, ping-channel pairs) when every one of them is complete (the
+        tile is complete, the run has ended (``final``), or each plane was reached and
+        then ``close_after`` consecutive pings stayed clear of it, the rule that completes
+        a tile), else None; ``wait``: they may still come (tile ``k + 1`` is open)."""
+        n = self._seam_planes
+        held = self._held.get(k + 1)
+        nxt = held[0] if held is not None else self._active.get(k + 1)
+        if n < 1 or nxt is None or nxt.grid.shape[0] < n:
+            return None, False
+        if not final and held is None:
+            last = self._plane_last[k + 1][:n]
+            if np.any(last == 0) or np.any(self.schedule.n_pings - last
+                                           < self.schedule.close_after):
+                return None, True
+        self.accumulator.settle(nxt)
+        re, im = nxt.re[:n], nxt.im[:n]
+        if hasattr(re, "copy_to_host"):
+            re, im = re.copy_to_host(), im.copy_to_host()
+        z = np.empty(re.shape, dtype=np.complex64)   # as Tile.image, so that the
+        z.real, z.imag = re, im                       # magnitude is bit for bit the
+        mag = np.abs(z).astype(np.float32)            # products' own (compute_products)
+        ch = None if nxt.coverage is None else nxt.coverage.channels[:n].copy()
+        return (mag, ch), False
+
+    def _hand_back(self, k: int, after=None) -> Tile:
+        held = self._held.pop(k, None)
+        tile = held[0] if held is not None else self._active.pop(k)
+        self._plane_last.pop(k, None)
         self.accumulator.settle(tile)
+        tile.after = after
         return tile.to_host()
 
     def finish(self) -> list[Tile]:
         """Return every tile still being formed."""
         self.schedule.finish()
-        return [self._hand_back(k) for k in sorted(self._active)]
+        keys = sorted(set(self._active) | set(self._held))
+        after = {k: self._next_planes(k, final=True)[0] for k in keys}
+        return [self._hand_back(k, after[k]) for k in keys]

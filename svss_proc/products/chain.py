@@ -11,6 +11,7 @@ import logging
 import math
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,13 +22,24 @@ from svss_daq.config import (HardwareConfig, ImagingConfig, Loaded, ProcessingCo
 from . import drc as drc_mod
 from .background import kernel_voxels, median_background
 from .detect import Footprint, detect
-from ..imaging.coverage import full_fraction
+from ..imaging.coverage import aperture_fraction, full_fraction
 from .quicklook import mip_png, products_png
 from .tile_products import Products
 from ..tiles import (MIPS, Tile, TileFileError, temporary_path, tile_file_paths, tile_name,
                      write_tile)
 
 log = logging.getLogger(__name__)
+
+def _planes(planes, mag: np.ndarray, channels: np.ndarray | None, whiten: bool):
+    """A neighbour's planes (magnitude, ping-channel pairs) when they fit this tile
+    (same cross-track and depth axes; channels known where whitening needs them)."""
+    if planes is None or planes[0].shape[1:] != mag.shape[1:] or not planes[0].shape[0]:
+        return None
+    m, c = planes
+    if channels is not None and whiten and (c is None or c.shape != m.shape):
+        return None
+    return np.asarray(m, dtype=np.float32), c
+
 
 def coverage_settings(cfg: ProductsConfig) -> tuple[bool, float, bool]:
     """(coverage_whitening, min_coverage_fraction, sidelobe_footprint) of ``cfg`` (the
@@ -54,16 +66,41 @@ def whitened_background(mag: np.ndarray, channels: np.ndarray | None, kernel, bc
     return (bg * w).astype(np.float32)
 
 
+@dataclass(frozen=True)
+class Before:
+    """What a tile's products take from the tile before it on the same line (the
+    previous along-track tile, finished first): its last along-track voxel planes
+    (``magnitude``, ``channels``: ping-channel pairs, or None), enough for every
+    background window of the tile's first planes to reach across the seam as it would
+    in one seamless volume, and its contacts (``positions`` (n, 3) along, cross, depth,
+    m, in the shared tile frame; ``peak_db``), stronger sources whose sidelobes reach
+    into this tile (docs/products.md, *Seams*)."""
+    index: int
+    line: object
+    magnitude: np.ndarray
+    channels: np.ndarray | None
+    positions: np.ndarray
+    peak_db: np.ndarray
+
+
 def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.ndarray],
                      voxel_m: float, cfg: ProductsConfig, keep_volumes: bool = True,
                      coverage: tuple[np.ndarray, np.ndarray] | None = None,
-                     footprint: Footprint | None = None) -> Products:
+                     footprint: Footprint | None = None,
+                     aperture: np.ndarray | None = None,
+                     before: Before | None = None,
+                     after: tuple[np.ndarray, np.ndarray | None] | None = None) -> Products:
     """Products of one tile. ``image``: complex image or magnitude (along x cross x
     depth, uPa); ``axes``: voxel-centre coordinates (m); ``voxel_m``: voxel edge (m).
     ``keep_volumes``: return the background and compressed volumes (else None).
     ``coverage``: (pings, ping-channel pairs) per voxel (None: unknown; every voxel
     counts as fully imaged); ``footprint``: the sidelobe geometry (None: the
-    ``sidelobe_m`` radius only)."""
+    ``sidelobe_m`` radius only); ``aperture``: the fraction of each voxel's synthetic
+    aperture traversed (along x depth, :func:`~svss_proc.imaging.coverage.aperture_fraction`;
+    None: unknown), voxels below ``min_coverage_fraction`` do not detect; ``before``:
+    the previous tile's last planes and contacts (:class:`Before`; None: none known);
+    ``after``: the next tile's first planes (magnitude, ping-channel pairs; None: not
+    known)."""
     t = {}
     t0 = time.perf_counter()
     mag = np.abs(image).astype(np.float32, copy=False)
@@ -71,11 +108,30 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
     whiten, min_fraction, use_footprint = coverage_settings(cfg)
     kernel = kernel_voxels(bcfg.kernel_m, voxel_m)
     pings, channels = coverage if coverage is not None else (None, None)
-    bg = whitened_background(mag, channels if whiten else None, kernel, bcfg)
+    # the neighbours' planes across the seams: every background window of this tile's
+    # planes reaches across a seam as in one seamless volume (exact for kernel // 2
+    # planes), and contacts peaking there are context (sources of sidelobes), never this
+    # tile's
+    lo_planes = _planes(before and (before.magnitude, before.channels), mag, channels, whiten)
+    hi_planes = _planes(after, mag, channels, whiten)
+    nb = 0 if lo_planes is None else lo_planes[0].shape[0]
+    na = 0 if hi_planes is None else hi_planes[0].shape[0]
+    mag_x = np.concatenate([p[0] for p in (lo_planes, (mag, channels), hi_planes)
+                            if p is not None]) if nb or na else mag
+    ch_x = None
+    if channels is not None and whiten:
+        ch_x = np.concatenate([p[1] for p in (lo_planes, (mag, channels), hi_planes)
+                               if p is not None]) if nb or na else channels
+    bg_x = whitened_background(mag_x, ch_x, kernel, bcfg)
+    core = slice(nb, nb + mag.shape[0])
+    bg = bg_x[core]
     t1 = time.perf_counter()
     t["background"] = t1 - t0
     floor = drc_mod.background_floor(bg, bcfg.floor_db)
     level = drc_mod.level_db(drc_mod.normalise(mag, bg, bcfg.floor_db))
+    # the neighbours' planes divided by the same floor as this tile's
+    level_x = level if not (nb or na) else drc_mod.level_db(
+        mag_x / np.where(np.isfinite(bg_x) & (bg_x > floor), bg_x, np.float32(floor)))
     t2 = time.perf_counter()
     t["normalisation"] = t2 - t1
     g = cfg.depth_gain
@@ -90,13 +146,41 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
     t["compression_and_mips"] = t3 - t2
     dc = cfg.detection
     fraction = None if pings is None else full_fraction(pings)
-    table = detect(level, mag, bg, axes, dc.threshold_db, dc.min_voxels, dc.merge_m,
-                   dc.max_per_tile, dc.sidelobe_db, dc.sidelobe_m,
-                   detectable=None if fraction is None else fraction >= min_fraction,
-                   coverage_pings=pings, coverage_fraction=fraction,
+    detectable = None if fraction is None else fraction >= min_fraction
+    if aperture is not None:
+        # a partly imaged edge (the run starts or ends within the voxel's aperture)
+        # never detects, whatever the tile's own most-covered voxels got
+        part = np.asarray(aperture)[:, None, :] >= min_fraction
+        detectable = part if detectable is None else detectable & part
+    axes_x, pings_x, fraction_x, detectable_x = axes, pings, fraction, detectable
+    if nb or na:
+        v = float(voxel_m)
+        axes_x = (np.concatenate([axes[0][0] - v * np.arange(nb, 0, -1), axes[0],
+                                  axes[0][-1] + v * np.arange(1, na + 1)]), axes[1], axes[2])
+
+        def pad(x, fill):
+            if x is None:
+                return None
+            out = np.full((nb + x.shape[0] + na,) + x.shape[1:], fill, dtype=x.dtype)
+            out[core] = x
+            return out
+        pings_x, fraction_x = pad(pings, 0), pad(fraction, -1.0)
+        detectable_x = pad(detectable if detectable is not None
+                           else np.ones(mag.shape, dtype=bool), True)
+    table = detect(level_x, mag_x, bg_x, axes_x, dc.threshold_db, dc.min_voxels,
+                   dc.merge_m, 1 << 30, dc.sidelobe_db, dc.sidelobe_m,
+                   detectable=detectable_x,
+                   context=None if before is None or not before.positions.size
+                   else (before.positions, before.peak_db),
+                   coverage_pings=pings_x, coverage_fraction=fraction_x,
                    footprint=footprint if use_footprint else None,
                    point_threshold_db=dc.point_threshold_db,
                    extended_min_m3=dc.extended_min_m3)
+    if nb or na:        # contacts peaking in a neighbour's planes are that tile's
+        half = 0.5 * float(voxel_m)
+        table = table[(table["along_m"] >= axes[0][0] - half)
+                      & (table["along_m"] < axes[0][-1] + half)]
+    table = table[:dc.max_per_tile]
     t["detection"] = time.perf_counter() - t3
     return Products(
         method=bcfg.method, kernel_m=tuple(bcfg.kernel_m), kernel_voxels=kernel,
@@ -117,6 +201,10 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
                          "extended_min_m3": (np.nan if dc.extended_min_m3 is None
                                              else dc.extended_min_m3),
                          "coverage_used": pings is not None,
+                         "aperture_rule": aperture is not None,
+                         "seam_planes_before": nb, "seam_planes_after": na,
+                         "seam_context_contacts": (0 if before is None
+                                                   else int(before.peak_db.size)),
                          "coverage_whitening": bool(whiten and channels is not None),
                          "sidelobe_footprint_height_m": (
                              np.nan if footprint is None or not use_footprint
@@ -157,14 +245,58 @@ def tile_footprint(tile: Tile, hardware: Loaded[HardwareConfig],
     return footprint_for(cov.mean_height_m, hardware.value, imaging)
 
 
+class Seams:
+    """What a run's tiles pass on along the line, for products without seams: the last
+    tile saved, as the :class:`Before` of the next one (its index one higher, on the
+    same line). The streaming worker keeps one per run; a tile saved alone (a batch
+    task) has none."""
+
+    def __init__(self) -> None:
+        self.last: Before | None = None
+
+    def before_for(self, tile: Tile) -> Before | None:
+        b = self.last
+        if b is None or b.index != tile.grid.index - 1 or b.line != tile.line:
+            return None
+        return b
+
+    def remember(self, tile: Tile, prods: Products | None, planes: int) -> None:
+        if prods is None or planes < 1:
+            self.last = None
+            return
+        cov = tile.coverage
+        d = prods.detections
+        self.last = Before(
+            tile.grid.index, tile.line,
+            np.abs(tile.image[-planes:]).astype(np.float32),
+            None if cov is None else cov.channels[-planes:].copy(),
+            np.stack([d["along_m"], d["cross_m"], d["depth_m"]], axis=1).astype(np.float64),
+            np.asarray(d["peak_db"], dtype=np.float64))
+
+
+def tile_aperture(tile: Tile, footprint: Footprint | None) -> np.ndarray | None:
+    """The fraction of each voxel's synthetic aperture the tile's pings traversed (along
+    x depth; :func:`~svss_proc.imaging.coverage.aperture_fraction`), None without
+    coverage or footprint."""
+    cov = tile.coverage
+    if cov is None or footprint is None or not np.isfinite(cov.tx_along_min_m):
+        return None
+    return aperture_fraction(tile.grid.along, tile.grid.depth,
+                             (cov.tx_along_min_m, cov.tx_along_max_m), footprint.height_m,
+                             footprint.tan_half_angle)
+
+
 def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
-              processing: Loaded[ProcessingConfig]) -> list[Path]:
+              processing: Loaded[ProcessingConfig], seams: Seams | None = None
+              ) -> list[Path]:
     """Compute the products (when the processing configuration has a ``[products]``
     table) and write ``tile_NNNN.h5`` and ``tile_NNNN_mip.png`` into ``out_dir``;
     return the paths. Both are written under temporary names and renamed into place
     only when both are complete, the .h5 last (the commit point); on failure no final
     .h5 is created and
-    :class:`~svss_proc.tiles.TileFileError` names the file."""
+    :class:`~svss_proc.tiles.TileFileError` names the file. ``seams``: the run's
+    :class:`Seams` (the previous tile's last planes and contacts; this tile's are
+    remembered for the next)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     name = tile_name(tile.grid.index)
@@ -179,11 +311,17 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
     prods = None
     if pcfg is not None:
         cov = tile.coverage
+        fp = tile_footprint(tile, hardware, processing.value.imaging)
         prods = compute_products(tile.image, (g.along, g.cross, g.depth), voxel, pcfg,
                                  keep_volumes=pcfg.store_volumes,
                                  coverage=None if cov is None else (cov.pings, cov.channels),
-                                 footprint=tile_footprint(tile, hardware,
-                                                                  processing.value.imaging))
+                                 footprint=fp, aperture=tile_aperture(tile, fp),
+                                 before=(seams.before_for(tile) if seams is not None
+                                         and pcfg.background.across_seams else None),
+                                 after=tile.after if pcfg.background.across_seams else None)
+    if seams is not None:
+        seams.remember(tile, prods, 0 if pcfg is None
+                       else kernel_voxels(pcfg.background.kernel_m, voxel)[0] // 2)
     tmp_png = temporary_path(png)
     try:
         try:

@@ -166,7 +166,8 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
            coverage_pings: np.ndarray | None = None,
            coverage_fraction: np.ndarray | None = None,
            footprint: Footprint | None = None, point_threshold_db: float | None = None,
-           extended_min_m3: float | None = None) -> np.ndarray:
+           extended_min_m3: float | None = None,
+           context: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Contacts of a tile.
 
     ``level``: normalised level, dB re background (along x cross x depth; NaN never
@@ -176,8 +177,11 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
     coverage volumes, reported at each contact's peak; ``footprint``: sidelobe geometry
     (:func:`is_sidelobe`); ``point_threshold_db``: with it, a region (voxels at
     ``threshold_db`` or more) is a contact only when its peak reaches this level or
-    its volume is at least ``extended_min_m3`` (m^3; an extended object). Returns a
-    table of :data:`DTYPE` rows, strongest excess first.
+    its volume is at least ``extended_min_m3`` (m^3; an extended object);
+    ``context``: contacts outside the tile (positions (n, 3) in the tile frame, m; peak
+    magnitudes, dB re 1 uPa), e.g. the previous tile's: a contact that
+    :func:`is_sidelobe` of one of them is dropped as well. Returns a table of
+    :data:`DTYPE` rows, strongest excess first.
     """
     if level.shape != mag.shape or level.shape != background.shape:
         raise ValueError(f"shapes differ: level {level.shape}, magnitude {mag.shape}, "
@@ -244,6 +248,14 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
     not_sidelobe = sidelobe_filter(np.array([c["pos"] for c in merged]).reshape(-1, 3),
                                    np.array([c["peak_db"] for c in merged]), sidelobe_db,
                                    sidelobe_m, footprint)
+    if context is not None and len(context[1]) and len(merged):
+        for i, c in enumerate(merged):
+            if not_sidelobe[i] and any(
+                    is_sidelobe(c["pos"], c["peak_db"], p, q, sidelobe_db, sidelobe_m,
+                                footprint)
+                    for p, q in zip(np.asarray(context[0], dtype=np.float64).reshape(-1, 3),
+                                    np.asarray(context[1], dtype=np.float64))):
+                not_sidelobe[i] = False
     n_sidelobes = int((~not_sidelobe).sum())
     kept = sorted((c for c, k in zip(merged, not_sidelobe) if k), key=lambda c: -c["excess"])
     kept = kept[:max_detections]

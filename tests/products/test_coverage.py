@@ -137,3 +137,35 @@ def test_coverage_round_trips_and_old_tiles_still_read(imaged, hardware, tmp_pat
     old = read_tile(path)
     assert "coverage_pings" not in old
     np.testing.assert_array_equal(old["image"], t.image)
+
+
+def test_next_tiles_planes_handed_back_are_complete_and_aperture_fraction(imaged):
+    """Products without seams (docs/products.md, Seams): a tile is handed back with the
+    next tile's first planes only when they are complete, so they equal that tile's
+    final planes exactly; and the aperture fraction is 1 where the projector track
+    spans a voxel's whole aperture, and falls towards the track's ends."""
+    from svss_proc.imaging.coverage import aperture_fraction
+    from svss_proc.imaging.imager import seam_planes
+    tiles, proc = imaged
+    n = seam_planes(proc.value)
+    assert n == 30
+    by_index = {t.grid.index: t for t in tiles}
+    given = 0
+    for t in tiles:
+        nxt = by_index.get(t.grid.index + 1)
+        if t.after is None or nxt is None:
+            continue
+        mag, ch = t.after
+        np.testing.assert_array_equal(mag, np.abs(nxt.image[:n]).astype(np.float32))
+        np.testing.assert_array_equal(ch, nxt.coverage.channels[:n])
+        given += 1
+    assert given >= 2
+    c = tiles[len(tiles) // 2].coverage
+    along = np.linspace(c.tx_along_min_m - 2.0, c.tx_along_max_m + 2.0, 201)
+    f = aperture_fraction(along, np.array([0.0, 0.5]), (c.tx_along_min_m, c.tx_along_max_m),
+                          2.0, math.tan(math.radians(25.0)))
+    reach = 2.0 * math.tan(math.radians(25.0))
+    inner = (along - reach >= c.tx_along_min_m) & (along + reach <= c.tx_along_max_m)
+    np.testing.assert_allclose(f[inner, 0], 1.0)
+    assert np.all(np.diff(f[along <= c.tx_along_min_m, 0]) >= 0)
+    assert f[0, 0] == 0.0 and f[-1, 0] == 0.0
