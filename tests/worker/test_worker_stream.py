@@ -6,12 +6,10 @@ and restarted, and across two runs."""
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import signal
 import threading
 import time
-from pathlib import Path
 
 import pytest
 import zmq
