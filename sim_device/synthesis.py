@@ -21,17 +21,24 @@ s_bb(t) = s_a(t) exp(-j 2 pi f_c t) and remodulates. The baseband pulse occupies
 accurate to ~-90 dB; only the pulse's out-of-band edges (the taper's pedestal) are
 band-limited, as a real digitiser's anti-alias filter would.
 
-Pass 1 (:func:`transmit_legs`) evaluates every scatterer's transmit legs. Pass 2 has
-two implementations that form the same echoes: :func:`accumulate_fast` (the default:
-scatterer-parallel into per-thread complex64 buffers, the receive legs of one scatterer
-vectorised across channels; see the comment above it) and :func:`accumulate` (the
-reference: parallel over channels, so no two threads write the same buffer);
-:mod:`sim_device.synthesis_gpu` runs the fast path's pass 2 on a GPU. Geometry is in the
-tile frame (z down from the interface), float64.
+Pass 1 (:func:`transmit_kernel`) evaluates every scatterer's transmit legs. Pass 2 has
+two implementations that form the same echoes: :func:`accumulate_fast_kernel` (the
+default: scatterer-parallel into per-thread complex64 buffers, the receive legs of one
+scatterer vectorised across channels; see the comment above it) and
+:func:`accumulate_kernel` (the reference: parallel over channels, so no two threads write
+the same buffer); :mod:`sim_device.synthesis_gpu` runs pass 2 on a GPU. Geometry is in
+the tile frame (z down from the interface), float64.
+
+The kernels take the named bundles of :mod:`sim_device.synthesis_args` (scatterers,
+transmit legs, paths, medium, beam, window). :func:`transmit_legs`, :func:`accumulate`,
+:func:`accumulate_fast` and :func:`accumulate_fast_serial` take the same arrays and
+scalars one by one, in the order :class:`~sim_device.environment_source.EnvironmentSource`
+forms them, and make the bundles (:func:`~sim_device.synthesis_args.bundles`).
 
 The scalar functions of a leg are defined once, in :func:`build`, and compiled by the
 decorator it is given: ``njit(inline="always")`` here (the module-level names, used by
-the CPU kernels) and ``cuda.jit(device=True)`` in :mod:`sim_device.synthesis_gpu`.
+the CPU kernels) and ``cuda.jit(device=True)`` in :mod:`sim_device.synthesis_gpu`; so is
+the reference and GPU kernels' echo loop (:mod:`sim_device.echo_loop`).
 """
 
 from __future__ import annotations
@@ -44,21 +51,28 @@ import numba as nb
 import numpy as np
 import scipy.fft as sfft
 
-from svss_daq.conventions import ECHO_PHASE_SIGN, baseband_carrier, remodulation
+from svss_daq.conventions import baseband_carrier, remodulation
 from svss_daq.waveform import Waveform
 
-from . import layered_rays
-from .layered_rays import (  # noqa: F401 (ray_amplitude_terms: re-exported for tests)
-    TABLE_TRUSTED,
-    ray_amplitude_terms,
+from . import echo_loop, layered_rays
+from .layered_rays import TABLE_TRUSTED
+from .synthesis_args import (  # noqa: F401 (the column names: re-exported)
+    IMG_DIR,
+    IMG_H,
+    IMG_NB,
+    IMG_RS,
+    IMG_X,
+    IMG_Y,
+    MED_INTERFACE,
+    Beam,
+    Medium,
+    Points,
+    TransmitLegs,
+    bundles,
 )
 
-#: columns of an element-image row: x, y (m), height above the interface (m), direction
-#: (+1: leaves the element downwards), the surface factor R_s^n_s, seabed bounces n_b
-IMG_X, IMG_Y, IMG_H, IMG_DIR, IMG_RS, IMG_NB = range(6)
-
-#: scatterer medium code of interface scatterers (media >= 0 are volume/point scatterers)
-MED_INTERFACE = -1
+#: the ray amplitude terms of :mod:`sim_device.layered_rays`, re-exported for tests
+ray_amplitude_terms = layered_rays.ray_amplitude_terms
 
 #: samples of margin on each side of the window kept in the baseband buffer
 _MARGIN = 4
@@ -135,19 +149,11 @@ def build(jit_inline, rays):
         return p, tau, spread, g0, att
 
     @jit_inline
-    def leg(ex, ey, height, direction, f_surf, n_b, x, y, z, med, up, c, rho_m, delta, alpha,
-            z_top, tab, r_top, r_bot, bore, g_front, g_back, lo_front, lo_back, hbuf, cbuf):
-        """One leg between an element image (ex, ey, height above the interface, direction,
-        surface factor R_s^n_s, seabed bounces n_b) and a scatterer (x, y, z, medium
-        ``med``; -1: on the interface).
-
-        ``up``: the leg carries the scattered wave up to a receiver (transmission 1 - R and
-        spreading from a source in the scatterer's medium) rather than down from the
-        projector. ``r_top``/``r_bot``: tables over cos(grazing) in [0, 1] of the interface's
-        reflection coefficient and of its coherent (Eckart) value for seabed bounces.
-        Returns (delay s, complex amplitude factor, cos of the grazing angle at the interface);
-        the amplitude is 0 where the element's beam does not see the leg.
-        """
+    def leg_body(ex, ey, height, direction, f_surf, n_b, x, y, z, med, up, c, rho_m, delta,
+                 alpha, z_top, tab, r_top, r_bot, bore, g_front, g_back, lo_front, lo_back,
+                 hbuf, cbuf):
+        """:func:`leg` with the medium's and the beam's arrays one by one, for the CPU
+        kernels' loops: they unpack their bundles once, at the top, and call this."""
         dx = x - ex
         dy = y - ey
         rho = math.sqrt(dx * dx + dy * dy)
@@ -202,6 +208,29 @@ def build(jit_inline, rays):
         return tau, amp, sinp
 
     @jit_inline
+    def leg(ex, ey, height, direction, f_surf, n_b, x, y, z, med, up, medium, beam, hbuf,
+            cbuf):
+        """One leg between an element image (ex, ey, height above the interface, direction,
+        surface factor R_s^n_s, seabed bounces n_b) and a scatterer (x, y, z, medium
+        ``med``; -1: on the interface), through ``medium`` (a
+        :class:`~sim_device.synthesis_args.Medium`) and the element's ``beam`` (a
+        :class:`~sim_device.synthesis_args.Beam`); ``hbuf``, ``cbuf``: the ray solver's
+        scratch arrays.
+
+        ``up``: the leg carries the scattered wave up to a receiver (transmission 1 - R and
+        spreading from a source in the scatterer's medium) rather than down from the
+        projector. ``r_top``/``r_bot`` of the medium: tables over cos(grazing) in [0, 1] of
+        the interface's reflection coefficient and of its coherent (Eckart) value for
+        seabed bounces. Returns (delay s, complex amplitude factor, cos of the grazing angle
+        at the interface); the amplitude is 0 where the element's beam does not see the leg.
+        The body is :func:`leg_body` (the CPU kernels call it with their unpacked arrays).
+        """
+        return leg_body(ex, ey, height, direction, f_surf, n_b, x, y, z, med, up, medium.c,
+                        medium.rho, medium.delta, medium.alpha, medium.z_top, medium.tab,
+                        medium.r_top, medium.r_bot, beam.bore, beam.front, beam.back,
+                        beam.lo_front, beam.lo_back, hbuf, cbuf)
+
+    @jit_inline
     def cis_cycles32(x):
         """(cos, sin) of 2 pi x as :func:`cis_cycles`, to float32 accuracy (error < 3e-8):
         x reduced in float64 (the delay-phase product is large), the rest shorter series."""
@@ -223,8 +252,9 @@ def build(jit_inline, rays):
                 wp1 * w * wm1 / 6.0)
 
     return SimpleNamespace(_interp=_interp, cis_cycles=cis_cycles, gain=gain,
-                           two_medium_terms=two_medium_terms, leg=leg,
-                           cis_cycles32=cis_cycles32, lagrange4=lagrange4)
+                           two_medium_terms=two_medium_terms, leg=leg, leg_body=leg_body,
+                           cis_cycles32=cis_cycles32,
+                           lagrange4=lagrange4)
 
 
 _cpu = build(nb.njit(cache=True, inline="always"), layered_rays._cpu)
@@ -233,16 +263,40 @@ cis_cycles = _cpu.cis_cycles
 gain = _cpu.gain
 two_medium_terms = _cpu.two_medium_terms
 leg = _cpu.leg
+leg_body = _cpu.leg_body
 cis_cycles32 = _cpu.cis_cycles32
 lagrange4 = _cpu.lagrange4
 
 
+@nb.njit(cache=True, inline="always")
+def _deposit(buf, ch, i1, e, w0, w1, w2, w3):
+    """One echo into the reference kernel's complex buffer (channel, sample)."""
+    buf[ch, i1 - 1] += e * w0
+    buf[ch, i1] += e * w1
+    buf[ch, i1 + 1] += e * w2
+    buf[ch, i1 + 2] += e * w3
+
+
+_echo = echo_loop.build(nb.njit(cache=True, inline="always"), _cpu, cis_cycles, _deposit)
+receive_needed = _echo.receive_needed
+path_kept = _echo.path_kept
+_fastest = _echo.fastest
+_image_echoes = _echo.image_echoes
+
+
 @nb.njit(parallel=True, cache=True)
-def transmit_legs(sx, sy, sz, smed, samp, img, c, rho_m, delta, alpha, z_top, tab, r_top,
-                  r_bot, bore, g_front, g_back, lo_front, lo_back, sig, tau_out, amp_out):
-    """Pass 1: every scatterer's transmit legs, one per projector image (rows of
-    ``img``). ``samp``: scatterer strengths (source level, xi, sqrt(sigma dV) or the
-    point's amplitude); ``sig``: sigma^(1/4) of the interface over cos(grazing)."""
+def transmit_kernel(pts, samp, img, medium, beam, out):
+    """Pass 1: every scatterer's transmit legs (``pts``: :class:`Points`), one per
+    projector image (rows of ``img``), into ``out`` (:class:`TransmitLegs`). ``samp``:
+    scatterer strengths (source level, xi, sqrt(sigma dV) or the point's amplitude);
+    ``medium.sig``: sigma^(1/4) of the interface over cos(grazing)."""
+    # the bundles unpacked here, outside the loops (docs/simulator.md, "Bundled kernels
+    # and speed"); the outputs as locals: numba's parallel loops do not write through a
+    # tuple's arrays
+    sx, sy, sz, smed = pts
+    c, rho_m, delta, alpha, z_top, tab, r_top, r_bot, sig = medium
+    bore, g_front, g_back, lo_front, lo_back = beam
+    tau_out, amp_out = out
     ns = sx.size
     nt = img.shape[0]
     nmed = c.size
@@ -252,45 +306,58 @@ def transmit_legs(sx, sy, sz, smed, samp, img, c, rho_m, delta, alpha, z_top, ta
         cbuf = np.empty(2)
         for k in range(b * chunk, min(ns, (b + 1) * chunk)):
             for m in range(nt):
-                tau, a, cg = leg(img[m, IMG_X], img[m, IMG_Y], img[m, IMG_H],
-                                 img[m, IMG_DIR], img[m, IMG_RS], int(img[m, IMG_NB]),
-                                 sx[k], sy[k], sz[k], smed[k], False, c, rho_m, delta,
-                                 alpha, z_top, tab, r_top, r_bot, bore, g_front,
-                                 g_back, lo_front, lo_back, hbuf, cbuf)
+                tau, a, cg = leg_body(img[m, IMG_X], img[m, IMG_Y], img[m, IMG_H],
+                                      img[m, IMG_DIR], img[m, IMG_RS], int(img[m, IMG_NB]),
+                                      sx[k], sy[k], sz[k], smed[k], False, c, rho_m, delta,
+                                      alpha, z_top, tab, r_top, r_bot, bore, g_front,
+                                      g_back, lo_front, lo_back, hbuf, cbuf)
                 if smed[k] == MED_INTERFACE and a != 0.0:
                     a *= _interp(sig, cg)
                 tau_out[k, m] = tau
                 amp_out[k, m] = a * samp[k]
 
 
+def transmit_legs(sx, sy, sz, smed, samp, img, c, rho_m, delta, alpha, z_top, tab, r_top,
+                  r_bot, bore, g_front, g_back, lo_front, lo_back, sig, tau_out, amp_out):
+    """:func:`transmit_kernel` of the arrays and scalars in the order
+    :class:`~sim_device.environment_source.EnvironmentSource` forms them."""
+    transmit_kernel(Points(sx, sy, sz, smed), samp, img,
+                    Medium(c, rho_m, delta, alpha, z_top, tab, r_top, r_bot, sig),
+                    Beam(bore, g_front, g_back, float(lo_front), float(lo_back)),
+                    TransmitLegs(tau_out, amp_out))
+
+
 @nb.njit(parallel=True, cache=True)
-def accumulate(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delta, alpha, z_top,
-               tab, r_top, r_bot, bore, g_front, g_back, lo_front, lo_back, sig, fc, t_lo,
-               t_hi, t_buf0, fs, buf):
+def accumulate_kernel(pts, legs_t, paths, medium, beam, win, buf):
     """Pass 2: for each channel (in parallel), every scatterer's receive legs (rows
-    img[ch]) combined with its transmit legs where ``allowed[a, b]``; echoes with delay
-    in (t_lo, t_hi) are added to ``buf[ch]`` (complex baseband, sample 0 at t_buf0,
-    rate fs) as A exp(-j 2 pi fc tau) at their fractional delay (cubic Lagrange).
-    Returns the number of echoes added per channel."""
+    ``paths.img[ch]``) combined with its transmit legs (``legs_t``) on the kept paths;
+    echoes with delay in (t_lo, t_hi) of ``win`` are added to ``buf[ch]`` (complex
+    baseband, sample 0 at ``win.t_buf0``, rate ``win.fs``) as A exp(-j 2 pi fc tau) at
+    their fractional delay (cubic Lagrange): :mod:`sim_device.echo_loop`'s loop, as on
+    the GPU. Returns the number of echoes added per channel."""
+    # the bundles unpacked here, outside the loops (docs/simulator.md, "Bundled kernels
+    # and speed")
+    sx, sy, sz, smed = pts
+    tau_t, amp_t = legs_t
+    img, allowed, zmax = paths
+    c, rho_m, delta, alpha, z_top, tab, r_top, r_bot, sig = medium
+    bore, g_front, g_back, lo_front, lo_back = beam
     nch = img.shape[0]
     nr = img.shape[1]
     nt = tau_t.shape[1]
     ns = sx.size
     nmed = c.size
-    cmax = 0.0
-    for i in range(nmed):
-        cmax = max(cmax, c[i])
-    # per scatterer: earliest transmit delay and the receive images some kept path needs
+    cmax = _fastest(c)
+    # per scatterer, once for all channels: earliest transmit delay and the receive
+    # images some kept path needs
     tmin = np.full(ns, math.inf)
     need = np.zeros((ns, nr), dtype=np.bool_)
     for k in range(ns):
         for a in range(nt):
             if amp_t[k, a] != 0.0:
                 tmin[k] = min(tmin[k], tau_t[k, a])
-                for b in range(nr):
-                    if allowed[a, b]:
-                        need[k, b] = True
-    sign = ECHO_PHASE_SIGN * fc
+        for b in range(nr):
+            need[k, b] = receive_needed(amp_t, allowed, zmax, k, b, sz[k])
     counts = np.zeros(nch, dtype=np.int64)
     for ch in nb.prange(nch):
         hbuf = np.empty(nmed + 1)
@@ -300,45 +367,26 @@ def accumulate(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delta, al
             if tmin[k] == math.inf:
                 continue
             for b in range(nr):
-                if not need[k, b]:
-                    continue
-                ex = img[ch, b, IMG_X]
-                ey = img[ch, b, IMG_Y]
-                hh = img[ch, b, IMG_H]
-                # the straight line at the fastest speed bounds the receive delay
-                dz = hh + max(sz[k], 0.0)
-                dmin = math.sqrt((sx[k] - ex) ** 2 + (sy[k] - ey) ** 2 + dz * dz)
-                if tmin[k] + dmin / cmax >= t_hi:
-                    continue
-                tau_r, a_r, cg = leg(ex, ey, hh, img[ch, b, IMG_DIR], img[ch, b, IMG_RS],
-                                     int(img[ch, b, IMG_NB]), sx[k], sy[k], sz[k], smed[k],
-                                     True, c, rho_m, delta, alpha, z_top, tab, r_top, r_bot,
-                                     bore, g_front, g_back, lo_front, lo_back, hbuf, cbuf)
-                if a_r == 0.0:
-                    continue
-                if smed[k] == MED_INTERFACE:
-                    a_r *= _interp(sig, cg)
-                for a in range(nt):
-                    if not allowed[a, b]:
-                        continue
-                    a_t = amp_t[k, a]
-                    if a_t == 0.0:
-                        continue
-                    tau = tau_t[k, a] + tau_r
-                    if tau <= t_lo or tau >= t_hi:
-                        continue
-                    co, si = cis_cycles(sign * tau)
-                    amp = a_t * a_r * complex(co, si)
-                    u = (tau - t_buf0) * fs
-                    i1 = int(u)
-                    w0, w1, w2, w3 = lagrange4(u - i1)
-                    buf[ch, i1 - 1] += amp * w0
-                    buf[ch, i1] += amp * w1
-                    buf[ch, i1 + 1] += amp * w2
-                    buf[ch, i1 + 2] += amp * w3
-                    n_add += 1
+                if need[k, b]:
+                    n_add += _image_echoes(k, ch, b, (sx[k], sy[k], sz[k], smed[k]),
+                                           tmin[k], img, tau_t, amp_t, allowed, zmax, c,
+                                           rho_m, delta, alpha, z_top, tab, r_top, r_bot,
+                                           sig, bore, g_front, g_back, lo_front, lo_back,
+                                           win, cmax, hbuf, cbuf, buf)
         counts[ch] = n_add
     return counts
+
+
+def accumulate(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delta, alpha, z_top,
+               tab, r_top, r_bot, bore, g_front, g_back, lo_front, lo_back, sig, fc, t_lo,
+               t_hi, t_buf0, fs, buf):
+    """:func:`accumulate_kernel` of the arrays and scalars in the order
+    :class:`~sim_device.environment_source.EnvironmentSource` forms them (every path to
+    any depth)."""
+    return accumulate_kernel(*bundles(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c,
+                                      rho_m, delta, alpha, z_top, tab, r_top, r_bot, bore,
+                                      g_front, g_back, lo_front, lo_back, sig, fc, t_lo,
+                                      t_hi, t_buf0, fs), buf)
 
 
 #: the simulated digitiser's anti-alias filter: raised-cosine low-pass from
@@ -418,19 +466,27 @@ class PulseSynthesiser:
 
 # ------------------------------------------------------------------- fast accumulation
 #
-# The reference pass 2 (:func:`accumulate`) runs channels in parallel and, for each
-# channel, every scatterer: the scatterer arrays are streamed once per channel and the
+# The reference pass 2 (:func:`accumulate_kernel`) runs channels in parallel and, for
+# each channel, every scatterer through the echo loop of :mod:`sim_device.echo_loop` (the
+# GPU kernel's loop): the scatterer arrays are streamed once per channel and the
 # per-scatterer bookkeeping (earliest transmit delay, receive images needed) is kept in
-# ping-sized arrays. :func:`accumulate_fast` turns the loops round: threads take
+# ping-sized arrays. :func:`accumulate_fast_kernel` turns the loops round: threads take
 # interleaved chunks of scatterers; for each scatterer the bookkeeping is done once, each
-# receive image's legs are evaluated for all channels in one inner loop (the same
-# :func:`leg` as the reference, element-image rows transposed so the channel loop reads
-# contiguous memory), then every kept transmit image's echoes for all channels are
-# formed and added to the thread's own complex64 buffer, laid out (sample, channel) so
-# that one scatterer's echoes on neighbouring channels land in neighbouring memory. The
-# threads' buffers are summed at the end. The echoes and their delays, amplitudes and
-# phases are those of the reference to float64 rounding; only the accumulation is
+# receive image's legs are evaluated for all channels in one inner loop (the reference's
+# scalar leg, :func:`leg_body`, where the vectorised forms do not apply; element-image
+# rows transposed so the channel loop reads contiguous memory), then every kept transmit
+# image's echoes for all channels are formed and added to the thread's own complex64
+# buffer, laid out (sample, channel) so that one scatterer's echoes on neighbouring
+# channels land in neighbouring memory. The threads' buffers are summed at the end. It
+# does not share the echo loop: a loop over one channel's echoes cannot be vectorised
+# across channels, which is this kernel's speed. The echoes and their delays, amplitudes
+# and phases are those of the reference to float64 rounding; only the accumulation is
 # float32 (complex64), so the two paths agree to float32 rounding.
+#
+# Every kernel unpacks its bundles at its top and its loops see plain arrays only: a
+# bundle passed on into the functions the loops call costs an atomic reference count per
+# array per call and the loop unswitching LLVM does otherwise (docs/simulator.md,
+# "Bundled kernels and speed").
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", inline="always")
@@ -615,16 +671,23 @@ def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tab, rt_re, rt_im, rb_re, rb
 
 
 @nb.njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
-def accumulate_fast(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delta, alpha,
-                    z_top, tab, r_top, r_bot, bore, g_front, g_back, lo_front, lo_back, sig,
-                    fc, t_lo, t_hi, t_buf0, fs, n_buf, n_blocks, zmax):
-    """Pass 2 as :func:`accumulate` (same echoes, same delays, amplitudes and phases to
-    float64 rounding), scatterer-parallel into per-thread complex64 buffers (module
-    comment above).
+def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_blocks):
+    """Pass 2 as :func:`accumulate_kernel` (same echoes, same delays, amplitudes and
+    phases to float64 rounding), scatterer-parallel into per-thread complex64 buffers
+    (module comment above).
 
-    ``zmax[a, b]``: deepest scatterer (m below the interface) for which path (a, b) is
-    synthesised (``inf``: all; the level cut-off of :mod:`sim_device.fidelity`).
-    Returns (buffer (n_channels, n_buf) complex128, echoes added per block)."""
+    ``paths.zmax[a, b]``: deepest scatterer (m below the interface) for which path (a, b)
+    is synthesised (finite: the kernel is compiled with fastmath; the level cut-off of
+    :mod:`sim_device.fidelity`). Returns (buffer (n_channels, n_buf) complex128, echoes
+    added per block)."""
+    # the bundles unpacked here, outside the loops, which see plain arrays only
+    # (docs/simulator.md, "Bundled kernels and speed")
+    sx, sy, sz, smed = pts
+    tau_t, amp_t = legs_t
+    img, allowed, zmax = paths
+    c, rho_m, delta, alpha, z_top, tab, r_top, r_bot, sig = medium
+    bore, g_front, g_back, lo_front, lo_back = beam
+    sign, t_lo, t_hi, t_buf0, fs = win
     nch = img.shape[0]
     nr = img.shape[1]
     nt = tau_t.shape[1]
@@ -640,7 +703,6 @@ def accumulate_fast(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delt
     rt_im = np.ascontiguousarray(r_top.imag)
     rb_re = np.ascontiguousarray(r_bot.real)
     rb_im = np.ascontiguousarray(r_bot.imag)
-    sign = ECHO_PHASE_SIGN * fc
     bufs = np.zeros((n_blocks, n_buf, nch), dtype=np.complex64)
     counts = np.zeros(n_blocks, dtype=np.int64)
     chunk = 64
@@ -687,7 +749,7 @@ def accumulate_fast(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delt
                         for ch in range(nch):
                             if not fix[ch]:
                                 continue
-                            tau_r, a_r, cg = leg(
+                            tau_r, a_r, cg = leg_body(
                                 imt[b, IMG_X, ch], imt[b, IMG_Y, ch], imt[b, IMG_H, ch],
                                 imt[b, IMG_DIR, ch], imt[b, IMG_RS, ch],
                                 int(imt[b, IMG_NB, ch]), xk, yk, zk, mk, True, c, rho_m,
@@ -757,10 +819,34 @@ def _renamed(func, name):
     return f
 
 
-#: :func:`accumulate_fast` compiled without threads, for pings with few scatterers (a
-#: scene of points in water): a parallel region's start costs more than their echoes
-accumulate_fast_serial = nb.njit(cache=True, fastmath=True, error_model="numpy")(
-    _renamed(accumulate_fast.py_func, "accumulate_fast_serial"))
+#: :func:`accumulate_fast_kernel` compiled without threads, for pings with few scatterers
+#: (a scene of points in water): a parallel region's start costs more than their echoes
+accumulate_fast_serial_kernel = nb.njit(cache=True, fastmath=True, error_model="numpy")(
+    _renamed(accumulate_fast_kernel.py_func, "accumulate_fast_serial_kernel"))
+
+
+def accumulate_fast(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delta, alpha,
+                    z_top, tab, r_top, r_bot, bore, g_front, g_back, lo_front, lo_back, sig,
+                    fc, t_lo, t_hi, t_buf0, fs, n_buf, n_blocks, zmax):
+    """:func:`accumulate_fast_kernel` of the arrays and scalars in the order
+    :class:`~sim_device.environment_source.EnvironmentSource` forms them."""
+    return accumulate_fast_kernel(*bundles(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c,
+                                           rho_m, delta, alpha, z_top, tab, r_top, r_bot,
+                                           bore, g_front, g_back, lo_front, lo_back, sig,
+                                           fc, t_lo, t_hi, t_buf0, fs, zmax),
+                                  n_buf, n_blocks)
+
+
+def accumulate_fast_serial(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delta,
+                           alpha, z_top, tab, r_top, r_bot, bore, g_front, g_back, lo_front,
+                           lo_back, sig, fc, t_lo, t_hi, t_buf0, fs, n_buf, n_blocks, zmax):
+    """:func:`accumulate_fast` without threads (:data:`SERIAL_BELOW`)."""
+    return accumulate_fast_serial_kernel(*bundles(sx, sy, sz, smed, tau_t, amp_t, img,
+                                                  allowed, c, rho_m, delta, alpha, z_top,
+                                                  tab, r_top, r_bot, bore, g_front, g_back,
+                                                  lo_front, lo_back, sig, fc, t_lo, t_hi,
+                                                  t_buf0, fs, zmax),
+                                         n_buf, n_blocks)
 
 #: below this many scatterers in view the serial kernel is used
 SERIAL_BELOW = 2048
