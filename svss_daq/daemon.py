@@ -348,6 +348,8 @@ class AcquisitionDaemon:
         ``wait_subscribers``, first wait (up to ``pairing.start_timeout_s``) for that many
         subscribers to the ping stream."""
         self.bind()
+        from .nav.kalman import warm_up
+        warm_up()                    # the navigation filter compiled before the sonar pings
         if wait_subscribers:
             self.publisher.wait_for_subscribers(
                 wait_subscribers, self.setup.acquire.pairing.start_timeout_s)

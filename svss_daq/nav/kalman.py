@@ -24,7 +24,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-__all__ = ["filter_smooth"]
+__all__ = ["filter_smooth", "warm_up"]
 
 
 @nb.njit(cache=True)
@@ -141,3 +141,13 @@ def filter_smooth(x0, p0, u, f01, f11, qp, qc, measurements, smooth: bool = True
                np.ascontiguousarray(m_step[order], dtype=np.int64), f(m_h0[order]),
                f(m_h1[order]), f(m_z[order]), f(m_r[order]), bool(smooth))
     return out if predicted else out[:2]
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the filter before it is needed: the daemon
+    calls this before it starts the sonar, so that a first run's compile (seconds) never
+    stalls the posing of the first pings (a cold cache once held navigation records
+    back 12 s, and the first 50 pings of the demo were posed on held navigation)."""
+    z = np.zeros(1)
+    filter_smooth(np.zeros(2), np.eye(2), z, z, np.ones(1), z, z,
+                  (np.array([1]), np.ones(1), z, z, np.ones(1)), smooth=True)

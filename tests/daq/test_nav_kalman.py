@@ -270,3 +270,46 @@ def test_altitude_noise_is_smoothed_by_the_dvl_vertical_velocity(cfg):
     print(f"altitude within apertures: fused {vert.max() * 1e3:.1f} mm rms (max), "
           f"one ensemble's own {np.std(raw_err) * 1e3:.1f} mm rms")
     assert np.std(raw_err) > 0.007 and vert.max() < 0.004
+
+
+WARM_SCRIPT = """
+import sys
+import numpy as np
+from numba.core import event
+from svss_daq.nav.kalman import filter_smooth, warm_up
+if sys.argv[1] == "warm":
+    warm_up()
+compiled = []
+class Seen(event.Listener):
+    def on_start(self, ev):
+        compiled.append(ev.data["dispatcher"].py_func.__name__)
+    def on_end(self, ev):
+        pass
+event.register("numba:compile", Seen())
+k = 50                                    # a realistic call: 50 grid points, 3 fixes
+filter_smooth(np.zeros(2), np.eye(2) * 4.0, np.full(k - 1, 0.1), np.full(k - 1, 0.1),
+              np.ones(k - 1), np.full(k - 1, 1e-4), np.full(k - 1, 1e-4),
+              ([0, 20, 49], [1.0, 1.0, 1.0], [0.0, 0.0, 0.0], [0.1, 2.0, 5.0],
+               [0.09, 0.09, 0.09]), smooth=False)
+print("COMPILED", compiled)
+"""
+
+
+@pytest.mark.parametrize("warm", ["warm", pytest.param("cold", marks=pytest.mark.extended)])
+def test_warm_up_compiles_what_the_daemon_calls_before_the_sonar_starts(warm, tmp_path):
+    """The daemon calls warm_up() before it starts the sonar (daemon.start): with an empty
+    numba cache, the filter's first real call must then compile nothing (a compile there
+    once held the first pings' navigation back 12 s); without the warm-up it does."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cold-cache"),
+           "PYTHONPATH": os.pathsep.join([str(root)] + [p for p in [
+               os.environ.get("PYTHONPATH")] if p])}
+    res = subprocess.run([sys.executable, "-c", WARM_SCRIPT, warm], cwd=root, env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    line = [ln for ln in res.stdout.splitlines() if ln.startswith("COMPILED")][0]
+    assert ("_run" in line) == (warm == "cold"), line
