@@ -38,6 +38,7 @@ from svss_daq.progress import Progress
 from svss_daq.signals import raise_if_stopped, stop_once
 from svss_daq.subscriber import subscribe
 
+from .imaging.imager import PingAccumulator
 from .folder_lock import FolderLock
 from .preflight import preflight
 from .run_folder import MANIFEST, atomic_json, prepare_output_dir, read_journal, run_folder_name
@@ -695,6 +696,9 @@ def serve(endpoint: str, out_dir: str | Path, hardware: Loaded[HardwareConfig],
                           max_sequence_jump=max_sequence_jump,
                           progress_interval_s=progress_interval_s,
                           max_listed_gaps=max_listed_gaps)
+        # the imaging kernel compiled before the worker subscribes and speaks to the
+        # service: a first run's compile would otherwise leave it silent at its first ping
+        PingAccumulator(hardware, processing.value).warm_up()
         sock = subscribe(endpoint, receive_hwm, curve=curve)
         log.info("worker: waiting for pings from %s%s", endpoint,
                  f" (catch-up service {service})" if service else "")

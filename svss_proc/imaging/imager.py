@@ -31,7 +31,7 @@ from .coverage import Coverage
 from .cpu_kernel import run_ping
 from .delays import TravelTimeTable, build_table
 from .grid import tile_grid
-from .kernel_args import DelayModel, ImageSlice, PingArray, prepare
+from .kernel_args import DelayModel, ImageSlice, PingArray, VoxelAxes, prepare
 from .pose_check import check_pose_flags
 from .schedule import PingStep, TileSchedule
 
@@ -132,6 +132,29 @@ class PingAccumulator:
                 n = int(entry[1].copy_to_host()[0])      # waits for the tile's kernels
                 entry[0].updates += n
                 self._updates += n
+
+    def warm_up(self) -> None:
+        """Compile this setting's imaging kernel (or load it from numba's cache) on a
+        one-voxel problem, before pings come: a worker that compiles at its first ping
+        is silent for tens of seconds on a first run (the daemon, not hearing from it
+        for ``service.worker_silence_s``, once closed its catch-up service before the
+        worker could confirm the run's end)."""
+        im, geo = self._proc.imaging, self._geometry
+        axis = self._conditioner.output_axis()
+        cond = Conditioned(np.zeros((geo.receivers.shape[0], axis.n), dtype=np.complex128),
+                           axis, self._conditioner.fc)
+        kd = prepare(cond, im.interpolation, self._dtype)
+        tx = np.array([0.0, 0.0, -2.0])
+        rx = tx + geo.receivers - geo.projectors[0]
+        delays = DelayModel(im.delays, im.water_sound_speed_m_s, im.sediment_sound_speed_m_s,
+                            self.travel_table(tx, rx, 1.0) if im.delays == "table" else None)
+        out = ImageSlice(self._zeros((2, 2, 2), dtype=self._dtype),    # (not 1: a 1-voxel
+                         self._zeros((2, 2, 2), dtype=self._dtype),    # axis is also F order)
+                         VoxelAxes(np.zeros(2), np.zeros(2), np.array([0.4, 0.5])), 0, 2)
+        self.kernel(out, kd, PingArray(tx, rx, np.array([0.0, 0.0, 1.0]),
+                                       math.cos(geo.projector_half_angle),
+                                       math.cos(geo.receiver_half_angle), self._apod),
+                    delays, gating=im.beam_gating)
 
     def condition(self, ping: Ping) -> Conditioned:
         """The ping's analytic signal at its arrival times (its channels)."""

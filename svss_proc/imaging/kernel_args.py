@@ -314,8 +314,12 @@ def depth_table(table: TravelTimeTable, depth: np.ndarray) -> tuple[np.ndarray, 
     v = np.clip((depth.astype(np.float64) - table.z0) * (1.0 / table.dz), 0.0, n_z - 1.001)
     j = v.astype(np.int64)
     b = v - j
-    tz = ((1 - b) * table.time[:, j] + b * table.time[:, j + 1]).astype(depth.dtype)
-    ez = ((1 - b) * table.eta[:, j] + b * table.eta[:, j + 1]).astype(depth.dtype)
+    # C order, depth fastest (numpy's fancy indexing along axis 1 gives Fortran order:
+    # a second kernel specialisation, and strided reads for the GPU's neighbouring depths)
+    tz = np.ascontiguousarray((1 - b) * table.time[:, j] + b * table.time[:, j + 1],
+                              dtype=depth.dtype)
+    ez = np.ascontiguousarray((1 - b) * table.eta[:, j] + b * table.eta[:, j + 1],
+                              dtype=depth.dtype)
     if len(_DEPTH_TABLES) >= 32:
         _DEPTH_TABLES.clear()
     _DEPTH_TABLES[key] = (table, tz, ez)
