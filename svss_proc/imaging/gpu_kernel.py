@@ -17,7 +17,7 @@ imager reads once per tile, so that no ping waits for its kernel (``count=``). W
 table delays the kernel reads the table already interpolated at the tile's voxel depths
 (:func:`~svss_proc.imaging.kernel_args.depth_table`, uploaded once per table): per
 channel a linear look-up in offset, in the kernel precision, from neighbouring addresses
-for neighbouring threads.
+for neighbouring threads (the table is C order, depth fastest).
 Float32 planes keep every operation in float32 (:func:`~svss_proc.imaging.kernel_math.kernel_one`).
 """
 
