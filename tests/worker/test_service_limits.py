@@ -181,12 +181,18 @@ def test_a_busy_service_is_asked_again(raw_run):
             assert [p.sequence for p in pings] == list(range(10)) and missing == []
             assert f.busy >= 1 and svc.busy >= 1 and svc.stalled == 1
             assert STALL_S * 0.9 < dt < 20
-        with PingFetcher(svc.endpoint, timeout_s=0.5) as f:
-            svc_s = _stuck_client(ctx, svc.endpoint, 1)
-            _wait_for(lambda: svc.clients == 1, 30, "a second stuck client served")
-            f.timeout_s = 0.3                        # busy for longer than the client waits
-            with pytest.raises(ServiceError, match="still busy"):
-                f.fetch_once("line1", 0, 9)
-            svc_s.close(linger=0)
         s.close(linger=0)
         assert svc.pings_served >= 10
+    # busy for longer than the client waits: a service that keeps a stuck client's reply
+    # for a minute (with STALL_S it could let it go before the fetch on a loaded machine,
+    # and the fetch was then answered: seen once in a fresh-venv suite)
+    with RawRunStore([raw_run]) as store, \
+            PingService("tcp://127.0.0.1:*", store, max_clients=1, client_queue=4,
+                        stall_s=60.0) as svc, zmq.Context() as ctx:
+        stuck = _stuck_client(ctx, svc.endpoint, 1)
+        _wait_for(lambda: svc.clients == 1, 30, "the stuck client served")
+        with PingFetcher(svc.endpoint, timeout_s=0.3) as f:
+            with pytest.raises(ServiceError, match="still busy"):
+                f.fetch_once("line1", 0, 9)
+        assert svc.busy >= 1
+        stuck.close(linger=0)
