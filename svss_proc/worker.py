@@ -696,10 +696,13 @@ def serve(endpoint: str, out_dir: str | Path, hardware: Loaded[HardwareConfig],
                           max_sequence_jump=max_sequence_jump,
                           progress_interval_s=progress_interval_s,
                           max_listed_gaps=max_listed_gaps)
-        # the imaging kernel compiled before the worker subscribes and speaks to the
-        # service: a first run's compile would otherwise leave it silent at its first ping
-        PingAccumulator(hardware, processing.value).warm_up()
         sock = subscribe(endpoint, receive_hwm, curve=curve)
+        # the imaging kernel compiled once subscribed (a daemon waiting for its subscriber
+        # starts the sonar; the pings queue meanwhile) and before the worker speaks to the
+        # service: a first run's compile at the first ping left it silent past the
+        # daemon's service.worker_silence_s. (Before subscribing, the daemon's 10 s wait
+        # for a subscriber ran out during it on a cold cache.)
+        PingAccumulator(hardware, processing.value).warm_up()
         log.info("worker: waiting for pings from %s%s", endpoint,
                  f" (catch-up service {service})" if service else "")
         try:
