@@ -75,8 +75,7 @@ from svss_daq.ping_gate import PingGate, PingRejected  # noqa: E402
 from svss_daq.rawfile import RawRunReader  # noqa: E402
 from svss_proc.imaging.imager import TileImager  # noqa: E402
 from svss_proc.imaging.schedule import along_reach, ping_frame  # noqa: E402
-from svss_proc.imaging.kernel_args import (DelayModel, ImageSlice, PingArray,  # noqa: E402
-                                          VoxelAxes, prepare)
+from svss_proc.imaging.kernel_args import ImageSlice, VoxelAxes, prepare  # noqa: E402
 from svss.demo import stop_process  # noqa: E402
 
 log = logging.getLogger("bench_focus")
@@ -340,15 +339,10 @@ class Focus:
             ia = np.flatnonzero((along >= tx[0] - reach) & (along <= tx[0] + reach))
             if not ia.size:
                 continue
-            delays = DelayModel(im.delays, im.water_sound_speed_m_s,
-                                im.sediment_sound_speed_m_s,
-                                acc.travel_table(tx, rx, reach) if im.delays == "table"
-                                else None)
+            array, delays = acc.ping_inputs(tx, rx, bore, reach)
             acc.kernel(ImageSlice(re_, im_, VoxelAxes(along, cross, depth), int(ia[0]),
-                                  int(ia[-1]) + 1), kd,
-                       PingArray(tx, rx, bore, math.cos(geo.projector_half_angle),
-                                 math.cos(geo.receiver_half_angle), acc.apod),
-                       delays, gating=im.beam_gating)
+                                  int(ia[-1]) + 1), kd, array, delays,
+                       gating=im.beam_gating)
         return re_.astype(np.float64) + 1j * im_.astype(np.float64)
 
     def _conditioned(self, p):

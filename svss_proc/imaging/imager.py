@@ -135,7 +135,7 @@ class PingAccumulator:
 
     def warm_up(self) -> None:
         """Compile this setting's imaging kernel (or load it from numba's cache) on a
-        one-voxel problem, before pings come: a worker that compiles at its first ping
+        2 x 2 x 2 voxel problem, before pings come: a worker that compiles at its first ping
         is silent for tens of seconds on a first run (the daemon, not hearing from it
         for ``service.worker_silence_s``, once closed its catch-up service before the
         worker could confirm the run's end)."""
@@ -145,16 +145,24 @@ class PingAccumulator:
                            axis, self._conditioner.fc)
         kd = prepare(cond, im.interpolation, self._dtype)
         tx = np.array([0.0, 0.0, -2.0])
-        rx = tx + geo.receivers - geo.projectors[0]
-        delays = DelayModel(im.delays, im.water_sound_speed_m_s, im.sediment_sound_speed_m_s,
-                            self.travel_table(tx, rx, 1.0) if im.delays == "table" else None)
+        array, delays = self.ping_inputs(tx, tx + geo.receivers - geo.projectors[0],
+                                         np.array([0.0, 0.0, 1.0]), 1.0)
         out = ImageSlice(self._zeros((2, 2, 2), dtype=self._dtype),    # (not 1: a 1-voxel
                          self._zeros((2, 2, 2), dtype=self._dtype),    # axis is also F order)
                          VoxelAxes(np.zeros(2), np.zeros(2), np.array([0.4, 0.5])), 0, 2)
-        self.kernel(out, kd, PingArray(tx, rx, np.array([0.0, 0.0, 1.0]),
-                                       math.cos(geo.projector_half_angle),
-                                       math.cos(geo.receiver_half_angle), self._apod),
-                    delays, gating=im.beam_gating)
+        self.kernel(out, kd, array, delays, gating=im.beam_gating)
+
+    def ping_inputs(self, tx: np.ndarray, rx: np.ndarray, bore: np.ndarray,
+                    reach: float) -> tuple[PingArray, DelayModel]:
+        """The kernel's array and delay model for a ping placed with projector ``tx``,
+        receivers ``rx`` (this accumulator's channels) and boresight ``bore`` (tile
+        frame), reaching ``reach`` m along-track (the refraction table's extent)."""
+        im, geo = self._proc.imaging, self._geometry
+        delays = DelayModel(im.delays, im.water_sound_speed_m_s, im.sediment_sound_speed_m_s,
+                            self.travel_table(tx, rx, reach) if im.delays == "table"
+                            else None)
+        return PingArray(tx, rx, bore, math.cos(geo.projector_half_angle),
+                         math.cos(geo.receiver_half_angle), self._apod), delays
 
     def condition(self, ping: Ping) -> Conditioned:
         """The ping's analytic signal at its arrival times (its channels)."""
@@ -181,13 +189,8 @@ class PingAccumulator:
         placed = step.placed
         if self._channels is not None:
             placed = dataclasses.replace(placed, rx=placed.rx[self._channels])
-        tx, rx = placed.tx, placed.rx
-        delays = DelayModel(im.delays, im.water_sound_speed_m_s, im.sediment_sound_speed_m_s,
-                            self.travel_table(tx, rx, step.reach_m) if im.delays == "table"
-                            else None)
+        array, delays = self.ping_inputs(placed.tx, placed.rx, placed.bore, step.reach_m)
         kd = prepare(cond, im.interpolation, self._dtype)
-        array = PingArray(tx, rx, placed.bore, math.cos(geo.projector_half_angle),
-                          math.cos(geo.receiver_half_angle), self._apod)
         window = (cond.axis.start_s, cond.axis.end_s - cond.axis.step_s)
         total = 0
         for s in step.slices:

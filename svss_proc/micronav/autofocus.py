@@ -48,7 +48,7 @@ from svss_daq.frames import TrackLine
 from svss_daq.geometry import place_array
 from svss_daq.ping import Ping
 
-from ..imaging.kernel_args import DelayModel, ImageSlice, PingArray, VoxelAxes, prepare
+from ..imaging.kernel_args import ImageSlice, VoxelAxes, prepare
 from ..imaging.schedule import along_reach, ping_frame
 
 log = logging.getLogger(__name__)
@@ -129,15 +129,10 @@ class _Sampler:
         im_ = np.zeros_like(re_)
         depth = self.proc.tile.top_m + self.proc.tile.depth_m
         reach = along_reach(placed.tx, placed.bore, geo.projector_half_angle, depth)
-        delays = DelayModel(im.delays, im.water_sound_speed_m_s, im.sediment_sound_speed_m_s,
-                            acc.travel_table(placed.tx, placed.rx, reach)
-                            if im.delays == "table" else None)
+        array, delays = acc.ping_inputs(placed.tx, placed.rx, placed.bore, reach)
         axes = VoxelAxes(*(np.array([float(v)]) for v in point))
-        acc.kernel(ImageSlice(re_, im_, axes, 0, 1), kd,
-                   PingArray(placed.tx, placed.rx, placed.bore,
-                             math.cos(geo.projector_half_angle),
-                             math.cos(geo.receiver_half_angle), acc.apod),
-                   delays, gating=im.beam_gating)
+        acc.kernel(ImageSlice(re_, im_, axes, 0, 1), kd, array, delays,
+                   gating=im.beam_gating)
         return complex(float(re_[0, 0, 0]), float(im_[0, 0, 0]))
 
 
