@@ -91,6 +91,48 @@ def image(hw, proc, pings, record=False, wait_each_ping=False):
     return tile, n, el, calls
 
 
+def per_launch_rates(hw, proc, pings, calls, counts, repeat) -> dict:
+    """Pings per launch side by side in one run (float32): the end-to-end pass through
+    the imager (best of ``repeat``), and the recorded kernel calls replayed through the
+    batcher (packing, uploads and launches, no conditioning or coverage), per count."""
+    from numba import cuda
+
+    from svss_proc.imaging import gpu_kernel as G
+    from svss_proc.imaging.gpu_batch import PingBatcher
+    shape, dtype = calls[0][0][0].re.shape, calls[0][0][0].re.dtype
+    re, im = G.device_zeros(shape, dtype), G.device_zeros(shape, dtype)
+    out = {}
+    for k in counts:
+        kproc = dataclasses.replace(proc, imaging=dataclasses.replace(
+            proc.imaging, gpu_pings_per_launch=k))
+        image(hw, kproc, pings[:2])                        # compile outside the timing
+        runs = [image(hw, kproc, pings) for _ in range(repeat)]
+        el = min(r[2] for r in runs)
+        n = runs[0][1]
+        batcher = PingBatcher(k)
+        best = None
+        for _ in range(repeat):
+            count = G.device_counter()
+            cuda.synchronize()
+            t0 = time.perf_counter()
+            for a, kw in calls:
+                batcher.run_ping(a[0]._replace(re=re, im=im), *a[1:], count=count, **kw)
+            batcher.flush()
+            m = int(count.copy_to_host()[0])
+            t = time.perf_counter() - t0
+            best = t if best is None else min(best, t)
+        out[str(k)] = {"end_to_end_seconds": el, "end_to_end_updates_per_s": n / el,
+                       "replay_seconds": best, "replay_updates_per_s": m / best,
+                       "replay_updates_equal": m == n}
+        log.info("%d pings per launch: %s", k, out[str(k)])
+    base = out[str(counts[0])]
+    for k in counts:
+        r = out[str(k)]
+        r["end_to_end_speed_over_first"] = base["end_to_end_seconds"] / r["end_to_end_seconds"]
+        r["replay_speed_over_first"] = base["replay_seconds"] / r["replay_seconds"]
+    return out
+
+
 def profile_pass(hw, proc, pings, top=25) -> list[dict]:
     """One end-to-end pass under cProfile: where the seconds of a ping go (conditioning,
     argument packing, uploads, launches, read-back), the functions with the most
@@ -214,6 +256,8 @@ def main(argv=None) -> int:
                     "NUMBA_ENABLE_CUDASIM=1; its rates mean nothing there)")
     ap.add_argument("--profile", action="store_true",
                     help="also profile one float32 end-to-end pass (cProfile, top functions)")
+    ap.add_argument("--per-launch", default="1,4,16,64",
+                    help="pings per GPU launch compared side by side (float32), comma list")
     ap.add_argument("--ptx-only", action="store_true",
                     help="only compile the float32 kernel to PTX and count instructions")
     args = ap.parse_args(argv)
@@ -287,6 +331,11 @@ def main(argv=None) -> int:
             "deferred_over_waiting_speed": el_wait / el}
         # every tile has the same shape: the calls replay into one pair of planes
         row.update(kernel_only(passes[0][3], args.repeat if not SIMULATOR else 1))
+        if precision == "float32" and args.per_launch:
+            row["pings_per_launch"] = per_launch_rates(
+                hw, gproc, pings, passes[0][3],
+                [int(k) for k in args.per_launch.split(",")],
+                args.repeat if not SIMULATOR else 1)
         if args.profile and precision == "float32":
             row["profile_one_pass"] = profile_pass(hw, gproc, pings)
             for r in row["profile_one_pass"][:15]:
@@ -310,6 +359,10 @@ def main(argv=None) -> int:
               f"end, kernel alone {k:.3e}, max error {r['max_error_over_peak']:.2e} of "
               f"peak, {r['voxels_off_by_1pct_of_peak']} voxels off by 1 %, updates equal "
               f"CPU: {r['updates_equal_cpu']}{note}")
+        for k, v in r.get("pings_per_launch", {}).items():
+            print(f"    {k:>3} pings per launch: end to end {v['end_to_end_updates_per_s']:.3e} "
+                  f"updates/s ({v['end_to_end_speed_over_first']:.2f}x), kernel calls "
+                  f"replayed {v['replay_updates_per_s']:.3e} ({v['replay_speed_over_first']:.2f}x)")
         w = r["waiting_for_each_kernel"]
         print(f"    waiting for each kernel and its count: {w['updates_per_s']:.3e} "
               f"updates/s (counts on the device: {w['deferred_over_waiting_speed']:.2f}x)")

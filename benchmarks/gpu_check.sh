@@ -9,7 +9,7 @@ python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upg
   --target .site .whl/*.whl && export PYTHONPATH=$PWD:$PWD/.site || exit 1
 export PYTHONUNBUFFERED=1
 OUT=${OUT:-/tmp/gpu_check}; mkdir -p "$OUT"
-T_TESTS=${T_TESTS:-330} T_GPU=${T_GPU:-180} T_SYN=${T_SYN:-80} T_THR=${T_THR:-80}
+T_TESTS=${T_TESTS:-330} T_GPU=${T_GPU:-300} T_SYN=${T_SYN:-80} T_THR=${T_THR:-80}
 STAGES=${STAGES:-"tests bench_gpu bench_gpu_synthesis bench_threads"}
 {
   date -u; nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.sm --format=csv
@@ -34,7 +34,7 @@ stage() { local name=$1 limit=$2; shift 2; local t0=$SECONDS
 T_EACH=${T_EACH:-300}
 to=""; python3 -c "import pytest_timeout" 2>/dev/null && to="-p timeout --timeout=$T_EACH"
 GPU_TESTS="tests/test_gpu_float32.py tests/test_gpu_kernel.py tests/sim/test_gpu_synthesis.py"
-GPU_TESTS="$GPU_TESTS tests/test_gpu_imager.py tests/test_cone_edges.py"
+GPU_TESTS="$GPU_TESTS tests/test_gpu_imager.py tests/test_cone_edges.py tests/test_gpu_batch.py"
 SIM_TESTS=${SIM_TESTS:-0}
 for st in $STAGES; do case $st in
   tests) stage tests "$T_TESTS" bash -c "python3 -m pytest -q -p no:cacheprovider -rfEs \

@@ -191,6 +191,9 @@ class ImagingConfig:
     precision: str = spec("kernel arithmetic", choices=("float32", "float64"))
     apodisation: str = spec("receive-aperture weighting", choices=("none", "hann"))
     device: str = spec("where the kernel runs", choices=("cpu", "cuda"))
+    gpu_pings_per_launch: int | None = spec(
+        "on the GPU, pings of a tile imaged by one kernel launch (each voxel summed over "
+        "them, then added once); omitted: 16", lo=1, hi=256, default=16)
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,8 @@
 """The tile imager on the GPU end to end (schedule, conditioning, device planes, the
 update counts kept on the device and read once per tile) against the same imager on the
-CPU: every tile's update count, the imager's total and the images. Under numba's CUDA
+CPU: every tile's update count, the imager's total and the images, with the GPU's pings
+batched per launch (``imaging.gpu_pings_per_launch``: a batch full before the tile is
+handed back and the rest launched at hand-back). Under numba's CUDA
 simulator on every machine (a small tile of 10 cm voxels; the simulator interprets each
 thread), and on a real GPU where one is present."""
 
@@ -37,7 +39,8 @@ SCRIPT = textwrap.dedent("""
     for device in ("cpu", "cuda"):
         for precision in sys.argv[2].split(","):
             p = dataclasses.replace(proc, imaging=dataclasses.replace(
-                proc.imaging, device=device, precision=precision))
+                proc.imaging, device=device, precision=precision,
+                gpu_pings_per_launch=int(sys.argv[3])))
             imager = TileImager(hw, p)
             tiles = []
             for ping in pings:
@@ -52,9 +55,10 @@ SCRIPT = textwrap.dedent("""
 """)
 
 
-def _run(tmp_path, simulator: bool, precisions: str):
+def _run(tmp_path, simulator: bool, precisions: str, per_launch: int = 2):
     out = tmp_path / "imager.npz"
-    res = subprocess.run([sys.executable, "-c", SCRIPT, str(out), precisions], cwd=ROOT,
+    res = subprocess.run([sys.executable, "-c", SCRIPT, str(out), precisions,
+                          str(per_launch)], cwd=ROOT,
                          env=subprocess_env(simulator), capture_output=True, text=True,
                          timeout=900)
     assert res.returncode == 0, res.stderr[-3000:]

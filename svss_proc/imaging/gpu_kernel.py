@@ -115,13 +115,16 @@ def _gate_to_device(c: ConeGate) -> ConeGate:
     return ConeGate(ax, cy, dz, c.h_tx, rx_dx, rx_dy, rx_h, bore, c.cos_tx, c.cos_rx)
 
 
+def _delays_to_device(d: TravelTimes) -> TravelTimes:
+    """The travel-time model with its tables on the device (each uploaded once)."""
+    return TravelTimes(d.inv_cw, d.cw, d.cs, _BUFFERS.table(d.time),
+                       _BUFFERS.table(d.eta), d.inv_drho, d.z0, d.inv_dz, d.h_ref,
+                       _BUFFERS.table(d.tz), _BUFFERS.table(d.ez))
+
+
 def _to_device(args: KernelArgs) -> KernelArgs:
-    d = args.delays
-    delays = TravelTimes(d.inv_cw, d.cw, d.cs, _BUFFERS.table(d.time),
-                         _BUFFERS.table(d.eta), d.inv_drho, d.z0, d.inv_dz, d.h_ref,
-                         _BUFFERS.table(d.tz), _BUFFERS.table(d.ez))
     return KernelArgs(_planes_to_device(args.planes), _geometry_to_device(args.geometry),
-                      delays, _gate_to_device(args.gate))
+                      _delays_to_device(args.delays), _gate_to_device(args.gate))
 
 
 def cross_range(args: KernelArgs, gating: bool) -> tuple[int, int]:

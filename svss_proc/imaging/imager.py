@@ -83,9 +83,14 @@ class PingAccumulator:
         #: :attr:`updates` is read, so that no ping waits for its kernel to finish: the
         #: next ping's conditioning and the coverage run while it does
         self._device_counter = None
+        #: on the GPU the pings of a tile are queued and imaged
+        #: ``imaging.gpu_pings_per_launch`` at a time (:mod:`.gpu_batch`); the queue is
+        #: launched before a tile's counts or planes are read (:meth:`settle`)
+        self._batcher = None
         if processing.imaging.device == "cuda":
-            from . import gpu_kernel            # numba-cuda only when asked for
-            kernel, self._zeros = gpu_kernel.run_ping_gpu, gpu_kernel.device_zeros
+            from . import gpu_batch, gpu_kernel      # numba-cuda only when asked for
+            self._batcher = gpu_batch.PingBatcher(processing.imaging.gpu_pings_per_launch)
+            kernel, self._zeros = self._batcher.run_ping, gpu_kernel.device_zeros
             self._device_counter = gpu_kernel.device_counter
         else:
             kernel, self._zeros = run_ping, np.zeros
@@ -125,10 +130,13 @@ class PingAccumulator:
 
     def settle(self, tile: Tile | None = None) -> None:
         """Read the device-side update counts of ``tile`` (None: of every tile) into the
-        tile's and this accumulator's totals; nothing to do on the CPU."""
+        tile's and this accumulator's totals, after launching the pings still queued
+        for it; nothing to do on the CPU."""
         for key in ([id(tile)] if tile is not None else list(self._pending)):
             entry = self._pending.pop(key, None)
             if entry is not None:
+                if self._batcher is not None:
+                    self._batcher.flush(entry[0].re)
                 n = int(entry[1].copy_to_host()[0])      # waits for the tile's kernels
                 entry[0].updates += n
                 self._updates += n
