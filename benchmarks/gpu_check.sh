@@ -33,8 +33,10 @@ stage() { local name=$1 limit=$2; shift 2; local t0=$SECONDS
 # test_real_gpu_matches_direct_sum_and_cpu took over 150 s beside the other tests' compiles)
 T_EACH=${T_EACH:-300}
 to=""; python3 -c "import pytest_timeout" 2>/dev/null && to="-p timeout --timeout=$T_EACH"
-GPU_TESTS="tests/test_gpu_float32.py tests/test_gpu_kernel.py tests/sim/test_gpu_synthesis.py"
-GPU_TESTS="$GPU_TESTS tests/test_gpu_imager.py tests/test_cone_edges.py tests/test_gpu_batch.py"
+# (GPU_TESTS=...: a subset, where device time is short)
+ALL_GPU_TESTS="tests/test_gpu_float32.py tests/test_gpu_kernel.py tests/sim/test_gpu_synthesis.py"
+ALL_GPU_TESTS="$ALL_GPU_TESTS tests/test_gpu_imager.py tests/test_cone_edges.py tests/test_gpu_batch.py"
+GPU_TESTS=${GPU_TESTS:-$ALL_GPU_TESTS}
 SIM_TESTS=${SIM_TESTS:-0}
 for st in $STAGES; do case $st in
   tests) stage tests "$T_TESTS" bash -c "python3 -m pytest -q -p no:cacheprovider -rfEs \
