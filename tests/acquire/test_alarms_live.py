@@ -1,13 +1,18 @@
 """Alarms raised and cleared through real processes: ``svss sim-device`` with a faults
-file (the sonar stops delivering pings, a GPS outage, a DVL dropout), ``svss acquire``, a tile worker
-that falls behind and reaches its memory bound (its progress messages to the real
-catch-up service), a disk floor above the free space; and ``svss status --follow``
-started before any daemon, through one run's end and the next run's start."""
+file (the sonar stops delivering pings, a GPS outage, a DVL dropout), ``svss acquire``, a
+real ``svss worker`` that falls behind (stopped with SIGSTOP, then let go on: it catches
+up), a client of the catch-up service that says it is at its memory bound (a real worker
+reaches it only with more tiles than a test's run makes), a disk floor between the free
+space with and without a ballast file (the alarm raised, then cleared when the ballast
+goes); and ``svss status --follow`` started before any daemon, through one run's end and
+the next run's start."""
 
 from __future__ import annotations
 
 import json
+import os
 import queue
+import shutil
 import signal
 import socket
 import subprocess
@@ -22,6 +27,7 @@ from svss_daq.rawfile import RawRunReader
 from svss_daq.status import format_status
 
 from .conftest import CONFIG, ROOT, acquire_toml
+from .test_worker_linger import fast_processing
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"),
                                 reason="needs Linux pseudo-terminals")
@@ -64,17 +70,21 @@ class Follower:
             stderr=subprocess.DEVNULL, cwd=ROOT, text=True)
         self.lines: queue.Queue = queue.Queue()
         self.seen: set[str] = set()        # every alarm name any status listed
+        self.first: dict[str, dict] = {}   # alarm name: the first status that listed it
         threading.Thread(target=self._read, daemon=True).start()
 
     def _read(self) -> None:
         for line in self.proc.stdout:
             s = json.loads(line)
+            for a in s["alarms"]:
+                self.first.setdefault(a["name"], s)
             self.seen |= {a["name"] for a in s["alarms"]}
             self.lines.put(s)
 
     def until(self, pred, what: str, timeout_s: float = DEADLINE_S) -> dict:
         """The first status (from now) for which ``pred`` holds."""
         deadline = time.monotonic() + timeout_s
+        last = None
         while time.monotonic() < deadline:
             try:
                 s = self.lines.get(timeout=0.5)
@@ -83,8 +93,14 @@ class Follower:
                 continue
             if pred(s):
                 return s
+            last = s
+        brief = None if last is None else {
+            "state": last.get("state"), "run_id": last.get("run_id"),
+            "counters": last.get("counters"), "alarms": [a["name"] for a in last["alarms"]],
+            "solution": (last.get("navigation") or {}).get("solution")}
         raise AssertionError(f"svss status --follow: no status with {what} within "
-                             f"{timeout_s} s")
+                             f"{timeout_s} s; alarms seen {sorted(self.seen)}; the last "
+                             f"status: {brief}")
 
     def stop(self) -> None:
         if self.proc.poll() is None:
@@ -115,50 +131,63 @@ def test_alarms_raise_and_clear_through_real_processes_and_follow_survives_runs(
     common = {"run": {"daq": str(daq)}, "status": {"endpoint": endpoint},
               "catch_up": {"linger_s": 0.0}}
     follower = Follower(endpoint)          # before any daemon is up
+    started: list[subprocess.Popen] = []
     try:
         faults = tmp_path / "faults.toml"
         faults.write_text(FAULTS)
         dev = rig.device("--faults", str(faults))
-        acq = rig.acquire(dev, "--duration", "120", ephemeral=False,
+        acq = rig.acquire(dev, "--duration", "600", ephemeral=False,
                           config=acquire_toml(tmp_path, alarms=alarms, **common))
         follower.until(lambda s: s["run_id"] == "run1" and s["state"] == "recording",
                        "run1 recording")
-        # a worker that stays at the run's first ping, at its memory bound: its
-        # progress messages to the daemon's catch-up service, every 0.3 s
+        # a real tile worker on the run (small tiles: it keeps up until it is stopped)
         s = follower.until(lambda s: s["counters"]["recorded"] > 0, "a ping recorded")
+        with open(tmp_path / "worker.log", "wb") as err:
+            real = subprocess.Popen(
+                [sys.executable, "-m", "svss", "worker", "--connect",
+                 acq.endpoints["publisher"], "--service", acq.endpoints["service"],
+                 "--out", str(tmp_path / "tiles"), "--processing",
+                 str(fast_processing(tmp_path)), "--runs", "1", "--idle-timeout", "120"],
+                stdout=subprocess.DEVNULL, stderr=err, cwd=ROOT)
+        started.append(real)
+        # a client at its memory bound: its progress messages to the daemon's catch-up
+        # service, every 0.3 s (it needs no more pings: it is not behind)
         fetcher = PingFetcher(acq.endpoints["service"], timeout_s=10)
         [run] = [r for r in fetcher.runs() if r.run_id == "run1"]
-        worker = {"done": False, "extras": {"open_tiles": 4, "max_open_tiles": 4,
-                                            "memory_bound_age_s": 0.0}}
+        worker = {"extras": {"open_tiles": 4, "max_open_tiles": 4,
+                             "memory_bound_age_s": 0.0}}
         stop = threading.Event()
 
-        def slow_worker():
+        def bound_worker():
             while not stop.wait(0.3):
-                fetcher.progress("slow-worker", "run1", run.first, worker["done"],
-                                 worker["extras"])
+                fetcher.progress("bound-worker", "run1", run.first, True, worker["extras"])
 
-        talker = threading.Thread(target=slow_worker, daemon=True)
+        talker = threading.Thread(target=bound_worker, daemon=True)
         talker.start()
-        # the sonar stops (no ping for 5 ping intervals), then pings again
-        s = follower.until(alarmed("pings.stopped"), "pings.stopped")
+        s = follower.until(alarmed("worker.memory_bound"), "worker.memory_bound")
+        assert "bound-worker (4 of 4 tiles open" in [
+            a for a in s["alarms"] if a["name"] == "worker.memory_bound"][0]["message"]
+        worker.update(extras={"open_tiles": 2, "max_open_tiles": 4,
+                              "memory_bound_age_s": 30.0})
+        # the faults, raised and cleared in whatever order a loaded machine makes of
+        # them (the simulated sonar falls behind its clock under load): the sonar stops
+        # (no ping for 5 ping intervals), the GPS outage, the DVL dropout (silent, no
+        # bottom lock); each clears when its condition ends
+        faults = ("pings.stopped", "navigation.no_gps_fix", "dvl.silent",
+                  "navigation.no_bottom_lock")
+        follower.until(lambda s: set(faults) <= follower.seen
+                       and not_alarmed(*faults, "worker.memory_bound")(s),
+                       "the faults' alarms raised and cleared", timeout_s=3 * DEADLINE_S)
+        s = follower.first["pings.stopped"]
         assert [a for a in s["alarms"] if a["name"] == "pings.stopped"][0][
             "severity"] == "critical"
-        s = follower.until(alarmed("worker.behind", "worker.memory_bound"),
-                           "the slow worker's alarms")
-        [w] = s["workers"]
-        assert w["client"] == "slow-worker" and w["backlog_pings"] > 10
-        follower.until(not_alarmed("pings.stopped"), "pings.stopped cleared")
-        # the GPS outage: dead reckoning on the DVL carries the position
-        s = follower.until(alarmed("navigation.no_gps_fix"), "navigation.no_gps_fix")
+        # in the GPS outage, dead reckoning on the DVL carries the position
+        s = follower.first["navigation.no_gps_fix"]
         assert s["navigation"]["solution"]["mode"] == "dead_reckoning"
         text = format_status(s)               # what an operator reads: alarms first
         assert text.startswith("ALARMS (") and "navigation.no_gps_fix" in text
         assert "now dead_reckoning" in text, text
         (tmp_path / "status.txt").write_text(text)
-        worker.update(done=True, extras={"open_tiles": 2, "max_open_tiles": 4,
-                                         "memory_bound_age_s": 30.0})
-        follower.until(not_alarmed("navigation.no_gps_fix", "worker.behind",
-                                   "worker.memory_bound"), "the alarms cleared")
         # pings posed on GPS again (their poses lag the solution): the GPS fix age on
         # the devices' own clock (not the host's), the position and its sources
         s = follower.until(lambda s: s["navigation"]["pose"]["position_source"] == "gps"
@@ -170,10 +199,26 @@ def test_alarms_raise_and_clear_through_real_processes_and_follow_survives_runs(
         assert pose["altitude_source"] == "dvl" and pose["speed_m_s"] is not None
         stop.set()
         talker.join()
-        # the DVL drops out: silent, no bottom lock; both clear when it is back
-        dvl = ("dvl.silent", "navigation.no_bottom_lock")
-        follower.until(lambda s: set(dvl) <= follower.seen and not_alarmed(*dvl)(s),
-                       "the DVL dropout's alarms raised and cleared")
+        # the real worker, once it has told the service where it is in the run,
+        # stopped: it falls behind the recording (more than 10 pings more than when it
+        # stopped); let go on, it catches up (fetching what its subscription lost) and
+        # the alarm clears
+        mine = f"-{real.pid}-"
+
+        def backlog(s):
+            return max([w["backlog_pings"] for w in s["workers"] if mine in w["client"]
+                        and w["backlog_pings"] is not None], default=None)
+
+        s = follower.until(lambda s: backlog(s) is not None, "the worker's progress")
+        real.send_signal(signal.SIGSTOP)
+        at_stop = backlog(s)
+        s = follower.until(lambda s: alarmed("worker.behind")(s)
+                           and backlog(s) > at_stop + 10, "worker.behind")
+        assert mine in [a for a in s["alarms"] if a["name"] == "worker.behind"][0]["message"]
+        real.send_signal(signal.SIGCONT)
+        follower.until(not_alarmed("worker.behind"), "worker.behind cleared",
+                       timeout_s=2 * DEADLINE_S)
+        assert real.poll() is None, (tmp_path / "worker.log").read_text()[-3000:]
         fetcher.close()
         acq.stop()
         # the run's last status: its file named, closed (not "recording: None")
@@ -185,21 +230,36 @@ def test_alarms_raise_and_clear_through_real_processes_and_follow_survives_runs(
         with RawRunReader(f) as rr:
             events = rr.events()
         trail = [(k, d.split(":")[0]) for _, k, d in events if k.startswith("alarm.")]
-        for name in ("pings.stopped", "pings.lost", "worker.behind", "worker.memory_bound",
-                     "navigation.no_gps_fix", *dvl):
+        for name in ("pings.lost", "worker.behind", "worker.memory_bound", *faults):
             assert ("alarm.raised", name) in trail and ("alarm.cleared", name) in trail, (
                 name, trail)
             assert trail.index(("alarm.raised", name)) < trail.index(
                 ("alarm.cleared", name))
-        # the next run, its disk floor above the free space: followed, alarmed
-        alarms["disk_min_free_mib"] = 1e9
+        # the next run, followed: its disk floor 1 GiB below the free space and a 2 GiB
+        # ballast file beside its recording (other processes' files may come and go by
+        # less than 1 GiB meanwhile): alarmed, then cleared when the ballast goes
         tmp2 = tmp_path / "second"
         tmp2.mkdir()
-        rig.acquire(dev, "--duration", "60", ephemeral=False, run_id="run2",
+        mib = 1 << 20
+        floor = shutil.disk_usage(tmp2).free / mib - 1024.0
+        alarms["disk_min_free_mib"] = round(floor)
+        ballast = tmp2 / "ballast"
+        with open(ballast, "wb") as fh:
+            os.posix_fallocate(fh.fileno(), 0, 2048 * mib)
+        rig.acquire(dev, "--duration", "300", ephemeral=False, run_id="run2",
                     config=acquire_toml(tmp2, alarms=alarms, **common))
         s = follower.until(lambda s: s["run_id"] == "run2" and alarmed("disk.low")(s),
                            "run2's disk.low")
-        assert "MiB free (alarm below 1e+09 MiB)" in [
+        assert f"MiB free (alarm below {round(floor):g} MiB)" in [
             a for a in s["alarms"] if a["name"] == "disk.low"][0]["message"]
+        ballast.unlink()
+        s = follower.until(lambda s: s["run_id"] == "run2" and not_alarmed("disk.low")(s),
+                           "run2's disk.low cleared")
+        assert s["recorder"]["free_mib"] > floor
     finally:
         follower.stop()
+        for p in started:
+            if p.poll() is None:
+                p.send_signal(signal.SIGCONT)
+                p.kill()
+                p.wait(10)
