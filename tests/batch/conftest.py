@@ -20,11 +20,9 @@ SPLIT = 12                    # run B's first segment holds its first 12 pings
 def coarse_processing_text() -> str:
     text = Path(config_path("processing-demo.toml")).read_text()
     new = (text.replace("width_m = 1.2", "width_m = 0.4").replace("depth_m = 1.0", "depth_m = 0.3")
-           .replace("voxel_m = 0.02", "voxel_m = 0.05")
-           # a batch task images its tile alone: svss process's tiles equal the batch's
-           # when neither takes planes across the seams (docs/products.md, Seams)
-           .replace("across_seams = true", "across_seams = false"))
-    assert new.count("0.05") > text.count("0.05") and "across_seams = false" in new
+           .replace("voxel_m = 0.02", "voxel_m = 0.05"))
+    # products across the seams (the default), as svss process makes them
+    assert new.count("0.05") > text.count("0.05") and "across_seams = false" not in new
     return new
 
 

@@ -12,6 +12,7 @@ import signal
 import sys
 from pathlib import Path
 
+import h5py
 import numpy as np
 import pytest
 
@@ -20,7 +21,7 @@ from svss_proc.batch.plan import plan_run
 from svss_proc.batch.run import STATE, run_batch
 from svss_proc.batch.task import image_tile
 from svss_proc.survey_index import INDEX_NAME
-from svss_proc.tiles import read_detections, read_tile_header
+from svss_proc.tiles import read_detections, read_tile, read_tile_header
 from tests.worker.conftest import assert_same_tiles
 
 pytest.importorskip("distributed")
@@ -35,7 +36,7 @@ class KillOnce:
     def __init__(self, marker: Path, run_id: str):
         self.marker, self.run_id = str(marker), run_id
 
-    def __call__(self, plan, out, processing, kernel_threads):
+    def __call__(self, plan, out, processing, kernel_threads, **kw):
         if plan.run_id == self.run_id:
             try:
                 fd = os.open(self.marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
@@ -45,7 +46,7 @@ class KillOnce:
                 os.write(fd, f"{os.getpid()} {plan.index}".encode())
                 os.close(fd)
                 os.kill(os.getpid(), signal.SIGKILL)
-        return image_tile(plan, out, processing, kernel_threads)
+        return image_tile(plan, out, processing, kernel_threads, **kw)
 
 
 @pytest.fixture(scope="module")
@@ -60,12 +61,45 @@ def batch(survey, coarse_proc, client, tmp_path_factory) -> dict:
     return {"out": out, "summary": summary, "marker": marker}
 
 
+PRODUCT_VOLUMES = ("background", "drc", "depth_gain_db", "mip_depth", "mip_cross",
+                   "mip_along")
+
+
+def seam_attrs(path: Path) -> dict:
+    """The products' seam attributes of a tile file (docs/products.md, Seams)."""
+    with h5py.File(path, "r") as f:
+        a = f["detections"].attrs
+        return {k: int(a[k]) for k in ("seam_planes_before", "seam_planes_after",
+                                       "seam_context_contacts")}
+
+
+def assert_same_products(ref: Path, got: Path) -> int:
+    """The tiles' products equal, volume for volume, and so do what they took across the
+    seams; returns the seams (a tile's planes from a neighbour) the tiles used."""
+    seams = 0
+    for p in sorted(ref.glob("tile_*.h5")):
+        a, b = read_tile(p), read_tile(got / p.name)
+        names = [k for k in PRODUCT_VOLUMES if k in a]
+        assert "drc" in names and "mip_depth" in names, names
+        for k in names:
+            np.testing.assert_array_equal(a[k], b[k], err_msg=f"{p.name} {k}")
+        sa, sb = seam_attrs(p), seam_attrs(got / p.name)
+        assert sa == sb, p.name
+        seams += (sa["seam_planes_before"] > 0) + (sa["seam_planes_after"] > 0)
+    return seams
+
+
 def test_tiles_equal_svss_process_voxel_for_voxel(batch, reference):
+    """Images and products, these across the seams (products.background.across_seams,
+    the default): each tile's products take the neighbouring tiles' planes and the
+    previous tile's contacts, as svss process's do."""
     # the tasks' kernels ran on one thread each (as svss batch's on 2 cores), svss
     # process's on every core: the tiles must not depend on it
     assert {r["kernel_threads"] for r in batch["summary"]["results"]} == {1}
+    seams = 0
     for run in RUNS:
         assert_same_tiles(reference[run], batch["out"] / run)
+        seams += assert_same_products(reference[run], batch["out"] / run)
         for ref in sorted(reference[run].glob("tile_*.h5")):
             got = batch["out"] / run / ref.name
             a, b = read_detections(ref)[0], read_detections(got)[0]
@@ -86,6 +120,9 @@ def test_tiles_equal_svss_process_voxel_for_voxel(batch, reference):
             assert (g[col], w[col]) == (run, ref_id)
             assert g[:col] + g[col + 1:] == w[:col] + w[col + 1:]
         assert (batch["out"] / run / "mosaic.h5").is_file()
+    # every seam inside a run, both ways (8: the runs' 6 tiles have 4 seams)
+    n_seams = sum(len(list(reference[run].glob("tile_*.h5"))) - 1 for run in RUNS)
+    assert seams == 2 * n_seams == 8
 
 
 def test_killed_worker_leaves_no_missing_tile(batch, reference):

@@ -83,12 +83,12 @@ class FailTiles:
     def __init__(self, run_id: str, damaged: int, full: int):
         self.run_id, self.damaged, self.full = run_id, damaged, full
 
-    def __call__(self, plan, out, processing, kernel_threads):
+    def __call__(self, plan, out, processing, kernel_threads, **kw):
         if plan.run_id == self.run_id and plan.index == self.damaged:
             raise RawFileError(f"{plan.ranges[0][0]}: damaged: a test's damaged file")
         if plan.run_id == self.run_id and plan.index == self.full:
             raise OSError(errno.ENOSPC, "No space left on device")
-        return image_tile(plan, out, processing, kernel_threads)
+        return image_tile(plan, out, processing, kernel_threads, **kw)
 
 
 def test_failures_say_whether_a_rerun_can_make_the_tile(survey, coarse_proc, client,
