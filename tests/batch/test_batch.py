@@ -12,7 +12,6 @@ import signal
 import sys
 from pathlib import Path
 
-import h5py
 import numpy as np
 import pytest
 
@@ -21,7 +20,8 @@ from svss_proc.batch.plan import plan_run
 from svss_proc.batch.run import STATE, run_batch
 from svss_proc.batch.task import image_tile
 from svss_proc.survey_index import INDEX_NAME
-from svss_proc.tiles import read_detections, read_tile, read_tile_header
+from svss_proc.tiles import read_detections, read_tile_header
+from tests.batch.conftest import assert_same_products, seam_attrs
 from tests.worker.conftest import assert_same_tiles
 
 pytest.importorskip("distributed")
@@ -59,34 +59,6 @@ def batch(survey, coarse_proc, client, tmp_path_factory) -> dict:
     summary = run_batch(files, out, coarse_proc, client=client, kernel_threads=1,
                         task=KillOnce(marker, "lineB"))
     return {"out": out, "summary": summary, "marker": marker}
-
-
-PRODUCT_VOLUMES = ("background", "drc", "depth_gain_db", "mip_depth", "mip_cross",
-                   "mip_along")
-
-
-def seam_attrs(path: Path) -> dict:
-    """The products' seam attributes of a tile file (docs/products.md, Seams)."""
-    with h5py.File(path, "r") as f:
-        a = f["detections"].attrs
-        return {k: int(a[k]) for k in ("seam_planes_before", "seam_planes_after",
-                                       "seam_context_contacts")}
-
-
-def assert_same_products(ref: Path, got: Path) -> int:
-    """The tiles' products equal, volume for volume, and so do what they took across the
-    seams; returns the seams (a tile's planes from a neighbour) the tiles used."""
-    seams = 0
-    for p in sorted(ref.glob("tile_*.h5")):
-        a, b = read_tile(p), read_tile(got / p.name)
-        names = [k for k in PRODUCT_VOLUMES if k in a]
-        assert "drc" in names and "mip_depth" in names, names
-        for k in names:
-            np.testing.assert_array_equal(a[k], b[k], err_msg=f"{p.name} {k}")
-        sa, sb = seam_attrs(p), seam_attrs(got / p.name)
-        assert sa == sb, p.name
-        seams += (sa["seam_planes_before"] > 0) + (sa["seam_planes_after"] > 0)
-    return seams
 
 
 def test_tiles_equal_svss_process_voxel_for_voxel(batch, reference):
@@ -199,6 +171,11 @@ def test_rerun_skips_finished_tiles_and_redoes_a_half_written_one(batch, referen
     assert {p: p.stat().st_mtime_ns for p in before} == before      # not rewritten
     for run in RUNS:
         assert_same_tiles(reference[run], out / run)
+        # the tile redone took its neighbours' seam planes and the previous tile's
+        # contacts from their files
+        assert_same_products(reference[run], out / run)
+    assert seam_attrs(redo)["seam_planes_before"] > 0 and \
+        seam_attrs(redo)["seam_planes_after"] > 0
     assert "svss.batch_state" in (out / STATE).read_text()
 
 

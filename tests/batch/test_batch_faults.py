@@ -18,6 +18,7 @@ from svss_proc.batch.run import STATE, BatchError, run_batch
 from svss_proc.batch.task import image_tile
 from svss_proc.survey_index import INDEX_NAME
 from svss_proc.tiles import read_tile_header
+from tests.batch.conftest import assert_same_products
 from tests.worker.conftest import assert_same_tiles
 
 pytest.importorskip("distributed")
@@ -55,6 +56,7 @@ def test_a_corrupted_ping_is_refused_as_svss_process_refuses_it(corrupted, surve
     assert s["failed"] == 0 and s["excluded_pings"] == 1
     assert s["imaged"] == len(list(corrupted["ref"].glob("tile_*.h5")))
     assert_same_tiles(corrupted["ref"], out / "lineA")
+    assert_same_products(corrupted["ref"], out / "lineA") > 0     # across the seams
     state = json.loads((out / STATE).read_text())
     a = state["runs"]["lineA"]
     assert a["refused"] == corrupted["manifest"]["refused"]
