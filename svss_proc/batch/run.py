@@ -209,7 +209,9 @@ def run_batch(paths: list[str | Path], out: str | Path,
     task's imaging kernel (default: with a local cluster, the cores shared out among its
     workers; otherwise the workers' own setting, e.g. ``NUMBA_NUM_THREADS``);
     ``task``: the tile function (the default :func:`~.task.image_tile`; tests wrap
-    it); ``renavigate``: pose each run as :func:`svss_proc.run_worker.run_poses` decides
+    it; with products across the seams it is called with ``save=False`` and the tile
+    is saved by :func:`~.task.save_formed`: docs/batch.md, *Products across the
+    seams*); ``renavigate``: pose each run as :func:`svss_proc.run_worker.run_poses` decides
     (default: re-navigated from its instrument records where it has them; the
     summary's runs say which).
 
