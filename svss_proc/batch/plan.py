@@ -33,8 +33,10 @@ from svss_daq.ping import NavSnapshot, Ping
 from svss_daq.ping_gate import PingGate, PingRejected
 from svss_daq.rawfile import RawFileError, RawRunReader, run_of
 
+from ..imaging.imager import seam_planes
 from ..imaging.pose_check import check_pose_flags
-from ..imaging.schedule import TileSchedule
+from ..imaging.schedule import PingStep, TileSchedule
+from ..imaging.grid import tile_grid
 from ..run_worker import LIVE_POSES, run_poses
 
 log = logging.getLogger(__name__)
@@ -66,6 +68,17 @@ class TilePlan:
     poses: tuple[NavSnapshot, ...] | None = None
     #: what the pings are posed with (tile provenance ``poses``)
     pose_source: str = LIVE_POSES
+    #: products without seams (:class:`Handback`): where ``svss process`` hands the
+    #: tile back among the run's tiles (0, 1, ...); whether the tile handed back just
+    #: before it is tile ``index - 1`` (its last planes and contacts are then this
+    #: tile's :class:`~svss_proc.products.chain.Before`); how many of tile
+    #: ``index + 1``'s pings were imaged when this tile was handed back with its first
+    #: planes (None: handed back without them); whether those planes are tile
+    #: ``index + 1``'s final ones (no later ping of it reaches them)
+    order: int = 0
+    before: bool = False
+    after_pings: int | None = None
+    after_final: bool = True
 
     @property
     def key(self) -> str:
@@ -112,6 +125,79 @@ def _ranges(refs: list[tuple[int, int]], paths: list[Path]) -> tuple:
     return tuple((str(paths[s]), a, b) for s, a, b in out)
 
 
+class Handback:
+    """The order in which the streaming imager hands a run's tiles back, and with which
+    of the next tile's first planes (products without seams): the bookkeeping of
+    :meth:`TileImager.add <svss_proc.imaging.imager.TileImager.add>`, ``_next_planes``
+    and ``finish`` on the schedule's steps alone. A complete tile is held until the
+    next tile's first ``planes`` along-track planes are complete (each reached, then
+    ``close_after`` consecutive pings clear of it) or ``close_after`` pings have
+    passed; a tile closed early (the memory bound) is handed back at once without
+    them. ``order``: (tile, (next tile, its pings imaged then) or None), in hand-back
+    order; ``touch``: per tile, the first plane each of its pings reached, in order."""
+
+    def __init__(self, planes: int, close_after: int, n_along: int):
+        self.planes, self.close_after, self.n_along = planes, close_after, n_along
+        self.active: dict[int, np.ndarray] = {}     # open tile -> last ping per plane
+        self.held: dict[int, int] = {}              # complete tile -> pings then
+        self.touch: dict[int, list[int]] = {}
+        self.order: list[tuple[int, tuple[int, int] | None]] = []
+
+    def _next(self, k: int, n_pings: int, final: bool):
+        n, nxt = self.planes, k + 1
+        if n < 1 or not (nxt in self.held or nxt in self.active) or self.n_along < n:
+            return None, False
+        if not final and nxt not in self.held:
+            last = self.active[nxt][:n]
+            if np.any(last == 0) or np.any(n_pings - last < self.close_after):
+                return None, True
+        return (nxt, len(self.touch.get(nxt, ()))), False
+
+    def _hand_back(self, k: int, after=None) -> None:
+        self.held.pop(k, None)
+        self.active.pop(k, None)
+        self.order.append((k, after))
+
+    def step(self, step: PingStep, n_pings: int) -> None:
+        for k in step.closed_early:
+            self._hand_back(k)
+        for k in step.reached:
+            if k not in self.active:
+                self.active[k] = np.zeros(self.n_along, dtype=np.int64)
+        for sl in step.slices:
+            self.active[sl.tile][sl.ia0:sl.ia1] = n_pings
+            self.touch.setdefault(sl.tile, []).append(sl.ia0)
+        for k in step.closed:
+            self.active.pop(k, None)
+            self.held[k] = n_pings
+        ready = []
+        for k in sorted(self.held):
+            after, wait = self._next(k, n_pings, final=False)
+            if not wait or n_pings - self.held[k] >= self.close_after:
+                ready.append((k, after))
+        for k, after in ready:
+            self._hand_back(k, after)
+
+    def finish(self, n_pings: int) -> None:
+        keys = sorted(set(self.active) | set(self.held))
+        after = {k: self._next(k, n_pings, final=True)[0] for k in keys}
+        for k in keys:
+            self._hand_back(k, after[k])
+
+    def seams(self) -> dict[int, tuple[int, bool, int | None, bool]]:
+        """Per tile: (hand-back order, before, after_pings, after_final) as
+        :class:`TilePlan` holds them."""
+        out = {}
+        prev = None
+        for i, (k, after) in enumerate(self.order):
+            final = after is None or all(a >= self.planes
+                                         for a in self.touch.get(after[0], ())[after[1]:])
+            out[k] = (i, prev == k - 1 and self.planes > 0,
+                      None if after is None else after[1], final)
+            prev = k
+        return out
+
+
 class TilePlanner:
     """A run's tiles planned on poses alone: the streaming worker's gate and its
     :class:`~svss_proc.imaging.schedule.TileSchedule` (see the module doc); ``tiles``:
@@ -123,6 +209,9 @@ class TilePlanner:
         self.schedule = TileSchedule(hardware, processing, source=source)
         self.gate = PingGate(hardware, name=name)
         self.tiles: dict[int, list] = {}
+        #: the streaming imager's hand-back (products without seams)
+        self.handback = Handback(seam_planes(processing), self.schedule.close_after,
+                                 tile_grid(processing.tile, 0).shape[0])
 
     @property
     def line(self) -> TrackLine | None:
@@ -150,6 +239,7 @@ class TilePlanner:
             self.tiles.setdefault(k, [])
         for sl in step.slices:
             self.tiles[sl.tile].append((ref, ping.sequence))
+        self.handback.step(step, self.schedule.n_pings)
 
 
 def _pose_ping(reader: RawRunReader, i: int, meta: dict, zeros: np.ndarray,
@@ -240,6 +330,8 @@ def plan_run(run_id: str, folder: str, paths: list[Path],
         log.warning("run %s: no ping passed the checks; no tile", run_id)
         return plan
     ln = planner.line
+    planner.handback.finish(planner.schedule.n_pings)
+    seams = planner.handback.seams()
     line = (float(ln.origin_ne[0]), float(ln.origin_ne[1]), float(ln.heading),
             float(ln.interface_down))
     all_tiles = tuple(sorted(planner.tiles))
@@ -248,7 +340,8 @@ def plan_run(run_id: str, folder: str, paths: list[Path],
         plan.tiles.append(TilePlan(
             run_id, folder, k, _ranges([r for r, _ in refs], paths),
             tuple(s for _, s in refs), (all_tiles[0], all_tiles[-1]), line, hw.id,
-            poses=tuple(navs[r] for r, _ in refs) if navs else None, pose_source=what))
+            poses=tuple(navs[r] for r, _ in refs) if navs else None, pose_source=what,
+            **dict(zip(("order", "before", "after_pings", "after_final"), seams[k]))))
     log.info("run %s: %d ping(s) in %d file(s) -> %d tile(s) (frame origin N %.2f E %.2f m, "
              "heading %.1f deg)", run_id, n, len(paths), len(plan.tiles), line[0], line[1],
              math.degrees(line[2]))

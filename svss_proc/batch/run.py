@@ -17,6 +17,7 @@ its nanny and the scheduler runs its tasks again elsewhere.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import os
@@ -32,8 +33,10 @@ from svss_daq.progress import Progress
 from ..products.run_products import MOSAIC_H5, run_products_at_end
 from ..survey_index import INDEX_NAME, find_tiles, write_survey_index
 from ..run_folder import atomic_json, remove_temporaries, run_folder_name
-from .plan import TilePlan, group_runs, plan_run
-from .task import PingsRefused, image_tile, tile_paths
+from ..imaging.imager import seam_planes
+from .plan import RunPlan, TilePlan, group_runs, plan_run
+from .task import (PingsRefused, before_from_file, head_planes, image_tile, prefix_head,
+                   result_of, save_formed, tile_paths)
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +48,16 @@ INSTALL_HINT = ('svss batch needs dask.distributed: install the "distributed" ex
 
 class BatchError(RuntimeError):
     """Tiles that could not be made (each named with its error)."""
+
+
+class NeighbourFailed(RuntimeError):
+    """A tile not made because a neighbour it takes planes or contacts from across a
+    seam failed (``cause``: that tile's error)."""
+
+    def __init__(self, index: int, cause: BaseException):
+        self.index, self.cause = index, cause
+        super().__init__(f"needs tile {index} across a seam, which failed: "
+                         f"{type(cause).__name__}: {cause}")
 
 
 def require_dask():
@@ -114,6 +127,8 @@ def _exclusions(earlier: dict | None, paths: list[Path]) -> dict[tuple[str, int]
 #: task failures that a rerun may not meet again (a worker process lost, the disk or
 #: the network); any other is the input's or the code's and recurs on every rerun
 def _transient(exc: BaseException) -> bool:
+    if isinstance(exc, NeighbourFailed):
+        return _transient(exc.cause)
     if isinstance(exc, (OSError, MemoryError)):       # also TimeoutError, disk full
         return True
     names = {c.__name__ for c in type(exc).__mro__}
@@ -123,6 +138,23 @@ def _transient(exc: BaseException) -> bool:
 def _signature(t: TilePlan) -> tuple:
     """What a tile's content depends on in its plan."""
     return (t.sequences, t.ranges, t.span, t.line, t.pose_source)
+
+
+def _signatures(run: RunPlan, seams: bool) -> dict[int, str]:
+    """Per tile of ``run``, what its file depends on in the run's plan: its own plan
+    and, with products across the seams, the next tile's (its first planes) and the
+    previous tile's signature (its last planes and contacts, which depend on the tile
+    before it, and so on)."""
+    own = {t.index: repr(_signature(t)) for t in run.tiles}
+    out: dict[int, str] = {}
+    for t in sorted(run.tiles, key=lambda t: t.order):
+        parts = [own[t.index]]
+        if seams:
+            parts += [repr((t.before, t.after_pings, t.after_final)),
+                      own.get(t.index + 1, "") if t.after_pings is not None else "",
+                      out.get(t.index - 1, "") if t.before else ""]
+        out[t.index] = hashlib.sha256("\n".join(parts).encode()).hexdigest()
+    return out
 
 
 def _client(scheduler: str | None, workers: int | None):
@@ -177,7 +209,9 @@ def run_batch(paths: list[str | Path], out: str | Path,
     task's imaging kernel (default: with a local cluster, the cores shared out among its
     workers; otherwise the workers' own setting, e.g. ``NUMBA_NUM_THREADS``);
     ``task``: the tile function (the default :func:`~.task.image_tile`; tests wrap
-    it); ``renavigate``: pose each run as :func:`svss_proc.run_worker.run_poses` decides
+    it; with products across the seams it is called with ``save=False`` and the tile
+    is saved by :func:`~.task.save_formed`: docs/batch.md, *Products across the
+    seams*); ``renavigate``: pose each run as :func:`svss_proc.run_worker.run_poses` decides
     (default: re-navigated from its instrument records where it has them; the
     summary's runs say which).
 
@@ -190,11 +224,7 @@ def run_batch(paths: list[str | Path], out: str | Path,
     t0 = time.perf_counter()
     out = Path(out).absolute()              # the tasks may run in another folder
     runs = group_runs(paths)
-    pcfg = processing.value.products
-    if pcfg is not None and pcfg.background.across_seams:
-        log.warning("products.background.across_seams: a batch task images its tile alone, "
-                    "so its products take nothing across the seams (svss process does; "
-                    "docs/products.md, Seams)")
+    seams = seam_planes(processing.value) > 0     # products without seams
     earlier = prepare_batch_dir(out, runs, processing, force)
     excluded = {run_id: _exclusions(earlier.get(run_id), ps) for run_id, ps in runs.items()}
     plans = {run_id: plan_run(run_id, run_folder_name(run_id), ps, processing, renavigate,
@@ -238,15 +268,22 @@ def run_batch(paths: list[str | Path], out: str | Path,
                     kernel_threads = max(1, (os.cpu_count() or 1) // n)
                     log.info("batch: %d kernel thread(s) per worker", kernel_threads)
             t_run0 = time.perf_counter()
-            made, failed, n_workers = _dispatch(client, todo, out, processing, task,
-                                                kernel_threads)
+            if seams:
+                made, failed, n_workers = _dispatch_seams(client, todo, plans, out,
+                                                          processing, task, kernel_threads)
+            else:
+                made, failed, n_workers = _dispatch(client, todo, out, processing, task,
+                                                    kernel_threads)
             t_run += time.perf_counter() - t_run0
             results += made
             todo = []
             refused: dict[str, dict[tuple[str, int], str]] = {}
             for t, exc in failed:
-                new = {} if not isinstance(exc, PingsRefused) else {
-                    (f, int(i)): why for f, i, _seq, why in exc.pings
+                # a tile that failed only because its neighbour's pings were refused is
+                # made with the run planned again
+                cause = exc.cause if isinstance(exc, NeighbourFailed) else exc
+                new = {} if not isinstance(cause, PingsRefused) else {
+                    (f, int(i)): why for f, i, _seq, why in cause.pings
                     if (f, int(i)) not in excluded[t.run_id]}
                 if new:
                     refused.setdefault(t.run_id, {}).update(new)
@@ -261,7 +298,7 @@ def run_batch(paths: list[str | Path], out: str | Path,
                 old = plans[run_id]
                 plans[run_id] = plan_run(run_id, old.folder, old.paths, processing,
                                          renavigate, excluded[run_id])
-                todo += _replanned(out, old, plans[run_id])
+                todo += _replanned(out, old, plans[run_id], seams)
             if todo:
                 atomic_json(out / STATE, {**state_of(), "complete": False})
                 n_todo += len(todo)
@@ -314,10 +351,12 @@ def run_batch(paths: list[str | Path], out: str | Path,
     return summary
 
 
-def _replanned(out: Path, old, new) -> list[TilePlan]:
+def _replanned(out: Path, old: RunPlan, new: RunPlan, seams: bool) -> list[TilePlan]:
     """The tiles of a run planned again (``new``) to image: those not on disk, and those
-    on disk made under the old plan that changed (removed here)."""
-    before = {t.index: _signature(t) for t in old.tiles}
+    on disk made under the old plan that changed (removed here; ``seams``: with products
+    across the seams, also those whose neighbours changed)."""
+    before = _signatures(old, seams)
+    sig = _signatures(new, seams)
     now = {t.index for t in new.tiles}
     for t in old.tiles:                         # gone from the plan
         if t.index not in now:
@@ -326,7 +365,7 @@ def _replanned(out: Path, old, new) -> list[TilePlan]:
     todo = []
     for t in new.tiles:
         h5, png = tile_paths(out, t)
-        if h5.is_file() and before.get(t.index) != _signature(t):
+        if h5.is_file() and before.get(t.index) != sig[t.index]:
             h5.unlink()
             png.unlink(missing_ok=True)
             log.info("batch: %s was made with pings now refused: imaged again", h5)
@@ -381,6 +420,102 @@ def _dispatch(client, todo: list[TilePlan], out: Path, processing, task,
         progress.update()
         fut.release()
     return results, errors, n_workers
+
+
+def _dispatch_seams(client, todo: list[TilePlan], plans: dict, out: Path, processing,
+                    task, kernel_threads: int | None
+                    ) -> tuple[list[dict], list[tuple[TilePlan, BaseException]], int]:
+    """:func:`_dispatch` for products without seams: per tile, a task images it
+    (``task(..., save=False)``: the tile stays in its worker's memory), and another
+    saves it with its products once what ``svss process`` gives it across the seams is
+    there: the next tile's first planes (taken from that tile imaged, or from its file,
+    or imaged again from the pings it had then: :func:`~.task.prefix_head`) and the
+    previous tile's last planes and contacts (from its save, or from its file). The
+    saves of a run's tiles follow one another in ``svss process``'s order; the
+    imaging runs in parallel. The client keeps no future of the heavy results (tiles,
+    planes): Dask frees each once its dependents have run."""
+    distributed = require_dask()
+    token = secrets.token_hex(4)
+    n = seam_planes(processing.value)
+    n_workers = len(client.scheduler_info().get("workers", {}))
+    sout = str(out)
+    by_run = {run_id: {t.index: t for t in p.tiles} for run_id, p in plans.items()}
+    formed = {(t.run_id, t.index): client.submit(
+        task, t, sout, processing, kernel_threads, save=False,
+        key=f"form-{t.key}-{token}", pure=False) for t in todo}
+    # whether each tile's imaging failed (without holding the tile)
+    imaged = {k: client.submit(_nothing, f, key=f"imaged-{k[0]}-{k[1]}-{token}",
+                               pure=False) for k, f in formed.items()}
+    saved, summaries, prefixes = {}, {}, {}
+    for t in sorted(todo, key=lambda t: (t.run_id, t.order)):
+        me, run_tiles = (t.run_id, t.index), by_run[t.run_id]
+        after = before = None
+        if t.after_pings is not None:
+            nxt = run_tiles[t.index + 1]
+            if t.after_final:
+                after = client.submit(head_planes, formed.get((t.run_id, nxt.index)), nxt,
+                                      sout, n, key=f"head-{nxt.key}-{token}", pure=False)
+            else:
+                after = prefixes[me] = client.submit(
+                    prefix_head, nxt, t.after_pings, processing, n, kernel_threads,
+                    key=f"prefix-{nxt.key}-{token}", pure=False)
+        if t.before:
+            prev = run_tiles[t.index - 1]
+            before = saved.get((t.run_id, prev.index))
+            if before is None:                  # done before: from its file
+                before = client.submit(before_from_file, prev, sout, n,
+                                       key=f"before-{prev.key}-{token}", pure=False)
+        saved[me] = client.submit(save_formed, formed[me], t, sout, processing, before,
+                                  after, key=f"save-{t.key}-{token}", pure=False)
+        summaries[me] = client.submit(result_of, saved[me], key=f"{t.key}-{token}",
+                                      pure=False)
+    del formed, saved, after, before
+    progress = Progress("batch", len(todo), log, unit="tiles")
+    results, failed = [], []
+    tiles = {f: me for me, f in summaries.items()}
+    plan_of = {(t.run_id, t.index): t for t in todo}
+    for fut in distributed.as_completed(list(summaries.values())):
+        try:
+            results.append(fut.result())
+        except Exception as exc:                  # noqa: BLE001 - reported per tile
+            failed.append((tiles[fut], exc))
+        progress.update()
+    distributed.wait(list(imaged.values()))
+    errors = []
+    for me, exc in failed:
+        t = plan_of[me]
+        own = _own_error(t, imaged, prefixes.get(me), summaries, exc)
+        errors.append((t, own))
+        if not isinstance(own, PingsRefused) and not (
+                isinstance(own, NeighbourFailed) and isinstance(own.cause, PingsRefused)):
+            log.error("batch: run %s tile %d: %s: %s", t.run_id, t.index,
+                      type(own).__name__, own)
+    for f in [*imaged.values(), *summaries.values(), *prefixes.values()]:
+        f.release()
+    return results, errors, n_workers
+
+
+def _nothing(_) -> None:
+    return None
+
+
+def _own_error(t: TilePlan, imaged: dict, prefix, summaries: dict,
+               exc: BaseException) -> BaseException:
+    """A tile's error: its own imaging's, else that of the neighbour it waited for
+    across a seam (:class:`NeighbourFailed`), else its own save's (``exc``)."""
+    run = t.run_id
+    mine = imaged[(run, t.index)]
+    if mine.status == "error":
+        return mine.exception()
+    nxt = prefix if prefix is not None else imaged.get((run, t.index + 1))
+    prev = summaries.get((run, t.index - 1))
+    for index, fut, used in ((t.index + 1, nxt, t.after_pings is not None),
+                             (t.index - 1, prev, t.before)):
+        if used and fut is not None and fut.status == "error":
+            cause = fut.exception()
+            return cause if isinstance(cause, NeighbourFailed) else \
+                NeighbourFailed(index, cause)
+    return exc
 
 
 def format_summary(s: dict) -> str:

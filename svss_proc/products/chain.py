@@ -248,8 +248,8 @@ def tile_footprint(tile: Tile, hardware: Loaded[HardwareConfig],
 class Seams:
     """What a run's tiles pass on along the line, for products without seams: the last
     tile saved, as the :class:`Before` of the next one (its index one higher, on the
-    same line). The streaming worker keeps one per run; a tile saved alone (a batch
-    task) has none."""
+    same line). The streaming worker keeps one per run; a batch task saving a tile sets
+    ``last`` to the previous tile's (:mod:`svss_proc.batch.task`)."""
 
     def __init__(self) -> None:
         self.last: Before | None = None

@@ -1,15 +1,19 @@
 """Fixtures of the batch tests: a two-run survey (one run in one file, one in two
 segment files), coarse processing (5 cm voxels, 3 m tiles), its `svss process` tiles, and a
-LocalCluster of two worker processes on loopback shared by the session's batches."""
+LocalCluster of two worker processes on loopback shared by the session's batches; and
+the comparison of two folders' tile products (across the seams included)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import h5py
+import numpy as np
 import pytest
 
 from svss_daq.config import ProcessingConfig, config_path, load_with_text
 from svss_daq.rawfile import RawRunReader, RawRunWriter
+from svss_proc.tiles import read_tile
 from tests.worker.conftest import simulate
 
 N_A = 30                      # pings of run A (3 s at 10 pings/s)
@@ -20,11 +24,9 @@ SPLIT = 12                    # run B's first segment holds its first 12 pings
 def coarse_processing_text() -> str:
     text = Path(config_path("processing-demo.toml")).read_text()
     new = (text.replace("width_m = 1.2", "width_m = 0.4").replace("depth_m = 1.0", "depth_m = 0.3")
-           .replace("voxel_m = 0.02", "voxel_m = 0.05")
-           # a batch task images its tile alone: svss process's tiles equal the batch's
-           # when neither takes planes across the seams (docs/products.md, Seams)
-           .replace("across_seams = true", "across_seams = false"))
-    assert new.count("0.05") > text.count("0.05") and "across_seams = false" in new
+           .replace("voxel_m = 0.02", "voxel_m = 0.05"))
+    # products across the seams (the default), as svss process makes them
+    assert new.count("0.05") > text.count("0.05") and "across_seams = false" not in new
     return new
 
 
@@ -86,3 +88,31 @@ def client(cluster):
     import distributed
     with distributed.Client(cluster) as c:
         yield c
+
+
+PRODUCT_VOLUMES = ("background", "drc", "depth_gain_db", "mip_depth", "mip_cross",
+                   "mip_along")
+
+
+def seam_attrs(path: Path) -> dict:
+    """The products' seam attributes of a tile file (docs/products.md, Seams)."""
+    with h5py.File(path, "r") as f:
+        a = f["detections"].attrs
+        return {k: int(a[k]) for k in ("seam_planes_before", "seam_planes_after",
+                                       "seam_context_contacts")}
+
+
+def assert_same_products(ref: Path, got: Path) -> int:
+    """The tiles' products equal, volume for volume, and so do what they took across the
+    seams; returns the seams (a tile's planes from a neighbour) the tiles used."""
+    seams = 0
+    for p in sorted(ref.glob("tile_*.h5")):
+        a, b = read_tile(p), read_tile(got / p.name)
+        names = [k for k in PRODUCT_VOLUMES if k in a]
+        assert "drc" in names and "mip_depth" in names, names
+        for k in names:
+            np.testing.assert_array_equal(a[k], b[k], err_msg=f"{p.name} {k}")
+        sa, sb = seam_attrs(p), seam_attrs(got / p.name)
+        assert sa == sb, p.name
+        seams += (sa["seam_planes_before"] > 0) + (sa["seam_planes_after"] > 0)
+    return seams

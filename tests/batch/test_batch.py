@@ -21,6 +21,7 @@ from svss_proc.batch.run import STATE, run_batch
 from svss_proc.batch.task import image_tile
 from svss_proc.survey_index import INDEX_NAME
 from svss_proc.tiles import read_detections, read_tile_header
+from tests.batch.conftest import assert_same_products, seam_attrs
 from tests.worker.conftest import assert_same_tiles
 
 pytest.importorskip("distributed")
@@ -35,7 +36,7 @@ class KillOnce:
     def __init__(self, marker: Path, run_id: str):
         self.marker, self.run_id = str(marker), run_id
 
-    def __call__(self, plan, out, processing, kernel_threads):
+    def __call__(self, plan, out, processing, kernel_threads, **kw):
         if plan.run_id == self.run_id:
             try:
                 fd = os.open(self.marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
@@ -45,7 +46,7 @@ class KillOnce:
                 os.write(fd, f"{os.getpid()} {plan.index}".encode())
                 os.close(fd)
                 os.kill(os.getpid(), signal.SIGKILL)
-        return image_tile(plan, out, processing, kernel_threads)
+        return image_tile(plan, out, processing, kernel_threads, **kw)
 
 
 @pytest.fixture(scope="module")
@@ -61,11 +62,16 @@ def batch(survey, coarse_proc, client, tmp_path_factory) -> dict:
 
 
 def test_tiles_equal_svss_process_voxel_for_voxel(batch, reference):
+    """Images and products, these across the seams (products.background.across_seams,
+    the default): each tile's products take the neighbouring tiles' planes and the
+    previous tile's contacts, as svss process's do."""
     # the tasks' kernels ran on one thread each (as svss batch's on 2 cores), svss
     # process's on every core: the tiles must not depend on it
     assert {r["kernel_threads"] for r in batch["summary"]["results"]} == {1}
+    seams = 0
     for run in RUNS:
         assert_same_tiles(reference[run], batch["out"] / run)
+        seams += assert_same_products(reference[run], batch["out"] / run)
         for ref in sorted(reference[run].glob("tile_*.h5")):
             got = batch["out"] / run / ref.name
             a, b = read_detections(ref)[0], read_detections(got)[0]
@@ -86,6 +92,9 @@ def test_tiles_equal_svss_process_voxel_for_voxel(batch, reference):
             assert (g[col], w[col]) == (run, ref_id)
             assert g[:col] + g[col + 1:] == w[:col] + w[col + 1:]
         assert (batch["out"] / run / "mosaic.h5").is_file()
+    # every seam inside a run, both ways (8: the runs' 6 tiles have 4 seams)
+    n_seams = sum(len(list(reference[run].glob("tile_*.h5"))) - 1 for run in RUNS)
+    assert seams == 2 * n_seams == 8
 
 
 def test_killed_worker_leaves_no_missing_tile(batch, reference):
@@ -162,6 +171,11 @@ def test_rerun_skips_finished_tiles_and_redoes_a_half_written_one(batch, referen
     assert {p: p.stat().st_mtime_ns for p in before} == before      # not rewritten
     for run in RUNS:
         assert_same_tiles(reference[run], out / run)
+        # the tile redone took its neighbours' seam planes and the previous tile's
+        # contacts from their files
+        assert_same_products(reference[run], out / run)
+    assert seam_attrs(redo)["seam_planes_before"] > 0 and \
+        seam_attrs(redo)["seam_planes_after"] > 0
     assert "svss.batch_state" in (out / STATE).read_text()
 
 

@@ -18,6 +18,7 @@ from svss_proc.batch.run import STATE, BatchError, run_batch
 from svss_proc.batch.task import image_tile
 from svss_proc.survey_index import INDEX_NAME
 from svss_proc.tiles import read_tile_header
+from tests.batch.conftest import assert_same_products
 from tests.worker.conftest import assert_same_tiles
 
 pytest.importorskip("distributed")
@@ -55,6 +56,7 @@ def test_a_corrupted_ping_is_refused_as_svss_process_refuses_it(corrupted, surve
     assert s["failed"] == 0 and s["excluded_pings"] == 1
     assert s["imaged"] == len(list(corrupted["ref"].glob("tile_*.h5")))
     assert_same_tiles(corrupted["ref"], out / "lineA")
+    assert_same_products(corrupted["ref"], out / "lineA") > 0     # across the seams
     state = json.loads((out / STATE).read_text())
     a = state["runs"]["lineA"]
     assert a["refused"] == corrupted["manifest"]["refused"]
@@ -83,12 +85,12 @@ class FailTiles:
     def __init__(self, run_id: str, damaged: int, full: int):
         self.run_id, self.damaged, self.full = run_id, damaged, full
 
-    def __call__(self, plan, out, processing, kernel_threads):
+    def __call__(self, plan, out, processing, kernel_threads, **kw):
         if plan.run_id == self.run_id and plan.index == self.damaged:
             raise RawFileError(f"{plan.ranges[0][0]}: damaged: a test's damaged file")
         if plan.run_id == self.run_id and plan.index == self.full:
             raise OSError(errno.ENOSPC, "No space left on device")
-        return image_tile(plan, out, processing, kernel_threads)
+        return image_tile(plan, out, processing, kernel_threads, **kw)
 
 
 def test_failures_say_whether_a_rerun_can_make_the_tile(survey, coarse_proc, client,
