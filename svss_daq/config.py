@@ -219,8 +219,9 @@ class BackgroundConfig:
     across_seams: bool | None = spec(
         "take the neighbouring tiles' planes across each along-track seam into the "
         "background windows and the previous tile's contacts as sidelobe sources, so that "
-        "a tile's edge is processed like its middle (the streaming worker and svss "
-        "process; a batch task images its tile alone; omitted: true)", default=True)
+        "a tile's edge is processed like its middle (the streaming worker, svss process "
+        "and svss batch, whose products are made in tile order: docs/batch.md; omitted: "
+        "true)", default=True)
 
 
 @dataclass(frozen=True)
