@@ -11,20 +11,20 @@ horizontal displacement shows as a phase only where the echo comes from off nadi
 only once the ring of the interface heard at one time is resolved in azimuth. So:
 
 1. **Common sub-aperture.** The channels of ping a and of ping b whose phase centres
-   (b's placed by the navigation) lie within ``tolerance_m`` of each other, one to one
-   (:func:`.phase_centres.pair_phase_centres`): both sub-apertures cover the same patch
-   of water to within the grids' offset, so they hear the same seabed speckle (the
-   principle of redundant phase centres, with the pairs' mismatch averaged over the
-   aperture instead of required to vanish).
+   (b's placed by the navigation) lie within ``tolerance_m`` of each other, all offset
+   by the same vector delta (:func:`translated_pairs`): b's sub-aperture is a's
+   translated, so both hear nearly the same seabed speckle (the principle of redundant
+   phase centres, with the pairs' mismatch carried by the whole sub-aperture instead
+   of required to vanish).
 2. **Focus.** Each sub-aperture is focused, with the exact bistatic paths of its own
    elements, on points P of the seabed plane (no excess approximation is needed):
 
-       v(P) = sum_i w_i bb_i(tau_i(P)) exp(+j 2 pi f_c tau_i(P)),
+       v(P) = sum_i bb_i(tau_i(P)) exp(+j 2 pi f_c tau_i(P)),
        tau_i(P) = (|P - t| + |P - r_i|) / c
 
    (:mod:`svss_daq.conventions`), b's elements at the navigation's pose. The points lie
-   in patches: one about nadir and four at ``patch_angle`` off nadir, ahead, astern, to
-   starboard and to port.
+   in nine patches: about nadir and about the points ``patch_angle`` off nadir in eight
+   directions (:func:`seabed_patches`).
 3. **Phase.** If b's array was in truth displaced by Delta from where the navigation put
    it, its paths to P are shorter by 2 u.Delta (u the unit vector from the array to P),
    and its focused value turns by 2 k u.Delta (k = 2 pi f_c / c). Per patch m:
@@ -32,17 +32,19 @@ only once the ring of the interface heard at one time is resolved in azimuth. So
        C_m = sum_P v_a(P) conj(v_b(P)),    arg C_m = -2 k u_m . Delta,
 
    u_m the patch's power-weighted mean direction; unambiguous while |2 k u_m.Delta| < pi
-   (about 8 mm vertically, 4 cm horizontally at 20 degrees).
-4. **Fit.** Weighted least squares of the five phases for Delta (3,), weights from each
-   patch's coherence gamma_m over its N_m independent looks (Cramer-Rao:
-   var(phi) = (1 - gamma^2) / (2 N gamma^2)), the covariance scaled by the reduced
-   chi-square where above 1. The displacement is the navigation's plus Delta.
+   (about 13 mm vertically, 5 cm horizontally at 15 degrees).
+4. **Fit.** Weighted least squares of the patches' phases for Delta (3,), weights from
+   each patch's coherence gamma_m over its N_m looks (Cramer-Rao: var(phi) =
+   (1 - gamma^2) / (2 N gamma^2)), the covariance scaled by the reduced chi-square where
+   above 1 and by ``SCATTER_FACTOR`` squared (measured). The displacement is the
+   navigation's plus Delta. Two passes (b re-placed where the first found it) and two
+   translations interpolated to zero offset (:func:`estimate_displacement`).
 
 Where it refuses (``DisplacementEstimate.refused`` says why): the phase centres do not
-overlap (fewer than ``min_pairs`` one-to-one pairs within ``tolerance_m``; for example
-consecutive pings across the projector sequence's wrap, 5 -> 0, whose phase centres are
-57 cm apart across against the array's 50 cm), or a patch's coherence is below
-``min_coherence`` (the echoes decorrelated, or no seabed in the window).
+overlap (fewer than ``min_pairs`` pairs sharing a translation within ``tolerance_m``;
+for example consecutive pings across the projector sequence's wrap, 5 -> 0, whose phase
+centres are 57 cm apart across against the array's 50 cm), or too few patches cohere
+above ``min_coherence`` (the echoes decorrelated, or no seabed where the patches are).
 """
 
 from __future__ import annotations
