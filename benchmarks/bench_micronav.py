@@ -16,10 +16,12 @@ velocity is held from the stretch's start; a 0.5 % scale error along and a 1 deg
 mounting misalignment) are fused with the echoes' (:func:`svss_proc.micronav.fusion.
 fuse_increments`) and the positions' error within 25-ping apertures (rms about the
 aperture's mean, the focusing's measure: lambda/8 = 7 mm) is reported with and without
-the echoes. No image is formed here: the peak loss of bench_focus's cases is not
-measured by this script.
+the echoes. ``--image`` adds three points in the sand and images the pings with each
+case's DVL and fused positions as bench_focus does: peak level against the true-pose
+image. A modelled DVL, not the chain's: not bench_focus's cases.
 
     python benchmarks/bench_micronav.py --pings 60 --out benchmarks/results/bench_micronav.json
+    python benchmarks/bench_micronav.py --pings 60 --image --out benchmarks/results/bench_micronav_image.json
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import dataclasses
 import json
 import math
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -38,7 +41,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from sim_device.environment_source import EnvironmentSource  # noqa: E402
-from sim_device.scene import MotionConfig, load_scene  # noqa: E402
+from sim_device.scene import MotionConfig, PointTarget, load_scene  # noqa: E402
 from sim_device.track import ping_pose  # noqa: E402
 from svss_daq.config import HardwareConfig, config_path, load_with_text  # noqa: E402
 from svss_daq.frames import body_to_ned  # noqa: E402
@@ -54,14 +57,27 @@ APERTURE = 25
 DVL_SIGMA_M_S = 0.003
 
 
-def estimates(n_pings: int, first: int, options: dict):
+#: --image: three point scatterers in the sand under the stretch of pings 20-79 (the array
+#: is 3 m ahead of the body origin), as the demo's (-20 dB), m
+POINTS = ((7.0, 0.0, 0.30), (7.8, 0.32, 0.45), (8.6, -0.40, 0.60))
+
+
+def scenes(with_points: bool):
+    """The sand scene with the motion (and the points), and its straight track."""
+    scene = load_scene(config_path("scenes/seed_cylinder_sand.toml"))
+    points = tuple(PointTarget(along_m=a, cross_m=c, depth_m=d, target_strength_db=-20.0)
+                   for a, c, d in POINTS) if with_points else ()
+    straight = dataclasses.replace(scene, targets=(), points=points)
+    return dataclasses.replace(straight, track=dataclasses.replace(
+        straight.track, motion=MotionConfig(**MOTION))), straight
+
+
+def estimates(n_pings: int, first: int, options: dict, with_points: bool = False):
     loaded = load_with_text(HardwareConfig, config_path("hardware.toml"))
     hw = loaded.value
-    scene = load_scene(config_path("scenes/seed_cylinder_sand.toml"))
-    straight = dataclasses.replace(scene, targets=())
-    scene = dataclasses.replace(straight, track=dataclasses.replace(
-        straight.track, motion=MotionConfig(**MOTION)))
+    scene, straight = scenes(with_points)
     src = EnvironmentSource(loaded, scene)
+    pings = []
     cond = Conditioner(hw.digitiser, make_waveform(hw.waveform), 2)
     rows, prev = [], None
     synth_s = 0.0
@@ -70,6 +86,7 @@ def estimates(n_pings: int, first: int, options: dict):
         p = src.ping(i)
         synth_s += time.perf_counter() - t0
         cur = (p, cond.ping(p))
+        pings.append(p)
         if prev is not None:
             (pa, ca), (pb, cb) = prev, cur
             ta, tb = pa.nav, pb.nav                     # the truth
@@ -90,7 +107,7 @@ def estimates(n_pings: int, first: int, options: dict):
                          "cov_m2": est.cov_m2.tolist(), "refused": est.refused,
                          "coherence": est.coherence.tolist(), "seconds": sec})
         prev = cur
-    return rows, synth_s / n_pings, hw.sequencer.ping_interval_s
+    return rows, synth_s / n_pings, hw.sequencer.ping_interval_s, pings, loaded, scene
 
 
 def dvl_cases(true_inc: np.ndarray, interval_s: float, rng) -> dict:
@@ -123,6 +140,51 @@ def aperture_error(inc_err: np.ndarray) -> float:
     return worst
 
 
+def image_cases(pings, hardware, scene, positions) -> dict:
+    """Each case's DVL and fused poses (true attitude; positions from the first ping's
+    true position plus the increments; the altitude keeps the true bottom) imaged as
+    bench_focus images (its Focus and measure, processing-demo with the sand's sound
+    speed and refraction tables): levels at the points against the true-pose image."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import bench_focus as bf
+    from svss_daq.config import ProcessingConfig
+    text = (ROOT / "config/processing-demo.toml").read_text()
+    text = text.replace("sediment_sound_speed_m_s = 1500.0", "sediment_sound_speed_m_s = 1767.0")
+    text = text.replace('delays = "straight"', 'delays = "table"')
+    tmp = Path(tempfile.mkdtemp(prefix="bench_micronav_")) / "processing-sand.toml"
+    tmp.write_text(text)
+    processing = load_with_text(ProcessingConfig, tmp)
+    truth = [p.nav for p in pings]
+    t_ned = np.array([n.ned for n in truth])
+    bottom = np.array([n.down_m + n.altitude_m for n in truth])
+
+    def posed(pos):
+        pos = pos + t_ned[0]
+        return [dataclasses.replace(n, north_m=float(q[0]), east_m=float(q[1]),
+                                    down_m=float(q[2]), altitude_m=float(b - q[2]))
+                for n, q, b in zip(truth, pos, bottom)]
+
+    out = {}
+    t0 = time.perf_counter()
+    ref = bf.measure(bf.Focus(hardware, processing, pings, truth, "true"), scene, None)
+    out["true"] = {"points": ref["points"], "pings_imaged": ref["pings_imaged"],
+                   "seconds": time.perf_counter() - t0}
+    print("peak level against the true poses (dB): mean / worst / per point")
+    for name, (nav, fused) in positions.items():
+        for kind, pos in (("dvl", nav), ("fused", fused)):
+            t0 = time.perf_counter()
+            res = bf.measure(bf.Focus(hardware, processing, pings, posed(pos),
+                                      f"{name}/{kind}"), scene, ref["points"])
+            lv = [p["level_db"] for p in res["points"]]
+            out[f"{name}/{kind}"] = {"levels_db": lv, "mean_db": float(np.mean(lv)),
+                                     "worst_db": float(np.min(lv)),
+                                     "pings_imaged": res["pings_imaged"],
+                                     "seconds": time.perf_counter() - t0}
+            print(f"  {name:26s} {kind:5s} {np.mean(lv):6.2f} / {np.min(lv):6.2f} / "
+                  f"{np.round(lv, 2).tolist()}  ({res['pings_imaged']} pings)")
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--pings", type=int, default=60)
@@ -132,10 +194,14 @@ def main(argv=None) -> int:
                     help="displacement_pass's gradient option (the alternatives measured)")
     ap.add_argument("--translations", type=int, default=2)
     ap.add_argument("--passes", type=int, default=2)
+    ap.add_argument("--image", action="store_true",
+                    help="add three points to the scene and image it with the true, DVL "
+                         "and fused poses of each case: peak loss against the true poses")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
-    rows, synth_s, interval = estimates(args.pings, args.first, dict(
-        gradient=args.gradient, translations=args.translations, passes=args.passes))
+    rows, synth_s, interval, pings, hardware, scene = estimates(
+        args.pings, args.first, dict(gradient=args.gradient, translations=args.translations,
+                                     passes=args.passes), args.image)
     ok = [r for r in rows if r["refused"] is None]
     true = np.array([r["true_m"] for r in rows])
     est = np.array([r["est_m"] for r in rows])
@@ -164,11 +230,13 @@ def main(argv=None) -> int:
     mcov = np.array([np.array(r["cov_m2"]) if r["refused"] is None else np.eye(3)
                      for r in rows])
     fusion = {}
+    positions = {}
     print(f"worst {APERTURE}-ping aperture rms position error (mm): DVL alone / fused")
     for name, (inc, s) in dvl_cases(true, interval, rng).items():
         nav = np.vstack([np.zeros(3), np.cumsum(inc, axis=0)])
         ncov = np.array([increment_covariance(s)] * len(rows))
         x, _ = fuse_increments(nav, ncov, mic, mcov)
+        positions[name] = (nav, x)
         e_nav = np.diff(nav, axis=0) - true
         e_fus = np.diff(x, axis=0) - true
         fusion[name] = {
@@ -180,7 +248,8 @@ def main(argv=None) -> int:
         print(f"  {name:26s} {f['dvl_aperture_mm']:7.2f} / {f['fused_aperture_mm']:7.2f}   "
               f"(steps rms DVL {np.round(f['dvl_step_rms_mm'], 2)}, fused "
               f"{np.round(f['fused_step_rms_mm'], 2)})")
-    out = {"summary": summary, "fusion": fusion, "pairs": rows,
+    images = image_cases(pings, hardware, scene, positions) if args.image else None
+    out = {"summary": summary, "fusion": fusion, "images": images, "pairs": rows,
            "args": vars(args), "wall_s": time.perf_counter() - t0}
     if args.out:
         Path(args.out).write_text(json.dumps(out, indent=1))
