@@ -64,7 +64,7 @@ __all__ = ["DisplacementEstimate", "Patch", "displacement_pass", "estimate_displ
 
 #: the measured scatter of the estimates over their Cramer-Rao sigma (simulated sand, seed
 #: scene, configured order at 1 m/s, 50 ping pairs at pings 40-70 and 70-100 of
-#: the runs recorded in docs/micronavigation.md: rms(error / sigma) 1.4-1.9
+#: development runs described in docs/micronavigation.md: rms(error / sigma) 1.4-1.9
 #: horizontally, 1.0-1.5 vertically): the looks of a patch are not independent (the two
 #: sub-apertures share the speckle) and the offset bias is not in the bound. The
 #: covariance is multiplied by its square.
