@@ -80,11 +80,12 @@ PATCH_DIRECTIONS = ((0.0, 0.0), (1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)
 
 def focus_points(bb: np.ndarray, t0_s: float, dt_s: float, center_hz: float,
                  sound_speed_m_s: float, tx: np.ndarray, rx: np.ndarray,
-                 points: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+                 points: np.ndarray, weights=None) -> np.ndarray:
     """The sub-aperture's focused value at each point (m,): sum over channels of the
     baseband ``bb`` (n_ch, n) linearly interpolated at tau = (|P - tx| + |P - rx|) / c
     and turned by exp(+j 2 pi f_c tau). ``tx`` (3,), ``rx`` (n_ch, 3), ``points`` (m, 3),
-    one frame, m; samples at t0 + k dt."""
+    one frame, m; samples at t0 + k dt. ``weights``: per channel (n_ch,), None for ones,
+    or "channels" for the channels' terms unsummed (n_ch, m)."""
     p = np.asarray(points, dtype=np.float64)
     tau = (np.linalg.norm(p - tx, axis=1)[None, :]
            + np.linalg.norm(p[None, :, :] - rx[:, None, :], axis=2)) / sound_speed_m_s
@@ -97,7 +98,10 @@ def focus_points(bb: np.ndarray, t0_s: float, dt_s: float, center_hz: float,
     rows = np.arange(bb.shape[0])[:, None]
     s = (bb[rows, k] * (1.0 - f) + bb[rows, k + 1] * f) * ok
     s = s * np.exp(2j * math.pi * center_hz * tau)
-    if weights == "channels":
+    if isinstance(weights, str):
+        if weights != "channels":
+            raise ValueError(f"weights {weights!r}: expected per-channel numbers, None or "
+                             "'channels'")
         return s
     w = np.ones(bb.shape[0]) if weights is None else np.asarray(weights, dtype=np.float64)
     return w @ s
@@ -162,11 +166,12 @@ class Patch:
 
 def seabed_patches(centre: np.ndarray, depth_m: float, patch_angle_rad: float,
                    half_width_m: float, spacing_m: float) -> list[Patch]:
-    """Nine square patches of points on the seabed plane z = ``depth_m`` (frame: x
-    forward, y starboard, z down): about the nadir of ``centre`` (3,) and about the
-    points ``patch_angle_rad`` off nadir in the eight directions of ``PATCH_DIRECTIONS``
-    (ahead, astern, starboard, port and between), each
-    (2 half_width / spacing + 1)^2 points."""
+    """Nine square patches of points on the seabed plane z = ``depth_m`` (the poses'
+    local frame, z down): about the nadir of ``centre`` (3,) and about the points
+    ``patch_angle_rad`` off nadir in the eight directions of ``PATCH_DIRECTIONS`` in
+    that frame's x and y (north and east for NED poses: the names say ahead, starboard
+    ... for a heading of 0; the estimate does not depend on it, the eight directions are
+    evenly spread), each (2 half_width / spacing + 1)^2 points."""
     h = depth_m - float(centre[2])
     if not h > 0:
         raise ValueError(f"the seabed ({depth_m:.3f} m) is not below the array "
@@ -380,10 +385,10 @@ def displacement_pass(bb_a: np.ndarray, bb_b: np.ndarray, t0_s: float, dt_s: flo
 
 def _looks(points: np.ndarray, centre: np.ndarray, rx: np.ndarray, tx: np.ndarray,
            c: float, center_hz: float, spacing_m: float) -> float:
-    """Independent looks in a patch: its area over the seabed resolution cell of the
-    sub-aperture, about (lambda R / (2 L))^2 with L the aperture's extent (the range
-    resolution is finer than this off nadir and coarser at nadir; the coarser of the
-    two is taken: c / (2 B) with B ~ 0.55 f_c for this band)."""
+    """Independent looks in a patch, at least one: its area over (lambda R / (2 L))^2,
+    the sub-aperture's angular resolution cell at the patch's range R (L the diagonal
+    extent of its phase centres). The range resolution (c / (2 B) over sin(theta)) is
+    not taken into account; the scatter this count misses is in SCATTER_FACTOR."""
     ext = np.ptp(0.5 * (rx + tx), axis=0)[:2]
     length = max(float(np.hypot(*ext)), 1e-3)
     r = float(np.linalg.norm(points.mean(axis=0) - centre))
