@@ -177,3 +177,24 @@ def test_focus_points_brings_a_point_echo_into_phase_only_at_the_point():
     v1 = focus_points(bb, 0.0, dt, fc, c, tx, rx, (p0 + 0.01 * u)[None, :])[0]
     want = 2 * math.pi * fc * 0.02 / c
     assert abs(math.remainder(np.angle(v1) - want, 2 * math.pi)) < 0.1
+
+
+def test_refuses_without_a_seabed():
+    """The demo scene: six points in water, no seabed. The patches still cohere 0.3-0.8
+    on noise and the points' echoes (and gave increments 15-30 mm wrong, the truth being
+    the straight track's), so the estimator must refuse on the nadir patch."""
+    loaded = load_with_text(HardwareConfig, config_path("hardware.toml"))
+    hw = loaded.value
+    from sim_device.environment_source import EnvironmentSource
+    src = EnvironmentSource(loaded, load_scene(config_path("scenes/demo.toml")))
+    cond = Conditioner(hw.digitiser, make_waveform(hw.waveform), 2)
+    pa, pb = src.ping(42), src.ping(43)
+    ca, cb = cond.ping(pa), cond.ping(pb)
+    na, nb = pa.nav, pb.nav
+    est = estimate_displacement(
+        ca.data, cb.data, ca.t0_s, ca.dt_s, src.geometry, pa.projector, pb.projector,
+        body_to_ned(na.roll_rad, na.pitch_rad, na.heading_rad), na.ned,
+        body_to_ned(nb.roll_rad, nb.pitch_rad, nb.heading_rad), nb.ned,
+        na.down_m + na.altitude_m, 1500.0, hw.waveform.center_hz)
+    assert est.refused is not None and "no coherent seabed return" in est.refused, est
+    assert np.isnan(est.correction_m).all()
