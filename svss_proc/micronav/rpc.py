@@ -32,8 +32,8 @@ from svss_daq.geometry import ArrayGeometry
 
 from .phase_centres import PhaseCentrePairs, phase_centres
 
-__all__ = ["PairDisplacements", "VerticalIncrement", "fit_vertical_increment",
-           "pair_vertical_displacements"]
+__all__ = ["PairDisplacements", "VerticalIncrement", "excess_delay_s", "first_return_window",
+           "fit_vertical_increment", "pair_vertical_displacements", "shifted_samples"]
 
 
 @dataclass(frozen=True)
@@ -63,7 +63,7 @@ class VerticalIncrement:
     rms_residual_m: float
 
 
-def _shifted(bb: np.ndarray, t0: float, dt: float, times: np.ndarray) -> np.ndarray:
+def shifted_samples(bb: np.ndarray, t0: float, dt: float, times: np.ndarray) -> np.ndarray:
     """Complex baseband samples (channels, n) at ``times`` (channels, m), linearly
     interpolated (baseband varies slowly: the band is a few samples wide); 0 outside."""
     u = (times - t0) / dt
@@ -75,6 +75,45 @@ def _shifted(bb: np.ndarray, t0: float, dt: float, times: np.ndarray) -> np.ndar
     rows = np.arange(bb.shape[0])[:, None]
     out = bb[rows, i] * (1.0 - w) + bb[rows, i + 1] * w
     return np.where(ok, out, 0.0)
+
+
+def first_return_window(t0_s: float, dt_s: float, n_samples: int, height_m: float,
+                        sound_speed_m_s: float, max_angle_rad: float) -> tuple[int, int]:
+    """Sample indices [k0, k1) of the seabed's first return from straight below to
+    ``max_angle_rad`` off nadir: arrival times 2 h / c to 2 h / (c cos(max_angle)) on the
+    axis t_k = t0 + k dt. Every scatterer heard in this window, on the interface or in
+    the volume below it, lies within ``max_angle_rad`` of nadir (a flat interface): the
+    window bounds the spatial frequencies of the echo across the array, 2 k sin(angle)."""
+    if not height_m > 0:
+        raise ValueError(f"height {height_m!r} m above the interface: expected > 0")
+    if not 0 < max_angle_rad < math.pi / 2:
+        raise ValueError(f"max_angle {max_angle_rad!r} rad: expected in (0, pi/2)")
+    c, h = float(sound_speed_m_s), float(height_m)
+    t_lo, t_hi = 2.0 * h / c, 2.0 * h / (c * math.cos(max_angle_rad))
+    k0 = max(int(math.floor((t_lo - t0_s) / dt_s)), 0)
+    k1 = min(int(math.ceil((t_hi - t0_s) / dt_s)) + 1, n_samples)
+    if k1 - k0 < 2:
+        raise ValueError(f"the interface's first return ({t_lo * 1e3:.3f}-{t_hi * 1e3:.3f} "
+                         "ms) is outside the samples")
+    return k0, k1
+
+
+def excess_delay_s(separation_a: np.ndarray, separation_b: np.ndarray, times_s: np.ndarray,
+                   height_m: float, sound_speed_m_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """The difference of two pairs' bistatic excess delays over the interface's first
+    return, eps (n_pairs, n_times) s, and cos(theta) (n_times,). A sample at time t
+    hears the ring of the interface at cos(theta) = 2 h / (c t) (h the phase centres'
+    height); the excess |s_perp|^2 / (4 R) there, averaged over the ring's azimuths, is
+    |s_h|^2 (1 - sin^2(theta) / 2) cos(theta) / (4 h), so
+
+        eps = (|s_h,b|^2 - |s_h,a|^2) (1 - sin^2(theta) / 2) cos(theta) / (4 h c)."""
+    c, h = float(sound_speed_m_s), float(height_m)
+    t = np.asarray(times_s, dtype=np.float64)
+    cos_t = np.clip(2.0 * h / (c * np.maximum(t, 2.0 * h / c)), 0.0, 1.0)
+    ring = (1.0 - 0.5 * (1.0 - cos_t ** 2)) * cos_t / (4.0 * h)
+    s2a = np.sum(np.asarray(separation_a)[:, :2] ** 2, axis=1)
+    s2b = np.sum(np.asarray(separation_b)[:, :2] ** 2, axis=1)
+    return (s2b - s2a)[:, None] * ring[None, :] / c, cos_t
 
 
 def pair_vertical_displacements(bb_a: np.ndarray, bb_b: np.ndarray, t0_s: float, dt_s: float,
@@ -95,23 +134,11 @@ def pair_vertical_displacements(bb_a: np.ndarray, bb_b: np.ndarray, t0_s: float,
     empty = np.zeros(0)
     if len(pairs) == 0:
         return PairDisplacements(empty, empty, empty, np.zeros((0, 2)), ia, ib)
-    # the window: nadir to max_angle, on a's sample grid
-    t_lo, t_hi = 2.0 * h / c, 2.0 * h / (c * math.cos(max_angle_rad))
-    k0 = max(int(math.floor((t_lo - t0_s) / dt_s)), 0)
-    k1 = min(int(math.ceil((t_hi - t0_s) / dt_s)) + 1, bb_a.shape[1])
-    if k1 - k0 < 2:
-        raise ValueError(f"the interface's first return ({t_lo * 1e3:.3f}-{t_hi * 1e3:.3f} "
-                         "ms) is outside the samples")
+    k0, k1 = first_return_window(t0_s, dt_s, bb_a.shape[1], h, c, max_angle_rad)
     t = t0_s + dt_s * np.arange(k0, k1)
-    # each sample hears the ring of the interface at angle theta (cos = h / R, R = c t /
-    # 2): the excess there, averaged over the ring's azimuths, is
-    # |s_h|^2 (1 - sin^2(theta) / 2) cos(theta) / (4 h)
-    cos_t = np.clip(2.0 * h / (c * np.maximum(t, t_lo)), 0.0, 1.0)
-    ring = (1.0 - 0.5 * (1.0 - cos_t ** 2)) * cos_t / (4.0 * h)
-    s2 = lambda s: np.sum(s[:, :2] ** 2, axis=1)            # noqa: E731
-    eps = (s2(pairs.separation_b) - s2(pairs.separation_a))[:, None] * ring[None, :] / c
+    eps, cos_t = excess_delay_s(pairs.separation_a, pairs.separation_b, t, h, c)
     a = bb_a[ia, k0:k1]
-    b = _shifted(bb_b[ib], t0_s, dt_s, t[None, :] + eps)
+    b = shifted_samples(bb_b[ib], t0_s, dt_s, t[None, :] + eps)
     prod = a * np.conj(b) * np.exp(-2j * math.pi * center_hz * eps)
     cross = prod.sum(axis=1)
     pa, pb = np.sum(np.abs(a) ** 2, axis=1), np.sum(np.abs(b) ** 2, axis=1)
