@@ -5,7 +5,8 @@ tests/test_gpu_kernel.py did not catch).
 
 The pings: the demo scene's bright points (config/scenes/demo.toml) simulated by the
 project's simulator with the full 80-channel array of config/hardware.toml, imaged on
-2 cm voxels in a tile frame whose fixed line origin lies 300 m behind the track's start,
+2 cm voxels (0.8 m across, 0.72 m deep) in a tile frame whose fixed line origin lies
+300 m behind the track's start,
 so that the tile (index 20) is 300-315 m from the origin. The real imager places every
 ping (navigation, array geometry, tile frame) and runs the CPU kernel in float32 and in
 float64 over the tile; the same per-ping kernel inputs then go, under numba's CUDA
@@ -53,8 +54,10 @@ def _processing(precision: str, heading_deg: float, start_ne) -> ProcessingConfi
     im = dataclasses.replace(proc.imaging, precision=precision, device="cpu",
                              track_line="fixed", line_origin_ne_m=origin,
                              line_heading_deg=heading_deg)
-    # 2 cm voxels over 1 m x 1 m (the demo's points lie within +-0.46 m and 0.16-0.84 m)
-    tile = dataclasses.replace(proc.tile, width_m=1.0, depth_m=1.0, voxel_m=0.02)
+    # 2 cm voxels over 0.8 m x 0.72 m: the tile holds the first two points (cross 0 and
+    # 0.32 m, depth 0.30 and 0.62 m) with 4 voxels to spare across and 5 below (1 m x 1 m
+    # before: 1.7x the kernel's work for voxels no point is near)
+    tile = dataclasses.replace(proc.tile, width_m=0.8, depth_m=0.72, voxel_m=0.02)
     return dataclasses.replace(proc, imaging=im, tile=tile)
 
 
