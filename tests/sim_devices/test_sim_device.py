@@ -53,10 +53,13 @@ def test_drivers_receive_the_physics_bit_for_bit(sim_device_factory, hardware):
         assert dig.set_gain(6.0) == 6.0
         dig.start()
         seq.start()
-        events = [seq.ping_queue.get(timeout=WAIT_S) for _ in range(N_PINGS)]
         pings = []
         while len(pings) < N_PINGS:
             pings.append(dig.ping_queue.get(timeout=WAIT_S))
+        # every transmission up to the last ping delivered (on a loaded machine the
+        # device may drop a ping whose samples were not ready in time: it says so)
+        events = [seq.ping_queue.get(timeout=WAIT_S)
+                  for _ in range(max(N_PINGS, pings[-1].ping_number + 1))]
         st = seq.status()
         seq.stop()
         dig.stop()
@@ -64,7 +67,8 @@ def test_drivers_receive_the_physics_bit_for_bit(sim_device_factory, hardware):
         dig.close()
         seq.close()
     assert st.state == "RUNNING" and st.pings_sent >= N_PINGS
-    assert [e.sequence for e in events] == list(range(N_PINGS)) and seq.missed_pings == 0
+    assert [e.sequence for e in events] == list(range(len(events))) \
+        and seq.missed_pings == 0
     # transmissions on the track's ping grid, on the simulated clock; the projector cycle
     # locked to it
     k = [(e.transmit_time_ns - t_track) / interval_ns for e in events]
@@ -72,7 +76,11 @@ def test_drivers_receive_the_physics_bit_for_bit(sim_device_factory, hardware):
     assert [e.projector for e in events] == [hw.sequencer.projector_order[int(x) % 6]
                                              for x in k]
     assert all(isinstance(p, dg.CompletePing) for p in pings), pings
-    assert [p.ping_number for p in pings] == list(range(N_PINGS))
+    numbers = [p.ping_number for p in pings]
+    assert numbers == sorted(set(numbers)), numbers
+    # a ping missing only where the device dropped it late, logged (the first ten)
+    for n in sorted(set(range(numbers[-1])) - set(numbers)):
+        assert f"ping {n} (track ping" in dev.logs(), (n, numbers, dev.logs()[-2000:])
     by_seq = {e.sequence: e for e in events}
     src = EnvironmentSource(hardware, scene)
     for p in pings:
