@@ -322,8 +322,9 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
     :class:`~svss_proc.tiles.TileFileError` names the file. ``seams``: the run's
     :class:`Seams` (the previous tile's last planes and contacts; this tile's are
     remembered for the next). ``clock``: a :class:`~svss_proc.live_clock.StageClock`
-    that gets the products' parts (``products.*``: the chain's steps, wall time; the
-    quick look and the tile file, CPU and wall)."""
+    that gets the products' parts (``products.chain``: the chain in all, CPU and wall;
+    ``products.background`` etc.: its steps, wall time; ``products.quicklook_png`` and
+    ``products.tile_file``, CPU and wall)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     name = tile_name(tile.grid.index)
@@ -337,6 +338,7 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
     g = tile.grid
     prods = None
     if pcfg is not None:
+        c_chain, w_chain = time.process_time(), time.perf_counter()
         cov = tile.coverage
         fp = tile_footprint(tile, hardware, processing.value.imaging)
         prods = compute_products(tile.image, (g.along, g.cross, g.depth), voxel, pcfg,
@@ -346,7 +348,9 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
                                  before=(seams.before_for(tile) if seams is not None
                                          and pcfg.background.across_seams else None),
                                  after=tile.after if pcfg.background.across_seams else None)
-        if clock is not None:
+        if clock is not None:       # the chain's CPU in all, its steps' wall times
+            clock.add("products.chain", time.process_time() - c_chain,
+                      time.perf_counter() - w_chain)
             for k, v in prods.timings.items():
                 clock.add(f"products.{k}", float("nan"), v)
     if seams is not None:
