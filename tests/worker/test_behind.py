@@ -190,3 +190,46 @@ def test_behind_worker_degrades_to_quick_looks_first_and_drops_no_ping(raw_run, 
             mon.close(linger=0)
         for p in reversed(procs):
             _stop(p)
+
+
+def test_waiting_tiles_are_bounded_and_not_written_in_the_journal(raw_run, tmp_path):
+    """In one process (the policy's bookkeeping): with products deferred, a completed
+    tile gets its quick look and no tile file; the journal does not list it as written
+    and resumes at or before its first ping (a crash rebuilds it); beyond
+    ``max_deferred`` waiting tiles the oldest gets its full products at once; at the
+    run's end every tile has them."""
+    from svss_daq.config import ProcessingConfig, load_with_text
+    from svss_daq.rawfile import RawRunReader
+    from svss_proc.run_worker import Worker
+    proc_path = tmp_path / "processing.toml"
+    proc_path.write_text(small_processing_text())
+    proc = load_with_text(ProcessingConfig, proc_path)
+    out = tmp_path / "line1"
+    seen = []
+    with RawRunReader(raw_run) as run:
+        w = Worker(run.hardware, proc, out, run_id="line1")
+        w.defer_products, w.max_deferred = True, 2
+        for p in run:
+            w.add(p)
+            if w.deferred:
+                waiting = [t.grid.index for t, _ in w.deferred]
+                j = json.loads((out / "worker_state.json").read_text())
+                for t, _ in w.deferred:
+                    assert not (out / f"tile_{t.grid.index:04d}.h5").exists()
+                    assert (out / f"tile_{t.grid.index:04d}_mip.png").exists()
+                    assert t.grid.index not in j["written"], j
+                    assert j["resume_sequence"] <= t.pings[0], j
+                assert len(waiting) <= 2
+                seen.append(tuple(waiting))
+        n_done_mid = len(list(out.glob("tile_*.h5")))
+        w.finish()
+    assert any(len(s) == 2 for s in seen), seen       # the bound was reached ...
+    assert n_done_mid >= 1                            # ... and the oldest finished
+    tiles = sorted(out.glob("tile_*.h5"))
+    # the tiles completed mid-run waited; those the run's end closed did not
+    assert w.deferred_tiles and set(w.deferred_tiles) < {int(p.stem.split("_")[1])
+                                                         for p in tiles}
+    for t in tiles:
+        with h5py.File(t, "r") as f:
+            assert "detections" in f
+    assert json.loads((out / "worker_state.json").read_text())["complete"] is True
