@@ -100,6 +100,7 @@ def cmd_batch(args) -> int:
 
 
 def cmd_worker(args) -> int:
+    from svss_daq.config import worker_section
     from svss_proc.worker import serve
 
     daq = load(DaqConfig, config_path("daq.toml"))
@@ -111,7 +112,8 @@ def cmd_worker(args) -> int:
                   curve=daq.security, runs=args.runs, gap_wait_s=gap_wait,
                   reorder_pings=sub.reorder_pings,
                   max_sequence_jump=sub.max_sequence_jump,
-                  max_listed_gaps=sub.max_listed_gaps,
+                  max_listed_gaps=sub.max_listed_gaps, behind=worker_section(daq),
+                  timings=args.timings,
                   **({"service_timeout_s": daq.service.request_timeout_s,
                       "max_pings_per_reply": daq.service.max_pings_per_reply,
                       "progress_interval_s": daq.service.progress_interval_s}
@@ -151,7 +153,7 @@ def cmd_replay(args) -> int:
               flush=True)
         if service is not None:
             print(f"catch-up service on {service.endpoint}", flush=True)
-        pub.wait_for_subscribers(timeout_s=args.wait)
+        pub.wait_for_subscribers(args.subscribers, timeout_s=args.wait)
         t0, first = time.monotonic(), None
         for run_id in store.run_ids():
             replay.begin(run_id)
@@ -539,6 +541,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--gap-wait", type=float, default=None,
                     help="without --service: seconds to wait for a missing ping before "
                     "skipping it (default: daq.toml subscriber.gap_wait_s)")
+    sp.add_argument("--timings", metavar="FILE", help="write per run the CPU and wall "
+                    "time of each stage, every ping's lag behind the sonar and every "
+                    "tile's times as JSON to FILE (benchmarks/bench_live.py)")
     force(sp, "tiles, manifest and run folders of an earlier run in --out (without it, "
           "a folder holding this worker's journal is resumed)")
     common(sp)
@@ -555,6 +560,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--linger", type=float, default=0.0, help="keep serving the "
                     "recording this many seconds after the last run")
     sp.add_argument("--pause", type=float, default=0.0, help="seconds between runs")
+    sp.add_argument("--subscribers", type=int, default=1, metavar="N",
+                    help="start publishing once N subscribers have subscribed (default 1)")
     sp.add_argument("--realtime", action="store_true", help="pace pings at their recorded "
                     "transmit times")
     sp.add_argument("--wait", type=float, default=60.0,

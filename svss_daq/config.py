@@ -380,6 +380,33 @@ class SubscriberConfig:
         hi=10**6, default=100)
 
 
+#: what a tile worker behind the sonar does (daq.toml ``[worker] when_behind``)
+WHEN_BEHIND = ("quicklook_first", "full_products")
+
+
+@dataclass(frozen=True)
+class WorkerConfig:
+    """A tile worker behind the sonar (docs/worker.md, *Behind the sonar*). Every key may
+    be omitted: its default is given here."""
+    behind_s: float | None = spec(
+        "a tile worker whose pings reach its imager this many seconds after their "
+        "transmit time (less the smallest such delay of the run) is behind: it logs the "
+        "alarm worker.behind and degrades by when_behind", lo=0.0, hi=86400, default=20.0)
+    caught_up_s: float | None = spec(
+        "... and has caught up again once a ping reaches its imager within this many "
+        "seconds (the alarm is cleared, deferred products are finished), s", lo=0.0,
+        hi=86400, default=5.0)
+    when_behind: str | None = spec(
+        "what a worker behind does: quicklook_first (every ping is still imaged; a "
+        "completed tile gets its quick-look PNG at once and its full products and tile "
+        "file once caught up, or at the run's end) or full_products (no degrading: the "
+        "alarm only)", choices=WHEN_BEHIND, default="quicklook_first")
+    max_deferred_tiles: int | None = spec(
+        "tiles whose full products wait at most (their image planes stay in memory, 60 MB "
+        "per default tile in float32); beyond, the oldest is finished at once", lo=1,
+        hi=1000, default=4)
+
+
 @dataclass(frozen=True)
 class ServiceConfig:
     endpoint: str = spec("ZeroMQ endpoint of the catch-up ping service (ROUTER) that "
@@ -422,8 +449,16 @@ class DaqConfig:
     recorder: RecorderConfig = spec("raw-run recorder")
     service: ServiceConfig | None = spec("catch-up ping service for the tile worker "
                                          "(omitted: none)")
+    worker: WorkerConfig | None = spec("what a tile worker behind the sonar does "
+                                       "(omitted: the defaults of every key)")
     security: CurveConfig | None = spec("ZeroMQ CURVE keys of the endpoints "
                                                   "(omitted: disabled; docs/security.md)")
+
+
+def worker_section(daq: DaqConfig) -> WorkerConfig:
+    """daq.toml's ``[worker]``: its table, or every default when it has none."""
+    return daq.worker if daq.worker is not None else from_dict(WorkerConfig, {},
+                                                               "[worker] defaults")
 
 
 # ----------------------------------------------------------------------- the loader

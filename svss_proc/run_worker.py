@@ -32,7 +32,8 @@ from svss_daq.rawfile import RawRunReader, run_of
 
 from .imaging.imager import TileImager
 from .imaging.pose_check import check_pose_flags
-from .products.chain import Seams, save_tile
+from .live_clock import SonarLag, StageClock, instrument
+from .products.chain import Seams, save_quicklook, save_tile
 from .products.run_products import run_products_at_end
 from .run_folder import (JOURNAL, JOURNAL_SCHEMA, JOURNAL_VERSION, MANIFEST, atomic_json,
                          prepare_output_dir, read_journal)
@@ -89,6 +90,26 @@ class Worker:
         #: ``run_label``, else ``run_id`` ("" unknown); no journal without ``run_id``
         self.run_label = run_label or run_id or ""
         self.imager = TileImager(hardware, processing.value, source=processing.source)
+        #: CPU and wall time per stage (manifest ``stage_times``; docs/worker.md)
+        self.clock = StageClock()
+        instrument(self.imager, self.clock)
+        #: how far behind the sonar the pings fed are (the stream worker judges it)
+        self.lag = SonarLag()
+        #: set by the stream worker while it is behind with ``when_behind =
+        #: "quicklook_first"``: tiles completed get their quick look at once and their
+        #: full products (and tile file) later (:meth:`complete_deferred`)
+        self.defer_products = False
+        #: tiles waiting for their full products at most; beyond, the oldest is finished
+        self.max_deferred = 4
+        #: tiles with only their quick look so far, in order (the seams need their
+        #: products made in order)
+        self.deferred: list = []
+        #: every tile whose full products were deferred in this session (manifest)
+        self.deferred_tiles: list[int] = []
+        #: times the worker fell behind in this run (manifest ``behind``)
+        self.behind_episodes = 0
+        #: per tile written: index, pings, quick look and tile file times (unix s)
+        self.tile_times: list[dict] = []
         prepare_output_dir(self.out, force, resume=resume)
         self.gate = PingGate(hardware, name="worker")
         self.written: list[Path] = []
@@ -157,13 +178,19 @@ class Worker:
         if resume is None:
             resume = (self.last_sequence + 1 if self.last_sequence is not None
                       else self.resume_sequence)
+        # a tile waiting for its full products has no tile file yet: not written, and
+        # rebuilt from its first ping after a crash
+        waiting = [t.pings[0] for t, _ in self.deferred if t.pings]
+        if waiting:
+            resume = min(waiting) if resume is None else min(resume, min(waiting))
         atomic_json(self.out / JOURNAL, {
             "schema": JOURNAL_SCHEMA, "version": JOURNAL_VERSION, "run_id": self.run_id,
             "complete": complete,
             "line": None if line is None else {
                 "origin_ne": list(line.origin_ne), "heading": line.heading,
                 "interface_down": line.interface_down},
-            "written": sorted(self.imager.done - set(stopped_open)),
+            "written": sorted(self.imager.done - set(stopped_open)
+                              - {t.grid.index for t, _ in self.deferred}),
             "stopped_open": sorted(stopped_open),
             "resume_sequence": resume, "last_sequence": self.last_sequence,
             "resumed": self.resumed, "skipped": self.skipped_ranges,
@@ -188,7 +215,8 @@ class Worker:
             flags_ok = False
         if flags_ok and self.gate.admit(ping):
             try:
-                tiles = self.imager.add(ping)
+                with self.clock.stage("ping"):
+                    tiles = self.imager.add(ping)
                 ok = True
             except PingRejected as exc:
                 self.gate.refuse(exc)
@@ -205,13 +233,56 @@ class Worker:
         if type(seq) is int and (self.last_sequence is None or seq > self.last_sequence):
             self.last_sequence = seq
         for tile in tiles:
-            tile.poses, tile.run_id = self.poses, self.run_label
-            self.written += save_tile(tile, self.out, self.hardware, self.processing,
-                                      self.seams)
+            self._save(tile)
         if tiles or (self.imager.line is not None and not self._journal_line):
             self._journal_line = True
             self._write_journal()
         return ok
+
+    def _save(self, tile) -> None:
+        """Write a completed tile: with its full products, or (behind, or behind tiles
+        still waiting: the seams need the products in tile order) its quick look only,
+        the tile kept for :meth:`complete_deferred`."""
+        tile.poses, tile.run_id = self.poses, self.run_label
+        entry = {"tile": tile.grid.index, "pings": len(tile.pings),
+                 "first_ping": min(tile.pings) if tile.pings else None,
+                 "last_ping": max(tile.pings) if tile.pings else None,
+                 "quicklook_unix_s": None, "written_unix_s": None}
+        self.tile_times.append(entry)
+        if not (self.defer_products or self.deferred):
+            self._save_full(tile, entry)
+            return
+        with self.clock.stage("quicklook"):
+            save_quicklook(tile, self.out)
+        entry["quicklook_unix_s"] = round(time.time(), 4)
+        self.deferred.append((tile, entry))
+        self.deferred_tiles.append(tile.grid.index)
+        log.info("%s: tile %d: quick look written; its full products wait (%d tile(s) "
+                 "waiting)", self.out, tile.grid.index, len(self.deferred))
+        while len(self.deferred) > self.max_deferred:
+            log.warning("%s: %d tiles wait for their full products (worker."
+                        "max_deferred_tiles %d): finishing tile %d now", self.out,
+                        len(self.deferred), self.max_deferred,
+                        self.deferred[0][0].grid.index)
+            self.complete_deferred()
+
+    def _save_full(self, tile, entry: dict) -> None:
+        with self.clock.stage("products"):
+            self.written += save_tile(tile, self.out, self.hardware, self.processing,
+                                      self.seams, clock=self.clock)
+        entry["written_unix_s"] = round(time.time(), 4)
+
+    def complete_deferred(self) -> bool:
+        """Make the full products and the tile file of the oldest tile waiting for them
+        (False: none waits)."""
+        if not self.deferred:
+            return False
+        tile, entry = self.deferred.pop(0)
+        self._save_full(tile, entry)
+        self._write_journal()
+        log.info("%s: tile %d: full products written (%d tile(s) still waiting)",
+                 self.out, tile.grid.index, len(self.deferred))
+        return True
 
     def skip(self, first: int, last: int) -> None:
         """Pings ``first``..``last`` of the run will never be imaged here (lost on the
@@ -240,14 +311,15 @@ class Worker:
         """Write every open tile and the manifest; ``complete`` False when stopped early
         (the journal then says the open tiles were written only because of the stop, and
         a resume redoes them)."""
+        while self.complete_deferred():      # in tile order, before the open tiles
+            pass
+        self.defer_products = False
         open_tiles = sorted(self.imager.active)
         resume = self.imager.resume_sequence()
         if not complete:
             self._write_journal(stopped_open=open_tiles)    # intent first
         for tile in self.imager.finish():
-            tile.poses, tile.run_id = self.poses, self.run_label
-            self.written += save_tile(tile, self.out, self.hardware, self.processing,
-                                      self.seams)
+            self._save(tile)
         refused = dict(self.gate.refused)
         if self.gate.n_refused or self.imaging_errors or self.imager.late_pings:
             log.warning("%d ping(s) refused %s, %d failed in imaging, %d reached only "
@@ -256,7 +328,8 @@ class Worker:
         self._write_journal(complete=complete, stopped_open=() if complete else open_tiles,
                             resume=resume)
         atomic_json(self.out / MANIFEST, self.summary(complete))
-        run_products_at_end(self.out)     # contacts and mosaic of the run (docs/products.md)
+        with self.clock.stage("run_products"):
+            run_products_at_end(self.out)  # contacts and mosaic of the run (docs/products.md)
         return self.written
 
     def summary(self, complete: bool) -> dict:
@@ -271,6 +344,10 @@ class Worker:
             "resumed": self.resumed, "incomplete": self.incomplete_reason,
             "skipped_pings": self.skipped_pings, "skipped": self.skipped_ranges,
             "skipped_unlisted": self.skipped_unlisted,
+            "behind": {"max_lag_s": round(self.lag.max_lag_s, 3),
+                       "episodes": self.behind_episodes,
+                       "products_deferred": list(self.deferred_tiles)},
+            "stage_times": self.clock.totals(),
             "files": sorted({p.name for p in self.written})}
 
     def run(self, pings: Iterable[Ping], total: int | None = None) -> list[Path]:

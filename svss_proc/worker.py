@@ -29,7 +29,7 @@ import zmq
 
 from svss_daq import messages
 from svss_daq.config import (HardwareConfig, Loaded, ProcessingConfig, SubscriberConfig,
-                             omitted_default)
+                             WorkerConfig, from_dict, omitted_default)
 from svss_daq.endpoints import check_endpoint
 from svss_daq.ping import Ping
 from svss_daq.ping_service import (MAX_PINGS_PER_REPLY, PROGRESS_INTERVAL_S, PingFetcher,
@@ -111,8 +111,17 @@ class StreamWorker:
                  gap_wait_s: float = GAP_WAIT_S, reorder_pings: int = REORDER_PINGS,
                  max_sequence_jump: int = MAX_SEQUENCE_JUMP, force: bool = False,
                  progress_interval_s: float = PROGRESS_INTERVAL_S,
-                 max_listed_gaps: int = MAX_LISTED_GAPS):
+                 max_listed_gaps: int = MAX_LISTED_GAPS, behind: WorkerConfig | None = None,
+                 timings: str | Path | None = None):
         preflight(processing.value, processing.source)     # before anything is written
+        #: what this worker does when behind the sonar (daq.toml [worker])
+        self.policy = behind if behind is not None else from_dict(
+            WorkerConfig, {}, "[worker] defaults")
+        self.behind = False
+        #: ``--timings FILE``: per run, the stage times, every ping's lag and every
+        #: tile's times, rewritten at each run's end (benchmarks/bench_live.py)
+        self.timings_path = None if timings is None else Path(timings)
+        self.timings: dict[str, dict] = {}
         self.progress_interval_s = progress_interval_s
         self.max_listed_gaps = max_listed_gaps
         #: this worker's id in its progress messages to the catch-up service
@@ -163,8 +172,9 @@ class StreamWorker:
                      self._folder(run_id))
             return _Run(run_id, None, None)
         folder = self._folder(run_id)
-        worker = Worker(self.hardware, self.processing, folder, run_id=run_id, resume=True,
-                        max_listed_gaps=self.max_listed_gaps)
+        worker = self._configured(Worker(self.hardware, self.processing, folder,
+                                         run_id=run_id, resume=True,
+                                         max_listed_gaps=self.max_listed_gaps))
         start = worker.resume_sequence if worker.resume_sequence is not None else first
         run = _Run(run_id, worker, start)
         self._say(run)                     # the service knows at once this worker needs it
@@ -194,8 +204,15 @@ class StreamWorker:
         folder = self.out / f"unnamed-{stamp}-{seq}"
         log.info("a run begins at ping %d: imaging into %s until its end marker names it",
                  seq, folder)
-        return _Run(None, Worker(self.hardware, self.processing, folder,
-                                 max_listed_gaps=self.max_listed_gaps), seq)
+        return _Run(None, self._configured(Worker(
+            self.hardware, self.processing, folder, max_listed_gaps=self.max_listed_gaps)),
+            seq)
+
+    def _configured(self, worker: Worker) -> Worker:
+        worker.max_deferred = self.policy.max_deferred_tiles
+        if self.timings_path is not None:
+            worker.lag.timeline = []
+        return worker
 
     def resume_unfinished(self) -> None:
         """At start: finish (or continue) the runs whose journal says incomplete."""
@@ -367,7 +384,33 @@ class StreamWorker:
         r.gap_since = None
         r.progress_at = time.monotonic()
         r.fed += 1
-        r.worker.add(ping)
+        w = r.worker
+        self._judge(w, ping, w.lag.feed(ping.transmit_time_ns, ping.sequence))
+        w.add(ping)
+        if not self.behind:
+            w.complete_deferred()         # one tile's full products at most per ping
+
+    def _judge(self, w: Worker, ping: Ping, lag: float) -> None:
+        """Behind the sonar, or caught up again (daq.toml [worker]): the alarm
+        worker.behind raised or cleared (logged, and in the run's manifest), and the
+        degrading policy applied to the tiles completed from now on."""
+        p = self.policy
+        if not self.behind and lag > p.behind_s:
+            self.behind = True
+            w.behind_episodes += 1
+            log.warning("alarm worker.behind raised: ping %d reached the imager %.1f s "
+                        "behind the sonar (worker.behind_s %g); %s", ping.sequence, lag,
+                        p.behind_s, "every ping is still imaged; tiles get their quick "
+                        "look now and their full products once caught up"
+                        if p.when_behind == "quicklook_first" else
+                        "full products as ever (worker.when_behind full_products)")
+        elif self.behind and lag <= p.caught_up_s:
+            self.behind = False
+            log.warning("alarm worker.behind cleared: ping %d reached the imager %.1f s "
+                        "behind the sonar (worker.caught_up_s %g); %d tile(s) wait for "
+                        "their full products", ping.sequence, lag, p.caught_up_s,
+                        len(w.deferred))
+        w.defer_products = self.behind and p.when_behind == "quicklook_first"
 
     def _skip_gap(self, r: _Run, why: str) -> None:
         self._skip_to(r, min(r.buffer), why)
@@ -568,6 +611,15 @@ class StreamWorker:
         self.drain()
         r = self.run
         self._say(r)
+        if r is not None and r.worker is not None and not r.buffer:
+            if self.behind and r.worker.deferred:
+                # nothing came for a poll: the stream is drained, caught up
+                self.behind = False
+                r.worker.defer_products = False
+                log.warning("alarm worker.behind cleared: the stream is drained; %d "
+                            "tile(s) wait for their full products", len(r.worker.deferred))
+            if not self.behind:
+                r.worker.complete_deferred()
         now = time.monotonic()
         if (self.fetcher is None or r is None or r.worker is None or r.run_id is None
                 or r.buffer or now - r.heard_at < self.gap_wait_s or now < r.ask_at):
@@ -611,10 +663,26 @@ class StreamWorker:
             self.ended.add(r.run_id)
         summary = w.summary(complete)
         self.finished[w.out.name] = summary
+        self._write_timings(w)
         log.info("run %s: %d tile(s) in %s (%s)", r.run_id, sum(p.suffix == ".h5"
                  for p in files), w.out, "complete" if complete else
                  f"incomplete: {w.incomplete_reason}")
         self.write_manifest(complete=True)
+
+    def _write_timings(self, w: Worker) -> None:
+        if self.timings_path is None:
+            return
+        self.timings[w.out.name] = {
+            "run_id": w.run_id, "pings": w.imager.n_pings,
+            "ping_interval_s": self.ping_interval_s,
+            "stage_times": w.clock.totals(), "fetch_s": round(self.fetch_time_s, 4),
+            "behind": {"max_lag_s": round(w.lag.max_lag_s, 3),
+                       "episodes": w.behind_episodes,
+                       "products_deferred": list(w.deferred_tiles)},
+            "tiles": w.tile_times,
+            "pings_fed": [list(t) for t in (w.lag.timeline or [])]}
+        atomic_json(self.timings_path, {"schema": "svss.worker_timings", "version": 1,
+                                        "runs": self.timings})
 
     def stop(self) -> None:
         """Stopped by a signal: write the open run's tiles (journal: redone on resume)
@@ -670,7 +738,8 @@ def serve(endpoint: str, out_dir: str | Path, hardware: Loaded[HardwareConfig],
           max_sequence_jump: int = MAX_SEQUENCE_JUMP,
           max_pings_per_reply: int = MAX_PINGS_PER_REPLY,
           progress_interval_s: float = PROGRESS_INTERVAL_S,
-          max_listed_gaps: int = MAX_LISTED_GAPS) -> list[Path]:
+          max_listed_gaps: int = MAX_LISTED_GAPS, behind: WorkerConfig | None = None,
+          timings: str | Path | None = None) -> list[Path]:
     """Receive pings from ``endpoint`` and image them run by run into ``out_dir/RUN_ID/``
     until ``runs`` end-of-run messages (None: no limit) or ``idle_timeout_s`` without a
     message. ``service``: the catch-up service's endpoint (gaps are fetched from the
@@ -695,7 +764,7 @@ def serve(endpoint: str, out_dir: str | Path, hardware: Loaded[HardwareConfig],
                           gap_wait_s=gap_wait_s, reorder_pings=reorder_pings,
                           max_sequence_jump=max_sequence_jump,
                           progress_interval_s=progress_interval_s,
-                          max_listed_gaps=max_listed_gaps)
+                          max_listed_gaps=max_listed_gaps, behind=behind, timings=timings)
         sock = subscribe(endpoint, receive_hwm, curve=curve)
         # the imaging kernel compiled once subscribed (a daemon waiting for its subscriber
         # starts the sonar; the pings queue meanwhile) and before the worker speaks to the

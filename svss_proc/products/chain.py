@@ -286,9 +286,34 @@ def tile_aperture(tile: Tile, footprint: Footprint | None) -> np.ndarray | None:
                              footprint.tan_half_angle)
 
 
+def save_quicklook(tile: Tile, out_dir: str | Path) -> Path:
+    """The quick look of a tile whose full products wait (a worker behind the sonar,
+    docs/worker.md): ``tile_NNNN_mip.png``, the maximum intensity projections of the
+    image's magnitude (dB re the tile's peak), written under a temporary name and renamed
+    into place. No tile file: :func:`save_tile` writes it, and the full quick look, later
+    (a PNG without its .h5 belongs to a tile not yet committed)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    png = tile_file_paths(out, tile.grid.index)[1]
+    tmp = temporary_path(png)
+    try:
+        mip_png(tmp, tile.image, tile.grid,
+                tile_title(tile_name(tile.grid.index), tile) + " (quick look: full "
+                "products to follow)")
+        os.replace(tmp, png)
+    except OSError as exc:
+        raise TileFileError(f"{png}: writing the quick look failed "
+                            f"({exc.strerror or exc})") from None
+    finally:
+        tmp.unlink(missing_ok=True)
+    log.info("wrote the quick look %s (%d pings; full products to follow)", png,
+             len(tile.pings))
+    return png
+
+
 def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
-              processing: Loaded[ProcessingConfig], seams: Seams | None = None
-              ) -> list[Path]:
+              processing: Loaded[ProcessingConfig], seams: Seams | None = None,
+              clock=None) -> list[Path]:
     """Compute the products (when the processing configuration has a ``[products]``
     table) and write ``tile_NNNN.h5`` and ``tile_NNNN_mip.png`` into ``out_dir``;
     return the paths. Both are written under temporary names and renamed into place
@@ -296,7 +321,10 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
     .h5 is created and
     :class:`~svss_proc.tiles.TileFileError` names the file. ``seams``: the run's
     :class:`Seams` (the previous tile's last planes and contacts; this tile's are
-    remembered for the next)."""
+    remembered for the next). ``clock``: a :class:`~svss_proc.live_clock.StageClock`
+    that gets the products' parts (``products.chain``: the chain in all, CPU and wall;
+    ``products.background`` etc.: its steps, wall time; ``products.quicklook_png`` and
+    ``products.tile_file``, CPU and wall)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     name = tile_name(tile.grid.index)
@@ -310,6 +338,7 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
     g = tile.grid
     prods = None
     if pcfg is not None:
+        c_chain, w_chain = time.process_time(), time.perf_counter()
         cov = tile.coverage
         fp = tile_footprint(tile, hardware, processing.value.imaging)
         prods = compute_products(tile.image, (g.along, g.cross, g.depth), voxel, pcfg,
@@ -319,10 +348,16 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
                                  before=(seams.before_for(tile) if seams is not None
                                          and pcfg.background.across_seams else None),
                                  after=tile.after if pcfg.background.across_seams else None)
+        if clock is not None:       # the chain's CPU in all, its steps' wall times
+            clock.add("products.chain", time.process_time() - c_chain,
+                      time.perf_counter() - w_chain)
+            for k, v in prods.timings.items():
+                clock.add(f"products.{k}", float("nan"), v)
     if seams is not None:
         seams.remember(tile, prods, 0 if pcfg is None
                        else kernel_voxels(pcfg.background.kernel_m, voxel)[0] // 2)
     tmp_png = temporary_path(png)
+    c0, w0 = time.process_time(), time.perf_counter()
     try:
         try:
             if prods is None:
@@ -338,11 +373,16 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
         # first, so a tile_NNNN.h5 always has its PNG, and a PNG without its .h5 (a crash
         # in between) belongs to a tile that is redone (docs/worker.md)
         os.replace(tmp_png, png)
+        c1, w1 = time.process_time(), time.perf_counter()
         try:
             write_tile(h5, tile, hardware, processing, prods)
         except BaseException:
             png.unlink(missing_ok=True)
             raise
+        if clock is not None:
+            clock.add("products.quicklook_png", c1 - c0, w1 - w0)
+            clock.add("products.tile_file", time.process_time() - c1,
+                      time.perf_counter() - w1)
     finally:
         tmp_png.unlink(missing_ok=True)
     if prods is None:
