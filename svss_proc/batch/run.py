@@ -466,7 +466,8 @@ def _dispatch_seams(client, todo: list[TilePlan], plans: dict, out: Path, proces
                 before = client.submit(before_from_file, prev, sout, n,
                                        key=f"before-{prev.key}-{token}", pure=False)
         saved[me] = client.submit(save_formed, formed[me], t, sout, processing, before,
-                                  after, key=f"save-{t.key}-{token}", pure=False)
+                                  after, kernel_threads, key=f"save-{t.key}-{token}",
+                                  pure=False)
         summaries[me] = client.submit(result_of, saved[me], key=f"{t.key}-{token}",
                                       pure=False)
     del formed, saved, after, before

@@ -68,11 +68,15 @@ def tile_paths(out: Path, plan: TilePlan) -> tuple[Path, Path]:
     return tile_file_paths(Path(out) / plan.folder, plan.index)
 
 
-def _result(plan: TilePlan, h5: Path, detections: int, t0: float, skipped: bool) -> dict:
+def _result(plan: TilePlan, h5: Path, detections: int, t0: float, skipped: bool,
+            threads: int | None = None) -> dict:
+    """A tile's summary; ``threads``: the numba threads its imaging ran with (None: this
+    thread's setting, where the tile was imaged in this call)."""
     return {"key": plan.key, "run_id": plan.run_id, "folder": plan.folder,
             "index": plan.index, "pings": plan.n_pings, "detections": int(detections),
             "compute_s": time.perf_counter() - t0, "skipped": skipped, "file": str(h5),
-            "pid": os.getpid(), "kernel_threads": numba.get_num_threads()}
+            "pid": os.getpid(),
+            "kernel_threads": numba.get_num_threads() if threads is None else threads}
 
 
 def image_tile(plan: TilePlan, out: str, processing: Loaded[ProcessingConfig],
@@ -93,16 +97,17 @@ def image_tile(plan: TilePlan, out: str, processing: Loaded[ProcessingConfig],
         return _result(plan, h5, len(read_tile_header(h5)["detections"]), t0, True)
     tile, hardware = _form(plan, processing)
     if not save:
-        return Formed(tile, hardware, time.perf_counter() - t0)
+        return Formed(tile, hardware, time.perf_counter() - t0, numba.get_num_threads())
     save_tile(tile, h5.parent, hardware, processing)
     return _saved(plan, h5, t0)
 
 
-def _saved(plan: TilePlan, h5: Path, t0: float, before_s: float = 0.0) -> dict:
+def _saved(plan: TilePlan, h5: Path, t0: float, before_s: float = 0.0,
+           threads: int | None = None) -> dict:
     dets = len(read_tile_header(h5)["detections"])
     log.info("%s: tile %d of run %s, %d pings, %d detections, %.2f s", h5, plan.index,
              plan.run_id, plan.n_pings, dets, time.perf_counter() - t0 + before_s)
-    out = _result(plan, h5, dets, t0, False)
+    out = _result(plan, h5, dets, t0, False, threads)
     out["compute_s"] += before_s
     return out
 
@@ -166,10 +171,12 @@ def _form(plan: TilePlan, processing: Loaded[ProcessingConfig]):
 class Formed:
     """A tile imaged by a task and not saved yet (products without seams): it waits in
     the worker's memory for its neighbours' seam planes. ``compute_s``: the imaging's
-    time."""
+    time; ``kernel_threads``: the numba threads it ran with (the save runs in another
+    task, on whichever worker thread)."""
     tile: Tile
     hardware: Loaded[HardwareConfig]
     compute_s: float
+    kernel_threads: int = 0
 
 
 @dataclass
@@ -237,12 +244,16 @@ def before_from_file(plan: TilePlan, out: str, n: int) -> Before:
 
 
 def save_formed(formed: Formed | None, plan: TilePlan, out: str,
-                processing: Loaded[ProcessingConfig], before=None, after=None) -> Saved:
+                processing: Loaded[ProcessingConfig], before=None, after=None,
+                kernel_threads: int | None = None) -> Saved:
     """Save a tile imaged by :func:`image_tile` (``save=False``) with its products
     across the seams, as ``svss process`` saves it: ``before``, the previous tile's
     :class:`Saved` (or :class:`Before`; None: none), ``after``, the next tile's first
     planes (:func:`head_planes`; None: none). A tile committed meanwhile (``formed``
-    None: a task run again) is not written again."""
+    None: a task run again) is not written again. ``kernel_threads``: numba threads of
+    the products' kernels, as :func:`image_tile`'s."""
+    if kernel_threads is not None:
+        numba.set_num_threads(max(1, min(kernel_threads, numba.config.NUMBA_NUM_THREADS)))
     t0 = time.perf_counter()
     h5, _ = tile_paths(Path(out), plan)
     n = seam_planes(processing.value)
@@ -254,7 +265,8 @@ def save_formed(formed: Formed | None, plan: TilePlan, out: str,
     tile = formed.tile
     tile.after = after
     save_tile(tile, h5.parent, formed.hardware, processing, seams)
-    return Saved(_saved(plan, h5, t0, formed.compute_s), seams.last)
+    return Saved(_saved(plan, h5, t0, formed.compute_s, formed.kernel_threads or None),
+                 seams.last)
 
 
 def result_of(saved: Saved) -> dict:
