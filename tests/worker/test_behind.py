@@ -29,6 +29,8 @@ from svss_daq.config import ConfigError, DaqConfig, config_path, load, worker_se
 from svss_daq.subscriber import subscribe
 
 from .conftest import N_PINGS, ROOT, small_processing_text
+from .test_stop_and_lock import _stop as stop_process
+from .test_stop_and_lock import _wait as wait_running
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux")
 
@@ -58,23 +60,13 @@ def _svss(*args, log: Path, config_dir: Path) -> subprocess.Popen:
 
 
 def _wait(pred, what: str, proc: subprocess.Popen, log: Path, timeout_s=STARTUP_S):
-    deadline = time.monotonic() + timeout_s
-    while not pred():
-        if proc.poll() is not None or time.monotonic() > deadline:
-            raise AssertionError(f"{what}: not within {timeout_s} s (rc {proc.poll()}):\n"
-                                 + log.read_text(errors="replace")[-3000:])
-        time.sleep(0.02)
+    return wait_running(pred, what, proc, log, timeout_s)
 
 
 def _stop(proc: subprocess.Popen) -> None:
     if proc.poll() is None:
-        proc.send_signal(signal.SIGCONT)
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
+        proc.send_signal(signal.SIGCONT)          # a stopped process hears SIGTERM then
+    stop_process(proc)
 
 
 def test_worker_config_is_checked(tmp_path):
