@@ -482,10 +482,12 @@ def _dispatch_seams(client, todo: list[TilePlan], plans: dict, out: Path, proces
             failed.append((tiles[fut], exc))
         progress.update()
     distributed.wait(list(imaged.values()))
-    errors = []
-    for me, exc in failed:
+    errors, known = [], {}
+    # in tile order: a tile's error that names its failed predecessor carries that
+    # tile's own error, not whichever of its inputs' errors Dask reported first
+    for me, exc in sorted(failed, key=lambda f: (f[0][0], plan_of[f[0]].index)):
         t = plan_of[me]
-        own = _own_error(t, imaged, prefixes.get(me), summaries, exc)
+        own = known[me] = _own_error(t, imaged, prefixes.get(me), summaries, exc, known)
         errors.append((t, own))
         if not isinstance(own, PingsRefused) and not (
                 isinstance(own, NeighbourFailed) and isinstance(own.cause, PingsRefused)):
@@ -501,9 +503,11 @@ def _nothing(_) -> None:
 
 
 def _own_error(t: TilePlan, imaged: dict, prefix, summaries: dict,
-               exc: BaseException) -> BaseException:
+               exc: BaseException, known: dict | None = None) -> BaseException:
     """A tile's error: its own imaging's, else that of the neighbour it waited for
-    across a seam (:class:`NeighbourFailed`), else its own save's (``exc``)."""
+    across a seam (:class:`NeighbourFailed`; for the previous tile, its own error from
+    ``known`` where given: its save's failure may be its imaging's or its own
+    predecessor's, whichever came first), else its own save's (``exc``)."""
     run = t.run_id
     mine = imaged[(run, t.index)]
     if mine.status == "error":
@@ -513,7 +517,8 @@ def _own_error(t: TilePlan, imaged: dict, prefix, summaries: dict,
     for index, fut, used in ((t.index + 1, nxt, t.after_pings is not None),
                              (t.index - 1, prev, t.before)):
         if used and fut is not None and fut.status == "error":
-            cause = fut.exception()
+            cause = (known or {}).get((run, index)) if index < t.index else None
+            cause = fut.exception() if cause is None else cause
             return cause if isinstance(cause, NeighbourFailed) else \
                 NeighbourFailed(index, cause)
     return exc

@@ -135,7 +135,9 @@ def test_alarms_raise_and_clear_through_real_processes_and_follow_survives_runs(
     try:
         faults = tmp_path / "faults.toml"
         faults.write_text(FAULTS)
-        dev = rig.device("--faults", str(faults))
+        # the simulated clock at half the host's (5 pings/s): a real worker stopped
+        # and let go on catches up beside two CPU-bound processes too
+        dev = rig.device("--faults", str(faults), "--time-scale", "0.5")
         acq = rig.acquire(dev, "--duration", "600", ephemeral=False,
                           config=acquire_toml(tmp_path, alarms=alarms, **common))
         follower.until(lambda s: s["run_id"] == "run1" and s["state"] == "recording",
