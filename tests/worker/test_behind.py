@@ -17,7 +17,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import h5py
@@ -31,6 +30,7 @@ from svss_daq.subscriber import subscribe
 from .conftest import N_PINGS, ROOT, small_processing_text
 from .test_stop_and_lock import _stop as stop_process
 from .test_stop_and_lock import _wait as wait_running
+from .test_stop_and_lock import replay_endpoints
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux")
 
@@ -94,17 +94,7 @@ def test_behind_worker_degrades_to_quick_looks_first_and_drops_no_ping(raw_run, 
     procs = [replay]
     mon = None
     try:
-        pub = service = None
-        deadline = time.monotonic() + STARTUP_S
-        while (pub is None or service is None) and time.monotonic() < deadline:
-            line = replay.stdout.readline()
-            if not line:
-                break
-            if line.startswith("replaying"):
-                pub = line.rsplit(" on ", 1)[1].strip()
-            elif line.startswith("catch-up service on"):
-                service = line.rsplit(" on ", 1)[1].strip()
-        assert pub and service, (tmp_path / "replay.log").read_text()[-3000:]
+        pub, service = replay_endpoints(replay, tmp_path / "replay.log")
 
         def stream_at(seq: int) -> bool:
             while mon.poll(0):

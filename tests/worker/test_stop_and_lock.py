@@ -39,6 +39,22 @@ def _wait(pred, what: str, proc: subprocess.Popen, log: Path, timeout_s=STARTUP_
         time.sleep(0.05)
 
 
+def replay_endpoints(replay: subprocess.Popen, log: Path) -> tuple[str, str]:
+    """The publisher and catch-up service endpoints ``svss replay`` prints on start."""
+    pub = service = None
+    deadline = time.monotonic() + STARTUP_S
+    while (pub is None or service is None) and time.monotonic() < deadline:
+        line = replay.stdout.readline()
+        if not line:
+            break
+        if line.startswith("replaying"):
+            pub = line.rsplit(" on ", 1)[1].strip()
+        elif line.startswith("catch-up service on"):
+            service = line.rsplit(" on ", 1)[1].strip()
+    assert pub and service, log.read_text()[-3000:]
+    return pub, service
+
+
 def _stop(proc: subprocess.Popen) -> None:
     if proc.poll() is None:
         proc.send_signal(signal.SIGTERM)
@@ -56,17 +72,7 @@ def test_second_signal_does_not_interrupt_the_flush_and_one_worker_per_folder(
                    log=tmp_path / "replay.log")
     procs = [replay]
     try:
-        pub = service = None
-        deadline = time.monotonic() + STARTUP_S
-        while (pub is None or service is None) and time.monotonic() < deadline:
-            line = replay.stdout.readline()
-            if not line:
-                break
-            if line.startswith("replaying"):
-                pub = line.rsplit(" on ", 1)[1].strip()
-            elif line.startswith("catch-up service on"):
-                service = line.rsplit(" on ", 1)[1].strip()
-        assert pub and service, (tmp_path / "replay.log").read_text()[-3000:]
+        pub, service = replay_endpoints(replay, tmp_path / "replay.log")
         out = tmp_path / "tiles"
         args = ("worker", "--connect", pub, "--service", service, "--out", out,
                 "--processing", small_proc_path, "--idle-timeout", "120")
