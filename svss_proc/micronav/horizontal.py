@@ -58,10 +58,12 @@ import numpy as np
 
 from svss_daq.geometry import ArrayGeometry
 
-from .phase_centres import PhaseCentrePairs, phase_centres
+from .patch_focus import SubAperture, focus, ping_taps
+from .phase_centres import PhaseCentrePairs, near_pairs, phase_centres
 
-__all__ = ["DisplacementEstimate", "Patch", "displacement_pass", "estimate_displacement",
-           "focus_points", "phase_gradient", "seabed_patches", "translated_pairs"]
+__all__ = ["DisplacementEstimate", "Patch", "TapCache", "displacement_pass",
+           "estimate_displacement", "focus_points", "phase_gradient", "seabed_patches",
+           "translated_pairs"]
 
 #: the measured scatter of the estimates over their Cramer-Rao sigma (simulated sand, seed
 #: scene, configured order at 1 m/s, 50 ping pairs at pings 40-70 and 70-100 of
@@ -138,23 +140,27 @@ def translated_pairs(geometry: ArrayGeometry, projector_a: int, projector_b: int
     d = np.asarray(displacement_m, dtype=np.float64).reshape(3)
     pa = phase_centres(geometry, projector_a)
     pb = phase_centres(geometry, projector_b) @ np.asarray(rotation_ba).T + d
-    diff = pb[None, :, :] - pa[:, None, :]
-    dist = np.hypot(diff[..., 0], diff[..., 1])
-    ia, ib = np.nonzero(dist <= tolerance_m)
+    ia, ib = near_pairs(pa, pb, tolerance_m)
     rx = geometry.receivers
     if ia.size == 0:
         z = np.zeros((0, 3))
-        return PhaseCentrePairs(ia.astype(np.int64), ib.astype(np.int64), z, z, z)
-    key = np.round(diff[ia, ib, :2] * 1e3).astype(np.int64)
-    uniq, inv, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+        return PhaseCentrePairs(ia, ib, z, z, z)
+    diff = pb[ib] - pa[ia]
+    key = np.round(diff[:, :2] * 1e3).astype(np.int64)
+    # one integer per offset, ordered as the offsets (x, then y): a 1-D unique is
+    # several times faster than np.unique(axis=0) and gives the same ranking
+    span = int(np.abs(key).max()) + 1
+    code = (key[:, 0] + span) * (2 * span + 1) + (key[:, 1] + span)
+    ucode, inv, count = np.unique(code, return_inverse=True, return_counts=True)
+    uniq = np.column_stack([ucode // (2 * span + 1) - span, ucode % (2 * span + 1) - span])
     ranked = sorted(range(len(uniq)), key=lambda k: (-count[k], float(np.hypot(*uniq[k]))))
     if rank >= len(ranked):
         z = np.zeros((0, 3))
         e = np.zeros(0, dtype=np.int64)
         return PhaseCentrePairs(e, e, z, z, z)
     keep = np.flatnonzero(inv.ravel() == ranked[rank])
-    ia, ib = ia[keep].astype(np.int64), ib[keep].astype(np.int64)
-    return PhaseCentrePairs(ia, ib, diff[ia, ib], rx[ia] - geometry.projectors[projector_a],
+    ia, ib = ia[keep], ib[keep]
+    return PhaseCentrePairs(ia, ib, diff[keep], rx[ia] - geometry.projectors[projector_a],
                             rx[ib] - geometry.projectors[projector_b])
 
 
@@ -177,15 +183,22 @@ def seabed_patches(centre: np.ndarray, depth_m: float, patch_angle_rad: float,
     if not h > 0:
         raise ValueError(f"the seabed ({depth_m:.3f} m) is not below the array "
                          f"({float(centre[2]):.3f} m)")
-    r = h * math.tan(patch_angle_rad)
+    pts = _patch_points(centre, depth_m, h * math.tan(patch_angle_rad), half_width_m,
+                        spacing_m)
+    return [Patch(name, p) for name, p in zip(PATCH_NAMES, pts)]
+
+
+def _patch_points(centre, depth_m: float, r: float, half_width_m: float,
+                  spacing_m: float) -> np.ndarray:
+    """The points of :func:`seabed_patches`, (9, m, 3), the patches ``r`` m off nadir."""
     g = np.arange(-half_width_m, half_width_m + 1e-9, spacing_m)
     gx, gy = np.meshgrid(g, g, indexing="ij")
-    out = []
-    for name, (ux, uy) in zip(PATCH_NAMES, PATCH_DIRECTIONS):
-        pts = np.column_stack([centre[0] + r * ux + gx.ravel(), centre[1] + r * uy + gy.ravel(),
-                               np.full(gx.size, float(depth_m))])
-        out.append(Patch(name, pts))
-    return out
+    u = np.array(PATCH_DIRECTIONS)
+    pts = np.empty((len(u), gx.size, 3))
+    pts[..., 0] = (centre[0] + r * u[:, 0])[:, None] + gx.ravel()[None, :]
+    pts[..., 1] = (centre[1] + r * u[:, 1])[:, None] + gy.ravel()[None, :]
+    pts[..., 2] = float(depth_m)
+    return pts
 
 
 @dataclass(frozen=True)
@@ -246,7 +259,10 @@ def estimate_displacement(bb_a: np.ndarray, bb_b: np.ndarray, t0_s: float, dt_s:
     interpolated to zero offset: x = lam x_0 + (1 - lam) x_1 with lam minimising
     |lam delta_0 + (1 - lam) delta_1| in [0, 1], covariance lam C_0 + (1 - lam) C_1 (a
     bound whatever the two estimates' correlation: they share the echoes). 1: the most
-    populated translation alone. ``options``: of :func:`displacement_pass`."""
+    populated translation alone. ``options``: of :func:`displacement_pass` (one
+    :class:`TapCache` is shared by every pass and translation unless given)."""
+    if options.get("taps") is None:
+        options["taps"] = TapCache()
     ests = []
     for rank in range(max(1, int(translations))):
         est = _passes(bb_a, bb_b, t0_s, dt_s, geometry, projector_a, projector_b, rot_a,
@@ -297,7 +313,8 @@ def displacement_pass(bb_a: np.ndarray, bb_b: np.ndarray, t0_s: float, dt_s: flo
                       tolerance_m: float = 0.034, min_pairs: int = 16,
                       min_coherence: float = 0.3, min_patches: int = 6, rank: int = 0,
                       min_nadir_coherence: float = 0.7,
-                      gradient: str = "none") -> DisplacementEstimate:
+                      gradient: str = "none", kernel: str = "numba",
+                      taps: "TapCache | None" = None) -> DisplacementEstimate:
     """One pass of :func:`estimate_displacement`, b placed at ``origin_b``.
     ``tolerance_m``: how far apart two phase centres may be to pair (34 mm, three
     quarters of the 45.5 mm grid: every phase centre of a grid offset by half a spacing
@@ -311,7 +328,12 @@ def displacement_pass(bb_a: np.ndarray, bb_b: np.ndarray, t0_s: float, dt_s: flo
     ``gradient``: "offset" corrects each patch's phase for the sub-apertures' offset by
     where its focused power comes from (:func:`phase_gradient`), "full" also moves the
     patch's look direction there, "none" neither (the choice measured in
-    docs/micronavigation.md)."""
+    docs/micronavigation.md).
+    ``kernel``: "numba" focuses with :mod:`.patch_focus` (the same sums without a sine
+    per channel and point; the nadir patch first, refusing before the others are
+    focused); "numpy" with :func:`focus_points` (the reference; the gradient options
+    always use it). ``taps``: a :class:`TapCache` keeping the pings' taps and a's
+    focused patches between calls (None: a new one)."""
     ra, rb = np.asarray(rot_a, dtype=np.float64), np.asarray(rot_b, dtype=np.float64)
     oa, ob = np.asarray(origin_a, dtype=np.float64), np.asarray(origin_b, dtype=np.float64)
     # b's placed body origin in a's body frame, for the pairing
@@ -338,6 +360,16 @@ def displacement_pass(bb_a: np.ndarray, bb_b: np.ndarray, t0_s: float, dt_s: flo
     c, k = float(sound_speed_m_s), 2.0 * math.pi * center_hz / float(sound_speed_m_s)
     patches = seabed_patches(centre, seabed_depth_m, patch_angle_rad, half_width_m,
                              spacing_m)
+    if kernel not in ("numba", "numpy"):
+        raise ValueError(f"kernel {kernel!r}: expected 'numba' or 'numpy'")
+    if kernel == "numba" and gradient == "none":
+        stats = _patch_stats(bb_a, bb_b, t0_s, dt_s, center_hz, c, k, pairs, tx_a, rx_a,
+                             tx_b, rx_b, centre, patches, spacing_m, min_nadir_coherence,
+                             taps if taps is not None else TapCache())
+        if isinstance(stats, DisplacementEstimate):
+            return stats
+        return _fit(patches, *stats, k, min_coherence, min_patches, pairs, ob, oa,
+                    mismatch)
     phases, gammas, rows, sig = [], [], [], []
     for patch in patches:
         sa = focus_points(bb_a[pairs.channel_a], t0_s, dt_s, center_hz, c, tx_a, rx_a,
@@ -370,12 +402,24 @@ def displacement_pass(bb_a: np.ndarray, bb_b: np.ndarray, t0_s: float, dt_s: flo
         sig.append(math.sqrt((1.0 - gc * gc) / (2.0 * n_look * gc * gc)))
     phases, gammas = np.array(phases), np.array(gammas)
     if gammas[0] < min_nadir_coherence:
-        return _refused(f"no coherent seabed return under the array: the nadir patch's "
-                        f"coherence is {gammas[0]:.2f}, below {min_nadir_coherence:g} (no "
-                        "seabed in the window, or the echoes decorrelated)", len(pairs),
-                        len(patches))
+        return _no_seabed(gammas[0], min_nadir_coherence, len(pairs), len(patches))
+    return _fit(patches, phases, gammas, np.array(rows), np.array(sig), k, min_coherence,
+                min_patches, pairs, ob, oa, mismatch)
+
+
+def _no_seabed(gamma: float, min_nadir_coherence: float, n_pairs: int, n_patch: int
+               ) -> DisplacementEstimate:
+    return _refused(f"no coherent seabed return under the array: the nadir patch's "
+                    f"coherence is {gamma:.2f}, below {min_nadir_coherence:g} (no "
+                    "seabed in the window, or the echoes decorrelated)", n_pairs, n_patch)
+
+
+def _fit(patches, phases, gammas, rows, sig, k, min_coherence, min_patches, pairs, ob, oa,
+         mismatch) -> DisplacementEstimate:
+    """The weighted least-squares fit of the patches' phases (step 4 of the module
+    docstring), or the refusal when too few patches cohere."""
     use = gammas >= min_coherence
-    a = np.array(rows)[use]
+    a = rows[use]
     names = [p.name for p, ok in zip(patches, use) if ok]
     if use.sum() < min_patches or not (np.any(np.abs(a[:, 0]) > k * 0.1)
                                        and np.any(np.abs(a[:, 1]) > k * 0.1)):
@@ -383,7 +427,7 @@ def displacement_pass(bb_a: np.ndarray, bb_b: np.ndarray, t0_s: float, dt_s: flo
         return _refused(f"the echoes decorrelated: {use.sum()} of {len(patches)} patches "
                         f"cohere above {min_coherence:g} (kept: {', '.join(names)}; "
                         f"weak: {weak})", len(pairs), len(patches))
-    w = 1.0 / np.array(sig)[use] ** 2
+    w = 1.0 / sig[use] ** 2
     aw = a * w[:, None]
     cov = np.linalg.inv(a.T @ aw)
     delta = cov @ (aw.T @ phases[use])
@@ -408,3 +452,92 @@ def _looks(points: np.ndarray, centre: np.ndarray, rx: np.ndarray, tx: np.ndarra
     cross_cell = lam * r / (2.0 * length)
     area = (np.ptp(points[:, 0]) + spacing_m) * (np.ptp(points[:, 1]) + spacing_m)
     return max(1.0, area / (cross_cell ** 2))
+
+
+class TapCache:
+    """What the focusing of one ping pair leaves for the next calls
+    (:mod:`.patch_focus`): the taps of the last ``size`` pings' baseband (each ping is b
+    of one pair and a of the next; both translations and both passes use them), and
+    ping a's focused patches (the second pass moves only b: a's sub-aperture and patches
+    are the same when the pairing is). Keyed by the baseband arrays' identity (each kept
+    referenced, so that an identity is never reused while cached) and the exact
+    geometry."""
+
+    def __init__(self, size: int = 3):
+        self.size = size
+        self._taps: list = []            # (bb, (t0, dt, fc), taps), newest last
+        self._focused: dict = {}
+
+    def taps(self, bb: np.ndarray, t0_s: float, dt_s: float, center_hz: float):
+        axis = (float(t0_s), float(dt_s), float(center_hz))
+        for held, ax, taps in self._taps:
+            if held is bb and ax == axis:
+                return taps
+        taps = ping_taps(bb, t0_s, dt_s, center_hz)
+        self._taps.append((bb, axis, taps))
+        if len(self._taps) > self.size:
+            old = self._taps.pop(0)[0]
+            self._focused = {k: v for k, v in self._focused.items() if v[0] is not old}
+        return taps
+
+    def focused(self, bb: np.ndarray, key: tuple, make) -> np.ndarray:
+        """``make()``'s values, kept under (bb, ``key``)."""
+        hit = self._focused.get((id(bb),) + key)
+        if hit is not None and hit[0] is bb:
+            return hit[1]
+        values = make()
+        self._focused[(id(bb),) + key] = (bb, values)
+        return values
+
+
+def _patch_stats(bb_a, bb_b, t0_s, dt_s, center_hz, c, k, pairs, tx_a, rx_a, tx_b, rx_b,
+                 centre, patches, spacing_m, min_nadir_coherence, cache: TapCache):
+    """The patches' phases, coherences, rows and phase sigmas as the reference loop of
+    :func:`displacement_pass` computes them, focused by :mod:`.patch_focus` in a frame
+    centred on ``centre``, all patches at once; the nadir patch first (a refusal when
+    it does not cohere, before the others are focused)."""
+    ta = cache.taps(bb_a, t0_s, dt_s, center_hz)
+    tb = cache.taps(bb_b, t0_s, dt_s, center_hz)
+    sub_a = SubAperture(pairs.channel_a, tx_a - centre, rx_a - centre)
+    sub_b = SubAperture(pairs.channel_b, tx_b - centre, rx_b - centre)
+    pts = np.stack([p.points for p in patches]) - centre       # (n_patch, m, 3) local
+    n_patch, m = pts.shape[:2]
+    geo_a = (sub_a.tx.tobytes(), sub_a.rx.tobytes(), sub_a.channels.tobytes())
+
+    def part(sel, name):
+        flat = pts[sel].reshape(-1, 3)
+        va = cache.focused(bb_a, geo_a + (name, flat.tobytes()),
+                           lambda: focus(ta, sub_a, flat, c))
+        vb = focus(tb, sub_b, flat, c)
+        return va.reshape(-1, m), vb.reshape(-1, m)
+
+    va0, vb0 = part(slice(0, 1), "nadir")
+    pa0, pb0 = np.sum(np.abs(va0) ** 2), np.sum(np.abs(vb0) ** 2)
+    g0 = float(abs(np.sum(va0 * np.conj(vb0))) / math.sqrt(max(pa0 * pb0, 1e-300)))
+    if g0 < min_nadir_coherence:
+        return _no_seabed(g0, min_nadir_coherence, len(pairs), n_patch)
+    va1, vb1 = part(slice(1, None), "rest")
+    va, vb = np.concatenate([va0, va1]), np.concatenate([vb0, vb1])
+    cross = np.sum(va * np.conj(vb), axis=1)
+    w = np.abs(va) * np.abs(vb)
+    u = pts / np.linalg.norm(pts, axis=2)[..., None]
+    rows = -2.0 * k * np.einsum("pm,pmi->pi", w, u) / np.maximum(w.sum(axis=1), 1e-300)[:, None]
+    pa, pb = np.sum(np.abs(va) ** 2, axis=1), np.sum(np.abs(vb) ** 2, axis=1)
+    gammas = np.abs(cross) / np.sqrt(np.maximum(pa * pb, 1e-300))
+    n_look = _looks_all(pts, rx_a, tx_a, c, center_hz, spacing_m)
+    gc = np.clip(gammas, 1e-6, 1.0 - 1e-9)
+    sig = np.sqrt((1.0 - gc * gc) / (2.0 * n_look * gc * gc))
+    return np.angle(cross), gammas, rows, sig
+
+
+def _looks_all(points_local: np.ndarray, rx: np.ndarray, tx: np.ndarray, c: float,
+               center_hz: float, spacing_m: float) -> np.ndarray:
+    """:func:`_looks` of every patch at once (``points_local`` (n_patch, m, 3) relative
+    to the sub-aperture's centre)."""
+    ext = np.ptp(0.5 * (rx + tx), axis=0)[:2]
+    length = max(float(np.hypot(*ext)), 1e-3)
+    r = np.linalg.norm(points_local.mean(axis=1), axis=1)
+    cross_cell = (c / center_hz) * r / (2.0 * length)
+    area = ((np.ptp(points_local[..., 0], axis=1) + spacing_m)
+            * (np.ptp(points_local[..., 1], axis=1) + spacing_m))
+    return np.maximum(1.0, area / cross_cell ** 2)

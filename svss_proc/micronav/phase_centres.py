@@ -22,17 +22,46 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from svss_daq.geometry import ArrayGeometry
 
-__all__ = ["PhaseCentrePairs", "bistatic_excess_m", "overlap_table", "pair_phase_centres",
-           "phase_centres"]
+__all__ = ["PhaseCentrePairs", "bistatic_excess_m", "near_pairs", "overlap_table",
+           "pair_phase_centres", "phase_centres"]
 
 
 def phase_centres(geometry: ArrayGeometry, projector: int) -> np.ndarray:
     """(n_channels, 3): the midpoint of projector ``projector`` and each receiver, m."""
     return 0.5 * (geometry.projectors[projector] + geometry.receivers)
+
+
+@nb.njit(cache=True)
+def _near(pa, pb, tolerance_m, ia, ib):
+    n = 0
+    t2 = tolerance_m * tolerance_m
+    for i in range(pa.shape[0]):
+        for j in range(pb.shape[0]):
+            dx = pb[j, 0] - pa[i, 0]
+            dy = pb[j, 1] - pa[i, 1]
+            if dx * dx + dy * dy <= t2:
+                ia[n] = i
+                ib[n] = j
+                n += 1
+    return n
+
+
+def near_pairs(pa: np.ndarray, pb: np.ndarray, tolerance_m: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (i, j), i ascending then j, of the points ``pa[i]`` and ``pb[j]`` ((n, 3)
+    each) within ``tolerance_m`` of each other horizontally: ``np.nonzero(hypot(pb[j] -
+    pa[i]) <= tolerance_m)`` without the (n_a, n_b, 3) differences (a numba loop)."""
+    pa = np.ascontiguousarray(pa, dtype=np.float64)
+    pb = np.ascontiguousarray(pb, dtype=np.float64)
+    ia = np.empty(pa.shape[0] * pb.shape[0], dtype=np.int64)
+    ib = np.empty_like(ia)
+    n = _near(pa, pb, float(tolerance_m), ia, ib)
+    return ia[:n], ib[:n]
 
 
 def bistatic_excess_m(separation: np.ndarray, direction: np.ndarray,
