@@ -335,6 +335,28 @@ class LimitsConfig:
 
 
 @dataclass(frozen=True)
+class LiveMicronavConfig:
+    enabled: bool = spec("the tile worker estimates each ping's displacement from the "
+                         "previous one from their common phase centres and images it with "
+                         "the pose fused with the navigation's increment (docs/worker.md, "
+                         "docs/micronavigation.md)")
+    navigation_sigma_m_s: float = spec(
+        "error of the live poses' velocity per axis with DVL bottom lock (or simulated "
+        "poses), m/s: a ping step's navigation sigma is this times the pings' interval",
+        lo=1e-6, hi=10.0)
+    navigation_gap_sigma_m_s: float = spec(
+        "the same without bottom lock (the DVL's velocity held or absent), m/s",
+        lo=1e-6, hi=10.0)
+    anchor_sigma_m: float = spec("how far the fused positions may stray from the "
+                                 "navigation's, per axis, m (the weak anchor of "
+                                 "svss_proc.micronav.fusion)", lo=1e-4, hi=100.0)
+    passes: int = spec("estimator passes per ping pair (b re-placed where the first "
+                       "found it)", lo=1, hi=4)
+    translations: int = spec("common sub-apertures per ping pair, interpolated to zero "
+                             "offset", lo=1, hi=2)
+
+
+@dataclass(frozen=True)
 class ProcessingConfig:
     tile: TileConfig = spec("image tile geometry")
     conditioning: ConditioningConfig = spec("signal conditioning")
@@ -343,6 +365,8 @@ class ProcessingConfig:
     limits: LimitsConfig = spec("bounds on the imager's memory")
     products: ProductsConfig | None = spec("image products (omitted: tiles carry the image "
                                            "only)")
+    live_micronav: LiveMicronavConfig | None = spec(
+        "micronavigation in the tile worker, on the live poses (omitted: off)")
 
 
 # ---------------------------------------------------------------------------- daq

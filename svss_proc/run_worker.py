@@ -33,6 +33,7 @@ from svss_daq.rawfile import RawRunReader, run_of
 from .imaging.imager import TileImager
 from .imaging.pose_check import check_pose_flags
 from .live_clock import SonarLag, StageClock, instrument
+from .micronav.live import live_stage
 from .products.chain import Seams, save_quicklook, save_tile
 from .products.run_products import run_products_at_end
 from .run_folder import (JOURNAL, JOURNAL_SCHEMA, JOURNAL_VERSION, MANIFEST, atomic_json,
@@ -93,6 +94,10 @@ class Worker:
         #: CPU and wall time per stage (manifest ``stage_times``; docs/worker.md)
         self.clock = StageClock()
         instrument(self.imager, self.clock)
+        #: ``[live_micronav]`` on the live poses: each ping imaged at its pose fused with
+        #: the echoes' increment from the previous ping (None: off)
+        self.micronav = live_stage(hardware, processing.value, self.imager.accumulator,
+                                   self.clock, poses == LIVE_POSES)
         #: how far behind the sonar the pings fed are (the stream worker judges it)
         self.lag = SonarLag()
         #: set by the stream worker while it is behind with ``when_behind =
@@ -215,6 +220,8 @@ class Worker:
             flags_ok = False
         if flags_ok and self.gate.admit(ping):
             try:
+                if self.micronav is not None:
+                    ping = self.micronav.pose(ping)
                 with self.clock.stage("ping"):
                     tiles = self.imager.add(ping)
                 ok = True
@@ -348,6 +355,7 @@ class Worker:
                        "episodes": self.behind_episodes,
                        "products_deferred": list(self.deferred_tiles)},
             "stage_times": self.clock.totals(),
+            "micronav": None if self.micronav is None else self.micronav.summary(),
             "files": sorted({p.name for p in self.written})}
 
     def run(self, pings: Iterable[Ping], total: int | None = None) -> list[Path]:

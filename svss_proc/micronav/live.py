@@ -1,0 +1,165 @@
+"""Micronavigation as a stage of the tile worker (docs/worker.md, "Micronavigation";
+docs/micronavigation.md, "Live").
+
+As each ping arrives, in sequence order, its displacement from the previous ping is
+estimated from their common phase centres (:func:`.horizontal.estimate_displacement`,
+both pings placed by the navigation) and fused with the navigation's increment by the
+forward fusion (:mod:`.forward_fusion`: the inverse-covariance mean of the two, anchored
+to the navigation); the ping is then imaged at the fused position. Where the estimator
+refuses (the phase centres do not overlap, no seabed, the echoes decorrelated), where
+the previous ping is not the one before (a run's first ping, a gap, a ping refused) or
+the estimate fails, the step is the navigation's: the correction carried so far decays
+under the anchor, and with no correction at all the ping is imaged exactly as it came.
+
+The stage conditions the ping through the imager's own accumulator and hands the same
+:class:`~svss_proc.conditioning.Conditioned` to the imager (no second matched filter).
+Its time is the clock's ``micronav`` stage; refusals are counted by reason.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+
+import numpy as np
+
+from svss_daq.frames import body_to_ned
+from svss_daq.geometry import array_geometry
+from svss_daq.ping import NAV_BOTTOM_LOCK, NAV_SIMULATED, Ping
+
+from .forward_fusion import FusionState, fusion_start, fusion_step
+from .horizontal import TapCache, estimate_displacement
+
+log = logging.getLogger(__name__)
+
+#: why a step is the navigation's alone, besides the estimator's own reasons
+NO_PREVIOUS = "no previous ping"
+FAILED = "estimate failed"
+
+
+def reason_key(refused: str) -> str:
+    """The kind of an estimator's refusal (its text before the first colon)."""
+    return refused.split(":")[0].strip()
+
+
+class LiveMicronav:
+    """The stage: :meth:`pose` gives each ping (fed in sequence order) with its fused
+    pose. ``config``: the processing configuration's ``[live_micronav]``; ``accumulator``:
+    the imager's (its ``condition`` is memoised for the ping being posed); ``clock``:
+    the worker's :class:`~svss_proc.live_clock.StageClock`."""
+
+    def __init__(self, hardware, processing, config, accumulator, clock):
+        hw = hardware.value
+        self.config = config
+        self.geometry = array_geometry(hw)
+        self.sound_speed_m_s = processing.imaging.water_sound_speed_m_s
+        self.clock = clock
+        self.taps = TapCache()
+        self.state: FusionState = fusion_start(config.anchor_sigma_m)
+        self.prev: tuple | None = None           # (sequence, ping, conditioned)
+        self.pairs = 0
+        self.estimated = 0
+        self.refused: dict[str, int] = {}
+        self.max_correction_m = np.zeros(3)
+        self._acc = accumulator
+        self._held = None                        # (samples, conditioned) of the ping posed
+        condition = accumulator.condition
+
+        def memo(ping):
+            held = self._held
+            if held is not None and held[0] is ping.samples:
+                return held[1]
+            return condition(ping)
+        accumulator.condition = memo
+        self._condition = condition
+
+    # ------------------------------------------------------------------ the stage
+    def pose(self, ping: Ping) -> Ping:
+        """``ping`` with the fused pose (itself where the fused correction is zero)."""
+        cond = self._condition(ping)            # timed as the imager's conditioning
+        self._held = (ping.samples, cond)
+        with self.clock.stage("micronav"):
+            corr, cov, why = None, None, None
+            prev = self.prev
+            seq = ping.sequence
+            if prev is None or prev[0] != seq - 1:
+                why = NO_PREVIOUS
+            else:
+                self.pairs += 1
+                try:
+                    est = self._estimate(prev[1], prev[2], ping, cond)
+                except Exception:               # the ping is imaged on the navigation
+                    why = FAILED
+                    log.exception("ping %d: micronavigation failed", seq)
+                else:
+                    if est.refused:
+                        why = reason_key(est.refused)
+                    else:
+                        corr, cov = est.correction_m, est.cov_m2
+                        self.estimated += 1
+            if why is not None:
+                n = self.refused.get(why, 0) + 1
+                self.refused[why] = n
+                if why != NO_PREVIOUS and math.log10(n).is_integer():
+                    log.info("ping %d: micronavigation refused (%d so far): %s", seq, n,
+                             why)
+            if prev is not None:
+                dt = max((ping.nav.time_ns - prev[1].nav.time_ns) * 1e-9, 0.0)
+                self.state, _ = fusion_step(self.state, self._nav_cov(ping, dt), corr, cov,
+                                            self.config.anchor_sigma_m)
+            self.prev = (seq, ping, cond)
+            e = self.state.correction_m
+            self.max_correction_m = np.maximum(self.max_correction_m, np.abs(e))
+            return fused(ping, e)
+
+    def _estimate(self, pa: Ping, ca, pb: Ping, cb):
+        na, nb = pa.nav, pb.nav
+        return estimate_displacement(
+            ca.data, cb.data, ca.t0_s, ca.dt_s, self.geometry, pa.projector, pb.projector,
+            body_to_ned(na.roll_rad, na.pitch_rad, na.heading_rad), na.ned,
+            body_to_ned(nb.roll_rad, nb.pitch_rad, nb.heading_rad), nb.ned,
+            na.down_m + na.altitude_m, self.sound_speed_m_s, ca.center_hz,
+            passes=self.config.passes, translations=self.config.translations,
+            taps=self.taps)
+
+    def _nav_cov(self, ping: Ping, dt_s: float) -> np.ndarray:
+        """The navigation's step covariance: its velocity sigma over the step's time;
+        with bottom lock (or the simulator's poses) ``navigation_sigma_m_s``, without
+        ``navigation_gap_sigma_m_s``."""
+        locked = ping.nav.quality & (NAV_BOTTOM_LOCK | NAV_SIMULATED)
+        sv = (self.config.navigation_sigma_m_s if locked
+              else self.config.navigation_gap_sigma_m_s)
+        return np.eye(3) * (sv * max(dt_s, 1e-3)) ** 2
+
+    def summary(self) -> dict:
+        """For the run's manifest: ping pairs tried, estimated, refusals by reason, the
+        largest fused correction per axis (north, east, down, m) and the last one."""
+        return {"pairs": self.pairs, "estimated": self.estimated,
+                "refused": dict(sorted(self.refused.items())),
+                "max_correction_m": [round(float(v), 6) for v in self.max_correction_m],
+                "last_correction_m": [round(float(v), 6) for v in self.state.correction_m]}
+
+
+def fused(ping: Ping, correction_m: np.ndarray) -> Ping:
+    """``ping`` moved by ``correction_m`` (north, east, down, m); its altitude less by the
+    downward part (the array moved, the seabed did not). Unchanged for a zero
+    correction."""
+    if not np.any(correction_m):
+        return ping
+    nav = ping.nav
+    dn, de, dd = (float(v) for v in correction_m)
+    return dataclasses.replace(ping, nav=dataclasses.replace(
+        nav, north_m=nav.north_m + dn, east_m=nav.east_m + de, down_m=nav.down_m + dd,
+        altitude_m=nav.altitude_m - dd))
+
+
+def live_stage(hardware, processing, accumulator, clock, poses_live: bool
+               ) -> LiveMicronav | None:
+    """The stage when the processing configuration's ``[live_micronav]`` is enabled and
+    the pings carry their live poses (``poses_live``; re-navigated poses are the
+    re-navigation's to fuse); None otherwise."""
+    cfg = processing.live_micronav
+    if cfg is None or not cfg.enabled or not poses_live:
+        return None
+    return LiveMicronav(hardware, processing, cfg, accumulator, clock)
