@@ -62,8 +62,9 @@ LINES = {"sand": ("seed_cylinder_sand", 450), "field": ("sayers_field", 260)}
 ISAS = {"native": {}, "avx2": dict(AVX2_TARGET)}
 #: top-level stages of the worker: their wall times add up to its processing time
 TOP = ("ping", "products", "quicklook", "run_products")
-#: parts of a ping's imaging (inside "ping")
-PING_PARTS = ("conditioning", "imaging", "coverage", "scheduling")
+#: parts of a ping's imaging (inside "ping"; micronav: the live micronavigation stage,
+#: the ping's conditioning not included)
+PING_PARTS = ("micronav", "conditioning", "imaging", "coverage", "scheduling")
 
 WARM = """
 import sys
@@ -201,8 +202,23 @@ def warm(run: Path, env: dict, tmp: Path, pings: int) -> None:
     log.info("caches warm (%.0f s)", time.perf_counter() - t0)
 
 
-def trial(run: Path, isa: str, cache_root: Path, tmp: Path, load: bool) -> dict:
+def processing_file(micronav: str, tmp: Path) -> Path:
+    """config/processing.toml with ``[live_micronav] enabled`` as ``micronav`` says."""
+    text = (ROOT / "config" / "processing.toml").read_text()
+    on = "on" if micronav == "on" else "off"
+    new, n = re.subn(r"(?m)^(\[live_micronav\][^\[]*?^enabled = )\w+",
+                     lambda m: m.group(1) + ("true" if on == "on" else "false"), text)
+    if n != 1:
+        raise RuntimeError("processing.toml: no [live_micronav] enabled line")
+    path = tmp / f"processing-micronav-{on}.toml"
+    path.write_text(new)
+    return path
+
+
+def trial(run: Path, isa: str, cache_root: Path, tmp: Path, load: bool,
+          micronav: str = "on") -> dict:
     env = env_for(isa, cache_root)
+    proc = processing_file(micronav, tmp)
     pub, svc = f"tcp://127.0.0.1:{free_port()}", f"tcp://127.0.0.1:{free_port()}"
     out, timings = tmp / "tiles", tmp / "timings.json"
     procs: list[subprocess.Popen] = []
@@ -225,7 +241,8 @@ def trial(run: Path, isa: str, cache_root: Path, tmp: Path, load: bool) -> dict:
         wlog = open(tmp / "worker.log", "w")
         worker = subprocess.Popen(svss_cmd(
             "worker", "--connect", pub, "--service", svc, "--out", str(out), "--runs", "1",
-            "--timings", str(timings)), cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
+            "--timings", str(timings), "--processing", str(proc)), cwd=ROOT, env=env,
+            stdout=subprocess.DEVNULL,
             stderr=wlog)
         procs.append(worker)
         t_start = time.time()
@@ -252,8 +269,11 @@ def trial(run: Path, isa: str, cache_root: Path, tmp: Path, load: bool) -> dict:
                 loader.kill()
     t = json.loads(timings.read_text())["runs"]
     (r,) = t.values()
-    return summarise(r, mon.published, mon.ended_at, t_start, t_done,
-                     rusage.ru_utime + rusage.ru_stime)
+    out = summarise(r, mon.published, mon.ended_at, t_start, t_done,
+                    rusage.ru_utime + rusage.ru_stime)
+    (manifest,) = sorted((tmp / "tiles").glob("*/manifest.json"))   # the run's
+    out["micronav"] = json.loads(manifest.read_text()).get("micronav")
+    return out
 
 
 def summarise(r: dict, published: dict, ended_at, t_start: float, t_done: float,
@@ -319,6 +339,9 @@ def main(argv=None) -> int:
     ap.add_argument("--cache", default=str(ROOT / "out" / "bench_live"),
                     help="folder of the simulated lines and the AVX2 numba cache")
     ap.add_argument("--no-load", action="store_true", help="without the recording load")
+    ap.add_argument("--micronav", default="on",
+                    help="[live_micronav] enabled in the worker's processing: on, off or "
+                         "on,off (one trial each, in that order)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     cache = Path(args.cache)
@@ -332,21 +355,22 @@ def main(argv=None) -> int:
     isas = args.isa.split(",")
     for name in args.lines.split(","):
         run = survey_line(name, args.pings or LINES[name][1], cache)
-        for isa in isas:
+        for isa, mn in ((i, m) for i in isas for m in args.micronav.split(",")):
             with tempfile.TemporaryDirectory(prefix="bench_live_") as tmp:
                 tmp = Path(tmp)
                 env = env_for(isa, cache)
                 warm(run, env, tmp, 40)
                 shutil.rmtree(tmp / "warm", ignore_errors=True)
                 load0 = os.getloadavg()
-                log.info("%s, %s build: replaying %s at its real rate (load %.2f)", name,
-                         isa, run.name, load0[0])
-                r = trial(run, isa, cache, tmp, not args.no_load)
+                log.info("%s, %s build, micronavigation %s: replaying %s at its real rate "
+                         "(load %.2f)", name, isa, mn, run.name, load0[0])
+                r = trial(run, isa, cache, tmp, not args.no_load, mn)
                 r["load_during"] = [load0, os.getloadavg()]
                 r["navigation_pose_ms_per_ping"] = nav_ms
-                res["lines"].setdefault(name, {})[isa] = r
+                key = isa if args.micronav == "on" else f"{isa}, micronav {mn}"
+                res["lines"].setdefault(name, {})[key] = r
                 log.info("%s %s: margin %.2f (sonar %.0f s, processing %.0f s), backlog "
-                         "peak %d, %d at the last ping; tiles %s", name, isa, r["margin"],
+                         "peak %d, %d at the last ping; tiles %s", name, key, r["margin"],
                          r["sonar_s"], r["processing_s"], r["backlog_pings"]["peak"],
                          r["backlog_pings"]["at_last_ping"],
                          [t.get("latency_s") for t in r["tiles"]])
@@ -363,7 +387,8 @@ def report(res: dict) -> str:
              f"{res['machine']['cores']} cores; load {res['load_before'][0]:.2f} before, "
              f"{res['load_after'][0]:.2f} after; recording load "
              f"{'on' if res['recording_load'] else 'off'}"]
-    stages = ("conditioning", "imaging", "coverage", "scheduling", "ping.other", "products",
+    stages = ("micronav", "conditioning", "imaging", "coverage", "scheduling", "ping.other",
+              "products",
               "products.chain", "products.background", "products.normalisation",
               "products.compression_and_mips", "products.detection", "products.quicklook_png",
               "products.tile_file", "quicklook", "run_products")
@@ -388,6 +413,8 @@ def report(res: dict) -> str:
                 cpu = "" if v["cpu_ms"] is None else f"{v['cpu_ms']:.1f}"
                 lines.append(f"  {s:24s} {cpu:>12s} {v['wall_ms']:13.1f}")
             lines.append(f"  {'navigation (daemon)':24s} {r['navigation_pose_ms_per_ping']:12.2f}")
+            if r.get("micronav"):
+                lines.append(f"  micronavigation: {json.dumps(r['micronav'])}")
     return "\n".join(lines)
 
 

@@ -22,6 +22,13 @@ image. A modelled DVL, not the chain's: not bench_focus's cases.
 
     python benchmarks/bench_micronav.py --pings 60 --out benchmarks/results/bench_micronav.json
     python benchmarks/bench_micronav.py --pings 60 --image --out benchmarks/results/bench_micronav_image.json
+    python benchmarks/bench_micronav.py --pings 30 --compare --out benchmarks/results/bench_micronav_kernels.json
+
+``--compare`` times the numpy reference of the estimator against the numba kernel the
+worker uses (:mod:`svss_proc.micronav.patch_focus`) on every pair, alternating which
+goes first, and reports CPU (process) and wall seconds per pair, their ratio and the
+largest difference of the estimates, with the machine's instruction set and the load
+average before and after.
 """
 
 from __future__ import annotations
@@ -30,6 +37,7 @@ import argparse
 import dataclasses
 import json
 import math
+import os
 import sys
 import tempfile
 import time
@@ -48,7 +56,8 @@ from svss_daq.frames import body_to_ned  # noqa: E402
 from svss_daq.waveform import make_waveform  # noqa: E402
 from svss_proc.conditioning import Conditioner  # noqa: E402
 from svss_proc.micronav.fusion import fuse_increments, increment_covariance  # noqa: E402
-from svss_proc.micronav.horizontal import estimate_displacement  # noqa: E402
+from benchmarks.bench_isa import machine_isa  # noqa: E402
+from svss_proc.micronav.horizontal import TapCache, estimate_displacement  # noqa: E402
 
 MOTION = dict(heave_m=0.03, heave_period_s=5.0, sway_m=0.05, sway_period_s=7.0,
               roll_deg=1.0, roll_period_s=4.0, pitch_deg=1.0, pitch_period_s=4.5,
@@ -72,8 +81,10 @@ def scenes(with_points: bool):
         straight.track, motion=MotionConfig(**MOTION))), straight
 
 
-def estimates(n_pings: int, first: int, options: dict, with_points: bool = False):
+def estimates(n_pings: int, first: int, options: dict, with_points: bool = False,
+              compare: bool = False):
     loaded = load_with_text(HardwareConfig, config_path("hardware.toml"))
+    taps = TapCache()
     hw = loaded.value
     scene, straight = scenes(with_points)
     src = EnvironmentSource(loaded, scene)
@@ -93,19 +104,34 @@ def estimates(n_pings: int, first: int, options: dict, with_points: bool = False
             sa, sb = (ping_pose(straight.track, hw, k, src.seed) for k in (i - 1, i))
             ra = body_to_ned(ta.roll_rad, ta.pitch_rad, ta.heading_rad)
             rb = body_to_ned(tb.roll_rad, tb.pitch_rad, tb.heading_rad)
-            t0 = time.perf_counter()
-            est = estimate_displacement(ca.data, cb.data, ca.t0_s, ca.dt_s, src.geometry,
-                                        pa.projector, pb.projector, ra, sa.ned, rb, sb.ned,
-                                        ta.down_m + ta.altitude_m,
-                                        scene.medium.sound_speed_m_s, hw.waveform.center_hz,
-                                        **options)
-            sec = time.perf_counter() - t0
-            rows.append({"ping": i - 1, "projectors": [pa.projector, pb.projector],
-                         "true_m": (tb.ned - ta.ned).tolist(),
-                         "est_m": est.displacement_m.tolist(),
-                         "sigma_m": est.sigma_m.tolist(),
-                         "cov_m2": est.cov_m2.tolist(), "refused": est.refused,
-                         "coherence": est.coherence.tolist(), "seconds": sec})
+            args = (ca.data, cb.data, ca.t0_s, ca.dt_s, src.geometry, pa.projector,
+                    pb.projector, ra, sa.ned, rb, sb.ned, ta.down_m + ta.altitude_m,
+                    scene.medium.sound_speed_m_s, hw.waveform.center_hz)
+            timed = {}
+            if not rows:                 # the kernels loaded from numba's cache, untimed
+                estimate_displacement(*args, **options)
+            # --compare: the numpy reference and the numba kernel on the same pair, in
+            # alternating order (the machine's load falls on both alike); the live
+            # stage's cache of taps (one per ping, shared by its two pairs) for numba
+            kernels = ("numpy", "numba") if compare else ("numba",)
+            for kernel in (kernels if i % 2 else kernels[::-1]):
+                extra = {"taps": taps} if kernel == "numba" else {}
+                c0, t0 = time.process_time(), time.perf_counter()
+                est = estimate_displacement(*args, **options, kernel=kernel, **extra)
+                timed[kernel] = (est, time.process_time() - c0, time.perf_counter() - t0)
+            est, cpu, sec = timed["numba"]
+            row = {"ping": i - 1, "projectors": [pa.projector, pb.projector],
+                   "true_m": (tb.ned - ta.ned).tolist(),
+                   "est_m": est.displacement_m.tolist(),
+                   "sigma_m": est.sigma_m.tolist(),
+                   "cov_m2": est.cov_m2.tolist(), "refused": est.refused,
+                   "coherence": est.coherence.tolist(), "seconds": sec, "cpu_s": cpu}
+            if compare:
+                old, ocpu, osec = timed["numpy"]
+                row["numpy"] = {"seconds": osec, "cpu_s": ocpu, "refused": old.refused,
+                                "est_m": old.displacement_m.tolist(),
+                                "sigma_m": old.sigma_m.tolist()}
+            rows.append(row)
         prev = cur
     return rows, synth_s / n_pings, hw.sequencer.ping_interval_s, pings, loaded, scene
 
@@ -185,6 +211,35 @@ def image_cases(pings, hardware, scene, positions) -> dict:
     return out
 
 
+def compare_kernels(rows: list) -> dict:
+    """--compare: per pair estimated by both, the numpy reference's and the numba
+    kernel's CPU and wall seconds (medians, and of the sums the ratio) and the largest
+    differences of their estimates; refusals must agree."""
+    both = [r for r in rows if r["refused"] is None]
+    agree = all((r["refused"] is None) == (r["numpy"]["refused"] is None) for r in rows)
+    d = np.array([np.subtract(r["est_m"], r["numpy"]["est_m"]) for r in both])
+    sr = np.array([np.divide(r["sigma_m"], r["numpy"]["sigma_m"]) - 1.0 for r in both])
+    med = lambda k, old: float(np.median([(r["numpy"] if old else r)[k] for r in both]))  # noqa: E731
+    tot = lambda k, old: float(sum((r["numpy"] if old else r)[k] for r in both))  # noqa: E731
+    out = {"pairs": len(both), "refusals_agree": agree,
+           "numpy_cpu_s_per_pair": med("cpu_s", True), "numba_cpu_s_per_pair": med("cpu_s", False),
+           "numpy_wall_s_per_pair": med("seconds", True),
+           "numba_wall_s_per_pair": med("seconds", False),
+           "cpu_ratio": tot("cpu_s", True) / tot("cpu_s", False),
+           "wall_ratio": tot("seconds", True) / tot("seconds", False),
+           "max_abs_displacement_difference_m": float(np.abs(d).max()) if both else None,
+           "max_relative_sigma_difference": float(np.abs(sr).max()) if both else None}
+    print(f"kernels over {out['pairs']} pairs (medians per pair; ratio of the sums):")
+    print(f"  numpy reference  CPU {out['numpy_cpu_s_per_pair'] * 1e3:7.1f} ms   wall "
+          f"{out['numpy_wall_s_per_pair'] * 1e3:7.1f} ms")
+    print(f"  numba kernel     CPU {out['numba_cpu_s_per_pair'] * 1e3:7.1f} ms   wall "
+          f"{out['numba_wall_s_per_pair'] * 1e3:7.1f} ms")
+    print(f"  ratio            CPU {out['cpu_ratio']:7.2f}x     wall {out['wall_ratio']:7.2f}x")
+    print(f"  estimates: largest difference {out['max_abs_displacement_difference_m']:.2e} m, "
+          f"sigma {out['max_relative_sigma_difference']:.2e} relative; refusals agree: {agree}")
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--pings", type=int, default=60)
@@ -194,14 +249,20 @@ def main(argv=None) -> int:
                     help="displacement_pass's gradient option (the alternatives measured)")
     ap.add_argument("--translations", type=int, default=2)
     ap.add_argument("--passes", type=int, default=2)
+    ap.add_argument("--compare", action="store_true",
+                    help="also run the numpy reference on every pair: CPU and wall time "
+                         "per pair of both, their ratio and the largest difference of the "
+                         "estimates")
     ap.add_argument("--image", action="store_true",
                     help="add three points to the scene and image it with the true, DVL "
                          "and fused poses of each case: peak loss against the true poses")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
+    load_before = os.getloadavg()
     rows, synth_s, interval, pings, hardware, scene = estimates(
         args.pings, args.first, dict(gradient=args.gradient, translations=args.translations,
-                                     passes=args.passes), args.image)
+                                     passes=args.passes), args.image, args.compare)
+    load_after = os.getloadavg()
     ok = [r for r in rows if r["refused"] is None]
     true = np.array([r["true_m"] for r in rows])
     est = np.array([r["est_m"] for r in rows])
@@ -217,6 +278,7 @@ def main(argv=None) -> int:
         "rms_error_over_sigma": np.sqrt(np.mean((err / sig[good]) ** 2, axis=0)).tolist(),
         "true_increment_rms_about_mean_mm": (true.std(axis=0) * 1e3).tolist(),
         "seconds_per_pair_median": float(np.median([r["seconds"] for r in ok])),
+        "cpu_seconds_per_pair_median": float(np.median([r["cpu_s"] for r in ok])),
         "synthesis_seconds_per_ping": synth_s}
     print(f"{len(rows)} ping pairs, {summary['refused']} refused "
           f"({'; '.join(summary['refusals'])})")
@@ -224,7 +286,11 @@ def main(argv=None) -> int:
     for k in ("rms_error_mm", "mean_error_mm", "median_sigma_mm", "rms_error_over_sigma",
               "true_increment_rms_about_mean_mm"):
         print(f"  {k:34s} " + " / ".join(f"{v:6.2f}" for v in summary[k]))
-    print(f"  seconds per pair (median, this machine) {summary['seconds_per_pair_median']:.3f}")
+    print(f"  seconds per pair (median, this machine) {summary['seconds_per_pair_median']:.3f}"
+          f" wall, {summary['cpu_seconds_per_pair_median']:.3f} CPU")
+    speed = compare_kernels(rows) if args.compare else None
+    if speed is not None:
+        summary["kernels"] = speed
     rng = np.random.default_rng(29)
     mic = np.where(good[:, None], est, np.nan)
     mcov = np.array([np.array(r["cov_m2"]) if r["refused"] is None else np.eye(3)
@@ -249,7 +315,10 @@ def main(argv=None) -> int:
               f"(steps rms DVL {np.round(f['dvl_step_rms_mm'], 2)}, fused "
               f"{np.round(f['fused_step_rms_mm'], 2)})")
     images = image_cases(pings, hardware, scene, positions) if args.image else None
-    out = {"summary": summary, "fusion": fusion, "images": images, "pairs": rows,
+    out = {"command": " ".join(["python"] + [os.path.relpath(sys.argv[0], ROOT)]
+                               + sys.argv[1:]),
+           "machine": machine_isa(), "load_before": load_before, "load_after": load_after,
+           "summary": summary, "fusion": fusion, "images": images, "pairs": rows,
            "args": vars(args), "wall_s": time.perf_counter() - t0}
     if args.out:
         Path(args.out).write_text(json.dumps(out, indent=1))

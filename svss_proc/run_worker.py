@@ -220,9 +220,9 @@ class Worker:
             flags_ok = False
         if flags_ok and self.gate.admit(ping):
             try:
-                if self.micronav is not None:
-                    ping = self.micronav.pose(ping)
                 with self.clock.stage("ping"):
+                    if self.micronav is not None:
+                        ping = self.micronav.pose(ping)
                     tiles = self.imager.add(ping)
                 ok = True
             except PingRejected as exc:

@@ -30,6 +30,7 @@ from svss_daq.ping import NAV_BOTTOM_LOCK, NAV_SIMULATED, Ping
 
 from .forward_fusion import FusionState, fusion_start, fusion_step
 from .horizontal import TapCache, estimate_displacement
+from .patch_focus import warm_up
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +74,7 @@ class LiveMicronav:
             return condition(ping)
         accumulator.condition = memo
         self._condition = condition
+        warm_up()
 
     # ------------------------------------------------------------------ the stage
     def pose(self, ping: Ping) -> Ping:

@@ -30,7 +30,7 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
-__all__ = ["MAX_HALF_ANGLE_RAD", "PingTaps", "SubAperture", "focus", "ping_taps"]
+__all__ = ["MAX_HALF_ANGLE_RAD", "PingTaps", "SubAperture", "focus", "ping_taps", "warm_up"]
 
 #: the largest |theta| / 2 the kernel's Taylor series of exp(j x) is used for, rad
 #: (truncation x^12 / 12! = 1e-7 at 1.38 rad; 2e-6 at 1.6)
@@ -138,3 +138,13 @@ def focus(taps: PingTaps, sub: SubAperture, points: np.ndarray,
            np.ascontiguousarray(points, dtype=np.float64), 1.0 / float(sound_speed_m_s),
            re, im, dtx)
     return re + 1j * im
+
+
+def warm_up() -> None:
+    """Compile the kernels (or load them from numba's cache) on a tiny problem, before
+    pings come (a worker's first ping pair would otherwise wait for it)."""
+    from .phase_centres import near_pairs
+    taps = ping_taps(np.zeros((1, 4), dtype=np.complex64), 0.0, 1e-5, 1e4)
+    focus(taps, SubAperture(np.zeros(1, dtype=np.int64), np.zeros(3), np.zeros((1, 3))),
+          np.ones((1, 3)), 1500.0)
+    near_pairs(np.zeros((1, 3)), np.zeros((1, 3)), 1.0)
