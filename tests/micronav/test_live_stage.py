@@ -8,10 +8,10 @@ process` run (the same Worker class `svss worker` feeds from the stream).
   The tiles `svss process` writes must be those of the same pings imaged, with the stage
   off, at the poses an independent forward Kalman filter (written here, on x rather than
   on the correction) makes of the estimator's increments; and they must differ from the
-  navigation's. The manifest counts the pairs and the refusals by reason (the projector
-  sequence's wrap 5 -> 0; the run's first ping).
-- Without a seabed (the demo scene): every step refused ("no coherent seabed return"),
-  and the tiles equal, voxel for voxel, those made with the stage off.
+  navigation's. The manifest counts the pairs and the refusals by reason.
+- Without a seabed (the demo scene): every step refused ("no coherent seabed return";
+  the projector sequence's wrap 5 -> 0: "the phase centres do not overlap"), and the
+  tiles equal, voxel for voxel, those made with the stage off.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from svss_proc.tiles import read_tile
 from .posed_source import PosedSource
 
 ROOT = Path(__file__).resolve().parents[2]
-PINGS = range(12, 19)              # projectors 0 1 2 3 4 5 0: the last step refused
+PINGS = range(12, 16)              # projectors 0 1 2 3
 STAGE = """
 [live_micronav]
 enabled = {enabled}
@@ -53,7 +53,7 @@ translations = 2
 
 def offsets(i: int) -> np.ndarray:
     """Injected motion about the straight track (surge, sway, heave), m."""
-    return np.array([0.0, 0.02 if i >= 14 else 0.0, 0.005 if i >= 16 else 0.0])
+    return np.array([0.0, 0.02 if i >= 14 else 0.0, 0.005 if i >= 15 else 0.0])
 
 
 def processing_text(enabled: bool, length_m: float, top_m: float, depth_m: float) -> str:
@@ -83,13 +83,13 @@ def images(folder: Path) -> dict:
     return {p.name: read_tile(p)["image"] for p in sorted(folder.glob("tile_*.h5"))}
 
 
-def image_in_process(pings, proc_text: str, out: Path) -> dict:
+def image_in_process(pings, proc_text: str, out: Path) -> tuple[dict, dict]:
+    """The tiles and the manifest of ``pings`` imaged by a :class:`Worker` here."""
     hw = load_with_text(HardwareConfig, config_path("hardware.toml"))
-    proc = loaded_from_text(ProcessingConfig, proc_text, "stage-off")
+    proc = loaded_from_text(ProcessingConfig, proc_text, "in-process")
     w = Worker(hw, proc, out)
-    assert w.micronav is None
     w.run(iter(pings))
-    return images(out)
+    return images(out), json.loads((out / "manifest.json").read_text())
 
 
 def write_run(path: Path, pings) -> Path:
@@ -172,13 +172,13 @@ def test_the_worker_images_each_ping_at_its_fused_pose(sand_run, tmp_path):
     mn = manifest["micronav"]
     print(json.dumps(mn))
     assert mn["pairs"] == len(PINGS) - 1
-    assert mn["estimated"] == len(PINGS) - 2
-    assert mn["refused"] == {"no previous ping": 1, "the phase centres do not overlap": 1}
+    assert mn["estimated"] == len(PINGS) - 1
+    assert mn["refused"] == {"no previous ping": 1}
     got = images(tmp_path / "on")
     assert got
     want_pings = expected_poses(pings)
-    want = image_in_process(want_pings, off, tmp_path / "want")
-    nav = image_in_process(pings, off, tmp_path / "nav")
+    want = image_in_process(want_pings, off, tmp_path / "want")[0]
+    nav = image_in_process(pings, off, tmp_path / "nav")[0]
     assert got.keys() == want.keys() == nav.keys()
     for name in got:
         scale = np.abs(want[name]).max()
@@ -187,25 +187,27 @@ def test_the_worker_images_each_ping_at_its_fused_pose(sand_run, tmp_path):
         assert np.abs(got[name] - nav[name]).max() > 0.01 * scale
     # the fused poses moved toward the truth: the injected 20 mm sway and 5 mm heave,
     # carried from the steps they happened in (less the anchor's pull this early in a
-    # run), against the navigation's zero
+    # run: the gain is about 1 / (k + 1) at the run's k-th ping), against the
+    # navigation's zero
     last = np.array([want_pings[-1].nav.north_m, want_pings[-1].nav.east_m,
                      want_pings[-1].nav.down_m]) - pings[-1].nav.ned
-    assert 0.005 < last[1] < 0.02 and 0.001 < last[2] < 0.006, last
+    print("last ping's fused correction (m)", last)
+    assert 0.004 < last[1] < 0.02 and 0.001 < last[2] < 0.006, last
 
 
 def test_without_a_seabed_every_step_is_refused_and_the_image_unchanged(tmp_path):
     """The demo scene (points in water): the stage refuses at the nadir patch and the
-    tiles are those of the stage off, voxel for voxel."""
+    tiles are those of the stage off, voxel for voxel (the same Worker as above, here in
+    this process: the stage's path through a process is the test above)."""
     import itertools
 
     from sim_device.environment_source import EnvironmentSource
     hw = load_with_text(HardwareConfig, config_path("hardware.toml"))
     scene = load_scene(config_path("scenes/demo.toml"))
-    n = 14
-    run = write_run(tmp_path / "demo.h5",
-                    itertools.islice(iter(EnvironmentSource(hw, scene)), n))
-    on = process(run, tmp_path / "on", processing_text(True, 3.0, 0.0, 1.0))
-    off = process(run, tmp_path / "off", processing_text(False, 3.0, 0.0, 1.0))
+    n = 8
+    pings = list(itertools.islice(iter(EnvironmentSource(hw, scene)), n))
+    a, on = image_in_process(pings, processing_text(True, 3.0, 0.0, 1.0), tmp_path / "on")
+    b, off = image_in_process(pings, processing_text(False, 3.0, 0.0, 1.0), tmp_path / "off")
     assert off["micronav"] is None
     mn = on["micronav"]
     wraps = sum(1 for i in range(1, n) if i % 6 == 0)       # 5 -> 0: no overlap
@@ -213,7 +215,6 @@ def test_without_a_seabed_every_step_is_refused_and_the_image_unchanged(tmp_path
     assert mn["refused"] == {"no previous ping": 1, "the phase centres do not overlap": wraps,
                              "no coherent seabed return under the array": n - 1 - wraps}
     assert mn["max_correction_m"] == [0.0, 0.0, 0.0]
-    a, b = images(tmp_path / "on"), images(tmp_path / "off")
     assert a and a.keys() == b.keys()
     for name in a:
         np.testing.assert_array_equal(a[name], b[name])
