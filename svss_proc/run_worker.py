@@ -159,6 +159,8 @@ class Worker:
                 if int(a) < upto:
                     self.skipped_ranges.append([int(a), min(int(b), upto - 1)])
             self.skipped_unlisted = int(j.get("skipped_unlisted", 0))
+            if self.micronav is not None:
+                self.micronav.resume(j.get("micronav"))
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{path}: malformed journal ({exc})") from None
         files = finished_tiles_by_index(self.out)
@@ -200,6 +202,7 @@ class Worker:
             "resume_sequence": resume, "last_sequence": self.last_sequence,
             "resumed": self.resumed, "skipped": self.skipped_ranges,
             "skipped_unlisted": self.skipped_unlisted,
+            "micronav": None if self.micronav is None else self.micronav.journal(resume),
             "hardware_config_id": self.hardware.id,
             "processing_config_id": self.processing.id,
             "updated_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})

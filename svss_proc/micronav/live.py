@@ -37,6 +37,9 @@ log = logging.getLogger(__name__)
 #: why a step is the navigation's alone, besides the estimator's own reasons
 NO_PREVIOUS = "no previous ping"
 FAILED = "estimate failed"
+#: pings whose fusion state is kept for the journal (the resume point is the first ping
+#: of the earliest open tile: 15 m tiles at 1 m/s and 10 pings/s, 150 pings and the hold)
+HISTORY = 2000
 
 
 def reason_key(refused: str) -> str:
@@ -63,6 +66,10 @@ class LiveMicronav:
         self.estimated = 0
         self.refused: dict[str, int] = {}
         self.max_correction_m = np.zeros(3)
+        #: after each recent ping: (state, pairs, estimated, refused, largest correction),
+        #: for the journal (:meth:`journal`); the last ``HISTORY`` pings
+        self.history: dict[int, tuple] = {}
+        self._resume_at: tuple | None = None     # (sequence, snapshot) from a journal
         self._acc = accumulator
         self._held = None                        # (samples, conditioned) of the ping posed
         condition = accumulator.condition
@@ -81,6 +88,13 @@ class LiveMicronav:
         """``ping`` with the fused pose (itself where the fused correction is zero)."""
         cond = self._condition(ping)            # timed as the imager's conditioning
         self._held = (ping.samples, cond)
+        if self._resume_at is not None and self._resume_at[0] == ping.sequence:
+            # resumed: this ping's state as the interrupted run had it after this ping
+            self._restore(self._resume_at[1])
+            self._resume_at = None
+            self.prev = (ping.sequence, ping, cond)
+            self._remember(ping.sequence)
+            return fused(ping, self.state.correction_m)
         with self.clock.stage("micronav"):
             corr, cov, why = None, None, None
             prev = self.prev
@@ -113,7 +127,51 @@ class LiveMicronav:
             self.prev = (seq, ping, cond)
             e = self.state.correction_m
             self.max_correction_m = np.maximum(self.max_correction_m, np.abs(e))
+            self._remember(seq)
             return fused(ping, e)
+
+    # ------------------------------------------------------------------ resume
+    def _remember(self, seq: int) -> None:
+        self.history[seq] = (self.state, self.pairs, self.estimated, dict(self.refused),
+                             self.max_correction_m.copy())
+        if len(self.history) > HISTORY:
+            for k in sorted(self.history)[:len(self.history) - HISTORY]:
+                del self.history[k]
+
+    def _restore(self, snap: tuple) -> None:
+        self.state, self.pairs, self.estimated, refused, mx = snap
+        self.refused = dict(refused)
+        self.max_correction_m = np.array(mx, dtype=np.float64)
+
+    def journal(self, resume_sequence: int | None) -> dict | None:
+        """What a resumed worker needs to fuse on as this one did: the state after ping
+        ``resume_sequence`` (the first it will be fed again), and the counts then; None
+        when that ping was not posed here (a worker resumed with no open tile starts
+        afresh)."""
+        snap = self.history.get(resume_sequence) if resume_sequence is not None else None
+        if snap is None:
+            return None
+        state, pairs, estimated, refused, mx = snap
+        return {"sequence": int(resume_sequence),
+                "correction_m": [float(v) for v in state.correction_m],
+                "cov_m2": [[float(v) for v in row] for row in state.cov_m2],
+                "pairs": pairs, "estimated": estimated, "refused": refused,
+                "max_correction_m": [float(v) for v in mx]}
+
+    def resume(self, saved: dict | None) -> None:
+        """Take up a journal's :meth:`journal` entry: its ping is posed as it was."""
+        if not saved:
+            return
+        try:
+            state = FusionState(np.array(saved["correction_m"], dtype=np.float64).reshape(3),
+                                np.array(saved["cov_m2"], dtype=np.float64).reshape(3, 3))
+            snap = (state, int(saved["pairs"]), int(saved["estimated"]),
+                    {str(k): int(v) for k, v in saved["refused"].items()},
+                    np.array(saved["max_correction_m"], dtype=np.float64).reshape(3))
+            self._resume_at = (int(saved["sequence"]), snap)
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            log.warning("journal's micronavigation state unreadable (%s): the fusion "
+                        "starts afresh", exc)
 
     def _estimate(self, pa: Ping, ca, pb: Ping, cb):
         na, nb = pa.nav, pb.nav

@@ -218,3 +218,33 @@ def test_without_a_seabed_every_step_is_refused_and_the_image_unchanged(tmp_path
     assert a and a.keys() == b.keys()
     for name in a:
         np.testing.assert_array_equal(a[name], b[name])
+
+
+
+def test_a_resumed_stage_fuses_on_as_the_uninterrupted_one(sand_run, tmp_path):
+    """The journal carries the fusion's state at the resume point: a worker resumed from
+    it poses the pings from there as the uninterrupted one did, to the last bit (without
+    it the fusion starts afresh there, and the poses differ). The stage alone, on the
+    sand pings above (the imaging's part of a resume is tests/worker's)."""
+    pings, _ = sand_run
+    hw = load_with_text(HardwareConfig, config_path("hardware.toml"))
+    proc = loaded_from_text(ProcessingConfig, processing_text(True, 2.0, -0.1, 0.4), "on")
+
+    def stage(out, **kw):
+        return Worker(hw, proc, tmp_path / out, run_id="r", **kw)
+
+    whole = stage("whole").micronav
+    want = [whole.pose(p).nav for p in pings]
+    # a worker stopped after the third ping, its journal's resume point the third
+    first = stage("resumed")
+    for p in pings[:3]:
+        first.micronav.pose(p)
+    first._write_journal(resume=pings[2].sequence)
+    saved = json.loads((tmp_path / "resumed" / "worker_state.json").read_text())["micronav"]
+    assert saved["sequence"] == pings[2].sequence and abs(saved["correction_m"][1]) > 1e-3
+    again = stage("resumed", resume=True).micronav
+    got = [again.pose(p).nav for p in pings[2:]]
+    assert got == want[2:]
+    assert again.summary() == whole.summary()
+    fresh = stage("fresh").micronav
+    assert [fresh.pose(p).nav for p in pings[2:]] != want[2:]
