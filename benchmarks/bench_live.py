@@ -28,6 +28,11 @@ nothing to wait for). The numba caches are warmed first (a short ``svss process`
 pass per build), so no compile is timed.
 
     python benchmarks/bench_live.py --out benchmarks/results/bench_live.json [--lines sand,field] [--isa native,avx2] [--quick]
+
+``--micronav on,off`` runs each trial with the processing's ``[live_micronav]`` on and
+then off (default: on, as configured); the live micronavigation's time is the
+``micronav`` stage (a part of each ping's, its conditioning not included) and its
+refusals are reported from the run's manifest.
 """
 
 from __future__ import annotations
