@@ -335,6 +335,23 @@ class LimitsConfig:
 
 
 @dataclass(frozen=True)
+class MicronavConfig:
+    """Micronavigation in the re-navigation of a recorded run (svss_proc.micronav.renav;
+    docs/micronavigation.md, "In the re-navigation")."""
+    enabled: bool = spec("fuse the echoes' ping-to-ping increments with the re-navigated "
+                         "poses (svss process / svss batch; --micronav overrides)")
+    acceleration_sigma_m_s2: float = spec(
+        "the fusion's prior on the platform's acceleration (a second difference of the "
+        "ping positions of this times the ping interval squared), m/s^2 (1 sigma)",
+        lo=1e-4, hi=100.0)
+    anchor_sigma_m: float = spec("weak pull of the fused positions toward the "
+                                 "navigation's, m (1 sigma)", lo=1e-3, hi=1e4)
+    max_seed_sigma_m: float = spec(
+        "the estimator starts from the navigation's increment where its sigma is below "
+        "this, else from the last echo increment (a DVL dropout), m", lo=1e-5, hi=1.0)
+
+
+@dataclass(frozen=True)
 class ProcessingConfig:
     tile: TileConfig = spec("image tile geometry")
     conditioning: ConditioningConfig = spec("signal conditioning")
@@ -343,6 +360,8 @@ class ProcessingConfig:
     limits: LimitsConfig = spec("bounds on the imager's memory")
     products: ProductsConfig | None = spec("image products (omitted: tiles carry the image "
                                            "only)")
+    micronav: MicronavConfig | None = spec("micronavigation in the re-navigation "
+                                           "(omitted: off)")
 
 
 # ---------------------------------------------------------------------------- daq

@@ -1,0 +1,212 @@
+"""Micronavigation inside the re-navigation of a recorded run: the echoes' ping-to-ping
+increments (:mod:`.horizontal`) fused with the re-navigated poses' (:mod:`.fusion`),
+each weighted by its own error estimate (docs/micronavigation.md, "In the
+re-navigation").
+
+1. **The navigation's increments and their sigma** (:func:`nav_increment_sigma`). A step
+   between two pings the DVL carried (both poses fused with bottom lock) has the error
+   of the DVL's velocity noise over the step, ``dvl_velocity_sigma_m_s`` x dt per axis
+   (the filter's own process noise, ``svss_daq/nav/fusion.py``); a step without bottom
+   lock at either end (a dropout: the velocity held, or positions interpolated between
+   GPS fixes) has the filter's held-velocity sigma, ``dvl_gap_velocity_sigma_m_s`` x dt.
+2. **The echoes' increments** (:func:`echo_increments`): for each pair of consecutive
+   pings, :func:`~.horizontal.estimate_displacement` on their conditioned echoes, ping
+   b placed for the pairing at ping a's pose plus a *seed* increment: the navigation's
+   where its sigma is below ``max_seed_sigma_m``, else the last increment the echoes
+   measured (a dropout's GPS-interpolated steps are centimetres off, beyond the
+   estimator's reach of about 13 mm vertically). The seabed is the poses' bottom depth
+   (body depth + altitude), interpolated across pings without one.
+3. **Fusion** (:func:`~.fusion.fuse_increments`): the positions minimising both sets of
+   increments' weighted residuals, a weak anchor to the navigation's positions and the
+   acceleration prior (``acceleration_sigma_m_s2`` x T^2 per second difference), so a
+   step the echoes refused inside a dropout follows its neighbours. Attitude and the
+   measured bottom depth are kept (the altitude moves with the fused depth).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from collections import Counter
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from svss_daq.frames import body_to_ned
+from svss_daq.geometry import array_geometry
+from svss_daq.ping import NAV_BOTTOM_LOCK, NAV_FUSED, NavSnapshot
+from svss_daq.waveform import make_waveform
+from svss_proc.conditioning import Conditioner
+
+from .fusion import fuse_increments
+from .horizontal import DisplacementEstimate, estimate_displacement
+
+__all__ = ["EchoIncrements", "MicronavResult", "echo_increments", "fuse_with_navigation",
+           "nav_increment_sigma", "refusal_reason"]
+
+log = logging.getLogger(__name__)
+
+
+def nav_increment_sigma(poses: Sequence[NavSnapshot], nav_cfg) -> np.ndarray:
+    """Per step between consecutive poses, the sigma (n - 1, 3) of the navigation's
+    increment per NED axis, m (module docstring, 1)."""
+    t = np.array([p.time_ns for p in poses], dtype=np.float64) * 1e-9
+    dt = np.diff(t)
+    locked = np.array([(p.quality & NAV_FUSED) and (p.quality & NAV_BOTTOM_LOCK)
+                       and math.isfinite(p.altitude_m) for p in poses], dtype=bool)
+    both = locked[:-1] & locked[1:]
+    sig = np.where(both, nav_cfg.dvl_velocity_sigma_m_s, nav_cfg.dvl_gap_velocity_sigma_m_s)
+    return np.repeat((sig * dt)[:, None], 3, axis=1)
+
+
+def refusal_reason(text: str) -> str:
+    """The class of an estimator's refusal: its message up to the first colon."""
+    return text.split(":", 1)[0]
+
+
+@dataclass(frozen=True)
+class EchoIncrements:
+    """The echoes' increments between consecutive pings: ``estimates`` (n - 1) (None
+    where the two pings are not consecutive in sequence), with the seed each started
+    from."""
+    estimates: list[DisplacementEstimate | None]
+    seeded_from_echoes: int
+
+    def increments(self) -> tuple[np.ndarray, np.ndarray]:
+        """(n - 1, 3) increments, NaN rows where refused; (n - 1, 3, 3) covariances
+        (identity where refused)."""
+        n = len(self.estimates)
+        inc = np.full((n, 3), np.nan)
+        cov = np.repeat(np.eye(3)[None], n, axis=0)
+        for k, e in enumerate(self.estimates):
+            if e is not None and e.refused is None:
+                inc[k] = e.displacement_m
+                cov[k] = e.cov_m2
+        return inc, cov
+
+    def refusals(self) -> dict[str, int]:
+        """Refused pairs counted by reason."""
+        return dict(Counter("the pings are not consecutive" if e is None
+                            else refusal_reason(e.refused)
+                            for e in self.estimates if e is None or e.refused))
+
+
+def _bottom_depth(poses: Sequence[NavSnapshot]) -> np.ndarray:
+    """Body depth + altitude per pose, interpolated in time where there is none."""
+    t = np.array([p.time_ns for p in poses], dtype=np.float64)
+    b = np.array([p.down_m + p.altitude_m for p in poses], dtype=np.float64)
+    ok = np.isfinite(b)
+    if not ok.any():
+        return b
+    return np.interp(t, t[ok], b[ok])
+
+
+def echo_increments(pings: Iterable, poses: Sequence[NavSnapshot], hardware, processing,
+                    nav_sigma_m: np.ndarray, max_seed_sigma_m: float,
+                    **options) -> EchoIncrements:
+    """The echoes' increment for each consecutive pair of ``pings`` (the run's pings in
+    order, their samples) posed by ``poses`` (module docstring, 2). ``hardware``:
+    :class:`~svss_daq.config.HardwareConfig`; ``processing``:
+    :class:`~svss_daq.config.ProcessingConfig` (its conditioning and water sound speed);
+    ``nav_sigma_m`` (n - 1, 3) of :func:`nav_increment_sigma`; ``options``: of
+    :func:`~.horizontal.estimate_displacement`."""
+    geometry = array_geometry(hardware)
+    cond = Conditioner(hardware.digitiser, make_waveform(hardware.waveform),
+                       processing.conditioning.decimation, processing.conditioning.upsample)
+    c = processing.imaging.water_sound_speed_m_s
+    fc = hardware.waveform.center_hz
+    bottom = _bottom_depth(poses)
+    pos = np.array([p.ned for p in poses], dtype=np.float64)
+    out: list[DisplacementEstimate | None] = []
+    prev = None
+    last_echo = None
+    from_echoes = 0
+    for k, ping in enumerate(pings):
+        if k >= len(poses):
+            raise ValueError(f"{k + 1} pings for {len(poses)} poses")
+        cur = (ping, cond.ping(ping), poses[k])
+        if prev is not None:
+            (pa, ca, na), (pb, cb, nb) = prev, cur
+            if pb.sequence != pa.sequence + 1 or not math.isfinite(bottom[k - 1]):
+                out.append(None)
+            else:
+                nav_inc = pos[k] - pos[k - 1]
+                seed = nav_inc
+                if np.max(nav_sigma_m[k - 1]) > max_seed_sigma_m and last_echo is not None:
+                    seed = last_echo
+                    from_echoes += 1
+                ra = body_to_ned(na.roll_rad, na.pitch_rad, na.heading_rad)
+                rb = body_to_ned(nb.roll_rad, nb.pitch_rad, nb.heading_rad)
+                est = estimate_displacement(ca.data, cb.data, ca.t0_s, ca.dt_s, geometry,
+                                            pa.projector, pb.projector, ra, pos[k - 1], rb,
+                                            pos[k - 1] + seed, float(bottom[k - 1]), c, fc,
+                                            **options)
+                out.append(est)
+                if est.refused is None:
+                    last_echo = est.displacement_m
+        prev = cur
+    if len(out) != len(poses) - 1:
+        raise ValueError(f"{len(out) + 1} pings for {len(poses)} poses")
+    return EchoIncrements(out, from_echoes)
+
+
+@dataclass(frozen=True)
+class MicronavResult:
+    """The fused poses and what went into them."""
+    poses: list[NavSnapshot]
+    echoes: EchoIncrements
+    nav_sigma_m: np.ndarray
+    fused_cov_m2: np.ndarray
+
+    @property
+    def n_pairs(self) -> int:
+        return len(self.echoes.estimates)
+
+    @property
+    def n_echo(self) -> int:
+        return sum(1 for e in self.echoes.estimates if e is not None and e.refused is None)
+
+    @property
+    def description(self) -> str:
+        """How many increments came from the echoes, how many pairs were refused and why
+        (for the logs, the tiles' provenance and the manifest)."""
+        ref = self.echoes.refusals()
+        why = "; ".join(f"{n} {r}" for r, n in sorted(ref.items(), key=lambda x: -x[1]))
+        return (f"fused with {self.n_echo} of {self.n_pairs} ping-to-ping increments from "
+                f"the echoes (micronavigation; {self.n_pairs - self.n_echo} pairs refused"
+                + (f": {why}" if why else "") + ")")
+
+    def summary(self) -> dict:
+        """JSON-ready counts (the manifest's)."""
+        return {"pairs": self.n_pairs, "from_echoes": self.n_echo,
+                "refused": self.echoes.refusals(),
+                "seeded_from_echoes": self.echoes.seeded_from_echoes}
+
+
+def fuse_with_navigation(pings: Iterable, poses: Sequence[NavSnapshot], hardware,
+                         processing, nav_cfg, micronav_cfg, **options) -> MicronavResult:
+    """The re-navigated ``poses`` of ``pings`` fused with the echoes' increments (module
+    docstring). ``nav_cfg``: the navigation configuration the poses were made with;
+    ``micronav_cfg``: :class:`~svss_daq.config.MicronavConfig`."""
+    poses = list(poses)
+    sigma = nav_increment_sigma(poses, nav_cfg)
+    echoes = echo_increments(pings, poses, hardware, processing, sigma,
+                             micronav_cfg.max_seed_sigma_m, **options)
+    if len(poses) < 2:
+        return MicronavResult(poses, echoes, sigma, np.zeros((0, 3, 3)))
+    inc, cov = echoes.increments()
+    ncov = np.einsum("ki,ij->kij", sigma ** 2, np.eye(3))
+    t = np.array([p.time_ns for p in poses], dtype=np.float64) * 1e-9
+    interval = float(np.median(np.diff(t)))
+    pos = np.array([p.ned for p in poses], dtype=np.float64)
+    x, fcov = fuse_increments(pos, ncov, inc, cov, micronav_cfg.anchor_sigma_m,
+                              micronav_cfg.acceleration_sigma_m_s2 * interval ** 2)
+    fused = [dataclasses.replace(p, north_m=float(q[0]), east_m=float(q[1]),
+                                 down_m=float(q[2]),
+                                 altitude_m=float(p.altitude_m + p.down_m - q[2]))
+             for p, q in zip(poses, x)]
+    out = MicronavResult(fused, echoes, sigma, fcov)
+    log.info("%d poses %s", len(fused), out.description)
+    return out
