@@ -21,6 +21,12 @@ re-navigation").
    acceleration prior (``acceleration_sigma_m_s2`` x T^2 per second difference), so a
    step the echoes refused inside a dropout follows its neighbours. Attitude and the
    measured bottom depth are kept (the altitude moves with the fused depth).
+4. **Altitude through a dropout** (:func:`with_interpolated_bottom`): the navigation
+   gives no altitude without bottom lock, and the ping gate refuses such pings. The
+   fused poses take the bottom depth interpolated in time between the last and next
+   measured ones (a flat or evenly sloping seabed over the gap: the estimator focused
+   its patches on that plane), so the pings under the dropout can be imaged. Their
+   flags still say no bottom lock.
 """
 
 from __future__ import annotations
@@ -44,7 +50,7 @@ from .fusion import fuse_increments
 from .horizontal import DisplacementEstimate, estimate_displacement
 
 __all__ = ["EchoIncrements", "MicronavResult", "echo_increments", "fuse_with_navigation",
-           "nav_increment_sigma", "refusal_reason"]
+           "nav_increment_sigma", "refusal_reason", "with_interpolated_bottom"]
 
 log = logging.getLogger(__name__)
 
@@ -103,6 +109,19 @@ def _bottom_depth(poses: Sequence[NavSnapshot]) -> np.ndarray:
     return np.interp(t, t[ok], b[ok])
 
 
+def with_interpolated_bottom(poses: Sequence[NavSnapshot]) -> tuple[list[NavSnapshot], int]:
+    """``poses`` with an altitude where they have none: the bottom depth interpolated in
+    time (module docstring, 4) less the body depth; and how many were filled."""
+    bottom = _bottom_depth(poses)
+    out, n = [], 0
+    for p, b in zip(poses, bottom):
+        if not math.isfinite(p.altitude_m) and math.isfinite(b):
+            p = dataclasses.replace(p, altitude_m=float(b - p.down_m))
+            n += 1
+        out.append(p)
+    return out, n
+
+
 def echo_increments(pings: Iterable, poses: Sequence[NavSnapshot], hardware, processing,
                     nav_sigma_m: np.ndarray, max_seed_sigma_m: float,
                     **options) -> EchoIncrements:
@@ -159,6 +178,8 @@ class MicronavResult:
     echoes: EchoIncrements
     nav_sigma_m: np.ndarray
     fused_cov_m2: np.ndarray
+    #: poses given an altitude from the interpolated bottom depth (no bottom lock)
+    altitude_filled: int = 0
 
     @property
     def n_pairs(self) -> int:
@@ -176,12 +197,14 @@ class MicronavResult:
         why = "; ".join(f"{n} {r}" for r, n in sorted(ref.items(), key=lambda x: -x[1]))
         return (f"fused with {self.n_echo} of {self.n_pairs} ping-to-ping increments from "
                 f"the echoes (micronavigation; {self.n_pairs - self.n_echo} pairs refused"
-                + (f": {why}" if why else "") + ")")
+                + (f": {why}" if why else "") + ")"
+                + (f"; {self.altitude_filled} poses without bottom lock given the bottom "
+                   "depth interpolated across" if self.altitude_filled else ""))
 
     def summary(self) -> dict:
         """JSON-ready counts (the manifest's)."""
         return {"pairs": self.n_pairs, "from_echoes": self.n_echo,
-                "refused": self.echoes.refusals(),
+                "refused": self.echoes.refusals(), "altitude_filled": self.altitude_filled,
                 "seeded_from_echoes": self.echoes.seeded_from_echoes}
 
 
@@ -207,6 +230,7 @@ def fuse_with_navigation(pings: Iterable, poses: Sequence[NavSnapshot], hardware
                                  down_m=float(q[2]),
                                  altitude_m=float(p.altitude_m + p.down_m - q[2]))
              for p, q in zip(poses, x)]
-    out = MicronavResult(fused, echoes, sigma, fcov)
+    fused, filled = with_interpolated_bottom(fused)
+    out = MicronavResult(fused, echoes, sigma, fcov, filled)
     log.info("%d poses %s", len(fused), out.description)
     return out
