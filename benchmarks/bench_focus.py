@@ -102,6 +102,11 @@ VARIANTS = {
     "dvl_dropout": {"dvl": {"dropout_start_s": 5.0, "dropout_s": 10.0}},
     "dvl_scale_misalign": {"dvl": {"velocity_scale_error": 0.005, "misalignment_deg": 1.0}},
 }
+#: --micronav: the re-navigation told the noise of the DVL the variant has (the fusion
+#: weighs the DVL's increments by the navigation's dvl_velocity_sigma_m_s): factors of
+#: the recorded navigation configuration's keys
+VARIANT_NAVIGATION = {"dvl_noise_x2": {"dvl_velocity_sigma_m_s": 2.0, "dvl_range_sigma_m": 2.0},
+                      "dvl_noise_x5": {"dvl_velocity_sigma_m_s": 5.0, "dvl_range_sigma_m": 5.0}}
 #: ``af``: the re-navigated poses (the live ones without re-navigation) after the
 #: autofocus on the image's brightest points (svss_proc.micronav.autofocus; --autofocus)
 POSES = ("true", "live", "renav", "af", "fused", "fused_af")
@@ -297,7 +302,7 @@ def true_poses(pings, scene, hw) -> list:
     return out
 
 
-def renav_poses(files: list[Path], pings) -> tuple[list | None, str, object]:
+def renav_poses(files: list[Path], pings, nav_cfg=None) -> tuple[list | None, str, object]:
     """The re-navigation's poses of ``pings`` (:func:`svss_daq.nav.renavigate.renavigate`
     of the run's segments: one pose per recorded ping, in order), what they are and the
     navigation configuration; None and why when it is unavailable or the run cannot be
@@ -309,7 +314,7 @@ def renav_poses(files: list[Path], pings) -> tuple[list | None, str, object]:
         return None, f"svss_daq.nav.renavigate not importable ({exc})", None
     try:
         if hasattr(rn, "renavigation"):
-            r = rn.renavigation([str(f) for f in files])
+            r = rn.renavigation([str(f) for f in files], nav_cfg)
             poses, why, cfg = r.poses, r.description, getattr(r, "config", None)
         else:
             poses, why = rn.renavigate([str(f) for f in files]), "renavigate"
@@ -603,6 +608,12 @@ def run_case(scene_name: str, scene_path: Path, variant: str, sim_config: Path,
     pings.sort(key=lambda p: p.sequence)
     navs = {"true": true_poses(pings, scene, hardware), "live": [p.nav for p in pings]}
     renav, why, nav_cfg = renav_poses(rec["files"], pings)
+    told = VARIANT_NAVIGATION.get(variant) if args.micronav else None
+    if renav is not None and told and nav_cfg is not None:
+        nav_cfg = dataclasses.replace(nav_cfg, **{k: getattr(nav_cfg, k) * f
+                                                  for k, f in told.items()})
+        renav, why, nav_cfg = renav_poses(rec["files"], pings, nav_cfg)
+        why += f" (navigation told the DVL's noise: {told})"
     if renav is not None:
         # the re-navigation gives no altitude without bottom lock (the ping gate refuses
         # those pings); the fused poses take the bottom depth interpolated across, and

@@ -169,3 +169,47 @@ def test_the_micronav_table_is_checked_naming_file_and_key(tmp_path):
     bad.write_text(text.replace("acceleration_sigma_m_s2 = 0.2", "acceleration_sigma_m_s2 = -1"))
     with pytest.raises(ConfigError, match=rf"{bad}.*acceleration_sigma_m_s2"):
         load_with_text(ProcessingConfig, bad)
+
+
+@pytest.mark.extended
+def test_svss_process_and_batch_fuse_with_micronav_and_say_so(tmp_path, recorded):
+    """The commands, in their own processes: the manifest (and each tile's provenance)
+    says how many increments came from the echoes and why the others were refused."""
+    import json
+    import subprocess
+    import sys
+
+    from svss_proc.tiles import read_tile_header
+    from tests.worker.conftest import small_processing_text
+    path, _ = recorded
+    text = Path(config_path("processing.toml")).read_text()
+    table = text[text.index("[micronav]"):]
+    table = table.replace("acceleration_sigma_m_s2 = 0.2",
+                          f"acceleration_sigma_m_s2 = {NO_ACCELERATION_PRIOR!r}")
+    proc = tmp_path / "processing.toml"
+    proc.write_text(small_processing_text().split("\n[products]")[0] + "\n" + table)
+    root = Path(__file__).resolve().parents[2]
+
+    def svss(*args):
+        return subprocess.run([sys.executable, "-m", "svss", *args], capture_output=True,
+                              text=True, cwd=root, timeout=600)
+
+    want = "fused with 2 of 3 ping-to-ping increments from the echoes"
+    res = svss("process", str(path), "--out", str(tmp_path / "p"), "--processing",
+               str(proc), "--micronav")
+    assert res.returncode == 0, res.stderr[-3000:]
+    manifest = json.loads((tmp_path / "p" / "manifest.json").read_text())
+    assert want in manifest["poses"] and "1 the phase centres do not overlap" in \
+        manifest["poses"]
+    for t in sorted((tmp_path / "p").glob("tile_*.h5")):
+        assert read_tile_header(t)["poses"] == manifest["poses"]
+    # without the flag the configuration's switch (off) decides
+    res = svss("process", str(path), "--out", str(tmp_path / "q"), "--processing", str(proc))
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert "echoes" not in json.loads((tmp_path / "q" / "manifest.json").read_text())["poses"]
+    pytest.importorskip("distributed")
+    res = svss("batch", str(path), "--out", str(tmp_path / "b"), "--processing", str(proc),
+               "--workers", "1", "--micronav")
+    assert res.returncode == 0, res.stderr[-3000:]
+    state = json.loads((tmp_path / "b" / "batch_state.json").read_text())
+    assert want in json.dumps(state)
