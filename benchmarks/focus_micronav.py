@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 from svss_daq.config import ProcessingConfig, config_path, load_with_text
-from svss_proc.micronav.renav import fuse_with_navigation
+from svss_proc.micronav.renav import fuse_with_navigation, locked_steps
 
 
 def micronav_config():
@@ -48,7 +48,7 @@ def report(res, renav_poses, truths) -> dict:
     mic, mcov = res.echoes.increments()
     msig = np.sqrt(np.einsum("kii->ki", mcov))
     ok = np.all(np.isfinite(mic), axis=1)
-    gap = np.max(res.nav_sigma_m, axis=1) > np.min(res.nav_sigma_m)
+    gap = ~locked_steps(renav_poses)
     coh = np.array([e.coherence for e in res.echoes.estimates
                     if e is not None and e.refused is None])
     nadir_all = np.array([e.coherence[0] for e in res.echoes.estimates

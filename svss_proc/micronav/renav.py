@@ -50,9 +50,17 @@ from .fusion import fuse_increments
 from .horizontal import DisplacementEstimate, estimate_displacement
 
 __all__ = ["EchoIncrements", "MicronavResult", "echo_increments", "fuse_with_navigation",
-           "nav_increment_sigma", "refusal_reason", "with_interpolated_bottom"]
+           "locked_steps", "nav_increment_sigma", "refusal_reason", "with_interpolated_bottom"]
 
 log = logging.getLogger(__name__)
+
+
+def locked_steps(poses: Sequence[NavSnapshot]) -> np.ndarray:
+    """Per step between consecutive poses (n - 1,): both fused from the DVL with bottom
+    lock (``NAV_FUSED`` and ``NAV_BOTTOM_LOCK``)."""
+    locked = np.array([bool(p.quality & NAV_FUSED) and bool(p.quality & NAV_BOTTOM_LOCK)
+                       for p in poses], dtype=bool)
+    return locked[:-1] & locked[1:]
 
 
 def nav_increment_sigma(poses: Sequence[NavSnapshot], nav_cfg) -> np.ndarray:
@@ -60,10 +68,8 @@ def nav_increment_sigma(poses: Sequence[NavSnapshot], nav_cfg) -> np.ndarray:
     increment per NED axis, m (module docstring, 1)."""
     t = np.array([p.time_ns for p in poses], dtype=np.float64) * 1e-9
     dt = np.diff(t)
-    locked = np.array([(p.quality & NAV_FUSED) and (p.quality & NAV_BOTTOM_LOCK)
-                       and math.isfinite(p.altitude_m) for p in poses], dtype=bool)
-    both = locked[:-1] & locked[1:]
-    sig = np.where(both, nav_cfg.dvl_velocity_sigma_m_s, nav_cfg.dvl_gap_velocity_sigma_m_s)
+    sig = np.where(locked_steps(poses), nav_cfg.dvl_velocity_sigma_m_s,
+                   nav_cfg.dvl_gap_velocity_sigma_m_s)
     return np.repeat((sig * dt)[:, None], 3, axis=1)
 
 
