@@ -629,7 +629,8 @@ def run_case(scene_name: str, scene_path: Path, variant: str, sim_config: Path,
     if args.micronav and renav is not None:
         import focus_micronav as fm
         navs["fused"], res, sec = fm.fused_poses(pings, renav, hardware, processing, nav_cfg)
-        case["micronav"] = fm.report(res, renav, navs["true"])
+        case["micronav"] = fm.report(res, renav, navs["true"],
+                                     hardware.value.lever_arms.array_m)
         case["micronav"]["seconds"] = sec
         fm.print_report(f"{scene_name} / {variant}", case["micronav"])
     # the pings imaged: all, or (sand) those whose array reaches the points
@@ -861,6 +862,8 @@ def main(argv=None) -> int:
                     help="also image with the re-navigated poses fused with the echoes' "
                     "increments (fused; with --autofocus also fused_af) and report the "
                     "motion estimates against the truth (issue 29)")
+    ap.add_argument("--skip-default", action="store_true",
+                    help="leave the default instruments out (run only --variants)")
     ap.add_argument("--skip-live", action="store_true",
                     help="do not image with the live poses (saves an image per case)")
     ap.add_argument("--processing", default=str(DEFAULT_PROCESSING),
@@ -891,6 +894,8 @@ def main(argv=None) -> int:
             if v not in VARIANTS:
                 ap.error(f"--variants: unknown variant {v!r} (known: {', '.join(VARIANTS)})")
         variants += [v for v in extra if v != "default"]
+    if args.skip_default and len(variants) > 1:
+        variants.remove("default")
     t_start = time.perf_counter()
     processing = load_with_text(ProcessingConfig, args.processing)
     tmp = tempfile.TemporaryDirectory(prefix="bench-focus-") if not args.work else None
