@@ -7,14 +7,21 @@ re-navigation").
    between two pings the DVL carried (both poses fused with bottom lock) has the error
    of the DVL's velocity noise over the step, ``dvl_velocity_sigma_m_s`` x dt per axis
    (the filter's own process noise, ``svss_daq/nav/fusion.py``); a step without bottom
-   lock at either end (a dropout: the velocity held, or positions interpolated between
-   GPS fixes) has the filter's held-velocity sigma, ``dvl_gap_velocity_sigma_m_s`` x dt.
+   lock at either end, the velocity held (within ``dvl_max_gap_s`` of a locked sample),
+   has the filter's held-velocity sigma, ``dvl_gap_velocity_sigma_m_s`` x dt; a step
+   whose poses come from the GPS alone (no ``NAV_FUSED``: a dropout longer than
+   ``dvl_max_gap_s``, positions interpolated between fixes) has the GPS's,
+   ``gps_sigma_m`` across and along and ``gps_height_sigma_m`` down.
 2. **The echoes' increments** (:func:`echo_increments`): for each pair of consecutive
    pings, :func:`~.horizontal.estimate_displacement` on their conditioned echoes, ping
    b placed for the pairing at ping a's pose plus a *seed* increment: the navigation's
    where its sigma is below ``max_seed_sigma_m``, else the last increment the echoes
    measured (a dropout's GPS-interpolated steps are centimetres off, beyond the
-   estimator's reach of about 13 mm vertically). The seabed is the poses' bottom depth
+   estimator's reach of about 13 mm vertically). Where the navigation's step is that
+   uncertain, ping a itself is placed where the chain of the echoes' increments (the
+   seed where they refused) put it from the last ping the navigation placed well: the
+   GPS heights (0.5 m) would put the array decimetres off its height above the seabed,
+   and the patches would be focused at the wrong range. The seabed is the poses' bottom depth
    (body depth + altitude), interpolated across pings without one.
 3. **Fusion** (:func:`~.fusion.fuse_increments`): the positions minimising both sets of
    increments' weighted residuals, a weak anchor to the navigation's positions and the
@@ -70,7 +77,11 @@ def nav_increment_sigma(poses: Sequence[NavSnapshot], nav_cfg) -> np.ndarray:
     dt = np.diff(t)
     sig = np.where(locked_steps(poses), nav_cfg.dvl_velocity_sigma_m_s,
                    nav_cfg.dvl_gap_velocity_sigma_m_s)
-    return np.repeat((sig * dt)[:, None], 3, axis=1)
+    out = np.repeat((sig * dt)[:, None], 3, axis=1)
+    fused = np.array([bool(p.quality & NAV_FUSED) for p in poses], dtype=bool)
+    gps = ~(fused[:-1] & fused[1:])
+    out[gps] = [nav_cfg.gps_sigma_m, nav_cfg.gps_sigma_m, nav_cfg.gps_height_sigma_m]
+    return out
 
 
 def refusal_reason(text: str) -> str:
@@ -148,6 +159,7 @@ def echo_increments(pings: Iterable, poses: Sequence[NavSnapshot], hardware, pro
     prev = None
     last_echo = None
     from_echoes = 0
+    placed = pos.copy()         # where each ping was placed for the pairing
     for k, ping in enumerate(pings):
         if k >= len(poses):
             raise ValueError(f"{k + 1} pings for {len(poses)} poses")
@@ -159,18 +171,24 @@ def echo_increments(pings: Iterable, poses: Sequence[NavSnapshot], hardware, pro
             else:
                 nav_inc = pos[k] - pos[k - 1]
                 seed = nav_inc
-                if np.max(nav_sigma_m[k - 1]) > max_seed_sigma_m and last_echo is not None:
+                origin_a = pos[k - 1]
+                uncertain = bool(np.max(nav_sigma_m[k - 1]) > max_seed_sigma_m)
+                if uncertain and last_echo is not None:
                     seed = last_echo
                     from_echoes += 1
+                    origin_a = placed[k - 1]
                 ra = body_to_ned(na.roll_rad, na.pitch_rad, na.heading_rad)
                 rb = body_to_ned(nb.roll_rad, nb.pitch_rad, nb.heading_rad)
                 est = estimate_displacement(ca.data, cb.data, ca.t0_s, ca.dt_s, geometry,
-                                            pa.projector, pb.projector, ra, pos[k - 1], rb,
-                                            pos[k - 1] + seed, float(bottom[k - 1]), c, fc,
+                                            pa.projector, pb.projector, ra, origin_a, rb,
+                                            origin_a + seed, float(bottom[k - 1]), c, fc,
                                             **options)
                 out.append(est)
                 if est.refused is None:
                     last_echo = est.displacement_m
+                step = est.displacement_m if est.refused is None else seed
+                if uncertain:
+                    placed[k] = origin_a + step
         prev = cur
     if len(out) != len(poses) - 1:
         raise ValueError(f"{len(out) + 1} pings for {len(poses)} poses")
