@@ -349,6 +349,10 @@ class MicronavConfig:
     max_seed_sigma_m: float = spec(
         "the estimator starts from the navigation's increment where its sigma is below "
         "this, else from the last echo increment (a DVL dropout), m", lo=1e-5, hi=1.0)
+    bias_min_steps: int = spec(
+        "the echoes' mean increment error (their surge bias) is measured against the "
+        "navigation's on at least this many steps with bottom lock and taken out of "
+        "every echo increment; fewer: not", lo=1, hi=10**6)
 
 
 @dataclass(frozen=True)
