@@ -97,11 +97,31 @@ VARIANTS = {
     "rtk": {"gps": {"position_sigma_m": 0.02, "height_sigma_m": 0.03, "fix_quality": 4}},
     "dvl_noise_x2": {"dvl": {"velocity_sigma_m_s": ("x", 2.0), "range_sigma_m": ("x", 2.0)}},
     "dvl_noise_x5": {"dvl": {"velocity_sigma_m_s": ("x", 5.0), "range_sigma_m": ("x", 5.0)}},
+    # issue 29: no bottom lock for 10 s (5-15 s of the track: the sand scene's points lie
+    # under its middle); a 0.5 % velocity scale error and a 1 deg mounting misalignment
+    "dvl_dropout": {"dvl": {"dropout_start_s": 5.0, "dropout_s": 10.0}},
+    "dvl_scale_misalign": {"dvl": {"velocity_scale_error": 0.005, "misalignment_deg": 1.0}},
 }
+#: --micronav: the re-navigation told the noise of the DVL the variant has (the fusion
+#: weighs the DVL's increments by the navigation's dvl_velocity_sigma_m_s): factors of
+#: the recorded navigation configuration's keys
+VARIANT_NAVIGATION = {"dvl_noise_x2": {"dvl_velocity_sigma_m_s": 2.0, "dvl_range_sigma_m": 2.0},
+                      "dvl_noise_x5": {"dvl_velocity_sigma_m_s": 5.0, "dvl_range_sigma_m": 5.0}}
 #: ``af``: the re-navigated poses (the live ones without re-navigation) after the
 #: autofocus on the image's brightest points (svss_proc.micronav.autofocus; --autofocus)
-POSES = ("true", "live", "renav", "af")
+POSES = ("true", "live", "renav", "af", "fused", "fused_af")
 AUTOFOCUS_POINTS = 6
+
+#: issue 29's sand scene (--scenes sand): the seed's sand (interface, volume, specular
+#: return, noise) without its cylinder, with the motion above and three points in the
+#: sand (-20 dB, as the demo's) under the middle of the DVL dropout of ``dvl_dropout``
+SAND_SCENE = ROOT / "config/scenes/seed_cylinder_sand.toml"
+SAND_PINGS = 200
+SAND_POINTS = ((12.5, 0.0, 0.30), (13.3, 0.32, 0.45), (14.1, -0.40, 0.60))
+#: sand: only the pings whose array is within this of the points (along) are imaged, m
+SAND_IMAGE_MARGIN_M = 2.5
+#: sand: the sediment's sound speed for the imaging's refraction (the seed's medium sand)
+SAND_SEDIMENT_SPEED_M_S = 1767.0
 
 #: fine sampling around each peak (m): coarse-to-fine cubes and the width lines
 CUBE1_HALF, CUBE1_STEP = 0.030, 0.003
@@ -157,6 +177,49 @@ def write_motion_scene(base: Path, folder: Path) -> Path:
     return path
 
 
+def write_sand_scene(folder: Path) -> Path:
+    """The sand scene (SAND_*): the seed's, its cylinder taken out, the points and the
+    motion added, SAND_PINGS pings."""
+    text = SAND_SCENE.read_text()
+    text = text[:text.index("# The cylinder")]
+    text = re.sub(r'name = "seed-cylinder-sand"', 'name = "sand-points-motion"', text)
+    text = re.sub(r"n_pings = \d+", f"n_pings = {SAND_PINGS}", text)
+    text += "\n# bench_focus (issue 29): points in the sand\n" + "".join(
+        f"[[points]]\nalong_m = {a!r}\ncross_m = {c!r}\ndepth_m = {d!r}\n"
+        "target_strength_db = -20.0\n\n" for a, c, d in SAND_POINTS)
+    text += "# bench_focus: platform motion (issue 26)\n[track.motion]\n" + "".join(
+        f"{k} = {v!r}\n" for k, v in MOTION.items())
+    path = folder / "sand-motion.toml"
+    path.write_text(text)
+    load_scene(path)
+    return path
+
+
+def sand_processing(base: Path, folder: Path):
+    """``base`` with the sand's sediment speed and the refraction tables."""
+    text = base.read_text()
+    text = re.sub(r"sediment_sound_speed_m_s = [0-9.]+",
+                  f"sediment_sound_speed_m_s = {SAND_SEDIMENT_SPEED_M_S!r}", text)
+    text = re.sub(r'delays = "\w+"', 'delays = "table"', text)
+    path = folder / "processing-sand.toml"
+    path.write_text(text)
+    return load_with_text(ProcessingConfig, path)
+
+
+def presynthesised(scene_path: Path, folder: Path, hardware: Path) -> Path:
+    """The scene's pings synthesised once (``svss simulate``) for ``svss sim-device
+    --from-run``: the sand scene costs more than a ping interval a ping on 2 cores, and
+    the device drops a ping whose samples are late. Kept in ``folder`` for reruns."""
+    out = folder / f"{scene_path.stem}-simulated.h5"
+    if not out.exists():
+        t0 = time.perf_counter()
+        subprocess.run(_svss("simulate", "--scene", str(scene_path), "--hardware",
+                             str(hardware), "--out", str(out)), check=True, cwd=ROOT,
+                       env=_env(), stdout=subprocess.DEVNULL)
+        log.info("%s synthesised in %.0f s", out, time.perf_counter() - t0)
+    return out
+
+
 # --------------------------------------------------------------------------- the chain
 
 
@@ -174,7 +237,7 @@ def _env() -> dict:
 
 
 def record(scene_path: Path, sim_config: Path, folder: Path, hardware: Path,
-           lead_s: float) -> dict:
+           lead_s: float, from_run: Path | None = None) -> dict:
     """``svss sim-device`` -> ``svss acquire`` into ``folder``; the recording's files and
     what the device said."""
     folder.mkdir(parents=True, exist_ok=True)
@@ -188,7 +251,9 @@ def record(scene_path: Path, sim_config: Path, folder: Path, hardware: Path,
             sim = subprocess.Popen(
                 _svss("sim-device", "--scene", str(scene_path), "--hardware", str(hardware),
                       "--sim-config", str(sim_config), "--devices-out", str(devices),
-                      "--lead", str(lead_s)), stdout=subprocess.DEVNULL, stderr=err,
+                      "--lead", str(lead_s),
+                      *(("--from-run", str(from_run)) if from_run else ())),
+                stdout=subprocess.DEVNULL, stderr=err,
                 cwd=ROOT, env=_env())
         deadline = time.monotonic() + STARTUP_S
         while not devices.exists():
@@ -237,23 +302,25 @@ def true_poses(pings, scene, hw) -> list:
     return out
 
 
-def renav_poses(files: list[Path], pings) -> tuple[list | None, str]:
+def renav_poses(files: list[Path], pings, nav_cfg=None) -> tuple[list | None, str, object]:
     """The re-navigation's poses of ``pings`` (:func:`svss_daq.nav.renavigate.renavigate`
-    of the run's segments: one pose per recorded ping, in order); None and why when it
-    is unavailable or the run cannot be re-navigated."""
+    of the run's segments: one pose per recorded ping, in order), what they are and the
+    navigation configuration; None and why when it is unavailable or the run cannot be
+    re-navigated."""
+    cfg = None
     try:
         from svss_daq.nav import renavigate as rn
     except ImportError as exc:
-        return None, f"svss_daq.nav.renavigate not importable ({exc})"
+        return None, f"svss_daq.nav.renavigate not importable ({exc})", None
     try:
         if hasattr(rn, "renavigation"):
-            r = rn.renavigation([str(f) for f in files])
-            poses, why = r.poses, r.description
+            r = rn.renavigation([str(f) for f in files], nav_cfg)
+            poses, why, cfg = r.poses, r.description, getattr(r, "config", None)
         else:
             poses, why = rn.renavigate([str(f) for f in files]), "renavigate"
     except ValueError as exc:                    # RenavigationError: the reason
         log.warning("re-navigation unavailable: %s", exc)
-        return None, f"re-navigation failed: {exc}"
+        return None, f"re-navigation failed: {exc}", None
     seqs = []
     for f in files:
         with RawRunReader(f) as run:
@@ -261,7 +328,7 @@ def renav_poses(files: list[Path], pings) -> tuple[list | None, str]:
     if len(poses) != len(seqs):
         raise RuntimeError(f"renavigate gave {len(poses)} poses for {len(seqs)} pings")
     by_seq = dict(zip(seqs, poses))
-    return [by_seq[p.sequence] for p in pings], why
+    return [by_seq[p.sequence] for p in pings], why, cfg
 
 
 # --------------------------------------------------------------------------- imaging
@@ -526,9 +593,12 @@ def nav_errors(navs, truths) -> dict:
 def run_case(scene_name: str, scene_path: Path, variant: str, sim_config: Path,
              work: Path, args, processing) -> dict:
     scene = load_scene(scene_path)
-    log.info("case %s / %s: recording (sim-device -> acquire)", scene_name, variant)
+    from_run = (presynthesised(scene_path, work, Path(args.hardware))
+                if scene_name == "sand" else None)
+    log.info("case %s / %s: recording (sim-device%s -> acquire)", scene_name, variant,
+             " --from-run" if from_run else "")
     rec = record(scene_path, sim_config, work / f"{scene_name}-{variant}",
-                 Path(args.hardware), args.lead)
+                 Path(args.hardware), args.lead, from_run)
     pings = []
     hardware = None
     for f in rec["files"]:
@@ -537,33 +607,71 @@ def run_case(scene_name: str, scene_path: Path, variant: str, sim_config: Path,
             pings += list(run)
     pings.sort(key=lambda p: p.sequence)
     navs = {"true": true_poses(pings, scene, hardware), "live": [p.nav for p in pings]}
-    renav, why = renav_poses(rec["files"], pings)
+    renav, why, nav_cfg = renav_poses(rec["files"], pings)
+    told = VARIANT_NAVIGATION.get(variant) if args.micronav else None
+    if renav is not None and told and nav_cfg is not None:
+        nav_cfg = dataclasses.replace(nav_cfg, **{k: getattr(nav_cfg, k) * f
+                                                  for k, f in told.items()})
+        renav, why, nav_cfg = renav_poses(rec["files"], pings, nav_cfg)
+        why += f" (navigation told the DVL's noise: {told})"
     if renav is not None:
-        navs["renav"] = renav
+        # the re-navigation gives no altitude without bottom lock (the ping gate refuses
+        # those pings); the fused poses take the bottom depth interpolated across, and
+        # so do the DVL-only ones here, so that both image the same pings
+        from svss_proc.micronav.renav import with_interpolated_bottom
+        navs["renav"], filled = with_interpolated_bottom(renav)
+        renav = navs["renav"]
     case = {"scene": scene_name, "variant": variant, "pings_recorded": len(pings),
             "first_track_ping": rec["first_track_ping"],
             "device_late_pings": rec["device_late_pings"],
-            "chain_wall_s": rec["chain_wall_s"], "renav_source": why, "poses": {}}
+            "chain_wall_s": rec["chain_wall_s"], "renav_source": why, "poses": {},
+            "renav_altitude_filled": filled if renav is not None else 0}
+    if args.micronav and renav is not None:
+        import focus_micronav as fm
+        navs["fused"], res, sec = fm.fused_poses(pings, renav, hardware, processing, nav_cfg)
+        case["micronav"] = fm.report(res, renav, navs["true"],
+                                     hardware.value.lever_arms.array_m)
+        case["micronav"]["seconds"] = sec
+        fm.print_report(f"{scene_name} / {variant}", case["micronav"])
+    # the pings imaged: all, or (sand) those whose array reaches the points
+    imaged = list(range(len(pings)))
+    if scene_name == "sand":
+        ahead = hardware.value.lever_arms.array_m[0]
+        lo = min(p.along_m for p in scene.points) - SAND_IMAGE_MARGIN_M
+        hi = max(p.along_m for p in scene.points) + SAND_IMAGE_MARGIN_M
+        line = truth_line(scene.track)
+        imaged = [i for i, t in enumerate(navs["true"])
+                  if lo <= line.ned_to_tile(np.array(t.ned))[0] + ahead <= hi]
+    case["pings_imaged_indices"] = [imaged[0], imaged[-1]] if imaged else None
+    sub = [pings[i] for i in imaged]
+    kinds = [k for k in POSES if not (k == "live" and args.skip_live)]
     gps = load_sim_device_config(sim_config).gps
     true_peaks = None
     focused = {}
-    for kind in POSES:
-        if kind == "af" and args.autofocus:
-            navs["af"], case["autofocus"] = autofocused_poses(
-                focused.get("renav") or focused["live"], processing, pings,
-                navs["renav" if "renav" in focused else "live"])
+    for kind in kinds:
+        if kind in ("af", "fused_af") and args.autofocus:
+            base = {"af": "renav" if "renav" in focused else "live",
+                    "fused_af": "fused"}[kind]
+            if base in focused:
+                poses, case[f"autofocus_{base}"] = autofocused_poses(
+                    focused[base], processing, sub, [navs[base][i] for i in imaged])
+                navs[kind] = list(navs[base])
+                for i, nv in zip(imaged, poses):
+                    navs[kind][i] = nv
         if kind not in navs:
             case["poses"][kind] = None
             continue
         t0 = time.perf_counter()
-        focus = focused[kind] = Focus(hardware, processing, pings, navs[kind],
+        focus = focused[kind] = Focus(hardware, processing, sub,
+                                      [navs[kind][i] for i in imaged],
                                       f"{scene_name}/{variant}/{kind}")
         res = measure(focus, scene, true_peaks)
         if kind == "true":
             true_peaks = res["points"]
         res["nav_errors"] = nav_errors(navs[kind], navs["true"])
         if kind != "true":
-            res["criteria"] = criteria(kind, res["summary"], gps.position_sigma_m)
+            res["criteria"] = criteria("live" if kind == "live" else "renav",
+                                       res["summary"], gps.position_sigma_m)
         res["wall_s"] = time.perf_counter() - t0
         case["poses"][kind] = res
         s = res["summary"]
@@ -703,6 +811,37 @@ def print_tables(cases: list[dict]) -> None:
                 for k in ("along_m", "cross_m", "altitude_m")))
 
 
+def print_micronav_table(cases: list[dict]) -> None:
+    """Issue 29: peak level against the true poses, DVL-only (renav) beside fused, with
+    and without the autofocus; the motion estimates against the truth."""
+    print()
+    print("Issue 29: peak level against the true-pose image, mean / worst (dB)")
+    print(f"{'scene':6} {'variant':19} {'renav':>14} {'fused':>14} {'renav+af':>14} "
+          f"{'fused+af':>14}")
+    for c in cases:
+        cells = []
+        for kind in ("renav", "fused", "af", "fused_af"):
+            r = c["poses"].get(kind)
+            cells.append("n/a" if r is None else
+                         f"{r['summary']['mean_level_db']:.2f} / "
+                         f"{r['summary']['worst_level_db']:.2f}")
+        print(f"{c['scene']:6} {c['variant']:19} " + " ".join(f"{x:>14}" for x in cells))
+    print()
+    print("Motion estimates against the truth, every step (mm; north / east / down): "
+          "echoes rms error [rms(err/sigma)], renav rms error [rms(err/sigma)], fused rms "
+          "error; nadir coherence (median)")
+    for c in cases:
+        m = c.get("micronav")
+        if not m:
+            continue
+        e = m["all_steps"]
+        f = lambda v: "/".join(f"{x:.2f}" for x in v)            # noqa: E731
+        print(f"{c['scene']:6} {c['variant']:19} {m['from_echoes']}/{m['pairs']} "
+              f"echo {f(e['echo_rms_error_mm'])} [{f(e['echo_rms_error_over_sigma'])}] "
+              f"renav {f(e['nav_rms_error_mm'])} [{f(e['nav_rms_error_over_sigma'])}] "
+              f"fused {f(e['fused_rms_error_mm'])}; coh {m['nadir_coherence_median']:.2f}")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", help="JSON results file")
@@ -712,10 +851,21 @@ def main(argv=None) -> int:
                     help="instrument variants besides the default: all (bare --variants), "
                     f"or a comma list of {', '.join(v for v in VARIANTS if v != 'default')}")
     ap.add_argument("--scenes", default=None,
-                    help="comma list of demo, motion (default both; demo with --quick)")
+                    help="comma list of demo, motion, sand (default demo, motion; demo "
+                    "with --quick). sand: the seed's sand with points and motion "
+                    "(SAND_*), pre-synthesised and streamed with sim-device --from-run, "
+                    "imaged with the sand's sediment speed and refraction tables")
     ap.add_argument("--autofocus", action="store_true",
                     help="also image with the autofocused poses (af: the re-navigated "
                     "ones, focused on the image's brightest points)")
+    ap.add_argument("--micronav", action="store_true",
+                    help="also image with the re-navigated poses fused with the echoes' "
+                    "increments (fused; with --autofocus also fused_af) and report the "
+                    "motion estimates against the truth (issue 29)")
+    ap.add_argument("--skip-default", action="store_true",
+                    help="leave the default instruments out (run only --variants)")
+    ap.add_argument("--skip-live", action="store_true",
+                    help="do not image with the live poses (saves an image per case)")
     ap.add_argument("--processing", default=str(DEFAULT_PROCESSING),
                     help="processing TOML (default: config/processing-demo.toml, the demo's)")
     ap.add_argument("--hardware", default=str(config_path("hardware.toml")))
@@ -744,25 +894,31 @@ def main(argv=None) -> int:
             if v not in VARIANTS:
                 ap.error(f"--variants: unknown variant {v!r} (known: {', '.join(VARIANTS)})")
         variants += [v for v in extra if v != "default"]
+    if args.skip_default and len(variants) > 1:
+        variants.remove("default")
     t_start = time.perf_counter()
     processing = load_with_text(ProcessingConfig, args.processing)
     tmp = tempfile.TemporaryDirectory(prefix="bench-focus-") if not args.work else None
     work = Path(args.work or tmp.name).resolve()
     work.mkdir(parents=True, exist_ok=True)
     names = (args.scenes or ("demo" if args.quick else "demo,motion")).split(",")
-    if set(names) - {"demo", "motion"}:
-        ap.error(f"--scenes: unknown {sorted(set(names) - {'demo', 'motion'})}")
+    if set(names) - {"demo", "motion", "sand"}:
+        ap.error(f"--scenes: unknown {sorted(set(names) - {'demo', 'motion', 'sand'})}")
     scenes = {}
     if "demo" in names:
         scenes["demo"] = DEMO_SCENE
     if "motion" in names:
         scenes["motion"] = write_motion_scene(DEMO_SCENE, work)
+    if "sand" in names:
+        scenes["sand"] = write_sand_scene(work)
+        sand_proc = sand_processing(Path(args.processing), work)
     cases = []
     try:
         for variant in variants:
             sim = write_variant(variant, Path(args.sim_config), work)
             for name, path in scenes.items():
-                cases.append(run_case(name, path, variant, sim, work, args, processing))
+                cases.append(run_case(name, path, variant, sim, work, args,
+                                      sand_proc if name == "sand" else processing))
     finally:
         if tmp is not None:
             tmp.cleanup()
@@ -777,6 +933,8 @@ def main(argv=None) -> int:
                 c["motion_true_vs_level_true_db"] = {"per_point": lv,
                                                      "mean": float(np.mean(lv))}
     print_tables(cases)
+    if args.micronav:
+        print_micronav_table(cases)
     result = {"command": " ".join([os.path.basename(sys.executable)] + sys.argv),
               "git": git_info(args.source_revision), "machine": machine_info(),
               "processing": str(Path(args.processing).resolve().relative_to(ROOT))

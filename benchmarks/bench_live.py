@@ -29,7 +29,7 @@ pass per build), so no compile is timed.
 
     python benchmarks/bench_live.py --out benchmarks/results/bench_live.json [--lines sand,field] [--isa native,avx2] [--quick]
 
-``--micronav on,off`` runs each trial with the processing's ``[live_micronav]`` on and
+``--micronav on,off`` runs each trial with the processing's ``[micronav] live`` on and
 then off (default: on, as configured); the live micronavigation's time is the
 ``micronav`` stage (a part of each ping's, its conditioning not included) and its
 refusals are reported from the run's manifest.
@@ -208,13 +208,13 @@ def warm(run: Path, env: dict, tmp: Path, pings: int) -> None:
 
 
 def processing_file(micronav: str, tmp: Path) -> Path:
-    """config/processing.toml with ``[live_micronav] enabled`` as ``micronav`` says."""
+    """config/processing.toml with ``[micronav] live`` as ``micronav`` says."""
     text = (ROOT / "config" / "processing.toml").read_text()
     on = "on" if micronav == "on" else "off"
-    new, n = re.subn(r"(?m)^(\[live_micronav\][^\[]*?^enabled = )\w+",
+    new, n = re.subn(r"(?m)^(\[micronav\][^\[]*?^live = )\w+",
                      lambda m: m.group(1) + ("true" if on == "on" else "false"), text)
     if n != 1:
-        raise RuntimeError("processing.toml: no [live_micronav] enabled line")
+        raise RuntimeError("processing.toml: no [micronav] live line")
     path = tmp / f"processing-micronav-{on}.toml"
     path.write_text(new)
     return path
@@ -345,7 +345,7 @@ def main(argv=None) -> int:
                     help="folder of the simulated lines and the AVX2 numba cache")
     ap.add_argument("--no-load", action="store_true", help="without the recording load")
     ap.add_argument("--micronav", default="on",
-                    help="[live_micronav] enabled in the worker's processing: on, off or "
+                    help="[micronav] live in the worker's processing: on, off or "
                          "on,off (one trial each, in that order)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")

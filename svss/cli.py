@@ -5,9 +5,9 @@
     svss status [--connect ENDPOINT] [--json] [--follow]
     svss view [--tiles DIR] [--connect ENDPOINT] [--address A] [--port N]
     svss simulate --scene FILE --out RUN.h5
-    svss process RUN.h5 --out DIR [--renavigate | --no-renavigate]
+    svss process RUN.h5 --out DIR [--renavigate | --no-renavigate] [--micronav]
     svss batch RUN.h5 [RUN2.h5 ...] --out DIR [--scheduler ADDRESS] [--workers N]
-               [--renavigate | --no-renavigate]
+               [--renavigate | --no-renavigate] [--micronav | --no-micronav]
     svss worker --connect ENDPOINT --out DIR [--service E] [--runs N]
     svss replay RUN.h5 [RUN2.h5 ...] [--endpoint E] [--service E] [--realtime]
     svss inspect FILE [--json]
@@ -78,7 +78,7 @@ def cmd_process(args) -> int:
     from svss_proc.run_worker import process_raw
 
     files = process_raw(args.run, args.out, _processing(args), force=args.force,
-                        renavigate=args.renavigate)
+                        renavigate=args.renavigate, micronav=args.micronav)
     for p in files:
         print(p)
     return 0
@@ -91,7 +91,8 @@ def cmd_batch(args) -> int:
         require_dask()                  # before any work; the message names the extra
         summary = run_batch(args.run, args.out, _processing(args),
                             scheduler=args.scheduler, workers=args.workers,
-                            force=args.force, renavigate=args.renavigate)
+                            force=args.force, renavigate=args.renavigate,
+                            micronav=args.micronav)
     except (ImportError, BatchError) as exc:
         log.error("%s", exc)
         return 2 if isinstance(exc, ImportError) else 1
@@ -434,6 +435,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "(refused for a run without them), or image with the poses "
                         "recorded live (--no-renavigate); default: re-navigate where "
                         "the run records them (docs/worker.md, Poses)")
+        sp.add_argument("--micronav", action=argparse.BooleanOptionalAction,
+                        default=None, help="fuse the re-navigated poses with the "
+                        "ping-to-ping increments measured from the echoes' common phase "
+                        "centres (docs/micronavigation.md); default: the processing "
+                        "configuration's [micronav] enabled")
 
     def common(sp, processing=True):
         sp.add_argument("--hardware", help="hardware TOML (default: config/hardware.toml)")

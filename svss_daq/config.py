@@ -335,21 +335,29 @@ class LimitsConfig:
 
 
 @dataclass(frozen=True)
-class LiveMicronavConfig:
-    enabled: bool = spec("the tile worker estimates each ping's displacement from the "
-                         "previous one from their common phase centres and images it with "
-                         "the pose fused with the navigation's increment (docs/worker.md, "
-                         "docs/micronavigation.md)")
-    navigation_sigma_m_s: float = spec(
-        "error of the live poses' velocity per axis with DVL bottom lock (or simulated "
-        "poses), m/s: a ping step's navigation sigma is this times the pings' interval",
-        lo=1e-6, hi=10.0)
-    navigation_gap_sigma_m_s: float = spec(
-        "the same without bottom lock (the DVL's velocity held or absent), m/s",
-        lo=1e-6, hi=10.0)
-    anchor_sigma_m: float = spec("how far the fused positions may stray from the "
-                                 "navigation's, per axis, m (the weak anchor of "
-                                 "svss_proc.micronav.fusion)", lo=1e-4, hi=100.0)
+class MicronavConfig:
+    """Micronavigation (docs/micronavigation.md): in the re-navigation of a recorded run
+    (``enabled``; svss_proc.micronav.renav) and in the tile worker on the live poses
+    (``live``; svss_proc.micronav.live). The navigation's own step sigma is the
+    navigation configuration's (devices.toml ``[navigation]``)."""
+    enabled: bool = spec("fuse the echoes' ping-to-ping increments with the re-navigated "
+                         "poses (svss process / svss batch; --micronav overrides)")
+    live: bool = spec("the tile worker estimates each ping's displacement from the "
+                      "previous one and images it at the pose fused with the live "
+                      "navigation's increment (docs/worker.md)")
+    acceleration_sigma_m_s2: float = spec(
+        "the fusion's prior on the platform's acceleration (a second difference of the "
+        "ping positions of this times the ping interval squared), m/s^2 (1 sigma)",
+        lo=1e-4, hi=100.0)
+    anchor_sigma_m: float = spec("weak pull of the fused positions toward the "
+                                 "navigation's, m (1 sigma)", lo=1e-3, hi=1e4)
+    max_seed_sigma_m: float = spec(
+        "the estimator starts from the navigation's increment where its sigma is below "
+        "this, else from the last echo increment (a DVL dropout), m", lo=1e-5, hi=1.0)
+    bias_min_steps: int = spec(
+        "the echoes' mean increment error (their surge bias) is measured against the "
+        "navigation's on at least this many steps with bottom lock and taken out of "
+        "every echo increment; fewer: not", lo=1, hi=10**6)
     passes: int = spec("estimator passes per ping pair (b re-placed where the first "
                        "found it)", lo=1, hi=4)
     translations: int = spec("common sub-apertures per ping pair, interpolated to zero "
@@ -365,8 +373,8 @@ class ProcessingConfig:
     limits: LimitsConfig = spec("bounds on the imager's memory")
     products: ProductsConfig | None = spec("image products (omitted: tiles carry the image "
                                            "only)")
-    live_micronav: LiveMicronavConfig | None = spec(
-        "micronavigation in the tile worker, on the live poses (omitted: off)")
+    micronav: MicronavConfig | None = spec("micronavigation in the re-navigation and "
+                                           "the tile worker (omitted: off in both)")
 
 
 # ---------------------------------------------------------------------------- daq

@@ -94,7 +94,7 @@ class Worker:
         #: CPU and wall time per stage (manifest ``stage_times``; docs/worker.md)
         self.clock = StageClock()
         instrument(self.imager, self.clock)
-        #: ``[live_micronav]`` on the live poses: each ping imaged at its pose fused with
+        #: ``[micronav] live`` on the live poses: each ping imaged at its pose fused with
         #: the echoes' increment from the previous ping (None: off)
         self.micronav = live_stage(hardware, processing.value, self.imager.accumulator,
                                    self.clock, poses == LIVE_POSES)
@@ -381,7 +381,9 @@ class Worker:
         return self.finish(complete=False)
 
 
-def run_poses(readers: list[RawRunReader], renavigate: bool | None
+def run_poses(readers: list[RawRunReader], renavigate: bool | None,
+              micronav: bool | None = False,
+              processing: ProcessingConfig | None = None
               ) -> tuple[list[NavSnapshot] | None, str]:
     """The poses a recorded run (its segment readers, in order) is imaged with: (one
     pose per ping, or None for the poses recorded with the pings; what they are, for
@@ -389,14 +391,28 @@ def run_poses(readers: list[RawRunReader], renavigate: bool | None
     from the run's instrument records (:mod:`svss_daq.nav.renavigate`) and raises
     :class:`~svss_daq.nav.renavigate.RenavigationError` naming the file when it has
     none; False keeps the recorded poses; None (the default) re-navigates where the
-    records exist and keeps the recorded poses otherwise (logged)."""
+    records exist and keeps the recorded poses otherwise (logged).
+
+    ``micronav``: True fuses the re-navigated poses with the echoes' ping-to-ping
+    increments (:mod:`svss_proc.micronav.renav`, settings of ``processing``'s
+    ``[micronav]``; raises :class:`RenavigationError` where the run cannot be
+    re-navigated or the configuration has no ``[micronav]`` table); None does so where
+    ``processing``'s ``[micronav] enabled`` says (logged where it cannot); False not."""
     where = str(readers[0].path)
+    mcfg = processing.micronav if processing is not None else None
+    fuse = bool(micronav) if micronav is not None else bool(mcfg and mcfg.enabled)
+    if fuse and mcfg is None:
+        raise RenavigationError("micronavigation asked for, but the processing "
+                                "configuration has no [micronav] table (its settings)")
     if renavigate is False:
+        if micronav:
+            raise RenavigationError("micronavigation fuses the re-navigated poses: it "
+                                    "cannot run with --no-renavigate")
         log.info("%s: imaged with its %s (re-navigation not asked for)", where, LIVE_POSES)
         return None, LIVE_POSES
     problem = records_problem(readers)
     if problem is not None:
-        if renavigate:
+        if renavigate or micronav:
             raise RenavigationError(f"cannot re-navigate: {problem}")
         log.info("%s: imaged with its %s (not re-navigated: %s)", where, LIVE_POSES,
                  problem)
@@ -404,24 +420,33 @@ def run_poses(readers: list[RawRunReader], renavigate: bool | None
     try:
         renav = renavigation(readers)
     except RenavigationError as exc:
-        if renavigate:
+        if renavigate or micronav:
             raise
         log.warning("%s; imaged with its %s", exc, LIVE_POSES)
         return None, LIVE_POSES
-    log.info("%s: imaged with poses %s", where, renav.description)
-    return renav.poses, renav.description
+    if not fuse:
+        log.info("%s: imaged with poses %s", where, renav.description)
+        return renav.poses, renav.description
+    from .micronav.renav import fuse_with_navigation
+    pings = (p for r in readers for p in r)
+    res = fuse_with_navigation(pings, renav.poses, readers[0].hardware.value, processing,
+                               renav.config, mcfg)
+    what = f"{renav.description}, {res.description}"
+    log.info("%s: imaged with poses %s", where, what)
+    return res.poses, what
 
 
 def process_raw(path: str | Path, out_dir: str | Path,
                 processing: Loaded[ProcessingConfig], *, force: bool = False,
-                renavigate: bool | None = None) -> list[Path]:
+                renavigate: bool | None = None, micronav: bool | None = None
+                ) -> list[Path]:
     """Image a recorded raw run with the hardware configuration it was recorded with,
     into ``out_dir`` directly (the same tiles as the worker's ``OUT/RUN_ID/``), and
     the folder's survey index (``survey_index.csv``, :mod:`.survey_index`). The pings
-    are posed as :func:`run_poses` decides (``renavigate``); the manifest's and the
+    are posed as :func:`run_poses` decides (``renavigate``, ``micronav``); the manifest's and the
     tiles' ``poses`` say with what."""
     with RawRunReader(path) as run:
-        poses, what = run_poses([run], renavigate)
+        poses, what = run_poses([run], renavigate, micronav, processing.value)
         worker = Worker(run.hardware, processing, out_dir, force=force, poses=what,
                         run_label=run.run_id)
         pings = iter(run) if poses is None else (

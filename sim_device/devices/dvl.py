@@ -19,8 +19,19 @@ and is sent ``latency_s`` later. Contents:
   finds no bottom (0). With fewer than three beams on the bottom the velocity is bad
   (-32768). The fixed leader carries ``beam_angle_deg``.
 
-Lost bottom lock (:meth:`DvlEmulator.lose_bottom_lock`): what the instrument then sends,
-bad velocities (-32768) and ranges 0 in every beam, ensembles still flowing.
+Lost bottom lock (:meth:`DvlEmulator.lose_bottom_lock`, or the configured dropout
+``dropout_start_s`` .. + ``dropout_s`` after the track's start): what the instrument then
+sends, bad velocities (-32768: RDI's "no bottom lock" value) and ranges 0 in every beam,
+ensembles still flowing.
+
+Error cases of the instrument (configured, default none): a velocity scale error (an
+error in the sound speed at the transducer or in the beam angle) multiplies the
+measured velocity by 1 + ``velocity_scale_error``; a mounting misalignment of
+``misalignment_deg`` about the vertical (the head turned to starboard, not in the heading
+alignment EA the fixed leader states) makes the head measure the body's velocity turned
+the other way: v_head = (1 + s) R_z(alpha)^T v_body, then the noise. For a forward
+velocity v a head turned alpha to starboard reports v cos(alpha) forward and
+-v sin(alpha) to starboard (toward port). The attitude it reports is unaffected.
 """
 
 from __future__ import annotations
@@ -69,6 +80,14 @@ class DvlEmulator(ScheduledSerialDevice):
         self._lost_until_ns = -1
         self._llock = threading.Lock()
         self.ensemble_number = 0  #: number of the last ensemble built (first is 1)
+        a = math.radians(cfg.misalignment_deg)
+        #: body velocity -> what the head measures (scale and misalignment), body axes
+        self.error_matrix = (1.0 + cfg.velocity_scale_error) * np.array(
+            [[math.cos(a), math.sin(a), 0.0], [-math.sin(a), math.cos(a), 0.0],
+             [0.0, 0.0, 1.0]])
+        self._dropout_ns = (clock.start_ns + int(round(cfg.dropout_start_s * 1e9)),
+                            clock.start_ns + int(round((cfg.dropout_start_s + cfg.dropout_s)
+                                                       * 1e9)))
         self.ensembles_without_lock = 0
 
     def lose_bottom_lock(self, seconds: float) -> None:
@@ -89,7 +108,8 @@ class DvlEmulator(ScheduledSerialDevice):
         pitch = pose.pitch_rad + math.radians(c.tilt_sigma_deg) * rng.normal()
         roll = pose.roll_rad + math.radians(c.tilt_sigma_deg) * rng.normal()
         with self._llock:
-            lost = t_true_ns < self._lost_until_ns
+            lost = (t_true_ns < self._lost_until_ns
+                    or self._dropout_ns[0] <= t_true_ns < self._dropout_ns[1])
         if lost:
             self.ensembles_without_lock += 1
             vel = [math.nan] * 4
@@ -100,7 +120,8 @@ class DvlEmulator(ScheduledSerialDevice):
             dt = int(_DIFF_S * 1e9)
             v_ned = (antenna_ned(self.pose_fn(t_true_ns + dt), self.lever_m)
                      - antenna_ned(self.pose_fn(t_true_ns - dt), self.lever_m)) / (2 * _DIFF_S)
-            v_body = rot.T @ v_ned + rng.normal(0.0, c.velocity_sigma_m_s, 3)
+            v_body = (self.error_matrix @ (rot.T @ v_ned)
+                      + rng.normal(0.0, c.velocity_sigma_m_s, 3))
             height = pose.down_m + pose.altitude_m - head[2]  # head above the flat bottom
             vert = (self.beams @ rot.T)[:, 2]
             ranges = [height / v + c.range_sigma_m * rng.normal() if v > 0 else math.nan

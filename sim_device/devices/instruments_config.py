@@ -52,6 +52,21 @@ class DvlSimConfig:
     serial_number: int = spec("instrument serial number in the fixed leader",
                               lo=0, hi=2**32 - 1)
     seed: int = spec("seed of the noise generator", lo=0, hi=2**63 - 1)
+    # error cases (docs/sim_device.md, "DVL error cases")
+    velocity_scale_error: float = spec(
+        "velocity scale error: the measured bottom-track velocity is (1 + this) times the "
+        "true one (0.005: 0.5 %)", lo=-0.5, hi=0.5)
+    misalignment_deg: float = spec(
+        "mounting misalignment about the vertical not in the heading alignment EA: the "
+        "head's forward axis turned this far to starboard (clockwise seen from above), so "
+        "the velocity it measures is the body's turned the other way, deg",
+        lo=-180.0, hi=180.0)
+    dropout_start_s: float = spec(
+        "start of a bottom-lock dropout, simulated seconds after the track's start",
+        lo=-1e6, hi=1e6)
+    dropout_s: float = spec(
+        "length of that dropout (bad velocities -32768, ranges 0), s; 0: none",
+        lo=0.0, hi=1e6)
 
 
 @dataclass(frozen=True)

@@ -119,6 +119,8 @@ class Renavigation:
     n_bad_pd0: int
     #: where the navigation configuration came from
     config_source: str
+    #: the navigation configuration the poses were made with
+    config: NavigationConfig | None = None
 
     @property
     def description(self) -> str:
@@ -261,7 +263,7 @@ def renavigation(run, nav_cfg: NavigationConfig | None = None, *,
     except (ValueError, IndexError) as exc:
         raise RenavigationError(f"{where}: re-navigation from {n_nmea} NMEA sentences and "
                                 f"{n_pd0} PD0 ensembles found no solution ({exc})") from None
-    out = Renavigation(list(poses), n_nmea, n_pd0, bad, source)
+    out = Renavigation(list(poses), n_nmea, n_pd0, bad, source, cfg)
     log.info("%s: %d ping(s) %s (navigation configuration: %s)", where, len(out.poses),
              out.description, source)
     return out

@@ -284,10 +284,12 @@ def group_runs(paths: list[str | Path]) -> dict[str, list[Path]]:
 
 def plan_run(run_id: str, folder: str, paths: list[Path],
              processing: Loaded[ProcessingConfig], renavigate: bool | None = None,
-             exclude: dict[tuple[str, int], str] | None = None) -> RunPlan:
+             exclude: dict[tuple[str, int], str] | None = None,
+             micronav: bool | None = None) -> RunPlan:
     """Plan the tiles of one run (its segment files, in order) for ``processing``, its
     pings posed as :func:`svss_proc.run_worker.run_poses` decides (``renavigate``: the
-    whole run, every segment's instrument records together). ``exclude``: pings found
+    whole run, every segment's instrument records together; ``micronav``: fused with the
+    echoes' increments, None as the processing configuration says). ``exclude``: pings found
     refused for their samples, (raw file, index) -> reason: refused here as the
     streaming worker's gate refuses them (counted in ``refused``)."""
     exclude = exclude or {}
@@ -304,7 +306,7 @@ def plan_run(run_id: str, folder: str, paths: list[Path],
                                    f"{readers[0].path} with {hw.id}; a run has one")
         planner = TilePlanner(hw, processing.value, processing.source,
                               name=f"batch plan of run {run_id}")
-        poses, what = run_poses(readers, renavigate)
+        poses, what = run_poses(readers, renavigate, micronav, processing.value)
         dig = hw.value.digitiser
         zeros = np.broadcast_to(np.zeros((), np.int32), (dig.n_channels, dig.window_samples))
         n = 0

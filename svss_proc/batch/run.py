@@ -201,7 +201,7 @@ def run_batch(paths: list[str | Path], out: str | Path,
               workers: int | None = None, force: bool = False, client=None,
               kernel_threads: int | None = None,
               task: Callable[..., dict] = image_tile,
-              renavigate: bool | None = None) -> dict:
+              renavigate: bool | None = None, micronav: bool | None = None) -> dict:
     """Reprocess the raw runs ``paths`` into ``out``; return the summary (also in
     ``out/batch_state.json``). ``scheduler``: a Dask scheduler's address (default: a
     LocalCluster of ``workers`` processes); ``client``: an existing
@@ -213,7 +213,8 @@ def run_batch(paths: list[str | Path], out: str | Path,
     is saved by :func:`~.task.save_formed`: docs/batch.md, *Products across the
     seams*); ``renavigate``: pose each run as :func:`svss_proc.run_worker.run_poses` decides
     (default: re-navigated from its instrument records where it has them; the
-    summary's runs say which).
+    summary's runs say which); ``micronav``: the re-navigated poses fused with the
+    echoes' increments (None: as the processing configuration's ``[micronav]`` says).
 
     A ping a task finds refused for its samples (:class:`~.task.PingsRefused`) is left
     out of its run's plan, which is made again (tiles whose plan changed are imaged
@@ -228,7 +229,7 @@ def run_batch(paths: list[str | Path], out: str | Path,
     earlier = prepare_batch_dir(out, runs, processing, force)
     excluded = {run_id: _exclusions(earlier.get(run_id), ps) for run_id, ps in runs.items()}
     plans = {run_id: plan_run(run_id, run_folder_name(run_id), ps, processing, renavigate,
-                              excluded[run_id])
+                              excluded[run_id], micronav)
              for run_id, ps in runs.items()}
     t_plan = time.perf_counter() - t0
     tiles = [t for p in plans.values() for t in p.tiles]
@@ -297,7 +298,7 @@ def run_batch(paths: list[str | Path], out: str | Path,
                             next(iter(new.values())))
                 old = plans[run_id]
                 plans[run_id] = plan_run(run_id, old.folder, old.paths, processing,
-                                         renavigate, excluded[run_id])
+                                         renavigate, excluded[run_id], micronav)
                 todo += _replanned(out, old, plans[run_id], seams)
             if todo:
                 atomic_json(out / STATE, {**state_of(), "complete": False})

@@ -12,6 +12,13 @@ covariance M_k, and none where it refused. The fused positions x_k minimise
 
 the last term a weak anchor (``anchor_sigma_m``, default 0.3 m: the GPS's) that keeps the
 absolute position where the navigation has it and decides nothing within an aperture.
+Optionally (``step_change_sigma_m`` s_c) a prior on the platform's acceleration adds
+
+    sum_k |x_(k+1) - 2 x_k + x_(k-1)|^2 / s_c^2,
+
+s_c = a T^2 for an acceleration a and ping interval T: a step neither the navigation nor
+the echoes measure well (the projector sequence's 5 -> 0 step in a DVL dropout) then
+follows its neighbours instead of the navigation's uncertain increment.
 Without the anchor the steps decouple, and each fused increment is the
 inverse-covariance mean of the two measurements of it,
 
@@ -40,12 +47,15 @@ def increment_covariance(sigma_m) -> np.ndarray:
 
 def fuse_increments(nav_positions_m: np.ndarray, nav_cov_m2: np.ndarray,
                     micro_increments_m: np.ndarray, micro_cov_m2: np.ndarray,
-                    anchor_sigma_m: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+                    anchor_sigma_m: float = 0.3, step_change_sigma_m=None
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """The fused positions (n, 3) of n pings and the covariance of each fused increment
     (n - 1, 3, 3) without the anchor (module docstring). ``nav_positions_m`` (n, 3) the
     navigation's; ``nav_cov_m2`` (n - 1, 3, 3) its increments' covariances;
     ``micro_increments_m`` (n - 1, 3) the echoes' increments, NaN rows where there is
-    none (refused); ``micro_cov_m2`` (n - 1, 3, 3) theirs (ignored on NaN rows)."""
+    none (refused); ``micro_cov_m2`` (n - 1, 3, 3) theirs (ignored on NaN rows);
+    ``step_change_sigma_m`` (scalar or (3,), m): the acceleration prior's sigma of a
+    second difference, None for none (the returned covariances leave it out)."""
     p = np.asarray(nav_positions_m, dtype=np.float64)
     n = p.shape[0]
     if n < 2:
@@ -84,6 +94,19 @@ def fuse_increments(nav_positions_m: np.ndarray, nav_cov_m2: np.ndarray,
             vals.append((s * info[k]).ravel())
         b[k] -= rhs_step[k]
         b[k + 1] += rhs_step[k]
+    if step_change_sigma_m is not None and n >= 3:
+        sc = np.broadcast_to(np.asarray(step_change_sigma_m, dtype=np.float64), (3,))
+        if not np.all(sc > 0):
+            raise ValueError(f"step change sigma {step_change_sigma_m!r} m: expected > 0")
+        w = 1.0 / sc ** 2
+        coef = (1.0, -2.0, 1.0)
+        ax = np.arange(3)
+        for k in range(1, n - 1):
+            for a_i, c_i in zip((k - 1, k, k + 1), coef):
+                for a_j, c_j in zip((k - 1, k, k + 1), coef):
+                    rows.append(3 * a_i + ax)
+                    cols.append(3 * a_j + ax)
+                    vals.append(c_i * c_j * w)
     diag = np.arange(3 * n)
     rows.append(diag)
     cols.append(diag)

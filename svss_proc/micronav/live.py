@@ -49,13 +49,16 @@ def reason_key(refused: str) -> str:
 
 class LiveMicronav:
     """The stage: :meth:`pose` gives each ping (fed in sequence order) with its fused
-    pose. ``config``: the processing configuration's ``[live_micronav]``; ``accumulator``:
+    pose. ``config``: the processing configuration's ``[micronav]``; ``accumulator``:
     the imager's (its ``condition`` is memoised for the ping being posed); ``clock``:
     the worker's :class:`~svss_proc.live_clock.StageClock`."""
 
-    def __init__(self, hardware, processing, config, accumulator, clock):
+    def __init__(self, hardware, processing, config, accumulator, clock, nav_cfg):
         hw = hardware.value
         self.config = config
+        #: the live navigation's configuration (devices.toml ``[navigation]``): its
+        #: velocity sigmas weigh its steps
+        self.nav_cfg = nav_cfg
         self.geometry = array_geometry(hw)
         self.sound_speed_m_s = processing.imaging.water_sound_speed_m_s
         self.clock = clock
@@ -185,11 +188,11 @@ class LiveMicronav:
 
     def _nav_cov(self, ping: Ping, dt_s: float) -> np.ndarray:
         """The navigation's step covariance: its velocity sigma over the step's time;
-        with bottom lock (or the simulator's poses) ``navigation_sigma_m_s``, without
-        ``navigation_gap_sigma_m_s``."""
+        with bottom lock (or the simulator's poses) the navigation configuration's
+        ``dvl_velocity_sigma_m_s``, without its ``dvl_gap_velocity_sigma_m_s``."""
         locked = ping.nav.quality & (NAV_BOTTOM_LOCK | NAV_SIMULATED)
-        sv = (self.config.navigation_sigma_m_s if locked
-              else self.config.navigation_gap_sigma_m_s)
+        sv = (self.nav_cfg.dvl_velocity_sigma_m_s if locked
+              else self.nav_cfg.dvl_gap_velocity_sigma_m_s)
         return np.eye(3) * (sv * max(dt_s, 1e-3)) ** 2
 
     def summary(self) -> dict:
@@ -214,12 +217,16 @@ def fused(ping: Ping, correction_m: np.ndarray) -> Ping:
         altitude_m=nav.altitude_m - dd))
 
 
-def live_stage(hardware, processing, accumulator, clock, poses_live: bool
+def live_stage(hardware, processing, accumulator, clock, poses_live: bool, nav_cfg=None
                ) -> LiveMicronav | None:
-    """The stage when the processing configuration's ``[live_micronav]`` is enabled and
-    the pings carry their live poses (``poses_live``; re-navigated poses are the
-    re-navigation's to fuse); None otherwise."""
-    cfg = processing.live_micronav
-    if cfg is None or not cfg.enabled or not poses_live:
+    """The stage when the processing configuration's ``[micronav] live`` is set and the
+    pings carry their live poses (``poses_live``; re-navigated poses are the
+    re-navigation's to fuse); None otherwise. ``nav_cfg``: the navigation configuration
+    (default: the project's devices.toml ``[navigation]``)."""
+    cfg = processing.micronav
+    if cfg is None or not cfg.live or not poses_live:
         return None
-    return LiveMicronav(hardware, processing, cfg, accumulator, clock)
+    if nav_cfg is None:
+        from svss_daq.nav.renavigate import current_navigation_config
+        nav_cfg = current_navigation_config()
+    return LiveMicronav(hardware, processing, cfg, accumulator, clock, nav_cfg)

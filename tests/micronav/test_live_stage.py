@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -40,15 +41,16 @@ from .posed_source import PosedSource
 
 ROOT = Path(__file__).resolve().parents[2]
 PINGS = range(12, 16)              # projectors 0 1 2 3
-STAGE = """
-[live_micronav]
-enabled = {enabled}
-navigation_sigma_m_s = 0.003
-navigation_gap_sigma_m_s = 0.3
-anchor_sigma_m = 0.3
-passes = 2
-translations = 2
-"""
+
+
+def stage_table(enabled: bool) -> str:
+    """config/processing.toml's ``[micronav]`` table with ``live`` as ``enabled`` says."""
+    text = Path(config_path("processing.toml")).read_text()
+    table = text[text.index("\n[micronav]"):].split("\n[", 2)
+    table = "\n[" + table[1]
+    new = re.sub(r"(?m)^live = \w+", f"live = {str(enabled).lower()}", table)
+    assert new.count("live = ") == 1, "processing.toml: no [micronav] live line"
+    return new
 
 
 def offsets(i: int) -> np.ndarray:
@@ -65,7 +67,7 @@ def processing_text(enabled: bool, length_m: float, top_m: float, depth_m: float
            .replace("depth_m = 1.0", f"depth_m = {depth_m}")
            .replace("top_m = 0.0", f"top_m = {top_m}").replace("voxel_m = 0.02", "voxel_m = 0.03"))
     assert new != head
-    return new + "\n" + STAGE.format(enabled=str(enabled).lower())
+    return new + "\n" + stage_table(enabled)
 
 
 def process(run: Path, out: Path, proc_text: str) -> dict:

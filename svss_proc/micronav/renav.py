@@ -1,0 +1,278 @@
+"""Micronavigation inside the re-navigation of a recorded run: the echoes' ping-to-ping
+increments (:mod:`.horizontal`) fused with the re-navigated poses' (:mod:`.fusion`),
+each weighted by its own error estimate (docs/micronavigation.md, "In the
+re-navigation").
+
+1. **The navigation's increments and their sigma** (:func:`nav_increment_sigma`). A step
+   between two pings the DVL carried (both poses fused with bottom lock) has the error
+   of the DVL's velocity noise over the step, ``dvl_velocity_sigma_m_s`` x dt per axis
+   (the filter's own process noise, ``svss_daq/nav/fusion.py``); a step without bottom
+   lock at either end, the velocity held (within ``dvl_max_gap_s`` of a locked sample),
+   has the filter's held-velocity sigma, ``dvl_gap_velocity_sigma_m_s`` x dt; a step
+   whose poses come from the GPS alone (no ``NAV_FUSED``: a dropout longer than
+   ``dvl_max_gap_s``, positions interpolated between fixes) has the GPS's,
+   ``gps_sigma_m`` across and along and ``gps_height_sigma_m`` down.
+2. **The echoes' increments** (:func:`echo_increments`): for each pair of consecutive
+   pings, :func:`~.horizontal.estimate_displacement` on their conditioned echoes, ping
+   b placed for the pairing at ping a's pose plus a *seed* increment: the navigation's
+   where its sigma is below ``max_seed_sigma_m``, else the last increment the echoes
+   measured (a dropout's GPS-interpolated steps are centimetres off, beyond the
+   estimator's reach of about 13 mm vertically). Where the navigation's step is that
+   uncertain, ping a itself is placed where the chain of the echoes' increments (the
+   seed where they refused) put it from the last ping the navigation placed well: the
+   GPS heights (0.5 m) would put the array decimetres off its height above the seabed,
+   and the patches would be focused at the wrong range. The seabed is the poses' bottom depth
+   (body depth + altitude), interpolated across pings without one.
+3. **Fusion** (:func:`~.fusion.fuse_increments`): the positions minimising both sets of
+   increments' weighted residuals, a weak anchor to the navigation's positions and the
+   acceleration prior (``acceleration_sigma_m_s2`` x T^2 per second difference), so a
+   step the echoes refused inside a dropout follows its neighbours. Attitude and the
+   measured bottom depth are kept (the altitude moves with the fused depth).
+   Before, the echoes' mean error per axis is measured against the navigation's
+   increments on the steps with bottom lock where both exist (at least
+   ``bias_min_steps`` of them) and taken out of every echo increment: the estimator's
+   surge bias (-2 to -3.5 mm a step, docs/micronavigation.md) chained over a 10 s
+   dropout is 4 % of the distance run.
+4. **Altitude through a dropout** (:func:`with_interpolated_bottom`): the navigation
+   gives no altitude without bottom lock, and the ping gate refuses such pings. The
+   fused poses take the bottom depth interpolated in time between the last and next
+   measured ones (a flat or evenly sloping seabed over the gap: the estimator focused
+   its patches on that plane), so the pings under the dropout can be imaged. Their
+   flags still say no bottom lock.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from collections import Counter
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from svss_daq.frames import body_to_ned
+from svss_daq.geometry import array_geometry
+from svss_daq.ping import NAV_BOTTOM_LOCK, NAV_FUSED, NavSnapshot
+from svss_daq.waveform import make_waveform
+from svss_proc.conditioning import Conditioner
+
+from .fusion import fuse_increments
+from .horizontal import DisplacementEstimate, estimate_displacement
+
+__all__ = ["EchoIncrements", "MicronavResult", "echo_increments", "fuse_with_navigation",
+           "locked_steps", "nav_increment_sigma", "refusal_reason", "with_interpolated_bottom"]
+
+log = logging.getLogger(__name__)
+
+
+def locked_steps(poses: Sequence[NavSnapshot]) -> np.ndarray:
+    """Per step between consecutive poses (n - 1,): both fused from the DVL with bottom
+    lock (``NAV_FUSED`` and ``NAV_BOTTOM_LOCK``)."""
+    locked = np.array([bool(p.quality & NAV_FUSED) and bool(p.quality & NAV_BOTTOM_LOCK)
+                       for p in poses], dtype=bool)
+    return locked[:-1] & locked[1:]
+
+
+def nav_increment_sigma(poses: Sequence[NavSnapshot], nav_cfg) -> np.ndarray:
+    """Per step between consecutive poses, the sigma (n - 1, 3) of the navigation's
+    increment per NED axis, m (module docstring, 1)."""
+    t = np.array([p.time_ns for p in poses], dtype=np.float64) * 1e-9
+    dt = np.diff(t)
+    sig = np.where(locked_steps(poses), nav_cfg.dvl_velocity_sigma_m_s,
+                   nav_cfg.dvl_gap_velocity_sigma_m_s)
+    out = np.repeat((sig * dt)[:, None], 3, axis=1)
+    fused = np.array([bool(p.quality & NAV_FUSED) for p in poses], dtype=bool)
+    gps = ~(fused[:-1] & fused[1:])
+    out[gps] = [nav_cfg.gps_sigma_m, nav_cfg.gps_sigma_m, nav_cfg.gps_height_sigma_m]
+    return out
+
+
+def refusal_reason(text: str) -> str:
+    """The class of an estimator's refusal: its message up to the first colon."""
+    return text.split(":", 1)[0]
+
+
+@dataclass(frozen=True)
+class EchoIncrements:
+    """The echoes' increments between consecutive pings: ``estimates`` (n - 1) (None
+    where the two pings are not consecutive in sequence), with the seed each started
+    from."""
+    estimates: list[DisplacementEstimate | None]
+    seeded_from_echoes: int
+
+    def increments(self) -> tuple[np.ndarray, np.ndarray]:
+        """(n - 1, 3) increments, NaN rows where refused; (n - 1, 3, 3) covariances
+        (identity where refused)."""
+        n = len(self.estimates)
+        inc = np.full((n, 3), np.nan)
+        cov = np.repeat(np.eye(3)[None], n, axis=0)
+        for k, e in enumerate(self.estimates):
+            if e is not None and e.refused is None:
+                inc[k] = e.displacement_m
+                cov[k] = e.cov_m2
+        return inc, cov
+
+    def refusals(self) -> dict[str, int]:
+        """Refused pairs counted by reason."""
+        return dict(Counter("the pings are not consecutive" if e is None
+                            else refusal_reason(e.refused)
+                            for e in self.estimates if e is None or e.refused))
+
+
+def _bottom_depth(poses: Sequence[NavSnapshot]) -> np.ndarray:
+    """Body depth + altitude per pose, interpolated in time where there is none."""
+    t = np.array([p.time_ns for p in poses], dtype=np.float64)
+    b = np.array([p.down_m + p.altitude_m for p in poses], dtype=np.float64)
+    ok = np.isfinite(b)
+    if not ok.any():
+        return b
+    return np.interp(t, t[ok], b[ok])
+
+
+def with_interpolated_bottom(poses: Sequence[NavSnapshot]) -> tuple[list[NavSnapshot], int]:
+    """``poses`` with an altitude where they have none: the bottom depth interpolated in
+    time (module docstring, 4) less the body depth; and how many were filled."""
+    bottom = _bottom_depth(poses)
+    out, n = [], 0
+    for p, b in zip(poses, bottom):
+        if not math.isfinite(p.altitude_m) and math.isfinite(b):
+            p = dataclasses.replace(p, altitude_m=float(b - p.down_m))
+            n += 1
+        out.append(p)
+    return out, n
+
+
+def echo_increments(pings: Iterable, poses: Sequence[NavSnapshot], hardware, processing,
+                    nav_sigma_m: np.ndarray, max_seed_sigma_m: float,
+                    **options) -> EchoIncrements:
+    """The echoes' increment for each consecutive pair of ``pings`` (the run's pings in
+    order, their samples) posed by ``poses`` (module docstring, 2). ``hardware``:
+    :class:`~svss_daq.config.HardwareConfig`; ``processing``:
+    :class:`~svss_daq.config.ProcessingConfig` (its conditioning and water sound speed);
+    ``nav_sigma_m`` (n - 1, 3) of :func:`nav_increment_sigma`; ``options``: of
+    :func:`~.horizontal.estimate_displacement`."""
+    geometry = array_geometry(hardware)
+    cond = Conditioner(hardware.digitiser, make_waveform(hardware.waveform),
+                       processing.conditioning.decimation, processing.conditioning.upsample)
+    c = processing.imaging.water_sound_speed_m_s
+    fc = hardware.waveform.center_hz
+    bottom = _bottom_depth(poses)
+    pos = np.array([p.ned for p in poses], dtype=np.float64)
+    out: list[DisplacementEstimate | None] = []
+    prev = None
+    last_echo = None
+    from_echoes = 0
+    placed = pos.copy()         # where each ping was placed for the pairing
+    for k, ping in enumerate(pings):
+        if k >= len(poses):
+            raise ValueError(f"{k + 1} pings for {len(poses)} poses")
+        cur = (ping, cond.ping(ping), poses[k])
+        if prev is not None:
+            (pa, ca, na), (pb, cb, nb) = prev, cur
+            if pb.sequence != pa.sequence + 1 or not math.isfinite(bottom[k - 1]):
+                out.append(None)
+            else:
+                nav_inc = pos[k] - pos[k - 1]
+                seed = nav_inc
+                origin_a = pos[k - 1]
+                uncertain = bool(np.max(nav_sigma_m[k - 1]) > max_seed_sigma_m)
+                if uncertain and last_echo is not None:
+                    seed = last_echo
+                    from_echoes += 1
+                    origin_a = placed[k - 1]
+                ra = body_to_ned(na.roll_rad, na.pitch_rad, na.heading_rad)
+                rb = body_to_ned(nb.roll_rad, nb.pitch_rad, nb.heading_rad)
+                est = estimate_displacement(ca.data, cb.data, ca.t0_s, ca.dt_s, geometry,
+                                            pa.projector, pb.projector, ra, origin_a, rb,
+                                            origin_a + seed, float(bottom[k - 1]), c, fc,
+                                            **options)
+                out.append(est)
+                if est.refused is None:
+                    last_echo = est.displacement_m
+                step = est.displacement_m if est.refused is None else seed
+                if uncertain:
+                    placed[k] = origin_a + step
+        prev = cur
+    if len(out) != len(poses) - 1:
+        raise ValueError(f"{len(out) + 1} pings for {len(poses)} poses")
+    return EchoIncrements(out, from_echoes)
+
+
+@dataclass(frozen=True)
+class MicronavResult:
+    """The fused poses and what went into them."""
+    poses: list[NavSnapshot]
+    echoes: EchoIncrements
+    nav_sigma_m: np.ndarray
+    fused_cov_m2: np.ndarray
+    #: poses given an altitude from the interpolated bottom depth (no bottom lock)
+    altitude_filled: int = 0
+    #: the echoes' mean error against the navigation's locked steps, taken out (3,), m;
+    #: None where too few steps measured it
+    echo_bias_m: np.ndarray | None = None
+
+    @property
+    def n_pairs(self) -> int:
+        return len(self.echoes.estimates)
+
+    @property
+    def n_echo(self) -> int:
+        return sum(1 for e in self.echoes.estimates if e is not None and e.refused is None)
+
+    @property
+    def description(self) -> str:
+        """How many increments came from the echoes, how many pairs were refused and why
+        (for the logs, the tiles' provenance and the manifest)."""
+        ref = self.echoes.refusals()
+        why = "; ".join(f"{n} {r}" for r, n in sorted(ref.items(), key=lambda x: -x[1]))
+        return (f"fused with {self.n_echo} of {self.n_pairs} ping-to-ping increments from "
+                f"the echoes (micronavigation; {self.n_pairs - self.n_echo} pairs refused"
+                + (f": {why}" if why else "") + ")"
+                + (f"; {self.altitude_filled} poses without bottom lock given the bottom "
+                   "depth interpolated across" if self.altitude_filled else "")
+                + ("" if self.echo_bias_m is None else "; echo bias removed " + ", ".join(
+                    f"{v * 1e3:+.1f}" for v in self.echo_bias_m) + " mm (N, E, D)"))
+
+    def summary(self) -> dict:
+        """JSON-ready counts (the manifest's)."""
+        return {"pairs": self.n_pairs, "from_echoes": self.n_echo,
+                "refused": self.echoes.refusals(), "altitude_filled": self.altitude_filled,
+                "echo_bias_removed_mm": None if self.echo_bias_m is None
+                else [float(v) * 1e3 for v in self.echo_bias_m],
+                "seeded_from_echoes": self.echoes.seeded_from_echoes}
+
+
+def fuse_with_navigation(pings: Iterable, poses: Sequence[NavSnapshot], hardware,
+                         processing, nav_cfg, micronav_cfg, **options) -> MicronavResult:
+    """The re-navigated ``poses`` of ``pings`` fused with the echoes' increments (module
+    docstring). ``nav_cfg``: the navigation configuration the poses were made with;
+    ``micronav_cfg``: :class:`~svss_daq.config.MicronavConfig`."""
+    poses = list(poses)
+    sigma = nav_increment_sigma(poses, nav_cfg)
+    echoes = echo_increments(pings, poses, hardware, processing, sigma,
+                             micronav_cfg.max_seed_sigma_m, **options)
+    if len(poses) < 2:
+        return MicronavResult(poses, echoes, sigma, np.zeros((0, 3, 3)))
+    inc, cov = echoes.increments()
+    nav_inc = np.diff(np.array([p.ned for p in poses], dtype=np.float64), axis=0)
+    both = locked_steps(poses) & np.all(np.isfinite(inc), axis=1)
+    bias = None
+    if both.sum() >= micronav_cfg.bias_min_steps:
+        bias = np.mean(inc[both] - nav_inc[both], axis=0)
+        inc = inc - bias
+    ncov = np.einsum("ki,ij->kij", sigma ** 2, np.eye(3))
+    t = np.array([p.time_ns for p in poses], dtype=np.float64) * 1e-9
+    interval = float(np.median(np.diff(t)))
+    pos = np.array([p.ned for p in poses], dtype=np.float64)
+    x, fcov = fuse_increments(pos, ncov, inc, cov, micronav_cfg.anchor_sigma_m,
+                              micronav_cfg.acceleration_sigma_m_s2 * interval ** 2)
+    fused = [dataclasses.replace(p, north_m=float(q[0]), east_m=float(q[1]),
+                                 down_m=float(q[2]),
+                                 altitude_m=float(p.altitude_m + p.down_m - q[2]))
+             for p, q in zip(poses, x)]
+    fused, filled = with_interpolated_bottom(fused)
+    out = MicronavResult(fused, echoes, sigma, fcov, filled, bias)
+    log.info("%d poses %s", len(fused), out.description)
+    return out
