@@ -519,8 +519,9 @@ def _exp_neg(x):
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy")
-def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tab, rt_re, rt_im, rb_re, rb_im, bore,
-                  g_front, g_back, lo_front, lo_back, sig, tr, ar_re, ar_im, fix, wk):
+def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tabf, nv, rt_re, rt_im, rb_re, rb_im,
+                  bore, g_front, g_back, gtab, lo_front, lo_back, sig, tr, ar_re, ar_im, fix,
+                  wk):
     """Receive legs of one scatterer through element image ``b`` to every channel
     (vectorisable loops): delay ``tr``, complex amplitude (``ar_re``, ``ar_im``) as
     :func:`leg` (times sigma^(1/4) for interface scatterers). Channels the fast forms
@@ -600,10 +601,12 @@ def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tab, rt_re, rt_im, rb_re, rb
     r1 = c1 / cmax
     a0 = alpha[0]
     a1 = alpha[1]
-    nw = tab.shape[0]
-    nv = tab.shape[1]
-    # three loops, so that the arithmetic ones (no table look-ups) vectorise:
-    # 1. the two-medium table (bilinear look-up of s = p c_max)
+    nw = tabf.size // nv
+    # the loops are split so that everything but the table look-ups vectorises across
+    # channels; the look-ups (gathers) run in loops of their own. Table positions are
+    # kept as floats (floor, not int: no vector float64 -> int64 conversion before
+    # AVX-512) and converted where they are used.
+    # 1a. geometry and the two-medium table's coordinates
     for ch in range(nch):
         dx = xk - imt[b, IMG_X, ch]
         dy = yk - imt[b, IMG_Y, ch]
@@ -612,18 +615,28 @@ def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tab, rt_re, rt_im, rb_re, rb
         d_all = h0 + zk
         x = h0 / d_all * (nw - 1)
         y = rho / (rho + d_all) * (nv - 1)
-        i = min(int(x), nw - 2)
-        j = min(int(y), nv - 2)
-        fx = x - i
-        fy = y - j
-        s = ((1.0 - fx) * ((1.0 - fy) * tab[i, j] + fy * tab[i, j + 1])
-             + fx * ((1.0 - fy) * tab[i + 1, j] + fy * tab[i + 1, j + 1]))
-        bad = (s >= TABLE_TRUSTED) | (rho <= 0.0) | (h0 <= 0.0)
+        xi = min(max(np.floor(x), 0.0), nw - 2.0)
+        yj = min(max(np.floor(y), 0.0), nv - 2.0)
         wk[0, ch] = rho
+        wk[5, ch] = xi * nv + yj
+        wk[6, ch] = x - xi
+        wk[7, ch] = y - yj
+    # 1b. the bilinear look-up of s = p c_max (gathers)
+    for ch in range(nch):
+        o = int(wk[5, ch])
+        fx = wk[6, ch]
+        fy = wk[7, ch]
+        s = ((1.0 - fx) * ((1.0 - fy) * tabf[o] + fy * tabf[o + 1])
+             + fx * ((1.0 - fy) * tabf[o + nv] + fy * tabf[o + nv + 1]))
+        bad = (s >= TABLE_TRUSTED) | (wk[0, ch] <= 0.0) | (imt[b, IMG_H, ch] <= 0.0)
         wk[1, ch] = 0.5 if bad else s
         fix[ch] = bad
     # 2. two_medium_terms in s (no cancellation below TABLE_TRUSTED): the cosines
-    #    g_i = sqrt(1 - (s r_i)^2), independent of each other
+    #    g_i = sqrt(1 - (s r_i)^2), independent of each other; then the positions on
+    #    the beam table (main lobe, back lobe or the zero pair at its end, gtab) and on
+    #    the interface tables (over sinp)
+    off_b = ng + 1.0
+    off_z = gtab.size - 2.0
     for ch in range(nch):
         rho = wk[0, ch]
         s = wk[1, ch]
@@ -644,26 +657,43 @@ def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tab, rt_re, rt_im, rb_re, rb
         irho = 1.0 / max(rho, 1e-300)
         dx = xk - imt[b, IMG_X, ch]
         dy = yk - imt[b, IMG_Y, ch]
-        wk[2, ch] = sinp
-        wk[3, ch] = sinp * (dx * b0 + dy * b1) * irho + imt[b, IMG_DIR, ch] * g0 * b2
+        cos_off = sinp * (dx * b0 + dy * b1) * irho + imt[b, IMG_DIR, ch] * g0 * b2
         wk[4, ch] = imt[b, IMG_RS, ch] * spread * _exp_neg(att)
-    # 3. beam gain, transmission 1 - R up through the interface, seabed bounces
+        front = cos_off >= lo_front
+        u = (cos_off - lo_front) * ilf if front else (-cos_off - lo_back) * ilb
+        n1 = ng if front else nbk
+        x = min(max(u, 0.0), 1.0) * n1
+        xi = min(np.floor(x), n1 - 1.0)
+        wk[2, ch] = xi + (0.0 if front else (off_b if -cos_off >= lo_back else off_z))
+        wk[3, ch] = x - xi
+        x = min(max(sinp, 0.0), 1.0) * nr1
+        xi = min(np.floor(x), nr1 - 1.0)
+        wk[5, ch] = xi
+        wk[6, ch] = x - xi
+    # 3. beam gain, transmission 1 - R up through the interface, seabed bounces (gathers)
+    if n_b == 0:
+        for ch in range(nch):
+            i = int(wk[2, ch])
+            f = wk[3, ch]
+            a = (gtab[i] + f * (gtab[i + 1] - gtab[i])) * wk[4, ch]
+            i = int(wk[5, ch])
+            f = wk[6, ch]
+            ar_re[ch] = a * (1.0 - (rt_re[i] + f * (rt_re[i + 1] - rt_re[i])))
+            ar_im[ch] = -a * (rt_im[i] + f * (rt_im[i + 1] - rt_im[i]))
+            any_fix |= fix[ch]
+        return any_fix
     for ch in range(nch):
-        sinp = wk[2, ch]
-        cos_off = wk[3, ch]
-        i, f = _idx((cos_off - lo_front) * ilf, ng)
-        gf = g_front[i] + f * (g_front[i + 1] - g_front[i])
-        i, f = _idx((-cos_off - lo_back) * ilb, nbk)
-        gb = g_back[i] + f * (g_back[i + 1] - g_back[i])
-        g = gf if cos_off >= lo_front else (gb if -cos_off >= lo_back else 0.0)
-        a = g * wk[4, ch]
-        i, f = _idx(sinp, nr1)
+        i = int(wk[2, ch])
+        f = wk[3, ch]
+        a = (gtab[i] + f * (gtab[i + 1] - gtab[i])) * wk[4, ch]
+        i = int(wk[5, ch])
+        f = wk[6, ch]
         pr = a * (1.0 - (rt_re[i] + f * (rt_re[i + 1] - rt_re[i])))
         pi = -a * (rt_im[i] + f * (rt_im[i + 1] - rt_im[i]))
         re = rb_re[i] + f * (rb_re[i + 1] - rb_re[i])
         im = rb_im[i] + f * (rb_im[i + 1] - rb_im[i])
-        fr = 1.0 if n_b == 0 else (re if n_b == 1 else re * re - im * im)
-        fi = 0.0 if n_b == 0 else (im if n_b == 1 else 2.0 * re * im)
+        fr = re if n_b == 1 else re * re - im * im
+        fi = im if n_b == 1 else 2.0 * re * im
         ar_re[ch] = pr * fr - pi * fi
         ar_im[ch] = pr * fi + pi * fr
         any_fix |= fix[ch]
@@ -703,6 +733,12 @@ def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_block
     rt_im = np.ascontiguousarray(r_top.imag)
     rb_re = np.ascontiguousarray(r_bot.real)
     rb_im = np.ascontiguousarray(r_bot.imag)
+    # the two-medium table flattened, and one beam table: the main lobe, the back lobe
+    # (if any) and a pair of zeros (no gain)
+    tabf = np.ascontiguousarray(tab).reshape(-1)
+    nv = tab.shape[1]
+    gtab = np.concatenate((g_front, g_back if g_back.size > 1 else g_front[:0],
+                           np.zeros(2)))
     bufs = np.zeros((n_blocks, n_buf, nch), dtype=np.complex64)
     counts = np.zeros(n_blocks, dtype=np.int64)
     chunk = 64
@@ -715,7 +751,7 @@ def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_block
         ar_re = np.empty(nch)
         ar_im = np.empty(nch)
         fix = np.zeros(nch, dtype=np.bool_)
-        wk = np.empty((5, nch))
+        wk = np.empty((8, nch))
         e_i = np.empty(nch, dtype=np.int64)
         e_w = np.empty((nch, 4), dtype=np.float32)
         e_re = np.empty(nch, dtype=np.float32)
@@ -743,9 +779,9 @@ def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_block
                 for b in range(nr):
                     if not need[b]:
                         continue
-                    if _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tab, rt_re, rt_im,
-                                     rb_re, rb_im, bore, g_front, g_back, lo_front,
-                                     lo_back, sig, tr, ar_re, ar_im, fix, wk):
+                    if _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tabf, nv, rt_re,
+                                     rt_im, rb_re, rb_im, bore, g_front, g_back, gtab,
+                                     lo_front, lo_back, sig, tr, ar_re, ar_im, fix, wk):
                         for ch in range(nch):
                             if not fix[ch]:
                                 continue
