@@ -55,7 +55,7 @@ from svss_daq.conventions import baseband_carrier, remodulation
 from svss_daq.waveform import Waveform
 
 from . import echo_loop, layered_rays
-from .layered_rays import TABLE_TRUSTED
+from .layered_rays import TABLE_CEILING, TABLE_RESIDUAL, TABLE_TRUSTED
 from .synthesis_args import (  # noqa: F401 (the column names: re-exported)
     IMG_DIR,
     IMG_H,
@@ -628,13 +628,16 @@ def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tabf, nv, rt_re, rt_im, rb_r
         fy = wk[7, ch]
         s = ((1.0 - fx) * ((1.0 - fy) * tabf[o] + fy * tabf[o + 1])
              + fx * ((1.0 - fy) * tabf[o + nv] + fy * tabf[o + nv + 1]))
-        bad = (s >= TABLE_TRUSTED) | (wk[0, ch] <= 0.0) | (imt[b, IMG_H, ch] <= 0.0)
+        bad = (s >= TABLE_CEILING) | (wk[0, ch] <= 0.0) | (imt[b, IMG_H, ch] <= 0.0)
         wk[1, ch] = 0.5 if bad else s
         fix[ch] = bad
-    # 2. two_medium_terms in s (no cancellation below TABLE_TRUSTED): the cosines
-    #    g_i = sqrt(1 - (s r_i)^2), independent of each other; then the positions on
-    #    the beam table (main lobe, back lobe or the zero pair at its end, gtab) and on
-    #    the interface tables (over sinp)
+    # 2. two_medium_terms in s: the cosines g_i = sqrt(1 - (s r_i)^2), independent of
+    #    each other (relative rounding ~1e-16 / (1 - s^2), below 1e-10 under
+    #    TABLE_CEILING); from TABLE_TRUSTED up, the table's s is kept where its offset
+    #    sum h_i q_i / g_i (q_i = s r_i) is within TABLE_RESIDUAL of the leg's, as
+    #    table_ray_tan checks it, else the leg is marked for the scalar leg (Brent); then
+    #    the positions on the beam table (main lobe, back lobe or the zero pair at its
+    #    end, gtab) and on the interface tables (over sinp)
     off_b = ng + 1.0
     off_z = gtab.size - 2.0
     for ch in range(nch):
@@ -648,6 +651,8 @@ def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tabf, nv, rt_re, rt_im, rb_r
         g1 = math.sqrt(1.0 - q1 * q1)
         ig0 = 1.0 / g0
         ig1 = 1.0 / g1
+        resid = abs(h0 * q0 * ig0 + zk * q1 * ig1 - rho)
+        fix[ch] |= (s >= TABLE_TRUSTED) & (resid > TABLE_RESIDUAL * (h0 + zk))
         tr[ch] = p * rho + h0 * g0 / c0 + zk * g1 / c1
         s1 = h0 * c0 * ig0 + zk * c1 * ig1
         s2 = h0 * c0 * ig0 * ig0 * ig0 + zk * c1 * ig1 * ig1 * ig1
