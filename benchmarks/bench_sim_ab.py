@@ -53,6 +53,10 @@ from svss_daq.config import HardwareConfig, config_path, load_with_text  # noqa:
 
 log = logging.getLogger("bench_sim_ab")
 
+#: EnvironmentSource.last_stats' stage times (s): scatterers generated, transmit legs,
+#: receive legs and echoes (pass 2), the whole point-scatterer synthesis with the pulse
+STAGES = ("generate_s", "transmit_s", "receive_s", "scattered_s")
+
 _IMPORT = re.compile(r"^(?P<head>[ \t]*(?:from|import)[ \t]+)sim_device(?=[.\s]|$)",
                      re.MULTILINE)
 
@@ -122,6 +126,7 @@ def main(argv=None) -> int:
     wall = {k: [] for k in sides}
     cpu = {k: [] for k in sides}
     echoes = {k: [] for k in sides}
+    stages = {k: {s: [] for s in STAGES} for k in sides}
     same, peak_err, l2_err = 0, [], []
     names = list(sides)
     for n, i in enumerate(range(args.first, args.first + args.pings)):
@@ -130,7 +135,10 @@ def main(argv=None) -> int:
             out[k], w, c = timed(sides[k], i)
             wall[k].append(w)
             cpu[k].append(c)
-            echoes[k].append(sides[k].last_stats.get("echoes", 0))
+            st = sides[k].last_stats
+            echoes[k].append(st.get("echoes", 0))
+            for name in STAGES:
+                stages[k][name].append(st.get(name, 0.0))
         a, b = out["base"], out["this"]
         same += bool(np.array_equal(a, b))
         peak_err.append(float(np.max(np.abs(a - b)) / np.max(np.abs(a))))
@@ -145,7 +153,13 @@ def main(argv=None) -> int:
         res[k + "_side"] = {"s_per_ping_median": float(np.median(wall[k])),
                             "tile_s": float(np.sum(wall[k])),
                             "cpu_s_per_ping_median": float(np.median(cpu[k])),
-                            "echoes_per_ping": float(np.mean(echoes[k]))}
+                            "echoes_per_ping": float(np.mean(echoes[k])),
+                            "stages_s_median": {s: float(np.median(v))
+                                                for s, v in stages[k].items()}}
+    print(f"{'stage (s, median)':20s} " + " ".join(f"{s:>11s}" for s in STAGES))
+    for k in names:
+        med = res[k + "_side"]["stages_s_median"]
+        print(f"{k:20s} " + " ".join(f"{med[s]:11.4f}" for s in STAGES))
     ratios = np.array(wall["base"]) / np.array(wall["this"])
     res["ratio_median"] = float(np.median(ratios))
     res["ratio_total"] = float(np.sum(wall["base"]) / np.sum(wall["this"]))
