@@ -64,6 +64,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numba  # noqa: E402
 
+from bench_isa import machine_isa  # noqa: E402
 from sim_device.environment_source import EnvironmentSource  # noqa: E402
 from sim_device.scene import load_scene  # noqa: E402
 from svss_daq.config import (HardwareConfig, ProcessingConfig, config_path, load,  # noqa: E402
@@ -455,7 +456,7 @@ def main(argv=None) -> int:
     hw = load_with_text(HardwareConfig, args.hardware or config_path("hardware.toml"))
     result = {"machine": {"python": platform.python_version(), "numba": numba.__version__,
                           "threads": numba.get_num_threads(), "cpus": os.cpu_count(),
-                          "load_avg": list(os.getloadavg())}}
+                          "load_avg": list(os.getloadavg()), **machine_isa()}}
 
     only = set(args.only.split(","))
     if "throughput" in only:

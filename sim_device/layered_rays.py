@@ -56,12 +56,14 @@ _EPS = 2.220446049250313e-16
 # ~1e-15 s. Each use checks the residual offset and falls back to Brent where the table
 # is poor (rays near the critical angle just below the interface of a fast sediment).
 
-#: table size (w, v); the residual offset, relative to D, that the table may leave; and
-#: the s below which the table is used unchecked (its travel-time error there is below
-#: 5e-12 s per metre of D for speed ratios 0.8 to 1.7, tests/sim/test_refraction.py)
+#: table size (w, v); the residual offset, relative to D, that the table may leave; the
+#: s below which the table is used unchecked (its travel-time error there is below
+#: 5e-12 s per metre of D for speed ratios 0.8 to 1.7, tests/sim/test_refraction.py);
+#: and the s from which Brent is used without trying the table
 TABLE_SHAPE = (257, 1025)
 TABLE_RESIDUAL = 1e-4
 TABLE_TRUSTED = 0.9
+TABLE_CEILING = 0.999999
 
 
 def build(jit, jit_inline):
@@ -269,7 +271,7 @@ def build(jit, jit_inline):
              + fx * ((1.0 - fy) * tab[i + 1, j] + fy * tab[i + 1, j + 1]))
         if s < TABLE_TRUSTED:
             return s / math.sqrt(1.0 - s * s)
-        if s < 0.999999:
+        if s < TABLE_CEILING:
             t = s / math.sqrt(1.0 - s * s)
             if abs(_offset(t, hbuf, cbuf, 2, cmax) - rho) <= TABLE_RESIDUAL * d:
                 return t

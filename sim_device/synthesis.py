@@ -55,7 +55,7 @@ from svss_daq.conventions import baseband_carrier, remodulation
 from svss_daq.waveform import Waveform
 
 from . import echo_loop, layered_rays
-from .layered_rays import TABLE_TRUSTED
+from .layered_rays import _EPS, T_TOL, TABLE_CEILING, TABLE_RESIDUAL, TABLE_TRUSTED
 from .synthesis_args import (  # noqa: F401 (the column names: re-exported)
     IMG_DIR,
     IMG_H,
@@ -519,8 +519,118 @@ def _exp_neg(x):
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy")
-def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tab, rt_re, rt_im, rb_re, rb_im, bore,
-                  g_front, g_back, lo_front, lo_back, sig, tr, ar_re, ar_im, fix, wk):
+def _medium_terms(geo, imt, tr, fix, wk):
+    """Loop 2 of :func:`_receive_legs` (water over the first sediment): from the table's
+    s (``wk[1]``) and the offset (``wk[0]``) of every channel of element image ``b``,
+    the delay (``tr``), the amplitude without the table factors (``wk[4]``) and the
+    positions on the beam and interface tables (``wk[2]``, ``wk[3]``, ``wk[5]``,
+    ``wk[6]``); ``wk[7]`` = 1 where the table's s fails its residual check (and the leg
+    is not already marked in ``fix``). Returns whether any did. ``geo``: the scatterer
+    and the medium's, beam's and tables' scalars (a tuple of scalars: no reference
+    counts)."""
+    (xk, yk, zk, b, c0, c1, cmax, r0, r1, a0, a1, b0, b1, b2, lo_front, lo_back, ilf, ilb,
+     ng, nbk, nr1, n_gtab) = geo
+    nch = tr.size
+    # 2. two_medium_terms in s: the cosines g_i = sqrt(1 - (s r_i)^2), independent of
+    #    each other (relative rounding ~1e-16 / (1 - s^2), below 1e-10 under
+    #    TABLE_CEILING); from TABLE_TRUSTED up, the table's s is kept where its offset
+    #    sum h_i q_i / g_i (q_i = s r_i) is within TABLE_RESIDUAL of the leg's, as
+    #    table_ray_tan checks it, else the leg is marked in wk[7] (Newton); then
+    #    the positions on the beam table (main lobe, back lobe or the zero pair at its
+    #    end, gtab) and on the interface tables (over sinp)
+    off_b = ng + 1.0
+    off_z = n_gtab - 2.0
+    any_poor = False
+    for ch in range(nch):
+        rho = wk[0, ch]
+        s = wk[1, ch]
+        h0 = imt[b, IMG_H, ch]
+        p = s / cmax
+        q0 = s * r0
+        q1 = s * r1
+        g0 = math.sqrt(1.0 - q0 * q0)
+        g1 = math.sqrt(1.0 - q1 * q1)
+        ig0 = 1.0 / g0
+        ig1 = 1.0 / g1
+        resid = abs(h0 * q0 * ig0 + zk * q1 * ig1 - rho)
+        poor = (s >= TABLE_TRUSTED) & (resid > TABLE_RESIDUAL * (h0 + zk)) & ~fix[ch]
+        wk[7, ch] = 1.0 if poor else 0.0
+        any_poor |= poor
+        tr[ch] = p * rho + h0 * g0 / c0 + zk * g1 / c1
+        s1 = h0 * c0 * ig0 + zk * c1 * ig1
+        s2 = h0 * c0 * ig0 * ig0 * ig0 + zk * c1 * ig1 * ig1 * ig1
+        spread = c1 * ig1 / math.sqrt(s1 * s2)
+        att = a0 * h0 * ig0 + a1 * zk * ig1
+        sinp = p * c0
+        irho = 1.0 / max(rho, 1e-300)
+        dx = xk - imt[b, IMG_X, ch]
+        dy = yk - imt[b, IMG_Y, ch]
+        cos_off = sinp * (dx * b0 + dy * b1) * irho + imt[b, IMG_DIR, ch] * g0 * b2
+        wk[4, ch] = imt[b, IMG_RS, ch] * spread * _exp_neg(att)
+        front = cos_off >= lo_front
+        u = (cos_off - lo_front) * ilf if front else (-cos_off - lo_back) * ilb
+        n1 = ng if front else nbk
+        x = min(max(u, 0.0), 1.0) * n1
+        xi = min(np.floor(x), n1 - 1.0)
+        wk[2, ch] = xi + (0.0 if front else (off_b if -cos_off >= lo_back else off_z))
+        wk[3, ch] = x - xi
+        x = min(max(sinp, 0.0), 1.0) * nr1
+        xi = min(np.floor(x), nr1 - 1.0)
+        wk[5, ch] = xi
+        wk[6, ch] = x - xi
+    return any_poor
+
+
+#: Newton iterations at most per leg in :func:`_newton_s` (from the table's s it takes
+#: 3 to 6; a leg that has not converged goes to the scalar leg, Brent)
+NEWTON_MAX = 30
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy")
+def _newton_s(zk, b, imt, r0, r1, fix, wk):
+    """The ray of every leg marked in ``wk[7]`` (the table's s failed its residual check)
+    by Newton's method on the offset in t = tan of the fastest medium's angle,
+    rho(t) = h0 r0 t / sqrt(1 + t^2 (1 - r0^2)) + h1 r1 t / sqrt(1 + t^2 (1 - r1^2)),
+    from the table's s. rho(t) is increasing and concave (r_i <= 1), so from any t > 0
+    the iterates stay in t >= 0 and, after the first, increase to the root; stopped at
+    Brent's tolerance (layered_rays.ray_tan: |dt| <= T_TOL (1 + t) / 2 + 2 eps t). The
+    converged s = t / sqrt(1 + t^2) goes to ``wk[1]``; a leg that does not converge, or
+    whose s reaches TABLE_CEILING, is marked in ``fix`` (the scalar leg)."""
+    a0 = 1.0 - r0 * r0
+    a1 = 1.0 - r1 * r1
+    for ch in range(fix.size):
+        if wk[7, ch] == 0.0:
+            continue
+        rho = wk[0, ch]
+        h0 = imt[b, IMG_H, ch]
+        s = wk[1, ch]
+        t = s / math.sqrt(1.0 - s * s)
+        done = False
+        for _ in range(NEWTON_MAX):
+            tt = t * t
+            u0 = 1.0 + tt * a0
+            u1 = 1.0 + tt * a1
+            v0 = 1.0 / math.sqrt(u0)
+            v1 = 1.0 / math.sqrt(u1)
+            f = (h0 * r0 * v0 + zk * r1 * v1) * t - rho
+            df = h0 * r0 * v0 / u0 + zk * r1 * v1 / u1
+            dt = f / df
+            t = max(t - dt, 0.0)
+            if abs(dt) <= 0.5 * T_TOL * (1.0 + t) + 2.0 * _EPS * t:
+                done = True
+                break
+        s = t / math.sqrt(1.0 + t * t)
+        if done and s < TABLE_CEILING:
+            wk[1, ch] = s
+        else:
+            fix[ch] = True
+        wk[7, ch] = 0.0
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy")
+def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tabf, nv, rt_re, rt_im, rb_re, rb_im,
+                  bore, g_front, g_back, gtab, lo_front, lo_back, sig, tr, ar_re, ar_im, fix,
+                  wk):
     """Receive legs of one scatterer through element image ``b`` to every channel
     (vectorisable loops): delay ``tr``, complex amplitude (``ar_re``, ``ar_im``) as
     :func:`leg` (times sigma^(1/4) for interface scatterers). Channels the fast forms
@@ -600,10 +710,12 @@ def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tab, rt_re, rt_im, rb_re, rb
     r1 = c1 / cmax
     a0 = alpha[0]
     a1 = alpha[1]
-    nw = tab.shape[0]
-    nv = tab.shape[1]
-    # three loops, so that the arithmetic ones (no table look-ups) vectorise:
-    # 1. the two-medium table (bilinear look-up of s = p c_max)
+    nw = tabf.size // nv
+    # the loops are split so that everything but the table look-ups vectorises across
+    # channels; the look-ups (gathers) run in loops of their own. Table positions are
+    # kept as floats (floor, not int: no vector float64 -> int64 conversion before
+    # AVX-512) and converted where they are used.
+    # 1a. geometry and the two-medium table's coordinates
     for ch in range(nch):
         dx = xk - imt[b, IMG_X, ch]
         dy = yk - imt[b, IMG_Y, ch]
@@ -612,58 +724,54 @@ def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tab, rt_re, rt_im, rb_re, rb
         d_all = h0 + zk
         x = h0 / d_all * (nw - 1)
         y = rho / (rho + d_all) * (nv - 1)
-        i = min(int(x), nw - 2)
-        j = min(int(y), nv - 2)
-        fx = x - i
-        fy = y - j
-        s = ((1.0 - fx) * ((1.0 - fy) * tab[i, j] + fy * tab[i, j + 1])
-             + fx * ((1.0 - fy) * tab[i + 1, j] + fy * tab[i + 1, j + 1]))
-        bad = (s >= TABLE_TRUSTED) | (rho <= 0.0) | (h0 <= 0.0)
+        xi = min(max(np.floor(x), 0.0), nw - 2.0)
+        yj = min(max(np.floor(y), 0.0), nv - 2.0)
         wk[0, ch] = rho
+        wk[5, ch] = xi * nv + yj
+        wk[6, ch] = x - xi
+        wk[7, ch] = y - yj
+    # 1b. the bilinear look-up of s = p c_max (gathers)
+    for ch in range(nch):
+        o = int(wk[5, ch])
+        fx = wk[6, ch]
+        fy = wk[7, ch]
+        s = ((1.0 - fx) * ((1.0 - fy) * tabf[o] + fy * tabf[o + 1])
+             + fx * ((1.0 - fy) * tabf[o + nv] + fy * tabf[o + nv + 1]))
+        bad = (s >= TABLE_CEILING) | (wk[0, ch] <= 0.0) | (imt[b, IMG_H, ch] <= 0.0)
         wk[1, ch] = 0.5 if bad else s
         fix[ch] = bad
-    # 2. two_medium_terms in s (no cancellation below TABLE_TRUSTED): the cosines
-    #    g_i = sqrt(1 - (s r_i)^2), independent of each other
+    # 2. the terms of every leg from s (_medium_terms); legs whose table s fails the
+    #    residual check are solved by Newton's method from it (_newton_s) and the terms
+    #    evaluated again
+    geo = (xk, yk, zk, b, c0, c1, cmax, r0, r1, a0, a1, b0, b1, b2, lo_front, lo_back, ilf,
+           ilb, ng, nbk, nr1, gtab.size)
+    if _medium_terms(geo, imt, tr, fix, wk):
+        _newton_s(zk, b, imt, r0, r1, fix, wk)
+        _medium_terms(geo, imt, tr, fix, wk)
+    # 3. beam gain, transmission 1 - R up through the interface, seabed bounces (gathers)
+    if n_b == 0:
+        for ch in range(nch):
+            i = int(wk[2, ch])
+            f = wk[3, ch]
+            a = (gtab[i] + f * (gtab[i + 1] - gtab[i])) * wk[4, ch]
+            i = int(wk[5, ch])
+            f = wk[6, ch]
+            ar_re[ch] = a * (1.0 - (rt_re[i] + f * (rt_re[i + 1] - rt_re[i])))
+            ar_im[ch] = -a * (rt_im[i] + f * (rt_im[i + 1] - rt_im[i]))
+            any_fix |= fix[ch]
+        return any_fix
     for ch in range(nch):
-        rho = wk[0, ch]
-        s = wk[1, ch]
-        h0 = imt[b, IMG_H, ch]
-        p = s / cmax
-        q0 = s * r0
-        q1 = s * r1
-        g0 = math.sqrt(1.0 - q0 * q0)
-        g1 = math.sqrt(1.0 - q1 * q1)
-        ig0 = 1.0 / g0
-        ig1 = 1.0 / g1
-        tr[ch] = p * rho + h0 * g0 / c0 + zk * g1 / c1
-        s1 = h0 * c0 * ig0 + zk * c1 * ig1
-        s2 = h0 * c0 * ig0 * ig0 * ig0 + zk * c1 * ig1 * ig1 * ig1
-        spread = c1 * ig1 / math.sqrt(s1 * s2)
-        att = a0 * h0 * ig0 + a1 * zk * ig1
-        sinp = p * c0
-        irho = 1.0 / max(rho, 1e-300)
-        dx = xk - imt[b, IMG_X, ch]
-        dy = yk - imt[b, IMG_Y, ch]
-        wk[2, ch] = sinp
-        wk[3, ch] = sinp * (dx * b0 + dy * b1) * irho + imt[b, IMG_DIR, ch] * g0 * b2
-        wk[4, ch] = imt[b, IMG_RS, ch] * spread * _exp_neg(att)
-    # 3. beam gain, transmission 1 - R up through the interface, seabed bounces
-    for ch in range(nch):
-        sinp = wk[2, ch]
-        cos_off = wk[3, ch]
-        i, f = _idx((cos_off - lo_front) * ilf, ng)
-        gf = g_front[i] + f * (g_front[i + 1] - g_front[i])
-        i, f = _idx((-cos_off - lo_back) * ilb, nbk)
-        gb = g_back[i] + f * (g_back[i + 1] - g_back[i])
-        g = gf if cos_off >= lo_front else (gb if -cos_off >= lo_back else 0.0)
-        a = g * wk[4, ch]
-        i, f = _idx(sinp, nr1)
+        i = int(wk[2, ch])
+        f = wk[3, ch]
+        a = (gtab[i] + f * (gtab[i + 1] - gtab[i])) * wk[4, ch]
+        i = int(wk[5, ch])
+        f = wk[6, ch]
         pr = a * (1.0 - (rt_re[i] + f * (rt_re[i + 1] - rt_re[i])))
         pi = -a * (rt_im[i] + f * (rt_im[i + 1] - rt_im[i]))
         re = rb_re[i] + f * (rb_re[i + 1] - rb_re[i])
         im = rb_im[i] + f * (rb_im[i + 1] - rb_im[i])
-        fr = 1.0 if n_b == 0 else (re if n_b == 1 else re * re - im * im)
-        fi = 0.0 if n_b == 0 else (im if n_b == 1 else 2.0 * re * im)
+        fr = re if n_b == 1 else re * re - im * im
+        fi = im if n_b == 1 else 2.0 * re * im
         ar_re[ch] = pr * fr - pi * fi
         ar_im[ch] = pr * fi + pi * fr
         any_fix |= fix[ch]
@@ -703,6 +811,12 @@ def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_block
     rt_im = np.ascontiguousarray(r_top.imag)
     rb_re = np.ascontiguousarray(r_bot.real)
     rb_im = np.ascontiguousarray(r_bot.imag)
+    # the two-medium table flattened, and one beam table: the main lobe, the back lobe
+    # (if any) and a pair of zeros (no gain)
+    tabf = np.ascontiguousarray(tab).reshape(-1)
+    nv = tab.shape[1]
+    gtab = np.concatenate((g_front, g_back if g_back.size > 1 else g_front[:0],
+                           np.zeros(2)))
     bufs = np.zeros((n_blocks, n_buf, nch), dtype=np.complex64)
     counts = np.zeros(n_blocks, dtype=np.int64)
     chunk = 64
@@ -715,7 +829,7 @@ def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_block
         ar_re = np.empty(nch)
         ar_im = np.empty(nch)
         fix = np.zeros(nch, dtype=np.bool_)
-        wk = np.empty((5, nch))
+        wk = np.empty((8, nch))
         e_i = np.empty(nch, dtype=np.int64)
         e_w = np.empty((nch, 4), dtype=np.float32)
         e_re = np.empty(nch, dtype=np.float32)
@@ -743,9 +857,9 @@ def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_block
                 for b in range(nr):
                     if not need[b]:
                         continue
-                    if _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tab, rt_re, rt_im,
-                                     rb_re, rb_im, bore, g_front, g_back, lo_front,
-                                     lo_back, sig, tr, ar_re, ar_im, fix, wk):
+                    if _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tabf, nv, rt_re,
+                                     rt_im, rb_re, rb_im, bore, g_front, g_back, gtab,
+                                     lo_front, lo_back, sig, tr, ar_re, ar_im, fix, wk):
                         for ch in range(nch):
                             if not fix[ch]:
                                 continue
