@@ -424,17 +424,26 @@ def median_exact(mag: np.ndarray, kernel: tuple[int, int, int], boundary: str = 
 
 
 @numba.njit(cache=True, parallel=True)
-def _positive_db_range(flat):
-    """(min, max) of 20 log10 over the finite positive values of ``flat`` (inf, -inf
-    when there are none)."""
+def _positive_range(flat):
+    """(min, max) of the finite positive values of ``flat`` (inf, -inf when there are
+    none)."""
     lo, hi = np.inf, -np.inf
     for i in numba.prange(flat.size):
-        v = flat[i]
+        v = np.float64(flat[i])
         if v > 0 and v < np.inf:
-            d = 20.0 * np.log10(np.float64(v))
-            lo = min(lo, d)
-            hi = max(hi, d)
+            lo = min(lo, v)
+            hi = max(hi, v)
     return lo, hi
+
+
+def _positive_db_range(flat: np.ndarray) -> tuple[float, float]:
+    """(min, max) of 20 log10 over the finite positive values of ``flat`` (inf, -inf
+    when there are none): the logarithm of the extremes (it is monotone), not of every
+    value."""
+    lo, hi = _positive_range(flat)
+    if lo > hi:
+        return math.inf, -math.inf
+    return 20.0 * math.log10(lo), 20.0 * math.log10(hi)
 
 
 @numba.njit(cache=True, parallel=True)
