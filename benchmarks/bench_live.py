@@ -28,6 +28,9 @@ nothing to wait for). The numba caches are warmed first (a short ``svss process`
 pass per build), so no compile is timed.
 
     python benchmarks/bench_live.py --out benchmarks/results/bench_live.json [--lines sand,field] [--isa native,avx2] [--quick]
+
+``--quick``: the sand line, native build only (``--lines sand --isa native``; the same
+cached recording).
 """
 
 from __future__ import annotations
@@ -319,7 +322,11 @@ def main(argv=None) -> int:
     ap.add_argument("--cache", default=str(ROOT / "out" / "bench_live"),
                     help="folder of the simulated lines and the AVX2 numba cache")
     ap.add_argument("--no-load", action="store_true", help="without the recording load")
+    ap.add_argument("--quick", action="store_true",
+                    help="the sand line, native build only (--lines sand --isa native)")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.lines, args.isa = "sand", "native"
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     cache = Path(args.cache)
     from benchmarks.bench_acquire import pose_cost

@@ -28,7 +28,6 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -186,7 +185,7 @@ def report(res: dict) -> str:
     lines = [f"{m['cpu']} ({', '.join(m['isa'])}), {m['cores']} cores; load "
              f"{res['load_before'][0]:.2f} before, {res['load_after'][0]:.2f} after; "
              f"fastest of {len(res['trees'][names[0]]['runs'])} runs each, alternated"]
-    head = f"  {'stage':32s}" + "".join(f"{n + ' CPU s':>15s}{n + ' wall s':>15s}"
+    head = f"  {'stage':32s}" + "".join(f"{n + ' CPU s':>17s}{n + ' wall s':>17s}"
                                          for n in names)
     if "baseline" in names:
         head += f"{'wall new/old':>14s}"
@@ -197,7 +196,7 @@ def report(res: dict) -> str:
             v = res["trees"][n]["best"].get(s)
             cpu = "" if v is None or v["cpu_s"] is None else f"{v['cpu_s']:.3f}"
             wall = "" if v is None else f"{v['wall_s']:.3f}"
-            row += f"{cpu:>15s}{wall:>15s}"
+            row += f"{cpu:>17s}{wall:>17s}"
         if "baseline" in names:
             a = res["trees"]["new"]["best"].get(s)
             b = res["trees"]["baseline"]["best"].get(s)
