@@ -52,8 +52,8 @@ MIPS = {"mip_depth": (2, ("along", "cross")), "mip_cross": (1, ("along", "depth"
 DRC_SCALE = np.float32(1.0 / 255.0)
 #: the coverage counts (smooth: neighbours mostly equal) and the 2-D projections are
 #: gzip-compressed (the counts about tenfold); the volumes of floats (speckle: the complex
-#: image, the background) and the 8-bit display volume are not: gzip level 1 took 3 of the
-#: 3.3 CPU s of a default tile's file to save 18 % of their bytes (issue 32,
+#: image, the background) and the 8-bit display volume are not: gzip level 1 took 3.1 of
+#: the 3.3 CPU s of a default tile's file to save 18 % of their bytes (issue 32,
 #: docs/formats.md), so they are stored plain, in chunks of whole along-track planes
 _GZIP = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
 #: bytes of a plain volume's chunk, at most (whole along-track planes, at least one)
