@@ -7,6 +7,9 @@ Side by side in one run:
 
 - ``histogram``: the approximation (``svss_proc.products.background.median_histogram``) on the
   full tile, and the whole normalisation (background, division, level in dB);
+- ``histogram, per-line kernel``: the same median with the kernel that slides one line's
+  window at a time (the only one before issue 32; now kept for many sparse levels),
+  alternated with the grouped kernel ``--repeat`` times, and checked equal to it;
 - ``exact``: the exact median (``median_exact``) on the full tile, the reference for
   the approximation's error;
 - ``scipy``: ``scipy.ndimage.median_filter`` on a sub-volume (it takes minutes on the
@@ -43,6 +46,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numba  # noqa: E402
 
+from benchmarks.bench_isa import machine_isa  # noqa: E402
 from svss_daq.config import ProcessingConfig, config_path, load  # noqa: E402
 from svss_proc.products.background import kernel_voxels, median_exact, median_histogram  # noqa: E402
 from svss_proc.products.drc import level_db, normalise  # noqa: E402
@@ -69,6 +73,26 @@ def synthetic_tile(seed: int = 0) -> np.ndarray:
         mag[a - 2:a + 3, c - 2:c + 3, d - 2:d + 3] *= 10 ** (35 / 20)
     mag[:40] = 0.0
     return mag.astype(np.float32)
+
+
+def histogram_per_line(mag: np.ndarray, kernel, bin_db: float, boundary: str,
+                       ignore_zeros: bool) -> np.ndarray:
+    """``median_histogram`` through the per-line kernel (``_sliding_median_levels``)
+    instead of the grouped one: the same quantisation, padding and table."""
+    from svss_proc.products import background as bg
+    flat = np.ascontiguousarray(mag).reshape(-1)
+    lo, hi = bg._positive_db_range(flat)
+    n_bins = 0 if lo > hi else int(np.floor((hi - lo) / bin_db + 0.5)) + 1
+    lo = lo if n_bins else 0.0
+    levels = bg._quantise_db(flat, bool(ignore_zeros), lo, float(bin_db), max(n_bins, 1),
+                             np.empty(flat.size, dtype=np.int32)).reshape(mag.shape)
+    padded = np.ascontiguousarray(bg._pad(levels, kernel, boundary), dtype=np.int32)
+    med = np.empty(mag.shape, dtype=np.int32)
+    bg._sliding_median_levels(padded, *kernel, max(n_bins + 1, 1), n_bins + 1 > 4096,
+                              np.zeros(1, dtype=np.uint16), numba.get_num_threads(), med)
+    table = np.concatenate([[0.0], 10.0 ** ((lo + np.arange(n_bins) * bin_db) / 20.0),
+                            [np.nan]])
+    return table.astype(np.float32)[med]
 
 
 def timed(fn, *args, **kw):
@@ -110,13 +134,22 @@ def main() -> int:
     small = mag[40:110, :20, :20]
     median_histogram(small, kernel, cfg.histogram_bin_db, cfg.boundary, cfg.ignore_zeros)
     median_exact(small, kernel, cfg.boundary, cfg.ignore_zeros)
+    histogram_per_line(small, kernel, cfg.histogram_bin_db, cfg.boundary, cfg.ignore_zeros)
 
     rows = []
-    t_hist = []
-    for _ in range(max(args.repeat, 1)):
+    t_hist, t_line, cpu_hist, cpu_line = [], [], [], []
+    for _ in range(max(args.repeat, 1)):          # alternated: the same minutes of load
+        c0 = time.process_time()
         approx, t = timed(median_histogram, mag, kernel, cfg.histogram_bin_db, cfg.boundary,
                           cfg.ignore_zeros)
+        cpu_hist.append(time.process_time() - c0)
         t_hist.append(t)
+        c0 = time.process_time()
+        per_line, t = timed(histogram_per_line, mag, kernel, cfg.histogram_bin_db,
+                            cfg.boundary, cfg.ignore_zeros)
+        cpu_line.append(time.process_time() - c0)
+        t_line.append(t)
+    grouped_equals_per_line = bool(np.array_equal(approx, per_line, equal_nan=True))
     t_norm = []
     for _ in range(max(args.repeat, 1)):
         t0 = time.perf_counter()
@@ -127,8 +160,14 @@ def main() -> int:
     exact, t_exact = timed(median_exact, mag, kernel, cfg.boundary, cfg.ignore_zeros)
     err = error_db(approx, exact)
     rows.append({"method": f"histogram ({cfg.histogram_bin_db} dB bins)", "voxels": n_full,
-                 "time_s": min(t_hist), "times_s": t_hist, "full_tile_s": min(t_hist),
-                 "full_tile": "measured", "reference": "exact", **err,
+                 "time_s": min(t_hist), "times_s": t_hist, "cpu_s": min(cpu_hist),
+                 "full_tile_s": min(t_hist), "full_tile": "measured", "reference": "exact",
+                 **err, "bound_db": cfg.histogram_bin_db / 2})
+    rows.append({"method": "histogram, per-line kernel", "voxels": n_full,
+                 "time_s": min(t_line), "times_s": t_line, "cpu_s": min(cpu_line),
+                 "full_tile_s": min(t_line),
+                 "full_tile": "measured; equal to grouped: " + str(grouped_equals_per_line),
+                 "reference": "exact", **error_db(per_line, exact),
                  "bound_db": cfg.histogram_bin_db / 2})
     rows.append({"method": "histogram + normalisation", "voxels": n_full,
                  "time_s": min(t_norm), "times_s": t_norm, "full_tile_s": min(t_norm),
@@ -172,6 +211,9 @@ def main() -> int:
         print(f"{r['method']:<32}{r['voxels']:>10d}{r['time_s']:>9.2f}{r['full_tile_s']:>9.1f}"
               f"  {r['median_abs_db']:>12.4f}{r['p99_abs_db']:>8.4f}{r['max_abs_db']:>8.4f}"
               f"  {r['full_tile']}")
+    print(f"grouped kernel / per-line kernel, wall: {min(t_hist) / min(t_line):.2f}, CPU: "
+          f"{min(cpu_hist) / min(cpu_line):.2f} (fastest of {len(t_hist)} each, "
+          f"alternated); equal: {grouped_equals_per_line}")
     print(f"sub-volume {sub_check['shape']}: exact == scipy: {sub_check['exact_equals_scipy']}"
           f" (exact {sub_check['exact_time_s']:.2f} s vs scipy {t_scipy:.2f} s); histogram vs"
           f" scipy max {sub_check['histogram_vs_scipy']['max_abs_db']:.4f} dB")
@@ -180,7 +222,11 @@ def main() -> int:
               "histogram_bin_db": cfg.histogram_bin_db, "numba_threads":
               numba.get_num_threads(), "cpu_count": os.cpu_count(),
               "load_average_start": load_start, "load_average_end": load_end,
-              "rows": rows, "sub_volume_check": sub_check}
+              "rows": rows, "sub_volume_check": sub_check,
+              "grouped_equals_per_line": grouped_equals_per_line,
+              "grouped_over_per_line_wall": min(t_hist) / min(t_line),
+              "command": " ".join(["python", "benchmarks/bench_background.py"] + sys.argv[1:]),
+              "machine": machine_isa()}
     Path(args.out).write_text(json.dumps(report, indent=2))
     log.info("wrote %s", args.out)
     return 0

@@ -33,6 +33,9 @@ pass per build), so no compile is timed.
 then off (default: on, as configured); the live micronavigation's time is the
 ``micronav`` stage (a part of each ping's, its conditioning not included) and its
 refusals are reported from the run's manifest.
+
+``--quick``: the sand line, native build only (``--lines sand --isa native``; the same
+cached recording).
 """
 
 from __future__ import annotations
@@ -347,7 +350,11 @@ def main(argv=None) -> int:
     ap.add_argument("--micronav", default="on",
                     help="[micronav] live in the worker's processing: on, off or "
                          "on,off (one trial each, in that order)")
+    ap.add_argument("--quick", action="store_true",
+                    help="the sand line, native build only (--lines sand --isa native)")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.lines, args.isa = "sand", "native"
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     cache = Path(args.cache)
     from benchmarks.bench_acquire import pose_cost

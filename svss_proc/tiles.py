@@ -1,6 +1,6 @@
 """Tile files: HDF5 with named dimensions and coordinate variables (netCDF4-style
 dimension scales, so ``xarray.open_dataset(path, engine="h5netcdf")`` opens them), the
-complex image, its magnitude, the image products (background, compressed volume,
+complex image, the image products (background, compressed volume,
 maximum intensity projections, detections) and provenance. See docs/formats.md.
 
 Files are written under a temporary name (:func:`temporary_path`) in the same folder and
@@ -50,7 +50,14 @@ DIMS = ("along", "cross", "depth")
 MIPS = {"mip_depth": (2, ("along", "cross")), "mip_cross": (1, ("along", "depth")),
         "mip_along": (0, ("cross", "depth"))}
 DRC_SCALE = np.float32(1.0 / 255.0)
+#: the coverage counts (smooth: neighbours mostly equal) and the 2-D projections are
+#: gzip-compressed (the counts about tenfold); the volumes of floats (speckle: the complex
+#: image, the background) and the 8-bit display volume are not: gzip level 1 took 3.1 of
+#: the 3.3 CPU s of a default tile's file to save 18 % of their bytes (issue 32,
+#: docs/formats.md), so they are stored plain, in chunks of whole along-track planes
 _GZIP = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
+#: bytes of a plain volume's chunk, at most (whole along-track planes, at least one)
+PLAIN_CHUNK_BYTES = 1 << 21
 #: marks a file being written: ``.NAME.partial-XXXX.SUFFIX``; readers ignore such names
 PARTIAL = ".partial-"
 #: per ping of the tile (absent in tiles written before they were kept): dtype kinds
@@ -164,6 +171,15 @@ def finished_tiles_by_index(folder: str | Path) -> dict[int, Path]:
     return out
 
 
+def _plain(shape: tuple[int, ...], itemsize: int) -> dict:
+    """Dataset options of a volume stored without compression: chunks of whole
+    along-track planes, at most :data:`PLAIN_CHUNK_BYTES` (a reader of the first or last
+    planes, such as the seams' neighbour, reads few chunks)."""
+    plane = int(np.prod(shape[1:], dtype=np.int64)) * itemsize
+    n = max(1, min(int(shape[0]), PLAIN_CHUNK_BYTES // max(plane, 1)))
+    return {"chunks": (n,) + tuple(int(v) for v in shape[1:])} if all(shape) else {}
+
+
 def _attach(ds: h5py.Dataset, f: h5py.Group, dims: tuple[str, ...]) -> None:
     for i, d in enumerate(dims):
         ds.dims[i].attach_scale(f[d])
@@ -259,14 +275,13 @@ def _write(f: h5py.File, tile: Tile, hardware: Loaded[HardwareConfig],
             if units == TIME_UNITS:
                 ds.attrs.update({"standard_name": "time", "calendar": "standard"})
             _attach(ds, f, ("ping_sequence",))
-    image = keep(f.create_dataset("image", data=tile.image, chunks=True, **_GZIP))
+    # the magnitude is not stored: it is |image| (read_tile computes it), and was 30 MB
+    # of a default tile written twice
+    image = keep(f.create_dataset("image", data=tile.image,
+                                  **_plain(tile.image.shape, tile.image.itemsize)))
     image.attrs.update({"long_name": "complex backprojected image (coherent sum of "
                                      "matched-filter outputs)", "units": "uPa"})
-    mag = keep(f.create_dataset("magnitude", data=np.abs(tile.image).astype(np.float32),
-                                chunks=True, **_GZIP))
-    mag.attrs.update({"long_name": "image magnitude", "units": "uPa"})
     _attach(image, f, DIMS)
-    _attach(mag, f, DIMS)
     if tile.coverage is not None:
         _write_coverage(f, tile.coverage, keep)
     if products is not None:
@@ -308,15 +323,16 @@ def _write_products(f: h5py.File, p: "Products", keep) -> None:
               "background_kernel_m": p.kernel_m, "background_boundary": p.boundary,
               "background_max_error_db": p.max_error_db}
     if p.background is not None:
-        bg = keep(f.create_dataset("background", data=p.background.astype(np.float32),
-                                   chunks=True, **_GZIP))
+        data = np.asarray(p.background, dtype=np.float32)
+        bg = keep(f.create_dataset("background", data=data,
+                                   **_plain(data.shape, data.itemsize)))
         bg.attrs.update({"long_name": "background: 3-D median of the magnitude",
                          "units": "uPa", "ignore_zeros": p.ignore_zeros,
                          "normalisation_floor_upa": p.floor_upa, **common})
         _attach(bg, f, DIMS)
     if p.drc is not None:
         q = np.round(np.clip(p.drc, 0.0, 1.0) * 255.0).astype(np.uint8)
-        drc = keep(f.create_dataset("drc", data=q, chunks=True, **_GZIP))
+        drc = keep(f.create_dataset("drc", data=q, **_plain(q.shape, q.itemsize)))
         drc.attrs.update({"long_name": "dynamic-range-compressed normalised level, 0..1",
                           "units": "1", "scale_factor": DRC_SCALE,
                           "add_offset": np.float32(0.0), **p.drc_attrs})
@@ -510,7 +526,8 @@ def read_tile_views(path: str | Path) -> dict:
 
 def read_tile(path: str | Path) -> dict:
     """Read a tile file into plain arrays: :func:`read_tile_header` plus image,
-    magnitude and, when the file has them, background, drc (decoded to 0..1),
+    magnitude (|image|; stored in the file only by tiles written before issue 32) and,
+    when the file has them, background, drc (decoded to 0..1),
     depth_gain_db, the MIPs (``mip_depth``, ``mip_cross``, ``mip_along``) and the
     coverage (``coverage_pings``, ``coverage_channels``; tiles written before coverage
     existed have none)."""

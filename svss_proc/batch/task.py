@@ -198,7 +198,7 @@ def head_planes(formed: Formed | None, plan: TilePlan, out: str, n: int):
                 None if t.coverage is None else t.coverage.channels[:n].copy())
     h5, _ = tile_paths(Path(out), plan)
     with h5py.File(h5, "r") as f:
-        return (f["magnitude"][:n].astype(np.float32, copy=False),
+        return (np.abs(f["image"][:n]).astype(np.float32, copy=False),
                 f["coverage_channels"][:n] if "coverage_channels" in f else None)
 
 
@@ -233,7 +233,7 @@ def before_from_file(plan: TilePlan, out: str, n: int) -> Before:
     them when it is saved."""
     h5, _ = tile_paths(Path(out), plan)
     with h5py.File(h5, "r") as f:
-        mag = f["magnitude"][-n:].astype(np.float32, copy=False)
+        mag = np.abs(f["image"][-n:]).astype(np.float32, copy=False)
         ch = f["coverage_channels"][-n:] if "coverage_channels" in f else None
         line = tile_line(dict(f.attrs))
     d, _ = read_detections(h5)

@@ -128,10 +128,10 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
     t1 = time.perf_counter()
     t["background"] = t1 - t0
     floor = drc_mod.background_floor(bg, bcfg.floor_db)
-    level = drc_mod.level_db(drc_mod.normalise(mag, bg, bcfg.floor_db))
-    # the neighbours' planes divided by the same floor as this tile's
-    level_x = level if not (nb or na) else drc_mod.level_db(
-        mag_x / np.where(np.isfinite(bg_x) & (bg_x > floor), bg_x, np.float32(floor)))
+    # with the neighbours' planes divided by the same floor as this tile's (the tile's
+    # own level is the core of it: normalise divides by that floor too)
+    level_x = drc_mod.level_db(drc_mod.normalise(mag_x, bg_x, bcfg.floor_db, floor=floor))
+    level = level_x[core]
     t2 = time.perf_counter()
     t["normalisation"] = t2 - t1
     g = cfg.depth_gain

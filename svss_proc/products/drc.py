@@ -44,10 +44,12 @@ def background_floor(background: np.ndarray, floor_db: float) -> float:
     return float(np.median(b)) * 10.0 ** (floor_db / 20.0)
 
 
-def normalise(mag: np.ndarray, background: np.ndarray, floor_db: float) -> np.ndarray:
+def normalise(mag: np.ndarray, background: np.ndarray, floor_db: float,
+              floor: float | None = None) -> np.ndarray:
     """Normalised amplitude ``mag / max(background, floor)`` (float32, dimensionless;
-    NaN where ``mag`` is NaN). See :func:`background_floor`."""
-    floor = np.float32(background_floor(background, floor_db))
+    NaN where ``mag`` is NaN). See :func:`background_floor`; ``floor``: that of another
+    background (a tile's, for its neighbours' planes across the seams)."""
+    floor = np.float32(background_floor(background, floor_db) if floor is None else floor)
     bg = np.asarray(background, dtype=np.float32)
     denom = np.where(np.isfinite(bg) & (bg > floor), bg, floor)
     return (np.asarray(mag, dtype=np.float32) / denom).astype(np.float32)

@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
+from svss_proc.products import background as bg
 from svss_proc.products.background import (kernel_voxels, median_background, median_exact,
                                   median_histogram)
 
@@ -143,3 +144,55 @@ def test_rejects_bad_input():
         median_exact(x, (3, 3, 3), "wrap")
     with pytest.raises(ValueError, match="method"):
         median_background(x, (3, 3, 3), "mean", 0.1)
+
+
+@pytest.mark.parametrize("mode", ["reflect", "mirror", "nearest", "truncate"])
+@pytest.mark.parametrize("shape, kernel", [
+    ((40, 10, 7), (9, 3, 3)),       # 10 lines across: groups of 3 and one of 1
+    ((30, 11, 4), (7, 5, 3)),       # a group of 2 at the end
+    ((25, 2, 5), (5, 7, 1)),        # fewer lines across than one group, kernel wider
+    ((70, 14, 6), (61, 11, 5)),     # the seed kernel
+])
+def test_grouped_kernel_equals_the_per_line_kernel(mode, shape, kernel):
+    """The grouped kernel (three cross-track lines sharing a table) gives the per-line
+    kernel's median level at every voxel, with levels missing (-1) and ties."""
+    rng = np.random.default_rng(sum(shape) + sum(kernel))
+    for n_levels in (3, 200, 4096):
+        levels = rng.integers(0, n_levels, shape).astype(np.int32)
+        levels[rng.random(shape) < 0.15] = -1
+        levels[:, :1, :] = -1                       # a missing face
+        levels[:kernel[0], :kernel[1], :kernel[2]] = -1   # a block of windows without data
+        padded = np.ascontiguousarray(bg._pad(levels, kernel, mode), dtype=np.int32)
+        ref = np.empty(shape, dtype=np.int32)
+        bg._sliding_median_levels(padded, *kernel, n_levels, False,
+                                  np.zeros(1, dtype=np.int32), 2, ref)
+        got = bg._run(levels, n_levels, kernel, mode, unique=False)
+        np.testing.assert_array_equal(got, ref)
+        assert (ref == -1).any() and (ref >= 0).any()
+
+
+def test_histogram_background_of_a_tile_unchanged_by_the_grouped_kernel(monkeypatch):
+    """On a speckle volume with unimaged planes (zeros ignored), the histogram
+    background (through the grouped kernel) equals the per-line kernel's, voxel for
+    voxel."""
+    rng = np.random.default_rng(8)
+    x = (rng.rayleigh(1.0, (90, 16, 12)) * np.logspace(0, -2, 12)).astype(np.float32)
+    x[:10] = 0.0
+    kernel = (61, 11, 5)
+    calls = []
+    grouped = bg._run_grouped
+    monkeypatch.setattr(bg, "_run_grouped", lambda *a: calls.append(1) or grouped(*a))
+    got = median_histogram(x, kernel, 0.05, "reflect", ignore_zeros=True)
+    assert calls == [1]
+    flat = x.reshape(-1)
+    lo, hi = bg._positive_db_range(flat)
+    n_bins = int(np.floor((hi - lo) / 0.05 + 0.5)) + 1
+    levels = bg._quantise_db(flat, True, lo, 0.05, n_bins,
+                             np.empty(flat.size, dtype=np.int32)).reshape(x.shape)
+    padded = np.ascontiguousarray(bg._pad(levels, kernel, "reflect"), dtype=np.int32)
+    ref = np.empty(x.shape, dtype=np.int32)
+    bg._sliding_median_levels(padded, *kernel, n_bins + 1, False,
+                              np.zeros(1, dtype=np.uint16), 2, ref)
+    table = np.concatenate([[0.0], 10.0 ** ((lo + np.arange(n_bins) * 0.05) / 20.0),
+                            [np.nan]]).astype(np.float32)
+    np.testing.assert_array_equal(got, table[ref])

@@ -215,3 +215,40 @@ def test_a_target_buried_under_a_bright_interface_is_not_its_sidelobe():
     assert fp.may_share_range(0.2, 0.0)
     # without the range test (no footprint) the 1 m Euclidean rule would drop it
     assert is_sidelobe((10.3, 0.0, 0.95), 150.0, bright, 190.0, 15.0, 1.0)
+
+
+def test_regions_from_their_voxels_equal_scipys_measurements():
+    """A region's voxel count, bounding box, largest finite level and its voxel, taken
+    from the labelled voxels only (``_regions``), equal scipy.ndimage's measurements over
+    the whole volume; a peak shared by several voxels is the first in C order."""
+    from scipy import ndimage
+
+    from svss_proc.products.detect import _regions
+    rng = np.random.default_rng(12)
+    level = rng.normal(0.0, 5.0, (60, 30, 20)).astype(np.float32)
+    mask = level >= 6.0
+    labels, n = ndimage.label(mask, structure=np.ones((3, 3, 3), dtype=bool))
+    assert n > 50
+    # non-finite levels inside regions, and one region whose peak is shared
+    inside = np.flatnonzero(labels)
+    level.ravel()[inside[::7]] = np.inf
+    level.ravel()[inside[3::11]] = np.nan
+    r = _regions(labels, level)
+    index = np.arange(1, n + 1)
+    finite = np.where(np.isfinite(level), level, -np.inf)
+    np.testing.assert_array_equal(r.labels, index)
+    np.testing.assert_array_equal(r.counts, np.bincount(labels.ravel())[1:])
+    np.testing.assert_array_equal(r.peak_value, ndimage.maximum(finite, labels, index))
+    boxes = ndimage.find_objects(labels)
+    np.testing.assert_array_equal(r.lo.T, [[s.start for s in b] for b in boxes])
+    np.testing.assert_array_equal(r.hi.T, [[s.stop for s in b] for b in boxes])
+    big = int(np.argmax(r.counts))
+    vox = np.argwhere(labels == big + 1)
+    level[tuple(vox[-1])] = level[tuple(vox[0])] = 99.0       # a tie: first in C order
+    r = _regions(labels, level)
+    np.testing.assert_array_equal(r.peak[:, big], vox[0])
+    unique = [k for k in range(n) if np.sum(finite[labels == k + 1] == r.peak_value[k]) == 1
+              and k != big]
+    positions = ndimage.maximum_position(np.where(np.isfinite(level), level, -np.inf),
+                                         labels, index[unique])
+    np.testing.assert_array_equal(r.peak[:, unique].T, positions)
