@@ -42,3 +42,15 @@ class PosedSource(EnvironmentSource):
         p = self.pressure(i) + self.noise(i)
         codes, _ = quantise(p, self.hw.digitiser)
         return self.assembler.from_simulation(i, codes, self.true_pose(i))
+
+
+def interface_sand_scene():
+    """The seed's sand scene without its target, volume and multipath: the interface's
+    echo is what the micronavigation estimator uses; the rest costs synthesis time."""
+    from sim_device.scene import load_scene
+    from svss_daq.config import config_path
+    scene = load_scene(config_path("scenes/seed_cylinder_sand.toml"))
+    return dataclasses.replace(
+        scene, targets=(), scattering=dataclasses.replace(scene.scattering, volume=False),
+        surface=dataclasses.replace(scene.surface, multipath_order=0))
+

@@ -37,7 +37,7 @@ from svss_proc.micronav.horizontal import estimate_displacement
 from svss_proc.run_worker import Worker
 from svss_proc.tiles import read_tile
 
-from .posed_source import PosedSource
+from .posed_source import PosedSource, interface_sand_scene
 
 ROOT = Path(__file__).resolve().parents[2]
 PINGS = range(12, 16)              # projectors 0 1 2 3
@@ -110,10 +110,7 @@ def sand_run(tmp_path_factory):
     interface's echo is what the estimator uses; the rest costs synthesis time)."""
     loaded = load_with_text(HardwareConfig, config_path("hardware.toml"))
     hw = loaded.value
-    scene = load_scene(config_path("scenes/seed_cylinder_sand.toml"))
-    scene = dataclasses.replace(
-        scene, targets=(), scattering=dataclasses.replace(scene.scattering, volume=False),
-        surface=dataclasses.replace(scene.surface, multipath_order=0))
+    scene = interface_sand_scene()
     src = PosedSource(loaded, scene, offsets)
     pings = []
     for i in PINGS:

@@ -5,7 +5,6 @@ truncation, the same pairs, the same estimates."""
 
 from __future__ import annotations
 
-import dataclasses
 
 import numpy as np
 
@@ -57,8 +56,9 @@ def test_the_estimates_of_both_kernels_agree_on_simulated_sand():
     numpy kernels give the same displacement to 1e-9 m and the same sigma and coherence
     to 1e-6."""
     from sim_device.environment_source import EnvironmentSource
-    from sim_device.scene import load_scene
     from sim_device.track import ping_pose
+
+    from .posed_source import interface_sand_scene
     from svss_daq.config import HardwareConfig, config_path, load_with_text
     from svss_daq.frames import body_to_ned
     from svss_daq.waveform import make_waveform
@@ -66,10 +66,7 @@ def test_the_estimates_of_both_kernels_agree_on_simulated_sand():
     from svss_proc.micronav.horizontal import estimate_displacement
     loaded = load_with_text(HardwareConfig, config_path("hardware.toml"))
     hw = loaded.value
-    scene = load_scene(config_path("scenes/seed_cylinder_sand.toml"))
-    scene = dataclasses.replace(
-        scene, targets=(), scattering=dataclasses.replace(scene.scattering, volume=False),
-        surface=dataclasses.replace(scene.surface, multipath_order=0))
+    scene = interface_sand_scene()
     src = EnvironmentSource(loaded, scene)
     cond = Conditioner(hw.digitiser, make_waveform(hw.waveform), 2)
     (pa, ca), (pb, cb) = ((p, cond.ping(p)) for p in (src.ping(13), src.ping(14)))
