@@ -684,6 +684,16 @@ def main(argv: list[str] | None = None) -> int:
         log.warning("svss %s stopped by %s; what was done is flushed", args.command,
                     exc.args[0] if exc.args else "SIGINT")
         return 130
+    except SystemError as exc:
+        # a stop signal that landed inside a C extension's callback (numba loading a
+        # cached kernel) comes out as its SystemError, caused by the KeyboardInterrupt
+        from svss_daq.signals import stop_cause
+        ki = stop_cause(exc)
+        if ki is None:
+            raise
+        log.warning("svss %s stopped by %s (inside %s); what was done is flushed",
+                    args.command, ki.args[0] if ki.args else "SIGINT", type(exc).__name__)
+        return 130
     except (ConfigError, FileNotFoundError, FileExistsError, ValueError, TimeoutError,
             OSError) as exc:
         log.error("%s", exc)

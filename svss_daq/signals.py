@@ -63,6 +63,23 @@ def raise_if_stopped() -> None:
         raise KeyboardInterrupt(_requested)
 
 
+def stop_cause(exc: BaseException) -> KeyboardInterrupt | None:
+    """The stop signal's :class:`KeyboardInterrupt` behind ``exc``, if a stop was
+    requested and ``exc`` was raised because of it: a signal that lands inside a C
+    extension's callback (numba unpickling a cached kernel) comes out as that
+    extension's ``SystemError``, caused by the KeyboardInterrupt. None otherwise."""
+    if _requested is None:
+        return None
+    seen = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return e
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return None
+
+
 def quiet_unraisable(unraisable) -> None:
     """``sys.unraisablehook``: a stop signal's KeyboardInterrupt that Python swallowed
     (it landed in a finaliser) is noted in one line, not printed as a traceback (the
@@ -144,6 +161,6 @@ def stop_once(what: str) -> Iterator[None]:
             signal.signal(s, h)
 
 
-__all__ = ["STOP_SIGNALS", "clear_stop", "deferred_stop", "note_stop", "quiet_unraisable", "raise_if_stopped",
+__all__ = ["STOP_SIGNALS", "clear_stop", "deferred_stop", "note_stop", "quiet_unraisable", "stop_cause", "raise_if_stopped",
            "stop_handler",
            "stop_once", "stop_requested"]

@@ -70,3 +70,31 @@ def test_a_command_loop_stops_on_a_swallowed_sigterm(tmp_path):
     assert p.stdout.strip() == "signal SIGTERM"
     # where the first exception went: noted, not printed as a traceback
     assert "Traceback" not in p.stderr and "Exception ignored" not in p.stderr, p.stderr
+
+
+def _raised_inside_an_extension(cause: BaseException) -> SystemError:
+    """What CPython raises when an extension's callback returned with an exception
+    set (seen: SIGTERM landing in numba's ``_numba_unpickle`` while `svss simulate`
+    loaded a cached kernel, so the command ended with a traceback, not 130)."""
+    try:
+        try:
+            raise cause
+        except BaseException as exc:
+            raise SystemError("returned a result with an exception set") from exc
+    except SystemError as err:
+        return err
+
+
+def test_a_stop_that_lands_inside_an_extension_is_recognised():
+    ki = KeyboardInterrupt("signal SIGTERM")
+    wrapped = _raised_inside_an_extension(ki)
+    assert signals.stop_cause(wrapped) is None      # no stop requested: a real error
+    signals.note_stop(signal.SIGTERM)
+    try:
+        assert signals.stop_cause(wrapped) is ki
+        assert signals.stop_cause(_raised_inside_an_extension(ValueError("x"))) is None
+        twice = SystemError("outer")
+        twice.__cause__ = wrapped
+        assert signals.stop_cause(twice) is ki
+    finally:
+        signals.clear_stop()
