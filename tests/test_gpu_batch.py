@@ -13,6 +13,7 @@ import sys
 import textwrap
 
 import numpy as np
+import pytest
 
 from tests.test_gpu_kernel import ROOT, case_inputs, kernel_call, requires_cuda, subprocess_env
 
@@ -96,6 +97,15 @@ def _compare(got, per_launch: int, only=None):
 
 
 def test_gpu_batches_under_the_simulator_add_what_the_cpu_kernel_adds(tmp_path):
+    """The combinations of a real-GPU run (every interpolation, precision and delay model
+    once). Batching is the same code for all of them; the other combinations differ only
+    in the kernel's compile-time branches, which the extended tests below and
+    tests/test_gpu_kernel.py run for every combination."""
+    _compare(_run(tmp_path, simulator=True, only=REAL_GPU_CASES), 2, REAL_GPU_CASES)
+
+
+@pytest.mark.extended        # every combination: eight minutes under the simulator
+def test_gpu_batches_under_the_simulator_in_every_combination(tmp_path):
     _compare(_run(tmp_path, simulator=True), 2)
 
 

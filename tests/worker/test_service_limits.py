@@ -127,7 +127,14 @@ def test_clients_that_never_read_cost_their_queue_and_block_nothing(replay):
     them took 23.8 s (0.08 s alone)."""
     proc, service, log = replay
     with PingFetcher(service, timeout_s=30) as f:
-        f.fetch("line1", 0, 63)
+        alone = []                      # the fetch's time without stuck clients, on this
+        for _ in range(3):              # machine now (a loaded machine is slower alike)
+            t = time.perf_counter()
+            f.fetch("line1", 0, 63)
+            alone.append(time.perf_counter() - t)
+        # a stuck reply held the serving thread for stall_s each (23.8 s for this fetch);
+        # unblocked, the fetch takes about what it takes alone
+        limit = max(3.0, 4 * sorted(alone)[1])
         base = _rss_mib(proc.pid)
         peak = [base]
 
@@ -144,7 +151,7 @@ def test_clients_that_never_read_cost_their_queue_and_block_nothing(replay):
                 t = time.perf_counter()
                 pings, _ = f.fetch("line1", 0, 63)
                 dt = time.perf_counter() - t
-                assert len(pings) == 64 and dt < 3.0, dt
+                assert len(pings) == 64 and dt < limit, (dt, alone)
                 sample()
                 assert peak[0] - base < 3 * QUEUE * PING_MB + 60, (base, peak[0])
                 assert time.monotonic() < deadline, "no stuck reply abandoned"
@@ -155,7 +162,7 @@ def test_clients_that_never_read_cost_their_queue_and_block_nothing(replay):
                       "a stalled client's request refused", every=sample)
             t = time.perf_counter()
             pings, _ = f.fetch("line1", 26, 89)
-            assert len(pings) == 64 and time.perf_counter() - t < 3.0
+            assert len(pings) == 64 and time.perf_counter() - t < limit, alone
             sample()
             for s in stuck:
                 s.close(linger=0)
