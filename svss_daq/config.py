@@ -803,6 +803,17 @@ class NavigationConfig:
     dvl_gap_velocity_sigma_m_s: float = spec("velocity uncertainty while the DVL has no "
                                              "bottom lock (last velocity held), m/s",
                                              lo=1e-3, hi=100.0)
+    # the attitude's noise (the poses interpolate it linearly between samples): what it
+    # does to the ping-to-ping increments of the array (svss_proc.micronav.renav)
+    heading_sigma_deg: float = spec("true-heading (HDT) noise per sample, deg (1 sigma)",
+                                    lo=0.0, hi=30.0)
+    heading_interval_s: float = spec("interval between true-heading samples, s (the poses' "
+                                     "heading is interpolated between them)",
+                                     lo=1e-3, hi=60.0)
+    dvl_tilt_sigma_deg: float = spec("DVL roll and pitch noise per ensemble, deg (1 sigma)",
+                                     lo=0.0, hi=30.0)
+    dvl_interval_s: float = spec("interval between DVL ensembles, s (the poses' roll and "
+                                 "pitch are interpolated between them)", lo=1e-3, hi=60.0)
     live_follow_s: float = spec("live poses keep each solution's ping-to-ping geometry and "
                                 "follow its slow corrections over this time, s",
                                 lo=0.01, hi=600.0)
