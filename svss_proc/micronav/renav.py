@@ -64,7 +64,7 @@ import numpy as np
 
 from svss_daq.frames import body_to_ned
 from svss_daq.geometry import array_geometry
-from svss_daq.ping import NAV_BOTTOM_LOCK, NAV_FUSED, NavSnapshot
+from svss_daq.ping import NAV_BOTTOM_LOCK, NAV_DVL_VELOCITY, NAV_FUSED, NavSnapshot
 from svss_daq.waveform import make_waveform
 from svss_proc.conditioning import Conditioner
 
@@ -80,9 +80,11 @@ log = logging.getLogger(__name__)
 
 def locked_steps(poses: Sequence[NavSnapshot]) -> np.ndarray:
     """Per step between consecutive poses (n - 1,): both fused from the DVL with bottom
-    lock (``NAV_FUSED`` and ``NAV_BOTTOM_LOCK``)."""
-    locked = np.array([bool(p.quality & NAV_FUSED) and bool(p.quality & NAV_BOTTOM_LOCK)
-                       for p in poses], dtype=bool)
+    lock (``NAV_FUSED`` and ``NAV_BOTTOM_LOCK``) and the DVL's velocity carrying the track
+    (``NAV_DVL_VELOCITY``: a real DVL sends ranges without a valid velocity, RDI's
+    -32768, and the navigation then holds the velocity: its altitude alone is no lock)."""
+    need = NAV_FUSED | NAV_BOTTOM_LOCK | NAV_DVL_VELOCITY
+    locked = np.array([(p.quality & need) == need for p in poses], dtype=bool)
     return locked[:-1] & locked[1:]
 
 
