@@ -388,6 +388,10 @@ class AutofocusConfig:
                                    hi=100.0)
     min_separation_m: float = spec("picked responses at least this far apart, m", lo=0.0,
                                    hi=100.0)
+    peak_search_m: float = spec("a point's peak is the largest magnitude within this of "
+                                "it (the points are moved to their peaks before the fit), "
+                                "m", lo=0.0, hi=1.0)
+    peak_step_m: float = spec("the grid step of that search, m", lo=1e-4, hi=0.1)
     holdout_min_points: int = spec(
         "with at least this many responses every third is held out of the fit and judges "
         "it (fewer: none held out)", lo=2, hi=100)
@@ -396,7 +400,7 @@ class AutofocusConfig:
     holdout_guard: float = spec("a held-out point may fall to 1 - this of its peak (their "
                                 "summed power must not fall)", lo=0.0, hi=1.0)
     sharpness_tolerance: float = spec(
-        "the image's sharpness (N sum|I|^4 / (sum|I|^2)^2 below the interface clearance, "
+        "the image's sharpness (mean |I|^4 below the interface clearance, "
         "over the points' along-track span and region_margin_m) may fall by this "
         "fraction", lo=0.0, hi=1.0)
     region_margin_m: float = spec("the sharpness region extends this far along-track "

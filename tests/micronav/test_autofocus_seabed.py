@@ -1,6 +1,6 @@
 """The autofocus on a seabed (svss_proc.micronav.autofocus, ``autofocus_image``): the
-seed's sand interface with three points buried 0.30-0.60 m in the sand (-20 dB, as
-bench_focus's), the pings synthesised at the true poses and imaged as bench_focus images
+seed's sand (interface, volume, specular return, noise) with three points buried
+0.30-0.60 m in it (-20 dB, as bench_focus's), the pings synthesised at the true poses and imaged as bench_focus images
 the sand (the sediment's speed, refraction tables), the navigation spoiled as the
 re-navigation's errors are (HDT noise turning the 0.8 m lever arm, 1-2 mm a ping) and as
 a noisy DVL's (a 12 mm cross-track step, a vertical random walk of 4 mm a ping). The
@@ -45,9 +45,13 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def seabed(tmp_path_factory):
-    """(processing, hardware, line, true-pose pings, buried points in the tile frame)."""
+    """(processing, hardware, the true first ping's tile frame, true-pose pings, the
+    scene's track line)."""
     hw = load_with_text(HardwareConfig, config_path("hardware.toml"))
-    scene = dataclasses.replace(interface_sand_scene(), points=tuple(
+    sand = interface_sand_scene()
+    # the volume's speckle too (the seed's 4000 scatterers a cubic metre): 0.5 s a ping
+    scene = dataclasses.replace(sand, scattering=dataclasses.replace(
+        sand.scattering, volume=True), points=tuple(
         PointTarget(a, c, d, -20.0) for a, c, d in BURIED))
     src = PosedSource(hw, scene, lambda i: np.zeros(3))
     pings = [src.ping(i) for i in PINGS]
@@ -55,11 +59,7 @@ def seabed(tmp_path_factory):
                                        tmp_path_factory.mktemp("af_sand"))
     imager = TileImager(hw, proc.value)
     imager.add(pings[0])                            # the tile frame: the first ping's
-    line = imager.line
-    truth = truth_line(scene.track)
-    pts = np.array([[*line.ned_to_tile(truth.tile_to_ned(np.array(p)))[:2], p[2]]
-                    for p in BURIED])
-    return proc.value, hw, line, pings, pts
+    return proc.value, hw, imager.line, pings, truth_line(scene.track)
 
 
 def _image(hw, proc, pings):
@@ -101,10 +101,12 @@ def _spoiled(pings, line, case: str, seed: int):
 
 @pytest.mark.parametrize("case,seed", [("renav", 5), ("noisy", 1)])
 def test_the_autofocus_never_lowers_the_buried_points(seabed, case, seed):
-    proc, hw, line, pings, pts = seabed
+    proc, hw, line, pings, truth = seabed
     spoiled = _spoiled(pings, line, case, seed)
     imager, tiles = _image(hw, proc, spoiled)
-    assert imager.line == line
+    line = imager.line                  # the spoiled first ping's frame (mm from the true)
+    pts = np.array([[*line.ned_to_tile(truth.tile_to_ned(np.array(p)))[:2], p[2]]
+                    for p in BURIED])
     settings = autofocus_settings(proc)
     # the premise: the image's brightest voxels are the interface's, not the points
     brightest = bright_points(tiles, 6)
@@ -125,3 +127,22 @@ def test_the_autofocus_never_lowers_the_buried_points(seabed, case, seed):
         assert res.pings == spoiled and not res.cross_m.any() and not res.down_m.any()
     # every buried point keeps its peak (or gains)
     assert np.all(after >= NOT_LOWER * start), (db(start, true), db(after, true), res.reason)
+
+
+def test_the_autofocus_refuses_a_seabed_without_isolated_responses(seabed):
+    """The same sand without the buried points: its local maxima are the volume's
+    speckle (13 dB over their background at best, against the points' 31-42 dB); the
+    autofocus refuses and says why, and the pings keep the navigation's poses."""
+    proc, hw, line, _, _ = seabed
+    sand = interface_sand_scene()
+    scene = dataclasses.replace(sand, scattering=dataclasses.replace(sand.scattering,
+                                                                     volume=True))
+    src = PosedSource(load_with_text(HardwareConfig, config_path("hardware.toml")), scene,
+                      lambda i: np.zeros(3))
+    pings = [src.ping(i) for i in PINGS]
+    imager, tiles = _image(hw, proc, pings)
+    res, pick = autofocus_image(imager.accumulator, proc, imager.line, pings, tiles)
+    print(res.reason)
+    assert not res.kept and len(pick.points) == 0
+    assert res.reason.startswith("no isolated response: of 400 local maxima")
+    assert res.pings == pings and not res.cross_m.any() and not res.down_m.any()
