@@ -13,7 +13,7 @@ import pytest
 from svss_daq.config import ProcessingConfig, config_path, load
 from svss_proc.micronav.autofocus import (_Sampler, accept, accept_holdout, autofocus,
                                           autofocus_settings, bright_points,
-                                          image_sharpness, isolated_points,
+                                          image_sharpness, isolated_points, peak_levels,
                                           point_contributions, shifted)
 
 
@@ -43,13 +43,17 @@ def test_autofocus_recovers_the_focus_a_noisy_track_lost(scene_run):
     err_y = np.where(k >= len(pings) // 2, 0.012, 0.0) + 0.003 * np.sin(k / 7)   # m
     err_z = 0.02 * k / len(pings) + np.cumsum(rng.normal(0, 0.004, len(pings)))
     spoiled = [shifted(p, line, float(y), float(z)) for p, y, z in zip(pings, err_y, err_z)]
-    ref = np.abs(point_contributions(_Sampler(acc, proc, line), pings, points)[0].sum(1))
+    # levels are the responses' peaks (within peak_search_m of each point), as the
+    # autofocus judges them: against the true poses' peaks
+    ref = peak_levels(_Sampler(acc, proc, line), pings, points, autofocus_settings(proc))[1]
     res = autofocus(acc, proc, line, spoiled, points)
     before = 20 * np.log10(res.before / ref)
     after = 20 * np.log10(res.after / ref)
-    # the premise: the spoiled track defocuses every point, by several dB on average
-    assert np.all(before < -2.0) and before.mean() < -4.0, before
+    # the premise: the spoiled track defocuses every point, by dB
+    assert np.all(before < -1.0) and before.mean() < -2.5, before
     assert res.kept and res.reason == "sharper"
+    print("levels against the true poses' peaks (dB): before", np.round(before, 2),
+          "after", np.round(after, 2))
     assert np.all(after > -1.0) and after.mean() > -0.5, (before, after)
     # the corrected pings are the spoiled ones moved by the corrections reported
     for p, q, y, z in zip(spoiled, res.pings, res.cross_m, res.down_m):
