@@ -40,7 +40,7 @@ Usage::
 with the default instruments; ``--variants`` adds the RTK GPS and the twice- and
 five-times-noisier DVL (``--variants rtk`` one of them); ``--scenes demo`` one scene;
 ``--autofocus`` adds the poses ``af``: the re-navigated poses after the autofocus on the
-re-navigated image's six brightest points (:mod:`svss_proc.micronav.autofocus`), e.g.
+re-navigated image's isolated responses (:mod:`svss_proc.micronav.autofocus`), e.g.
 
     python benchmarks/bench_focus.py --quick --variants dvl_noise_x5 --autofocus
 """
@@ -108,9 +108,8 @@ VARIANTS = {
 VARIANT_NAVIGATION = {"dvl_noise_x2": {"dvl_velocity_sigma_m_s": 2.0, "dvl_range_sigma_m": 2.0},
                       "dvl_noise_x5": {"dvl_velocity_sigma_m_s": 5.0, "dvl_range_sigma_m": 5.0}}
 #: ``af``: the re-navigated poses (the live ones without re-navigation) after the
-#: autofocus on the image's brightest points (svss_proc.micronav.autofocus; --autofocus)
+#: autofocus on the image's isolated responses (svss_proc.micronav.autofocus; --autofocus)
 POSES = ("true", "live", "renav", "af", "fused", "fused_af")
-AUTOFOCUS_POINTS = 6
 
 #: issue 29's sand scene (--scenes sand): the seed's sand (interface, volume, specular
 #: return, noise) without its cylinder, with the motion above and three points in the
@@ -682,17 +681,23 @@ def run_case(scene_name: str, scene_path: Path, variant: str, sim_config: Path,
 
 
 def autofocused_poses(focus: Focus, processing, pings, navs) -> tuple[list, dict]:
-    """``navs`` after the autofocus of ``focus``'s image on its brightest points
-    (the pings ``focus`` refused keep theirs), and what the autofocus reported."""
-    from svss_proc.micronav.autofocus import autofocus, bright_points
+    """``navs`` after the autofocus of ``focus``'s image on its isolated responses
+    (:func:`svss_proc.micronav.autofocus.autofocus_image`, settings of the processing's
+    ``[autofocus]``; the pings ``focus`` refused keep theirs), and what it reported."""
+    from svss_proc.micronav.autofocus import autofocus_image
     t0 = time.perf_counter()
-    points = bright_points(focus.tiles, AUTOFOCUS_POINTS)
-    res = autofocus(focus.imager.accumulator, processing.value, focus.line, focus.pings,
-                    points)
+    res, pick = autofocus_image(focus.imager.accumulator, processing.value, focus.line,
+                                focus.pings, focus.tiles)
     by_seq = {p.sequence: p.nav for p in res.pings}
     out = [by_seq.get(p.sequence, n) for p, n in zip(pings, navs)]
-    info = {"points": points.tolist(), "kept": res.kept, "reason": res.reason,
+    db = lambda a, b: (20 * np.log10(np.maximum(a, 1e-300) / np.maximum(b, 1e-300))  # noqa: E731
+                       ).tolist()
+    info = {"points": pick.points.tolist(), "contrast_db": pick.contrast_db.tolist(),
+            "isolation_db": pick.isolation_db.tolist(), "maxima_examined": pick.examined,
+            "rejected": pick.rejected, "kept": res.kept, "reason": res.reason,
             "gain_db": res.gain_db.tolist(),
+            "holdout_gain_db": db(res.holdout_after, res.holdout_before),
+            "sharpness_before": res.sharpness_before, "sharpness_after": res.sharpness_after,
             "cross_rms_m": float(np.sqrt(np.mean(res.cross_m ** 2))),
             "down_rms_m": float(np.sqrt(np.mean(res.down_m ** 2))),
             "seconds": time.perf_counter() - t0}
@@ -857,7 +862,7 @@ def main(argv=None) -> int:
                     "imaged with the sand's sediment speed and refraction tables")
     ap.add_argument("--autofocus", action="store_true",
                     help="also image with the autofocused poses (af: the re-navigated "
-                    "ones, focused on the image's brightest points)")
+                    "ones, focused on the image's isolated responses)")
     ap.add_argument("--micronav", action="store_true",
                     help="also image with the re-navigated poses fused with the echoes' "
                     "increments (fused; with --autofocus also fused_af) and report the "

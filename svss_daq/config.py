@@ -365,6 +365,49 @@ class MicronavConfig:
 
 
 @dataclass(frozen=True)
+class AutofocusConfig:
+    """Autofocus on isolated responses (svss_proc.micronav.autofocus,
+    docs/micronavigation.md "Autofocus"): which responses it may focus on and the guard
+    that keeps its corrections only where the image gets no worse."""
+    points: int = spec("isolated responses focused on, at most", lo=1, hi=100)
+    candidates: int = spec("local maxima of the image examined, brightest first", lo=1,
+                           hi=100000)
+    interface_clearance_m: float = spec(
+        "responses this close below the interface (tile depth 0) or above it are not "
+        "picked: the interface's own echo, m", lo=0.0, hi=10.0)
+    background_m: tuple[float, float, float] = spec(
+        "half-size (along, cross, depth) of the box around a response whose median "
+        "magnitude is its local background, m", length=3)
+    core_m: tuple[float, float, float] = spec(
+        "half-size (along, cross, depth) of a response's own main lobe, left out of its "
+        "background and of its neighbours, m", length=3)
+    min_contrast_db: float = spec("a response's peak over its local background (median), "
+                                  "at least, dB", lo=0.0, hi=100.0)
+    min_isolation_db: float = spec("a response's peak over the brightest voxel of its "
+                                   "box outside its main lobe, at least, dB", lo=0.0,
+                                   hi=100.0)
+    min_separation_m: float = spec("picked responses at least this far apart, m", lo=0.0,
+                                   hi=100.0)
+    peak_search_m: float = spec("a point's peak is the largest magnitude within this of "
+                                "it (the points are moved to their peaks before the fit), "
+                                "m", lo=0.0, hi=1.0)
+    peak_step_m: float = spec("the grid step of that search, m", lo=1e-4, hi=0.1)
+    holdout_min_points: int = spec(
+        "with at least this many responses every third is held out of the fit and judges "
+        "it (fewer: none held out)", lo=2, hi=100)
+    point_guard: float = spec("a focused point may fall to 1 - this of its peak (the "
+                              "points' summed power must grow)", lo=0.0, hi=1.0)
+    holdout_guard: float = spec("a held-out point may fall to 1 - this of its peak (their "
+                                "summed power must not fall)", lo=0.0, hi=1.0)
+    sharpness_tolerance: float = spec(
+        "the image's sharpness (mean |I|^4 below the interface clearance, "
+        "over the points' along-track span and region_margin_m) may fall by this "
+        "fraction", lo=0.0, hi=1.0)
+    region_margin_m: float = spec("the sharpness region extends this far along-track "
+                                  "beyond the outermost points, m", lo=0.0, hi=100.0)
+
+
+@dataclass(frozen=True)
 class ProcessingConfig:
     tile: TileConfig = spec("image tile geometry")
     conditioning: ConditioningConfig = spec("signal conditioning")
@@ -375,6 +418,8 @@ class ProcessingConfig:
                                            "only)")
     micronav: MicronavConfig | None = spec("micronavigation in the re-navigation and "
                                            "the tile worker (omitted: off in both)")
+    autofocus: AutofocusConfig | None = spec("autofocus on isolated responses (omitted: "
+                                             "config/processing.toml's)")
 
 
 # ---------------------------------------------------------------------------- daq
@@ -803,6 +848,17 @@ class NavigationConfig:
     dvl_gap_velocity_sigma_m_s: float = spec("velocity uncertainty while the DVL has no "
                                              "bottom lock (last velocity held), m/s",
                                              lo=1e-3, hi=100.0)
+    # the attitude's noise (the poses interpolate it linearly between samples): what it
+    # does to the ping-to-ping increments of the array (svss_proc.micronav.renav)
+    heading_sigma_deg: float = spec("true-heading (HDT) noise per sample, deg (1 sigma)",
+                                    lo=0.0, hi=30.0)
+    heading_interval_s: float = spec("interval between true-heading samples, s (the poses' "
+                                     "heading is interpolated between them)",
+                                     lo=1e-3, hi=60.0)
+    dvl_tilt_sigma_deg: float = spec("DVL roll and pitch noise per ensemble, deg (1 sigma)",
+                                     lo=0.0, hi=30.0)
+    dvl_interval_s: float = spec("interval between DVL ensembles, s (the poses' roll and "
+                                 "pitch are interpolated between them)", lo=1e-3, hi=60.0)
     live_follow_s: float = spec("live poses keep each solution's ping-to-ping geometry and "
                                 "follow its slow corrections over this time, s",
                                 lo=0.01, hi=600.0)

@@ -21,6 +21,9 @@ NAV_CLOCK_RETIMED = 256  # an instrument's clock disagreed with the ping clock: 
 NAV_SMOOTHED = 512       # from the smoother over the whole recording (re-navigation);
                          # without it a live pose (causal fixed-lag smoother)
 NAV_FUSED = 1024         # position from the DVL/GPS Kalman fusion (not GPS interpolation)
+NAV_DVL_VELOCITY = 2048  # the DVL's bottom-track velocity carried the track here (a valid
+                         # velocity within dvl_max_gap_s); NAV_BOTTOM_LOCK alone is the
+                         # altitude, which ranges give without a velocity
 
 
 @dataclass(frozen=True)

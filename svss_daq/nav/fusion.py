@@ -32,7 +32,8 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from svss_daq.ping import (NAV_BOTTOM_LOCK, NAV_DEAD_RECKONED, NAV_FUSED, NAV_GPS_FIX,
+from svss_daq.ping import (NAV_BOTTOM_LOCK, NAV_DEAD_RECKONED, NAV_DVL_VELOCITY,
+                           NAV_FUSED, NAV_GPS_FIX,
                            NAV_HEADING_FROM_COMPASS, NAV_HEADING_FROM_COURSE, NAV_HELD,
                            NAV_NO_HEADING, NavSnapshot)
 
@@ -228,6 +229,8 @@ def compute_poses(times_ns, fixes: Sequence[GpsFix], headings: Sequence[HeadingS
                 q |= NAV_HELD
             if fused[k]:
                 q |= NAV_FUSED
+                if dr[k]:
+                    q |= NAV_DVL_VELOCITY
         if np.isfinite(alt[k]):
             q |= NAV_BOTTOM_LOCK
         q |= _HEADING_FLAG[int(hflag[k])]

@@ -25,9 +25,26 @@ found where the navigation is least sure and the data are sharpest:
    from one knot over the whole span to the requested spacing, halving it (coarse to
    fine, past the phase wraps a direct fine solve stops at).
 3. **Guard.** The points are imaged again with the corrected poses (the kernel, not the
-   phase model); the corrections are kept only if every point's peak is no lower than
+   phase model), each point's peak the largest magnitude within ``peak_search_m`` of it
+   (the points are moved to their peaks before the fit: the value at a fixed voxel
+   beside a peak grows when the response is only moved onto it, and the guard would
+   take a shifted image for a focused one); the corrections are kept only if every
+   point's peak is no lower than
    ``1 - guard`` of its level with the navigated poses and the sum of the points' peak
-   powers has grown. Otherwise the navigation is kept and the result says why.
+   powers has grown; where given, every held-out point (responses not used in the fit)
+   keeps ``1 - holdout_guard`` of its peak and their summed power does not fall; and
+   the image's sharpness below the interface over the points' span (the region the
+   corrections move) does not fall. Otherwise the navigation is kept and the result
+   says why.
+
+The points (:func:`isolated_points`) must be isolated responses: a local maximum below
+the interface's clearance whose peak stands ``min_contrast_db`` over the median of the
+image around it and ``min_isolation_db`` over the brightest voxel of that box outside
+its own main lobe. On a seabed the brightest voxels are the interface and the volume's
+speckle, whose neighbours are as bright; focusing on them made the image worse
+(docs/micronavigation.md). Where no response qualifies, :func:`autofocus_image` refuses
+and says why. Settings: ``[autofocus]`` of the processing configuration
+(:class:`~svss_daq.config.AutofocusConfig`; config/processing.toml's where it has none).
 
 Along-track errors and rotations are not estimated (the points constrain them weakly and
 the navigation's along-track is good to millimetres over an aperture); the corrections
@@ -60,8 +77,24 @@ PROBE_M = 1e-3
 PRIOR_WEIGHT = 1.0
 ROUGH_WEIGHT = 1.0
 
-__all__ = ["AutofocusResult", "accept", "autofocus", "bright_points",
+__all__ = ["AutofocusResult", "PointPick", "accept", "autofocus", "autofocus_image",
+           "autofocus_settings", "bright_points", "image_sharpness", "isolated_points",
            "point_contributions", "shifted"]
+
+
+def autofocus_settings(processing=None):
+    """The ``[autofocus]`` settings of ``processing`` (a
+    :class:`~svss_daq.config.ProcessingConfig`), else config/processing.toml's."""
+    cfg = getattr(processing, "autofocus", None)
+    if cfg is not None:
+        return cfg
+    from svss_daq.config import ProcessingConfig, config_path, load_with_text
+    path = config_path("processing.toml")
+    cfg = load_with_text(ProcessingConfig, path).value.autofocus
+    if cfg is None:
+        from svss_daq.config import ConfigError
+        raise ConfigError(f"{path}: no [autofocus] table (the autofocus's settings)")
+    return cfg
 
 
 @dataclass(frozen=True)
@@ -76,6 +109,12 @@ class AutofocusResult:
     after: np.ndarray
     kept: bool
     reason: str
+    #: the held-out points' peaks before and after (linear; empty without any)
+    holdout_before: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    holdout_after: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    #: the image's sharpness below the interface over the points' span (None: not judged)
+    sharpness_before: float | None = None
+    sharpness_after: float | None = None
 
     @property
     def gain_db(self) -> np.ndarray:
@@ -134,6 +173,29 @@ class _Sampler:
         acc.kernel(ImageSlice(re_, im_, axes, 0, 1), kd, array, delays,
                    gating=im.beam_gating)
         return complex(float(re_[0, 0, 0]), float(im_[0, 0, 0]))
+
+    def grid(self, pings: list, along, cross, depth) -> np.ndarray:
+        """The image of ``pings`` at the grid ``along x cross x depth`` (tile frame),
+        complex, as the tiles image it."""
+        im, acc = self.proc.imaging, self.acc
+        geo = acc.geometry
+        along, cross, depth = (np.ascontiguousarray(x, dtype=np.float64)
+                               for x in (along, cross, depth))
+        re_ = np.zeros((along.size, cross.size, depth.size), dtype=acc.dtype)
+        im_ = np.zeros_like(re_)
+        max_depth = self.proc.tile.top_m + self.proc.tile.depth_m
+        for p in pings:
+            placed = place_array(geo, p.nav, p.projector,
+                                 ping_frame(self.line, p.nav, self.proc))
+            kd = self._prepared(p)
+            reach = along_reach(placed.tx, placed.bore, geo.projector_half_angle, max_depth)
+            ia = np.flatnonzero((along >= placed.tx[0] - reach) & (along <= placed.tx[0] + reach))
+            if not ia.size:
+                continue
+            array, delays = acc.ping_inputs(placed.tx, placed.rx, placed.bore, reach)
+            acc.kernel(ImageSlice(re_, im_, VoxelAxes(along, cross, depth), int(ia[0]),
+                                  int(ia[-1]) + 1), kd, array, delays, gating=im.beam_gating)
+        return re_.astype(np.float64) + 1j * im_.astype(np.float64)
 
 
 def point_contributions(sampler: _Sampler, pings: list, points: np.ndarray
@@ -241,6 +303,140 @@ def bright_points(tiles: list, n: int, *, min_separation_m: float = 0.5,
     return np.array(chosen).reshape(-1, 3)
 
 
+@dataclass(frozen=True)
+class PointPick:
+    """What :func:`isolated_points` found: the points (tile frame: along, cross, depth),
+    their peak magnitude, contrast over the local background and isolation from their
+    neighbours (dB); how many local maxima were examined and why the others were not
+    taken; ``refused``: why there is none (None where there are)."""
+    points: np.ndarray
+    levels: np.ndarray
+    contrast_db: np.ndarray
+    isolation_db: np.ndarray
+    examined: int
+    rejected: dict
+    refused: str | None
+
+
+def _box(n: int, i: int, half: int) -> slice:
+    return slice(max(0, i - half), min(n, i + half + 1))
+
+
+def isolated_points(tiles: list, settings, n: int | None = None) -> PointPick:
+    """Up to ``n`` (``settings.points``) isolated responses of the tiles' images
+    (``settings``: :class:`~svss_daq.config.AutofocusConfig`; module docstring): of the
+    ``candidates`` brightest local maxima at least ``interface_clearance_m`` below the
+    interface and off the tiles' faces, those whose peak stands ``min_contrast_db`` over
+    the median magnitude of the box ``background_m`` about them (their main lobe,
+    ``core_m``, left out) and ``min_isolation_db`` over the brightest voxel of that box
+    outside the lobe, brightest first, ``min_separation_m`` apart."""
+    from scipy.ndimage import maximum_filter
+    n = settings.points if n is None else n
+    cands = []
+    mags = [np.abs(t.image) for t in tiles]
+    for ti, t in enumerate(tiles):
+        mag = mags[ti]
+        g = t.grid
+        voxel = float(abs(g.along[1] - g.along[0])) if g.along.size > 1 else 1.0
+        deep = np.asarray(g.depth) >= settings.interface_clearance_m
+        peak = (mag == maximum_filter(mag, size=3, mode="constant")) & (mag > 0)
+        peak &= deep[None, None, :]
+        for ax in range(3):                   # a face's maximum may be a lobe's flank
+            idx = [slice(None)] * 3
+            idx[ax] = [0, -1]
+            peak[tuple(idx)] = False
+        flat = np.flatnonzero(peak)
+        if flat.size > settings.candidates:
+            flat = flat[np.argpartition(mag.reshape(-1)[flat], -settings.candidates)
+                        [-settings.candidates:]]
+        for f in flat:
+            cands.append((float(mag.reshape(-1)[f]), ti, np.unravel_index(int(f), mag.shape),
+                          voxel))
+    cands.sort(key=lambda c: -c[0])
+    cands = cands[:settings.candidates]
+    rejected = {"low contrast": 0, "a neighbour as bright": 0, "too near a pick": 0}
+    chosen, levels, contrast, isolation = [], [], [], []
+    best = (-np.inf, -np.inf)
+    for level, ti, (ia, ic, iz), voxel in cands:
+        t = tiles[ti]
+        mag = mags[ti]
+        hb = [max(1, int(round(h / voxel))) for h in settings.background_m]
+        hc = [max(1, int(round(h / voxel))) for h in settings.core_m]
+        sl = tuple(_box(mag.shape[a], i, hb[a]) for a, i in enumerate((ia, ic, iz)))
+        sub = mag[sl]
+        core = np.zeros(sub.shape, dtype=bool)
+        core[tuple(slice(max(0, i - s_.start - hc[a]), i - s_.start + hc[a] + 1)
+                   for a, (i, s_) in enumerate(zip((ia, ic, iz), sl)))] = True
+        ring = sub[~core]
+        ring = ring[ring > 0]
+        if ring.size == 0:
+            rejected["low contrast"] += 1
+            continue
+        c_db = 20 * math.log10(level / max(float(np.median(ring)), 1e-300))
+        i_db = 20 * math.log10(level / max(float(ring.max()), 1e-300))
+        best = max(best, (c_db, i_db))
+        if c_db < settings.min_contrast_db:
+            rejected["low contrast"] += 1
+            continue
+        if i_db < settings.min_isolation_db:
+            rejected["a neighbour as bright"] += 1
+            continue
+        pos = np.array([t.grid.along[ia], t.grid.cross[ic], t.grid.depth[iz]], dtype=float)
+        if any(np.linalg.norm(pos - q) < settings.min_separation_m for q in chosen):
+            rejected["too near a pick"] += 1
+            continue
+        chosen.append(pos)
+        levels.append(level)
+        contrast.append(c_db)
+        isolation.append(i_db)
+        if len(chosen) == n:
+            break
+    refused = None
+    if not chosen:
+        if not cands:
+            refused = ("no isolated response: no local maximum of the image "
+                       f"{settings.interface_clearance_m:g} m or more below the interface")
+        else:
+            refused = (f"no isolated response: of {len(cands)} local maxima "
+                       f"{settings.interface_clearance_m:g} m or more below the interface, "
+                       f"{rejected['low contrast']} stand less than "
+                       f"{settings.min_contrast_db:g} dB over their local background and "
+                       f"{rejected['a neighbour as bright']} have a neighbour within "
+                       f"{settings.min_isolation_db:g} dB (the best: {best[0]:.1f} dB over "
+                       f"the background, {best[1]:.1f} dB over its neighbours)")
+    return PointPick(np.array(chosen, dtype=float).reshape(-1, 3), np.array(levels),
+                     np.array(contrast), np.array(isolation), len(cands), rejected, refused)
+
+
+def image_sharpness(image: np.ndarray) -> float:
+    """The mean of |I|^4 over the voxels some ping reached: the image's sharpness, which
+    grows where the same energy gathers into fewer voxels (a focused response) and falls
+    where it spreads. Not normalised by the image's energy squared: moving the pings
+    changes that energy by a few per cent (the interface's tail, the sidelobes), and
+    the normalised measure fell by 3 % on a correction that raised every point's peak
+    (docs/micronavigation.md)."""
+    p = np.abs(image[image != 0]).astype(np.float64) ** 2
+    if p.size == 0:
+        return 0.0
+    return float(np.mean(p ** 2))
+
+
+def sharpness_region(processing, points: np.ndarray, settings):
+    """The grid (along, cross, depth axes, tile frame) over which the image's sharpness
+    is judged: the points' along-track span and ``region_margin_m``, the tile's width,
+    from ``interface_clearance_m`` below the interface to the tile's bottom, at the
+    tile's voxel."""
+    tile = processing.tile
+    v = tile.voxel_m
+    a0 = float(points[:, 0].min()) - settings.region_margin_m
+    a1 = float(points[:, 0].max()) + settings.region_margin_m
+    along = a0 + v * np.arange(int(round((a1 - a0) / v)) + 1)
+    cross = -tile.width_m / 2 + v * (np.arange(int(round(tile.width_m / v))) + 0.5)
+    top = max(tile.top_m, settings.interface_clearance_m)
+    depth = top + v * (np.arange(int(round((tile.top_m + tile.depth_m - top) / v))) + 0.5)
+    return along, cross, depth
+
+
 def accept(before: np.ndarray, after: np.ndarray, guard: float) -> tuple[bool, str]:
     """The guard: corrections that leave every point's peak at ``1 - guard`` of its
     level or more and raise the points' summed peak power are kept; the reason."""
@@ -252,15 +448,55 @@ def accept(before: np.ndarray, after: np.ndarray, guard: float) -> tuple[bool, s
     return True, "sharper"
 
 
+def peak_levels(sampler: _Sampler, pings: list, points: np.ndarray, settings
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's response peak: the largest magnitude of the image of ``pings`` within
+    ``peak_search_m`` of it on a ``peak_step_m`` grid (the kernel, as the tiles image it);
+    (positions (n, 3), levels (n,))."""
+    h, st = settings.peak_search_m, settings.peak_step_m
+    offs = st * np.arange(-int(round(h / st)), int(round(h / st)) + 1)
+    pos = np.zeros((len(points), 3))
+    lev = np.zeros(len(points))
+    for i, p in enumerate(points):
+        axes = [p[a] + offs for a in range(3)]
+        mag = np.abs(sampler.grid(pings, *axes))
+        k = np.unravel_index(int(np.argmax(mag)), mag.shape)
+        pos[i] = [axes[a][k[a]] for a in range(3)]
+        lev[i] = float(mag[k])
+    return pos, lev
+
+
+def accept_holdout(before: np.ndarray, after: np.ndarray, guard: float) -> tuple[bool, str]:
+    """The held-out points' guard: each keeps ``1 - guard`` of its peak or more and
+    their summed peak power does not fall; the reason."""
+    if not len(before):
+        return True, "sharper"
+    worst = float(np.min(after / np.maximum(before, 1e-300)))
+    if worst < 1 - guard:
+        return False, f"a held-out point's peak fell to {worst:.3f} of its level"
+    if float((after ** 2).sum()) < float((before ** 2).sum()):
+        return False, "the held-out points' peak power fell"
+    return True, "sharper"
+
+
 def autofocus(accumulator, processing, line: TrackLine, pings: list, points: np.ndarray,
-              *, knot_s: float = 0.1, rough_m: tuple = (0.002, 0.005),
-              prior_m: tuple = (0.01, 0.03), guard: float = 0.05, outer: int = 1
+              *, holdout: np.ndarray | None = None, settings=None, knot_s: float = 0.1,
+              rough_m: tuple = (0.002, 0.005), prior_m: tuple = (0.01, 0.03),
+              guard: float | None = None, judge_image: bool = True, outer: int = 1
               ) -> AutofocusResult:
     """Corrections of ``pings``' cross-track and vertical positions (module docstring)
     that focus ``points`` (tile frame of ``line``: along, cross, depth; e.g. from
-    :func:`bright_points`), with ``accumulator`` (a
+    :func:`isolated_points`), with ``accumulator`` (a
     :class:`~svss_proc.imaging.imager.PingAccumulator`) and ``processing`` as they image
-    the tiles. Knots every ``knot_s`` seconds of ping time."""
+    the tiles. Knots every ``knot_s`` seconds of ping time. The guard (module docstring,
+    3): ``guard`` (default ``settings.point_guard``) on the points, ``holdout`` points
+    (not fitted) and, with ``judge_image``, the image's sharpness below the interface;
+    ``settings``: :class:`~svss_daq.config.AutofocusConfig` (default
+    :func:`autofocus_settings` of ``processing``)."""
+    settings = settings if settings is not None else autofocus_settings(processing)
+    guard = settings.point_guard if guard is None else guard
+    holdout = (np.zeros((0, 3)) if holdout is None
+               else np.asarray(holdout, dtype=np.float64).reshape(-1, 3))
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     n = len(pings)
     zero = np.zeros(n)
@@ -271,8 +507,14 @@ def autofocus(accumulator, processing, line: TrackLine, pings: list, points: np.
                                "fewer than 3 pings")
     sampler = _Sampler(accumulator, processing, line)
     c, gy, gz = point_contributions(sampler, pings, points)
-    before = np.abs(c.sum(axis=1))
     seen = (c != 0).sum(axis=1)
+    if np.all(seen >= 3):
+        # each point moved to its response's peak: a value at a fixed voxel off the
+        # peak grows when the response is only moved onto it, not focused
+        points, before = peak_levels(sampler, pings, points, settings)
+        c, gy, gz = point_contributions(sampler, pings, points)
+    else:
+        before = np.abs(c.sum(axis=1))
     if np.any(seen < 3):
         return AutofocusResult(list(pings), zero, zero, before, before, False,
                                f"points {np.flatnonzero(seen < 3).tolist()} are reached by "
@@ -304,13 +546,55 @@ def autofocus(accumulator, processing, line: TrackLine, pings: list, points: np.
         dy, dz = dy + basis @ a[:nk], dz + basis @ a[nk:]
         moved = [shifted(p, line, float(y), float(z)) for p, y, z in zip(pings, dy, dz)]
         c, gy, gz = point_contributions(sampler, moved, points)
-    after = np.abs(c.sum(axis=1))
+    after = peak_levels(sampler, moved, points, settings)[1]
     kept, why = accept(before, after, guard)
+    # the held-out points: reached by 3 pings or more, their peaks before and after
+    hb = ha = np.zeros(0)
+    if len(holdout):
+        h0 = point_contributions(sampler, pings, holdout)[0]
+        reached = (h0 != 0).sum(axis=1) >= 3
+        hb = peak_levels(sampler, pings, holdout[reached], settings)[1]
+        ha = peak_levels(sampler, moved, holdout[reached], settings)[1]
+        ok, why_h = accept_holdout(hb, ha, settings.holdout_guard)
+        if kept and not ok:
+            kept, why = False, why_h
+    s0 = s1 = None
+    if judge_image:
+        region = sharpness_region(processing, np.concatenate([points, holdout]), settings)
+        s0 = image_sharpness(sampler.grid(list(pings), *region))
+        s1 = image_sharpness(sampler.grid(moved, *region))
+        if kept and s1 < s0 * (1 - settings.sharpness_tolerance):
+            kept, why = False, (f"the image below the interface got less sharp (mean "
+                                f"|I|^4 {s1 / s0:.3f} of its level)")
+    extra = dict(holdout_before=hb, holdout_after=ha, sharpness_before=s0,
+                 sharpness_after=s1)
     if kept:
         log.info("autofocus: %d points, peaks %+.2f dB (mean), corrections rms %.1f mm "
                  "cross, %.1f mm down", len(points),
                  float(np.mean(20 * np.log10(after / before))),
                  1e3 * float(np.sqrt(np.mean(dy ** 2))), 1e3 * float(np.sqrt(np.mean(dz ** 2))))
-        return AutofocusResult(moved, dy, dz, before, after, True, "sharper")
+        return AutofocusResult(moved, dy, dz, before, after, True, "sharper", **extra)
     log.info("autofocus: corrections refused (%s); the navigation is kept", why)
-    return AutofocusResult(list(pings), zero, zero, before, after, False, why)
+    return AutofocusResult(list(pings), zero, zero, before, after, False, why, **extra)
+
+
+def autofocus_image(accumulator, processing, line: TrackLine, pings: list, tiles: list,
+                    settings=None, **options) -> tuple[AutofocusResult, PointPick]:
+    """The autofocus of ``tiles`` (the image of ``pings``) on its isolated responses
+    (:func:`isolated_points`): every third held out of the fit to judge it where there
+    are ``holdout_min_points`` or more; refused, with the reason, where there is none.
+    ``options``: of :func:`autofocus`."""
+    settings = settings if settings is not None else autofocus_settings(processing)
+    pick = isolated_points(tiles, settings)
+    if pick.refused is not None:
+        zero = np.zeros(len(pings))
+        log.info("autofocus: refused (%s); the navigation is kept", pick.refused)
+        return AutofocusResult(list(pings), zero, zero, np.zeros(0), np.zeros(0), False,
+                               pick.refused), pick
+    pts = pick.points
+    held = np.zeros(len(pts), dtype=bool)
+    if len(pts) >= settings.holdout_min_points:
+        held[1::3] = True
+    res = autofocus(accumulator, processing, line, pings, pts[~held], holdout=pts[held],
+                    settings=settings, **options)
+    return res, pick
