@@ -78,12 +78,15 @@ ray_amplitude_terms = layered_rays.ray_amplitude_terms
 _MARGIN = 4
 
 
-def build(jit_inline, rays):
+def build(jit_inline, rays, floor):
     """The scalar synthesis functions compiled with ``jit_inline`` (numba's
     ``njit(inline="always")`` for the CPU kernels of this module, ``cuda.jit(device=True)``
     for :mod:`sim_device.synthesis_gpu`); ``rays``: the ray functions of
-    :func:`sim_device.layered_rays.build` compiled for the same target. Returns a
-    namespace of them: one source for the CPU and GPU kernels."""
+    :func:`sim_device.layered_rays.build` compiled for the same target; ``floor``: the
+    target's floor of a float (:func:`float_floor` on the CPU: a float, so that a loop
+    calling it vectorises without float64 -> int64 conversions, which AVX2 lacks;
+    ``math.floor`` on the GPU). Returns a namespace of them: one source for the CPU and
+    GPU kernels."""
     table_ray_tan = rays.table_ray_tan
     leg_extents = rays.leg_extents
     ray_tan = rays.ray_tan
@@ -108,7 +111,7 @@ def build(jit_inline, rays):
         """(cos, sin) of 2 pi x for any x (cycles): x is reduced to [-1/2, 1/2], the angle
         quartered into [-pi/4, pi/4], a Taylor series taken there (error < 1e-12) and
         squared back twice."""
-        a = 2.0 * math.pi * (x - math.floor(x + 0.5)) * 0.25
+        a = 2.0 * math.pi * (x - floor(x + 0.5)) * 0.25
         a2 = a * a
         c = 1.0 + a2 * (-1 / 2 + a2 * (1 / 24 + a2 * (-1 / 720 + a2 * (1 / 40320 + a2 * (
             -1 / 3628800 + a2 * (1 / 479001600))))))
@@ -234,7 +237,7 @@ def build(jit_inline, rays):
     def cis_cycles32(x):
         """(cos, sin) of 2 pi x as :func:`cis_cycles`, to float32 accuracy (error < 3e-8):
         x reduced in float64 (the delay-phase product is large), the rest shorter series."""
-        a = 2.0 * math.pi * (x - math.floor(x + 0.5)) * 0.25
+        a = 2.0 * math.pi * (x - floor(x + 0.5)) * 0.25
         a2 = a * a
         c = 1.0 + a2 * (-1 / 2 + a2 * (1 / 24 + a2 * (-1 / 720 + a2 * (1 / 40320))))
         s = a * (1.0 + a2 * (-1 / 6 + a2 * (1 / 120 + a2 * (-1 / 5040 + a2 * (1 / 362880)))))
@@ -257,7 +260,14 @@ def build(jit_inline, rays):
                            lagrange4=lagrange4)
 
 
-_cpu = build(nb.njit(cache=True, inline="always"), layered_rays._cpu)
+@nb.njit(cache=True, inline="always")
+def float_floor(x):
+    """floor(x) as a float (numba's ``math.floor`` returns an integer: a float64 -> int64
+    conversion and back, which only AVX-512 has as a vector instruction)."""
+    return np.floor(x)
+
+
+_cpu = build(nb.njit(cache=True, inline="always"), layered_rays._cpu, float_floor)
 _interp = _cpu._interp
 cis_cycles = _cpu.cis_cycles
 gain = _cpu.gain
@@ -830,7 +840,7 @@ def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_block
         ar_im = np.empty(nch)
         fix = np.zeros(nch, dtype=np.bool_)
         wk = np.empty((8, nch))
-        e_i = np.empty(nch, dtype=np.int64)
+        e_i = np.empty(nch)
         e_w = np.empty((nch, 4), dtype=np.float32)
         e_re = np.empty(nch, dtype=np.float32)
         e_im = np.empty(nch, dtype=np.float32)
@@ -891,9 +901,9 @@ def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_block
                             pi = at_re * ar_im[ch] + at_im * ar_re[ch]
                             u = (tau - t_buf0) * fs
                             u = min(max(u, 1.0), n_buf - 3.0)
-                            i1 = int(u)
-                            w0, w1, w2, w3 = lagrange4(u - i1)
-                            e_i[ch] = i1
+                            u1 = np.floor(u)          # a float: the loop vectorises
+                            w0, w1, w2, w3 = lagrange4(u - u1)
+                            e_i[ch] = u1
                             e_w[ch, 0] = w0
                             e_w[ch, 1] = w1
                             e_w[ch, 2] = w2
@@ -906,7 +916,7 @@ def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_block
                         for ch in range(nch):
                             if not e_ok[ch]:
                                 continue
-                            i1 = e_i[ch]
+                            i1 = int(e_i[ch])
                             re = e_re[ch]
                             im = e_im[ch]
                             for j in range(4):
