@@ -528,6 +528,51 @@ def _exp_neg(x):
     return e * e
 
 
+@nb.njit(cache=True, fastmath=True, error_model="numpy", inline="always")
+def _s_terms(s, rho, h0, h1, cmax, r0, r1, c0, c1, a0, a1):
+    """:func:`two_medium_terms` of a leg with extents h0 (water) and h1 (first sediment)
+    and offset rho, from s = p c_max instead of t: the cosines g_i = sqrt(1 - (s r_i)^2)
+    independent of each other (relative rounding ~1e-16 / (1 - s^2), below 1e-10 under
+    TABLE_CEILING). Returns (delay, g0, 1/g0, 1/g1, sqrt(s1 s2) of the spreading, the
+    attenuation exponent, sin of the water angle, |offset(s) - rho|: the residual
+    table_ray_tan checks). No table, no library call: vectorisable."""
+    p = s / cmax
+    q0 = s * r0
+    q1 = s * r1
+    g0 = math.sqrt(1.0 - q0 * q0)
+    g1 = math.sqrt(1.0 - q1 * q1)
+    ig0 = 1.0 / g0
+    ig1 = 1.0 / g1
+    resid = abs(h0 * q0 * ig0 + h1 * q1 * ig1 - rho)
+    tau = p * rho + h0 * g0 / c0 + h1 * g1 / c1
+    s1 = h0 * c0 * ig0 + h1 * c1 * ig1
+    s2 = h0 * c0 * ig0 * ig0 * ig0 + h1 * c1 * ig1 * ig1 * ig1
+    att = a0 * h0 * ig0 + a1 * h1 * ig1
+    return tau, g0, ig0, ig1, math.sqrt(s1 * s2), att, p * c0, resid
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy", inline="always")
+def _beam_pos(cos_off, lo_front, lo_back, ilf, ilb, ng, nbk, off_b, off_z):
+    """Position (float index, fraction) on the combined beam table (main lobe over
+    [lo_front, 1], back lobe from ``off_b`` over -cos_off in [lo_back, 1], the zero pair
+    at ``off_z``: no gain) for the cosine of the off-axis angle."""
+    front = cos_off >= lo_front
+    u = (cos_off - lo_front) * ilf if front else (-cos_off - lo_back) * ilb
+    n1 = ng if front else nbk
+    x = min(max(u, 0.0), 1.0) * n1
+    xi = min(np.floor(x), n1 - 1.0)
+    return xi + (0.0 if front else (off_b if -cos_off >= lo_back else off_z)), x - xi
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy", inline="always")
+def _table_pos(u, n1):
+    """Position (float index, fraction) of u (clamped to [0, 1]) on a uniform table of
+    n1 + 1 nodes, as :func:`_idx` with the index a float (vectorisable)."""
+    x = min(max(u, 0.0), 1.0) * n1
+    xi = min(np.floor(x), n1 - 1.0)
+    return xi, x - xi
+
+
 @nb.njit(cache=True, fastmath=True, error_model="numpy")
 def _medium_terms(geo, imt, tr, fix, wk):
     """Loop 2 of :func:`_receive_legs` (water over the first sediment): from the table's
@@ -555,39 +600,21 @@ def _medium_terms(geo, imt, tr, fix, wk):
         rho = wk[0, ch]
         s = wk[1, ch]
         h0 = imt[b, IMG_H, ch]
-        p = s / cmax
-        q0 = s * r0
-        q1 = s * r1
-        g0 = math.sqrt(1.0 - q0 * q0)
-        g1 = math.sqrt(1.0 - q1 * q1)
-        ig0 = 1.0 / g0
-        ig1 = 1.0 / g1
-        resid = abs(h0 * q0 * ig0 + zk * q1 * ig1 - rho)
+        tau, g0, ig0, ig1, s12, att, sinp, resid = _s_terms(s, rho, h0, zk, cmax, r0, r1,
+                                                            c0, c1, a0, a1)
         poor = (s >= TABLE_TRUSTED) & (resid > TABLE_RESIDUAL * (h0 + zk)) & ~fix[ch]
         wk[7, ch] = 1.0 if poor else 0.0
         any_poor |= poor
-        tr[ch] = p * rho + h0 * g0 / c0 + zk * g1 / c1
-        s1 = h0 * c0 * ig0 + zk * c1 * ig1
-        s2 = h0 * c0 * ig0 * ig0 * ig0 + zk * c1 * ig1 * ig1 * ig1
-        spread = c1 * ig1 / math.sqrt(s1 * s2)
-        att = a0 * h0 * ig0 + a1 * zk * ig1
-        sinp = p * c0
+        tr[ch] = tau
+        spread = c1 * ig1 / s12              # from a source in the sediment
         irho = 1.0 / max(rho, 1e-300)
         dx = xk - imt[b, IMG_X, ch]
         dy = yk - imt[b, IMG_Y, ch]
         cos_off = sinp * (dx * b0 + dy * b1) * irho + imt[b, IMG_DIR, ch] * g0 * b2
         wk[4, ch] = imt[b, IMG_RS, ch] * spread * _exp_neg(att)
-        front = cos_off >= lo_front
-        u = (cos_off - lo_front) * ilf if front else (-cos_off - lo_back) * ilb
-        n1 = ng if front else nbk
-        x = min(max(u, 0.0), 1.0) * n1
-        xi = min(np.floor(x), n1 - 1.0)
-        wk[2, ch] = xi + (0.0 if front else (off_b if -cos_off >= lo_back else off_z))
-        wk[3, ch] = x - xi
-        x = min(max(sinp, 0.0), 1.0) * nr1
-        xi = min(np.floor(x), nr1 - 1.0)
-        wk[5, ch] = xi
-        wk[6, ch] = x - xi
+        wk[2, ch], wk[3, ch] = _beam_pos(cos_off, lo_front, lo_back, ilf, ilb, ng, nbk,
+                                         off_b, off_z)
+        wk[5, ch], wk[6, ch] = _table_pos(sinp, nr1)
     return any_poor
 
 
@@ -596,41 +623,47 @@ def _medium_terms(geo, imt, tr, fix, wk):
 NEWTON_MAX = 30
 
 
-@nb.njit(cache=True, fastmath=True, error_model="numpy")
-def _newton_s(zk, b, imt, r0, r1, fix, wk):
-    """The ray of every leg marked in ``wk[7]`` (the table's s failed its residual check)
-    by Newton's method on the offset in t = tan of the fastest medium's angle,
+@nb.njit(cache=True, fastmath=True, error_model="numpy", inline="always")
+def _newton_one(s, rho, h0, h1, r0, r1):
+    """The ray of one two-medium leg (extents h0, h1, offset rho) by Newton's method on
+    the offset in t = tan of the fastest medium's angle,
     rho(t) = h0 r0 t / sqrt(1 + t^2 (1 - r0^2)) + h1 r1 t / sqrt(1 + t^2 (1 - r1^2)),
     from the table's s. rho(t) is increasing and concave (r_i <= 1), so from any t > 0
     the iterates stay in t >= 0 and, after the first, increase to the root; stopped at
-    Brent's tolerance (layered_rays.ray_tan: |dt| <= T_TOL (1 + t) / 2 + 2 eps t). The
-    converged s = t / sqrt(1 + t^2) goes to ``wk[1]``; a leg that does not converge, or
-    whose s reaches TABLE_CEILING, is marked in ``fix`` (the scalar leg)."""
+    Brent's tolerance (layered_rays.ray_tan: |dt| <= T_TOL (1 + t) / 2 + 2 eps t).
+    Returns (s = t / sqrt(1 + t^2), True) once converged below TABLE_CEILING, else
+    (s, False): the leg is left to the scalar leg (Brent)."""
     a0 = 1.0 - r0 * r0
     a1 = 1.0 - r1 * r1
+    t = s / math.sqrt(1.0 - s * s)
+    done = False
+    for _ in range(NEWTON_MAX):
+        tt = t * t
+        u0 = 1.0 + tt * a0
+        u1 = 1.0 + tt * a1
+        v0 = 1.0 / math.sqrt(u0)
+        v1 = 1.0 / math.sqrt(u1)
+        f = (h0 * r0 * v0 + h1 * r1 * v1) * t - rho
+        df = h0 * r0 * v0 / u0 + h1 * r1 * v1 / u1
+        dt = f / df
+        t = max(t - dt, 0.0)
+        if abs(dt) <= 0.5 * T_TOL * (1.0 + t) + 2.0 * _EPS * t:
+            done = True
+            break
+    s = t / math.sqrt(1.0 + t * t)
+    return s, done and s < TABLE_CEILING
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy")
+def _newton_s(zk, b, imt, r0, r1, fix, wk):
+    """:func:`_newton_one` for every receive leg of element image ``b`` marked in
+    ``wk[7]`` (the table's s failed its residual check): the converged s goes to
+    ``wk[1]``, a leg that does not converge is marked in ``fix`` (the scalar leg)."""
     for ch in range(fix.size):
         if wk[7, ch] == 0.0:
             continue
-        rho = wk[0, ch]
-        h0 = imt[b, IMG_H, ch]
-        s = wk[1, ch]
-        t = s / math.sqrt(1.0 - s * s)
-        done = False
-        for _ in range(NEWTON_MAX):
-            tt = t * t
-            u0 = 1.0 + tt * a0
-            u1 = 1.0 + tt * a1
-            v0 = 1.0 / math.sqrt(u0)
-            v1 = 1.0 / math.sqrt(u1)
-            f = (h0 * r0 * v0 + zk * r1 * v1) * t - rho
-            df = h0 * r0 * v0 / u0 + zk * r1 * v1 / u1
-            dt = f / df
-            t = max(t - dt, 0.0)
-            if abs(dt) <= 0.5 * T_TOL * (1.0 + t) + 2.0 * _EPS * t:
-                done = True
-                break
-        s = t / math.sqrt(1.0 + t * t)
-        if done and s < TABLE_CEILING:
+        s, ok = _newton_one(wk[1, ch], wk[0, ch], imt[b, IMG_H, ch], zk, r0, r1)
+        if ok:
             wk[1, ch] = s
         else:
             fix[ch] = True
