@@ -328,13 +328,16 @@ def transmit_kernel(pts, samp, img, medium, beam, out):
 
 
 def transmit_legs(sx, sy, sz, smed, samp, img, c, rho_m, delta, alpha, z_top, tab, r_top,
-                  r_bot, bore, g_front, g_back, lo_front, lo_back, sig, tau_out, amp_out):
-    """:func:`transmit_kernel` of the arrays and scalars in the order
+                  r_bot, bore, g_front, g_back, lo_front, lo_back, sig, tau_out, amp_out,
+                  fast=False):
+    """:func:`transmit_kernel` (``fast``: :func:`transmit_fast_kernel`, the same legs
+    vectorised across scatterers) of the arrays and scalars in the order
     :class:`~sim_device.environment_source.EnvironmentSource` forms them."""
-    transmit_kernel(Points(sx, sy, sz, smed), samp, img,
-                    Medium(c, rho_m, delta, alpha, z_top, tab, r_top, r_bot, sig),
-                    Beam(bore, g_front, g_back, float(lo_front), float(lo_back)),
-                    TransmitLegs(tau_out, amp_out))
+    kernel = transmit_fast_kernel if fast else transmit_kernel
+    kernel(Points(sx, sy, sz, smed), samp, img,
+           Medium(c, rho_m, delta, alpha, z_top, tab, r_top, r_bot, sig),
+           Beam(bore, g_front, g_back, float(lo_front), float(lo_back)),
+           TransmitLegs(tau_out, amp_out))
 
 
 @nb.njit(parallel=True, cache=True)
@@ -819,6 +822,215 @@ def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tabf, nv, rt_re, rt_im, rb_r
         ar_im[ch] = pr * fi + pi * fr
         any_fix |= fix[ch]
     return any_fix
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy", inline="always")
+def _beam_scalars(g_front, g_back, lo_front, lo_back):
+    """(ng, 1/(1 - lo_front), nbk, 1/(1 - lo_back), lo_back) of a beam's tables for
+    :func:`_beam_pos` on the combined table (:func:`_beam_table`): without a back lobe
+    (a table of fewer than two nodes) lo_back = 2, which -cos_off never reaches."""
+    ng = g_front.size - 1
+    ilf = 1.0 / (1.0 - lo_front)
+    if g_back.size > 1:
+        return ng, ilf, g_back.size - 1, 1.0 / (1.0 - lo_back), lo_back
+    return ng, ilf, ng, 0.0, 2.0
+
+
+@nb.njit(cache=True)
+def _beam_table(g_front, g_back):
+    """One beam table: the main lobe, the back lobe (if any) and a pair of zeros (no
+    gain)."""
+    return np.concatenate((g_front, g_back if g_back.size > 1 else g_front[:0],
+                           np.zeros(2)))
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy")
+def _transmit_terms(k0, sx, sy, img_m, c0, c1, cmax, r0, r1, a0, a1, bore, lo_front,
+                    lo_back, ilf, ilb, ng, nbk, nr1, n_gtab, fix, wk):
+    """Loop 2 of :func:`_transmit_image`, as :func:`_medium_terms` with the scatterer's
+    depth per lane (``wk[8]``) and the source in the water: delay ``wk[9]``, amplitude
+    without the table factors ``wk[4]``, beam and interface table positions ``wk[2]``,
+    ``wk[3]``, ``wk[5]``, ``wk[6]``; ``wk[7]`` = 1 where the table's s fails its
+    residual check. Returns whether any did. ``img_m``: the projector image's row
+    (x, y, height, direction, R_s^n_s, n_b)."""
+    ex, ey, h0, d, rs = img_m[IMG_X], img_m[IMG_Y], img_m[IMG_H], img_m[IMG_DIR], img_m[IMG_RS]
+    b0 = bore[0]
+    b1 = bore[1]
+    b2 = bore[2]
+    off_b = ng + 1.0
+    off_z = n_gtab - 2.0
+    any_poor = False
+    for j in range(fix.size):
+        k = k0 + j
+        rho = wk[0, j]
+        s = wk[1, j]
+        z = wk[8, j]
+        tau, g0, ig0, ig1, s12, att, sinp, resid = _s_terms(s, rho, h0, z, cmax, r0, r1,
+                                                            c0, c1, a0, a1)
+        poor = (s >= TABLE_TRUSTED) & (resid > TABLE_RESIDUAL * (h0 + z)) & ~fix[j]
+        wk[7, j] = 1.0 if poor else 0.0
+        any_poor |= poor
+        wk[9, j] = tau
+        spread = c0 * ig0 / s12              # from a source in the water
+        irho = 1.0 / max(rho, 1e-300)
+        dx = sx[k] - ex
+        dy = sy[k] - ey
+        cos_off = sinp * (dx * b0 + dy * b1) * irho + d * g0 * b2
+        wk[4, j] = rs * spread * _exp_neg(att)
+        wk[2, j], wk[3, j] = _beam_pos(cos_off, lo_front, lo_back, ilf, ilb, ng, nbk,
+                                       off_b, off_z)
+        wk[5, j], wk[6, j] = _table_pos(sinp, nr1)
+    return any_poor
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy")
+def _transmit_image(k0, sx, sy, sz, smed, samp, m, img, c, alpha, tabf, nv, rt_re, rt_im,
+                    rb_re, rb_im, bore, gtab, lo_front, lo_back, ilf, ilb, ng, nbk,
+                    tau_out, amp_out, fix, wk):
+    """Transmit legs from projector image ``m`` (row of ``img``) to the scatterers
+    k0 .. k0 + fix.size - 1 of the first sediment (medium 1, z > 0) in vectorisable
+    loops, as :func:`_receive_legs` forms receive legs across channels: the geometry and
+    the two-medium table's coordinates, the table's s (gathers), the terms from s with
+    the residual check and Newton's method where the table is poor, the beam, 1 + R
+    down through the interface and the seabed bounces (gathers); the delay and the
+    amplitude times the scatterer's strength go to ``tau_out[k, m]``,
+    ``amp_out[k, m]``. Lanes the fast forms do not cover (other media, interface
+    scatterers, the table's checked region, a zero offset, more than two seabed
+    bounces) are marked in ``fix`` for :func:`leg`. Returns True if any lane was."""
+    n = fix.size
+    h0 = img[m, IMG_H]
+    n_b = int(img[m, IMG_NB])
+    if n_b > 2 or h0 <= 0.0 or c.size < 2 or rt_re.size != rb_re.size:
+        for j in range(n):
+            fix[j] = True
+        return True
+    ex = img[m, IMG_X]
+    ey = img[m, IMG_Y]
+    c0 = c[0]
+    c1 = c[1]
+    cmax = c0 if c0 > c1 else c1
+    r0 = c0 / cmax
+    r1 = c1 / cmax
+    nw = tabf.size // nv
+    nr1 = rb_re.size - 1
+    # 1a. geometry and the table's coordinates (lanes outside the first sediment get a
+    #     harmless depth and are marked)
+    for j in range(n):
+        k = k0 + j
+        ok = (smed[k] == 1) & (sz[k] > 0.0)
+        z = sz[k] if ok else 1.0
+        dx = sx[k] - ex
+        dy = sy[k] - ey
+        rho = math.sqrt(dx * dx + dy * dy)
+        d_all = h0 + z
+        x = h0 / d_all * (nw - 1)
+        y = rho / (rho + d_all) * (nv - 1)
+        xi = min(max(np.floor(x), 0.0), nw - 2.0)
+        yj = min(max(np.floor(y), 0.0), nv - 2.0)
+        wk[0, j] = rho
+        wk[8, j] = z
+        wk[5, j] = xi * nv + yj
+        wk[6, j] = x - xi
+        wk[7, j] = y - yj
+        fix[j] = not ok
+    # 1b. the bilinear look-up of s = p c_max (gathers)
+    for j in range(n):
+        o = int(wk[5, j])
+        fx = wk[6, j]
+        fy = wk[7, j]
+        s = ((1.0 - fx) * ((1.0 - fy) * tabf[o] + fy * tabf[o + 1])
+             + fx * ((1.0 - fy) * tabf[o + nv] + fy * tabf[o + nv + 1]))
+        bad = (s >= TABLE_CEILING) | (wk[0, j] <= 0.0) | fix[j]
+        wk[1, j] = 0.5 if bad else s
+        fix[j] = bad
+    # 2. the terms from s; Newton's method where the table's s is poor, then again
+    img_m = img[m]
+    if _transmit_terms(k0, sx, sy, img_m, c0, c1, cmax, r0, r1, alpha[0], alpha[1], bore,
+                       lo_front, lo_back, ilf, ilb, ng, nbk, nr1, gtab.size, fix, wk):
+        for j in range(n):
+            if wk[7, j] == 0.0:
+                continue
+            s, conv = _newton_one(wk[1, j], wk[0, j], h0, wk[8, j], r0, r1)
+            if conv:
+                wk[1, j] = s
+            else:
+                fix[j] = True
+            wk[7, j] = 0.0
+        _transmit_terms(k0, sx, sy, img_m, c0, c1, cmax, r0, r1, alpha[0], alpha[1], bore,
+                        lo_front, lo_back, ilf, ilb, ng, nbk, nr1, gtab.size, fix, wk)
+    # 3. beam gain, transmission 1 + R down through the interface, seabed bounces
+    any_fix = False
+    for j in range(n):
+        if fix[j]:
+            any_fix = True
+            continue
+        i = int(wk[2, j])
+        f = wk[3, j]
+        a = (gtab[i] + f * (gtab[i + 1] - gtab[i])) * wk[4, j]
+        i = int(wk[5, j])
+        f = wk[6, j]
+        pr = a * (1.0 + (rt_re[i] + f * (rt_re[i + 1] - rt_re[i])))
+        pi = a * (rt_im[i] + f * (rt_im[i + 1] - rt_im[i]))
+        if n_b > 0:
+            re = rb_re[i] + f * (rb_re[i + 1] - rb_re[i])
+            im = rb_im[i] + f * (rb_im[i + 1] - rb_im[i])
+            fr = re if n_b == 1 else re * re - im * im
+            fi = im if n_b == 1 else 2.0 * re * im
+            pr, pi = pr * fr - pi * fi, pr * fi + pi * fr
+        k = k0 + j
+        tau_out[k, m] = wk[9, j]
+        amp_out[k, m] = complex(pr, pi) * samp[k]
+    return any_fix
+
+
+@nb.njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
+def transmit_fast_kernel(pts, samp, img, medium, beam, out):
+    """Pass 1 as :func:`transmit_kernel` (the same legs: delays and amplitudes to float64
+    rounding, the attenuation's exponential to < 1e-12 relative for realistic paths),
+    the legs of scatterers in the first sediment vectorised across scatterers
+    (:func:`_transmit_image`, chunks of 256 per thread), the others by the scalar
+    :func:`leg`."""
+    sx, sy, sz, smed = pts
+    c, rho_m, delta, alpha, z_top, tab, r_top, r_bot, sig = medium
+    bore, g_front, g_back, lo_front, lo_back = beam
+    tau_out, amp_out = out
+    ns = sx.size
+    nt = img.shape[0]
+    nmed = c.size
+    rt_re = np.ascontiguousarray(r_top.real)
+    rt_im = np.ascontiguousarray(r_top.imag)
+    rb_re = np.ascontiguousarray(r_bot.real)
+    rb_im = np.ascontiguousarray(r_bot.imag)
+    tabf = np.ascontiguousarray(tab).reshape(-1)
+    nv = tab.shape[1]
+    gtab = _beam_table(g_front, g_back)
+    ng, ilf, nbk, ilb, lob = _beam_scalars(g_front, g_back, lo_front, lo_back)
+    chunk = 256
+    for q in nb.prange((ns + chunk - 1) // chunk):
+        k0 = q * chunk
+        n = min(ns, k0 + chunk) - k0
+        hbuf = np.empty(nmed + 1)
+        cbuf = np.empty(2)
+        fix = np.zeros(n, dtype=np.bool_)
+        wk = np.empty((10, n))
+        for m in range(nt):
+            if not _transmit_image(k0, sx, sy, sz, smed, samp, m, img, c, alpha, tabf, nv,
+                                   rt_re, rt_im, rb_re, rb_im, bore, gtab, lo_front, lob,
+                                   ilf, ilb, ng, nbk, tau_out, amp_out, fix, wk):
+                continue
+            for j in range(n):
+                if not fix[j]:
+                    continue
+                k = k0 + j
+                tau, a, cg = leg_body(img[m, IMG_X], img[m, IMG_Y], img[m, IMG_H],
+                                      img[m, IMG_DIR], img[m, IMG_RS], int(img[m, IMG_NB]),
+                                      sx[k], sy[k], sz[k], smed[k], False, c, rho_m, delta,
+                                      alpha, z_top, tab, r_top, r_bot, bore, g_front,
+                                      g_back, lo_front, lo_back, hbuf, cbuf)
+                if smed[k] == MED_INTERFACE and a != 0.0:
+                    a *= _interp(sig, cg)
+                tau_out[k, m] = tau
+                amp_out[k, m] = a * samp[k]
 
 
 @nb.njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
