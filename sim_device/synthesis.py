@@ -1072,7 +1072,9 @@ def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_block
     nv = tab.shape[1]
     gtab = np.concatenate((g_front, g_back if g_back.size > 1 else g_front[:0],
                            np.zeros(2)))
-    bufs = np.zeros((n_blocks, n_buf, nch), dtype=np.complex64)
+    # per block: (channel, sample) with the real and imaginary parts interleaved, so
+    # that an echo's four taps are eight neighbouring floats
+    bufs = np.zeros((n_blocks, nch, 2 * n_buf), dtype=np.float32)
     counts = np.zeros(n_blocks, dtype=np.int64)
     chunk = 64
     n_chunks = (ns + chunk - 1) // chunk
@@ -1085,7 +1087,7 @@ def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_block
         ar_im = np.empty(nch)
         fix = np.zeros(nch, dtype=np.bool_)
         wk = np.empty((8, nch))
-        e_i = np.empty(nch)
+        e_i = np.empty(nch, dtype=np.int32)
         e_w = np.empty((nch, 4), dtype=np.float32)
         e_re = np.empty(nch, dtype=np.float32)
         e_im = np.empty(nch, dtype=np.float32)
@@ -1161,19 +1163,29 @@ def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_block
                         for ch in range(nch):
                             if not e_ok[ch]:
                                 continue
-                            i1 = int(e_i[ch])
                             re = e_re[ch]
                             im = e_im[ch]
-                            for j in range(4):
-                                buf[i1 - 1 + j, ch] += np.complex64(
-                                    complex(re * e_w[ch, j], im * e_w[ch, j]))
+                            # unsigned: no negative-index wrap-around per tap
+                            o = np.uint64(e_i[ch]) * np.uint64(2) - np.uint64(2)
+                            w0 = e_w[ch, 0]
+                            w1 = e_w[ch, 1]
+                            w2 = e_w[ch, 2]
+                            w3 = e_w[ch, 3]
+                            buf[ch, o] += re * w0
+                            buf[ch, o + np.uint64(1)] += im * w0
+                            buf[ch, o + np.uint64(2)] += re * w1
+                            buf[ch, o + np.uint64(3)] += im * w1
+                            buf[ch, o + np.uint64(4)] += re * w2
+                            buf[ch, o + np.uint64(5)] += im * w2
+                            buf[ch, o + np.uint64(6)] += re * w3
+                            buf[ch, o + np.uint64(7)] += im * w3
                             n_add += 1
         counts[blk] = n_add
     out = np.zeros((nch, n_buf), dtype=np.complex128)
     for ch in nb.prange(nch):
         for blk in range(n_blocks):
             for j in range(n_buf):
-                out[ch, j] += bufs[blk, j, ch]
+                out[ch, j] += complex(bufs[blk, ch, 2 * j], bufs[blk, ch, 2 * j + 1])
     return out, counts
 
 
