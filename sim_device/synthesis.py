@@ -50,6 +50,10 @@ from types import SimpleNamespace
 import numba as nb
 import numpy as np
 import scipy.fft as sfft
+from llvmlite import ir as llvm_ir
+from numba import types as nbtypes
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from svss_daq.conventions import baseband_carrier, remodulation
 from svss_daq.waveform import Waveform
@@ -500,6 +504,48 @@ class PulseSynthesiser:
 # bundle passed on into the functions the loops call costs an atomic reference count per
 # array per call and the loop unswitching LLVM does otherwise (docs/simulator.md,
 # "Bundled kernels and speed").
+
+
+@intrinsic
+def _add_taps(typingctx, buf, row, col, re, im, w0, w1, w2, w3):
+    """buf[row, col:col + 8] += (re w0, im w0, re w1, im w1, re w2, im w2, re w3, im w3)
+    for a C-contiguous float32 ``buf`` (an echo's four Lagrange taps, real and imaginary
+    parts interleaved), as one <8 x float> multiply-add: numba leaves LLVM's SLP
+    vectoriser off and the eight scalar adds unvectorised. Generic LLVM vector IR (on
+    AVX: one 256-bit load, fused multiply-add and store; split on narrower targets);
+    no bounds or negative-index checks (the caller's index is in the buffer)."""
+    sig = nbtypes.void(buf, row, col, re, im, w0, w1, w2, w3)
+
+    def codegen(context, builder, signature, args):
+        arrty = signature.args[0]
+        ary = context.make_array(arrty)(context, builder, args[0])
+        inds = [context.cast(builder, v, t, nbtypes.intp)
+                for v, t in zip(args[1:3], signature.args[1:3])]
+        ptr = cgutils.get_item_pointer2(context, builder, data=ary.data,
+                                        shape=cgutils.unpack_tuple(builder, ary.shape),
+                                        strides=cgutils.unpack_tuple(builder, ary.strides),
+                                        layout=arrty.layout, inds=inds, wraparound=False,
+                                        boundscheck=False)
+        v8 = llvm_ir.VectorType(llvm_ir.FloatType(), 8)
+        re_, im_, *w = (context.cast(builder, v, t, nbtypes.float32)
+                        for v, t in zip(args[3:], signature.args[3:]))
+        x = llvm_ir.Constant(v8, llvm_ir.Undefined)
+        y = llvm_ir.Constant(v8, llvm_ir.Undefined)
+        for j in range(8):
+            lane = llvm_ir.Constant(llvm_ir.IntType(32), j)
+            x = builder.insert_element(x, re_ if j % 2 == 0 else im_, lane)
+            y = builder.insert_element(y, w[j // 2], lane)
+        vptr = builder.bitcast(ptr, v8.as_pointer())
+        fmuladd = cgutils.get_or_insert_function(
+            builder.module, llvm_ir.FunctionType(v8, [v8, v8, v8]), "llvm.fmuladd.v8f32")
+        builder.store(builder.call(fmuladd, [x, y, builder.load(vptr, align=4)]), vptr,
+                      align=4)
+        return context.get_dummy_value()
+
+    if not (isinstance(buf, nbtypes.Array) and buf.dtype == nbtypes.float32
+            and buf.ndim == 2 and buf.layout == "C"):
+        return None
+    return sig, codegen
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy", inline="always")
@@ -1165,20 +1211,8 @@ def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_block
                                 continue
                             re = e_re[ch]
                             im = e_im[ch]
-                            # unsigned: no negative-index wrap-around per tap
-                            o = np.uint64(e_i[ch]) * np.uint64(2) - np.uint64(2)
-                            w0 = e_w[ch, 0]
-                            w1 = e_w[ch, 1]
-                            w2 = e_w[ch, 2]
-                            w3 = e_w[ch, 3]
-                            buf[ch, o] += re * w0
-                            buf[ch, o + np.uint64(1)] += im * w0
-                            buf[ch, o + np.uint64(2)] += re * w1
-                            buf[ch, o + np.uint64(3)] += im * w1
-                            buf[ch, o + np.uint64(4)] += re * w2
-                            buf[ch, o + np.uint64(5)] += im * w2
-                            buf[ch, o + np.uint64(6)] += re * w3
-                            buf[ch, o + np.uint64(7)] += im * w3
+                            _add_taps(buf, ch, 2 * e_i[ch] - 2, re, im, e_w[ch, 0],
+                                      e_w[ch, 1], e_w[ch, 2], e_w[ch, 3])
                             n_add += 1
         counts[blk] = n_add
     out = np.zeros((nch, n_buf), dtype=np.complex128)
