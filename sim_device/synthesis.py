@@ -548,6 +548,17 @@ def _add_taps(typingctx, buf, row, col, re, im, w0, w1, w2, w3):
     return sig, codegen
 
 
+#: one, unsigned (an unsigned index + _U1 stays unsigned)
+_U1 = np.uint64(1)
+
+
+@nb.njit(cache=True, fastmath=True, error_model="numpy", inline="always")
+def _uidx(x):
+    """A table position held as a float (>= 0) as an unsigned index: numba checks signed
+    indices for negative values (wrap-around) on every access, unsigned ones not."""
+    return np.uint64(np.int64(x))
+
+
 @nb.njit(cache=True, fastmath=True, error_model="numpy", inline="always")
 def _idx(u, n1):
     """Index and fraction of u (clamped to [0, 1]) on a uniform table of n1 + 1 nodes:
@@ -822,13 +833,15 @@ def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tabf, nv, rt_re, rt_im, rb_r
         wk[5, ch] = xi * nv + yj
         wk[6, ch] = x - xi
         wk[7, ch] = y - yj
-    # 1b. the bilinear look-up of s = p c_max (gathers)
+    # 1b. the bilinear look-up of s = p c_max (gathers; unsigned indices: no
+    #     negative-index wrap-around)
+    unv = np.uint64(nv)
     for ch in range(nch):
-        o = int(wk[5, ch])
+        o = _uidx(wk[5, ch])
         fx = wk[6, ch]
         fy = wk[7, ch]
-        s = ((1.0 - fx) * ((1.0 - fy) * tabf[o] + fy * tabf[o + 1])
-             + fx * ((1.0 - fy) * tabf[o + nv] + fy * tabf[o + nv + 1]))
+        s = ((1.0 - fx) * ((1.0 - fy) * tabf[o] + fy * tabf[o + _U1])
+             + fx * ((1.0 - fy) * tabf[o + unv] + fy * tabf[o + unv + _U1]))
         bad = (s >= TABLE_CEILING) | (wk[0, ch] <= 0.0) | (imt[b, IMG_H, ch] <= 0.0)
         wk[1, ch] = 0.5 if bad else s
         fix[ch] = bad
@@ -843,25 +856,25 @@ def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tabf, nv, rt_re, rt_im, rb_r
     # 3. beam gain, transmission 1 - R up through the interface, seabed bounces (gathers)
     if n_b == 0:
         for ch in range(nch):
-            i = int(wk[2, ch])
+            i = _uidx(wk[2, ch])
             f = wk[3, ch]
-            a = (gtab[i] + f * (gtab[i + 1] - gtab[i])) * wk[4, ch]
-            i = int(wk[5, ch])
+            a = (gtab[i] + f * (gtab[i + _U1] - gtab[i])) * wk[4, ch]
+            i = _uidx(wk[5, ch])
             f = wk[6, ch]
-            ar_re[ch] = a * (1.0 - (rt_re[i] + f * (rt_re[i + 1] - rt_re[i])))
-            ar_im[ch] = -a * (rt_im[i] + f * (rt_im[i + 1] - rt_im[i]))
+            ar_re[ch] = a * (1.0 - (rt_re[i] + f * (rt_re[i + _U1] - rt_re[i])))
+            ar_im[ch] = -a * (rt_im[i] + f * (rt_im[i + _U1] - rt_im[i]))
             any_fix |= fix[ch]
         return any_fix
     for ch in range(nch):
-        i = int(wk[2, ch])
+        i = _uidx(wk[2, ch])
         f = wk[3, ch]
-        a = (gtab[i] + f * (gtab[i + 1] - gtab[i])) * wk[4, ch]
-        i = int(wk[5, ch])
+        a = (gtab[i] + f * (gtab[i + _U1] - gtab[i])) * wk[4, ch]
+        i = _uidx(wk[5, ch])
         f = wk[6, ch]
-        pr = a * (1.0 - (rt_re[i] + f * (rt_re[i + 1] - rt_re[i])))
-        pi = -a * (rt_im[i] + f * (rt_im[i + 1] - rt_im[i]))
-        re = rb_re[i] + f * (rb_re[i + 1] - rb_re[i])
-        im = rb_im[i] + f * (rb_im[i + 1] - rb_im[i])
+        pr = a * (1.0 - (rt_re[i] + f * (rt_re[i + _U1] - rt_re[i])))
+        pi = -a * (rt_im[i] + f * (rt_im[i + _U1] - rt_im[i]))
+        re = rb_re[i] + f * (rb_re[i + _U1] - rb_re[i])
+        im = rb_im[i] + f * (rb_im[i + _U1] - rb_im[i])
         fr = re if n_b == 1 else re * re - im * im
         fi = im if n_b == 1 else 2.0 * re * im
         ar_re[ch] = pr * fr - pi * fi
@@ -979,13 +992,14 @@ def _transmit_image(k0, sx, sy, sz, smed, samp, m, img, c, alpha, tabf, nv, rt_r
         wk[6, j] = x - xi
         wk[7, j] = y - yj
         fix[j] = not ok
-    # 1b. the bilinear look-up of s = p c_max (gathers)
+    # 1b. the bilinear look-up of s = p c_max (gathers; unsigned indices)
+    unv = np.uint64(nv)
     for j in range(n):
-        o = int(wk[5, j])
+        o = _uidx(wk[5, j])
         fx = wk[6, j]
         fy = wk[7, j]
-        s = ((1.0 - fx) * ((1.0 - fy) * tabf[o] + fy * tabf[o + 1])
-             + fx * ((1.0 - fy) * tabf[o + nv] + fy * tabf[o + nv + 1]))
+        s = ((1.0 - fx) * ((1.0 - fy) * tabf[o] + fy * tabf[o + _U1])
+             + fx * ((1.0 - fy) * tabf[o + unv] + fy * tabf[o + unv + _U1]))
         bad = (s >= TABLE_CEILING) | (wk[0, j] <= 0.0) | fix[j]
         wk[1, j] = 0.5 if bad else s
         fix[j] = bad
@@ -1010,16 +1024,16 @@ def _transmit_image(k0, sx, sy, sz, smed, samp, m, img, c, alpha, tabf, nv, rt_r
         if fix[j]:
             any_fix = True
             continue
-        i = int(wk[2, j])
+        i = _uidx(wk[2, j])
         f = wk[3, j]
-        a = (gtab[i] + f * (gtab[i + 1] - gtab[i])) * wk[4, j]
-        i = int(wk[5, j])
+        a = (gtab[i] + f * (gtab[i + _U1] - gtab[i])) * wk[4, j]
+        i = _uidx(wk[5, j])
         f = wk[6, j]
-        pr = a * (1.0 + (rt_re[i] + f * (rt_re[i + 1] - rt_re[i])))
-        pi = a * (rt_im[i] + f * (rt_im[i + 1] - rt_im[i]))
+        pr = a * (1.0 + (rt_re[i] + f * (rt_re[i + _U1] - rt_re[i])))
+        pi = a * (rt_im[i] + f * (rt_im[i + _U1] - rt_im[i]))
         if n_b > 0:
-            re = rb_re[i] + f * (rb_re[i + 1] - rb_re[i])
-            im = rb_im[i] + f * (rb_im[i + 1] - rb_im[i])
+            re = rb_re[i] + f * (rb_re[i + _U1] - rb_re[i])
+            im = rb_im[i] + f * (rb_im[i + _U1] - rb_im[i])
             fr = re if n_b == 1 else re * re - im * im
             fi = im if n_b == 1 else 2.0 * re * im
             pr, pi = pr * fr - pi * fi, pr * fi + pi * fr
