@@ -634,10 +634,10 @@ def _table_pos(u, n1):
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy")
-def _medium_terms(geo, imt, tr, fix, wk):
+def _medium_terms(geo, imt, fix, wk):
     """Loop 2 of :func:`_receive_legs` (water over the first sediment): from the table's
     s (``wk[1]``) and the offset (``wk[0]``) of every channel of element image ``b``,
-    the delay (``tr``), the amplitude without the table factors (``wk[4]``) and the
+    the delay (``wk[8]``), the amplitude without the table factors (``wk[4]``) and the
     positions on the beam and interface tables (``wk[2]``, ``wk[3]``, ``wk[5]``,
     ``wk[6]``); ``wk[7]`` = 1 where the table's s fails its residual check (and the leg
     is not already marked in ``fix``). Returns whether any did. ``geo``: the scatterer
@@ -645,7 +645,7 @@ def _medium_terms(geo, imt, tr, fix, wk):
     counts)."""
     (xk, yk, zk, b, c0, c1, cmax, r0, r1, a0, a1, b0, b1, b2, lo_front, lo_back, ilf, ilb,
      ng, nbk, nr1, n_gtab) = geo
-    nch = tr.size
+    nch = fix.size
     # 2. two_medium_terms in s: the cosines g_i = sqrt(1 - (s r_i)^2), independent of
     #    each other (relative rounding ~1e-16 / (1 - s^2), below 1e-10 under
     #    TABLE_CEILING); from TABLE_TRUSTED up, the table's s is kept where its offset
@@ -665,7 +665,7 @@ def _medium_terms(geo, imt, tr, fix, wk):
         poor = (s >= TABLE_TRUSTED) & (resid > TABLE_RESIDUAL * (h0 + zk)) & ~fix[ch]
         wk[7, ch] = 1.0 if poor else 0.0
         any_poor |= poor
-        tr[ch] = tau
+        wk[8, ch] = tau
         spread = c1 * ig1 / s12              # from a source in the sediment
         irho = 1.0 / max(rho, 1e-300)
         dx = xk - imt[b, IMG_X, ch]
@@ -731,33 +731,24 @@ def _newton_s(zk, b, imt, r0, r1, fix, wk):
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy")
-def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tabf, nv, rt_re, rt_im, rb_re, rb_im,
-                  bore, g_front, g_back, gtab, lo_front, lo_back, sig, tr, ar_re, ar_im, fix,
-                  wk):
+def _receive_legs(xk, yk, zk, mk, b, imt, ms, tabf, nv, itab, gtab, sig, fix, wk):
     """Receive legs of one scatterer through element image ``b`` to every channel
-    (vectorisable loops): delay ``tr``, complex amplitude (``ar_re``, ``ar_im``) as
+    (vectorisable loops): delay ``wk[8]``, complex amplitude (``wk[9]``, ``wk[10]``) as
     :func:`leg` (times sigma^(1/4) for interface scatterers). Channels the fast forms
     do not cover (the two-medium table's checked region, a zero range, other media)
-    are marked in ``fix`` for :func:`leg`. Returns True if any channel was marked."""
-    nch = tr.size
-    c0 = c[0]
-    b0 = bore[0]
-    b1 = bore[1]
-    b2 = bore[2]
+    are marked in ``fix`` for :func:`leg`. Returns True if any channel was marked.
+    ``ms``: the medium's and the beam's scalars (:func:`_receive_scalars`); ``itab``:
+    rows r_top.real, r_top.imag, r_bot.real, r_bot.imag over cos(grazing); ``gtab``:
+    :func:`_beam_table`. Few arrays: numba keeps a reference count per array argument
+    of a function that branches around loops (an atomic increment and decrement per
+    call)."""
+    c0, c1, nmed, a0, a1, b0, b1, b2, lo_front, lo_back, ilf, ilb, ng, nbk = ms
+    nch = fix.size
     any_fix = False
-    # table sizes and scales (the back-lobe table may be empty: then it is never used)
-    ng = g_front.size - 1
-    ilf = 1.0 / (1.0 - lo_front)
-    if g_back.size > 1:
-        nbk = g_back.size - 1
-        ilb = 1.0 / (1.0 - lo_back)
-    else:
-        g_back = g_front
-        nbk = ng
-        ilb = 0.0
-        lo_back = 2.0
-    nr1 = rb_re.size - 1
+    nr1 = itab.shape[1] - 1
     ns1 = sig.size - 1
+    off_b = ng + 1.0
+    off_z = gtab.size - 2.0
     n_b = int(imt[b, IMG_NB, 0])
     if n_b > 2:
         for ch in range(nch):
@@ -765,7 +756,6 @@ def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tabf, nv, rt_re, rt_im, rb_r
         return True
     if mk <= 0:
         zz = zk if mk == 0 else 0.0
-        a0 = alpha[0]
         for ch in range(nch):
             dx = xk - imt[b, IMG_X, ch]
             dy = yk - imt[b, IMG_Y, ch]
@@ -779,15 +769,13 @@ def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tabf, nv, rt_re, rt_im, rb_r
             tau = r / c0
             sinp = math.sqrt(rho2) * ir
             cos_off = (dx * b0 + dy * b1) * ir + d * v * ir * b2
-            i, f = _idx((cos_off - lo_front) * ilf, ng)
-            gf = g_front[i] + f * (g_front[i + 1] - g_front[i])
-            i, f = _idx((-cos_off - lo_back) * ilb, nbk)
-            gb = g_back[i] + f * (g_back[i + 1] - g_back[i])
-            g = gf if cos_off >= lo_front else (gb if -cos_off >= lo_back else 0.0)
+            x, f = _beam_pos(cos_off, lo_front, lo_back, ilf, ilb, ng, nbk, off_b, off_z)
+            i = _uidx(x)
+            g = gtab[i] + f * (gtab[i + _U1] - gtab[i])
             a = g * imt[b, IMG_RS, ch] * ir * _exp_neg(a0 * r)
             i, f = _idx(sinp, nr1)
-            re = rb_re[i] + f * (rb_re[i + 1] - rb_re[i])
-            im = rb_im[i] + f * (rb_im[i + 1] - rb_im[i])
+            re = itab[2, i] + f * (itab[2, i + 1] - itab[2, i])
+            im = itab[3, i] + f * (itab[3, i + 1] - itab[3, i])
             fr = 1.0 if n_b == 0 else (re if n_b == 1 else re * re - im * im)
             fi = 0.0 if n_b == 0 else (im if n_b == 1 else 2.0 * re * im)
             pr = a * fr
@@ -797,22 +785,19 @@ def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tabf, nv, rt_re, rt_im, rb_r
                 sg = sig[i] + f * (sig[i + 1] - sig[i])
                 pr *= sg
                 pi *= sg
-            tr[ch] = tau
-            ar_re[ch] = pr
-            ar_im[ch] = pi
+            wk[8, ch] = tau
+            wk[9, ch] = pr
+            wk[10, ch] = pi
             fix[ch] = r == 0.0
             any_fix |= r == 0.0
         return any_fix
-    if mk != 1 or c.size < 2:
+    if mk != 1 or nmed < 2:
         for ch in range(nch):
             fix[ch] = True
         return True
-    c1 = c[1]
     cmax = c0 if c0 > c1 else c1
     r0 = c0 / cmax
     r1 = c1 / cmax
-    a0 = alpha[0]
-    a1 = alpha[1]
     nw = tabf.size // nv
     # the loops are split so that everything but the table look-ups vectorises across
     # channels; the look-ups (gathers) run in loops of their own. Table positions are
@@ -850,9 +835,9 @@ def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tabf, nv, rt_re, rt_im, rb_r
     #    evaluated again
     geo = (xk, yk, zk, b, c0, c1, cmax, r0, r1, a0, a1, b0, b1, b2, lo_front, lo_back, ilf,
            ilb, ng, nbk, nr1, gtab.size)
-    if _medium_terms(geo, imt, tr, fix, wk):
+    if _medium_terms(geo, imt, fix, wk):
         _newton_s(zk, b, imt, r0, r1, fix, wk)
-        _medium_terms(geo, imt, tr, fix, wk)
+        _medium_terms(geo, imt, fix, wk)
     # 3. beam gain, transmission 1 - R up through the interface, seabed bounces (gathers)
     if n_b == 0:
         for ch in range(nch):
@@ -861,8 +846,8 @@ def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tabf, nv, rt_re, rt_im, rb_r
             a = (gtab[i] + f * (gtab[i + _U1] - gtab[i])) * wk[4, ch]
             i = _uidx(wk[5, ch])
             f = wk[6, ch]
-            ar_re[ch] = a * (1.0 - (rt_re[i] + f * (rt_re[i + _U1] - rt_re[i])))
-            ar_im[ch] = -a * (rt_im[i] + f * (rt_im[i + _U1] - rt_im[i]))
+            wk[9, ch] = a * (1.0 - (itab[0, i] + f * (itab[0, i + _U1] - itab[0, i])))
+            wk[10, ch] = -a * (itab[1, i] + f * (itab[1, i + _U1] - itab[1, i]))
             any_fix |= fix[ch]
         return any_fix
     for ch in range(nch):
@@ -871,14 +856,14 @@ def _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tabf, nv, rt_re, rt_im, rb_r
         a = (gtab[i] + f * (gtab[i + _U1] - gtab[i])) * wk[4, ch]
         i = _uidx(wk[5, ch])
         f = wk[6, ch]
-        pr = a * (1.0 - (rt_re[i] + f * (rt_re[i + _U1] - rt_re[i])))
-        pi = -a * (rt_im[i] + f * (rt_im[i + _U1] - rt_im[i]))
-        re = rb_re[i] + f * (rb_re[i + _U1] - rb_re[i])
-        im = rb_im[i] + f * (rb_im[i + _U1] - rb_im[i])
+        pr = a * (1.0 - (itab[0, i] + f * (itab[0, i + _U1] - itab[0, i])))
+        pi = -a * (itab[1, i] + f * (itab[1, i + _U1] - itab[1, i]))
+        re = itab[2, i] + f * (itab[2, i + _U1] - itab[2, i])
+        im = itab[3, i] + f * (itab[3, i + _U1] - itab[3, i])
         fr = re if n_b == 1 else re * re - im * im
         fi = im if n_b == 1 else 2.0 * re * im
-        ar_re[ch] = pr * fr - pi * fi
-        ar_im[ch] = pr * fi + pi * fr
+        wk[9, ch] = pr * fr - pi * fi
+        wk[10, ch] = pr * fi + pi * fr
         any_fix |= fix[ch]
     return any_fix
 
@@ -901,6 +886,32 @@ def _beam_table(g_front, g_back):
     gain)."""
     return np.concatenate((g_front, g_back if g_back.size > 1 else g_front[:0],
                            np.zeros(2)))
+
+
+@nb.njit(cache=True)
+def _interface_tables(r_top, r_bot):
+    """The interface's reflection tables as one array for the fast kernels' look-ups:
+    rows r_top.real, r_top.imag, r_bot.real, r_bot.imag (the same cos(grazing) grid)."""
+    if r_top.size != r_bot.size:
+        raise ValueError("the interface's reflection tables differ in size")
+    t = np.empty((4, r_top.size))
+    t[0, :] = r_top.real
+    t[1, :] = r_top.imag
+    t[2, :] = r_bot.real
+    t[3, :] = r_bot.imag
+    return t
+
+
+@nb.njit(cache=True, inline="always")
+def _receive_scalars(c, alpha, bore, g_front, g_back, lo_front, lo_back):
+    """The scalars :func:`_receive_legs` takes (one tuple: no reference counts): sound
+    speeds and attenuations of the water and the first sediment (the water's again
+    where there is none), the number of media, the boresight and the beam's
+    :func:`_beam_scalars`."""
+    ng, ilf, nbk, ilb, lob = _beam_scalars(g_front, g_back, lo_front, lo_back)
+    two = c.size > 1
+    return (c[0], c[1] if two else c[0], c.size, alpha[0], alpha[1] if two else 0.0,
+            bore[0], bore[1], bore[2], lo_front, lob, ilf, ilb, ng, nbk)
 
 
 @nb.njit(cache=True, fastmath=True, error_model="numpy")
@@ -1122,16 +1133,13 @@ def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_block
         for b in range(nr):
             for j in range(6):
                 imt[b, j, ch] = img[ch, b, j]
-    rt_re = np.ascontiguousarray(r_top.real)
-    rt_im = np.ascontiguousarray(r_top.imag)
-    rb_re = np.ascontiguousarray(r_bot.real)
-    rb_im = np.ascontiguousarray(r_bot.imag)
+    itab = _interface_tables(r_top, r_bot)
+    ms = _receive_scalars(c, alpha, bore, g_front, g_back, lo_front, lo_back)
     # the two-medium table flattened, and one beam table: the main lobe, the back lobe
     # (if any) and a pair of zeros (no gain)
     tabf = np.ascontiguousarray(tab).reshape(-1)
     nv = tab.shape[1]
-    gtab = np.concatenate((g_front, g_back if g_back.size > 1 else g_front[:0],
-                           np.zeros(2)))
+    gtab = _beam_table(g_front, g_back)
     # per block: (channel, sample) with the real and imaginary parts interleaved, so
     # that an echo's four taps are eight neighbouring floats
     bufs = np.zeros((n_blocks, nch, 2 * n_buf), dtype=np.float32)
@@ -1142,11 +1150,11 @@ def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_block
         hbuf = np.empty(nmed + 1)
         cbuf = np.empty(2)
         need = np.zeros(nr, dtype=np.bool_)
-        tr = np.empty(nch)
-        ar_re = np.empty(nch)
-        ar_im = np.empty(nch)
         fix = np.zeros(nch, dtype=np.bool_)
-        wk = np.empty((8, nch))
+        wk = np.empty((11, nch))
+        tr = wk[8]              # the receive legs: delay, amplitude (re, im)
+        ar_re = wk[9]
+        ar_im = wk[10]
         e_i = np.empty(nch, dtype=np.int32)
         e_w = np.empty((nch, 4), dtype=np.float32)
         e_re = np.empty(nch, dtype=np.float32)
@@ -1174,9 +1182,8 @@ def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_block
                 for b in range(nr):
                     if not need[b]:
                         continue
-                    if _receive_legs(xk, yk, zk, mk, b, imt, c, alpha, tabf, nv, rt_re,
-                                     rt_im, rb_re, rb_im, bore, g_front, g_back, gtab,
-                                     lo_front, lo_back, sig, tr, ar_re, ar_im, fix, wk):
+                    if _receive_legs(xk, yk, zk, mk, b, imt, ms, tabf, nv, itab, gtab,
+                                     sig, fix, wk):
                         for ch in range(nch):
                             if not fix[ch]:
                                 continue
