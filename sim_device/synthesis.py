@@ -21,9 +21,12 @@ s_bb(t) = s_a(t) exp(-j 2 pi f_c t) and remodulates. The baseband pulse occupies
 accurate to ~-90 dB; only the pulse's out-of-band edges (the taper's pedestal) are
 band-limited, as a real digitiser's anti-alias filter would.
 
-Pass 1 (:func:`transmit_kernel`) evaluates every scatterer's transmit legs. Pass 2 has
-two implementations that form the same echoes: :func:`accumulate_fast_kernel` (the
-default: scatterer-parallel into per-thread complex64 buffers, the receive legs of one
+Pass 1 evaluates every scatterer's transmit legs: :func:`transmit_kernel` (the
+reference: the scalar :func:`leg` per scatterer and projector image) or
+:func:`transmit_fast_kernel` (the fast path's: the legs of first-sediment scatterers
+vectorised across scatterers, as pass 2 vectorises receive legs across channels). Pass 2
+has two implementations that form the same echoes: :func:`accumulate_fast_kernel` (the
+default: scatterer-parallel into per-thread float32 buffers, the receive legs of one
 scatterer vectorised across channels; see the comment above it) and
 :func:`accumulate_kernel` (the reference: parallel over channels, so no two threads write
 the same buffer); :mod:`sim_device.synthesis_gpu` runs pass 2 on a GPU. Geometry is in
@@ -492,13 +495,17 @@ class PulseSynthesiser:
 # receive image's legs are evaluated for all channels in one inner loop (the reference's
 # scalar leg, :func:`leg_body`, where the vectorised forms do not apply; element-image
 # rows transposed so the channel loop reads contiguous memory), then every kept transmit
-# image's echoes for all channels are formed and added to the thread's own complex64
-# buffer, laid out (sample, channel) so that one scatterer's echoes on neighbouring
-# channels land in neighbouring memory. The threads' buffers are summed at the end. It
+# image's echoes for all channels are formed (vectorised) and added to the thread's own
+# float32 buffer, laid out (channel, sample) with each sample's real and imaginary parts
+# side by side, so that an echo's four Lagrange taps are eight neighbouring floats, added
+# as one vector multiply-add (:func:`_add_taps`). The threads' buffers are summed at the
+# end. Table look-ups use unsigned indices (:func:`_uidx`): numba guards every signed
+# index against negative values, which in the look-up loops cost about as much as the
+# look-ups. It
 # does not share the echo loop: a loop over one channel's echoes cannot be vectorised
 # across channels, which is this kernel's speed. The echoes and their delays, amplitudes
 # and phases are those of the reference to float64 rounding; only the accumulation is
-# float32 (complex64), so the two paths agree to float32 rounding.
+# float32, so the two paths agree to float32 rounding.
 #
 # Every kernel unpacks its bundles at its top and its loops see plain arrays only: a
 # bundle passed on into the functions the loops call costs an atomic reference count per
@@ -1107,7 +1114,7 @@ def transmit_fast_kernel(pts, samp, img, medium, beam, out):
 @nb.njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
 def accumulate_fast_kernel(pts, legs_t, paths, medium, beam, win, n_buf, n_blocks):
     """Pass 2 as :func:`accumulate_kernel` (same echoes, same delays, amplitudes and
-    phases to float64 rounding), scatterer-parallel into per-thread complex64 buffers
+    phases to float64 rounding), scatterer-parallel into per-thread float32 buffers
     (module comment above).
 
     ``paths.zmax[a, b]``: deepest scatterer (m below the interface) for which path (a, b)
