@@ -165,11 +165,13 @@ def test_near_critical_receive_legs_agree_with_the_scalar_leg(hardware):
     imt = np.ascontiguousarray(img.transpose(1, 2, 0))
     m, beam = src.media, src.rx_beam
     tab = src.table
-    gtab = np.concatenate((beam.front, beam.back if beam.back.size > 1 else beam.front[:0],
-                           np.zeros(2)))
+    gtab = syn._beam_table(beam.front, beam.back)
+    itab = syn._interface_tables(src.r_top, src.r_bot)
+    ms = syn._receive_scalars(m.c, m.alpha, g.bore, beam.front, beam.back,
+                              float(beam.lo_front), float(beam.lo_back))
     nch = img.shape[0]
-    tr, ar_re, ar_im = np.empty(nch), np.empty(nch), np.empty(nch)
-    fix, wk = np.zeros(nch, dtype=np.bool_), np.empty((8, nch))
+    fix, wk = np.zeros(nch, dtype=np.bool_), np.empty((11, nch))
+    tr, ar_re, ar_im = wk[8], wk[9], wk[10]          # the legs' outputs
     hbuf, cbuf = np.empty(m.n + 1), np.empty(2)
     cx, cy = rx[:, 0].mean(), rx[:, 1].mean()
     n_checked = n_poor = n_fix = 0
@@ -178,11 +180,8 @@ def test_near_critical_receive_legs_agree_with_the_scalar_leg(hardware):
         for r in np.linspace(1.6, 4.0, 13):
             for az in (0.3, 1.9, 3.6):
                 xk, yk = cx + r * math.cos(az), cy + r * math.sin(az)
-                syn._receive_legs(xk, yk, zk, 1, 0, imt, m.c, m.alpha, tab.reshape(-1),
-                                  tab.shape[1], src.r_top.real.copy(), src.r_top.imag.copy(),
-                                  src.r_bot.real.copy(), src.r_bot.imag.copy(), g.bore,
-                                  beam.front, beam.back, gtab, beam.lo_front, beam.lo_back,
-                                  src.sig, tr, ar_re, ar_im, fix, wk)
+                syn._receive_legs(xk, yk, zk, 1, 0, imt, ms, tab.reshape(-1), tab.shape[1],
+                                  itab, gtab, src.sig, fix, wk)
                 for ch in range(nch):
                     # the table's own s and residual (what decides the path)
                     ex, ey, h0 = img[ch, 0, 0], img[ch, 0, 1], img[ch, 0, 2]
