@@ -667,8 +667,8 @@ def _medium_terms(geo, imt, fix, wk):
         rho = wk[0, ch]
         s = wk[1, ch]
         h0 = imt[b, IMG_H, ch]
-        tau, g0, ig0, ig1, s12, att, sinp, resid = _s_terms(s, rho, h0, zk, cmax, r0, r1,
-                                                            c0, c1, a0, a1)
+        tau, g0, _ig0, ig1, s12, att, sinp, resid = _s_terms(s, rho, h0, zk, cmax, r0, r1,
+                                                             c0, c1, a0, a1)
         poor = (s >= TABLE_TRUSTED) & (resid > TABLE_RESIDUAL * (h0 + zk)) & ~fix[ch]
         wk[7, ch] = 1.0 if poor else 0.0
         any_poor |= poor
@@ -930,7 +930,11 @@ def _transmit_terms(k0, sx, sy, img_m, c0, c1, cmax, r0, r1, a0, a1, bore, lo_fr
     ``wk[3]``, ``wk[5]``, ``wk[6]``; ``wk[7]`` = 1 where the table's s fails its
     residual check. Returns whether any did. ``img_m``: the projector image's row
     (x, y, height, direction, R_s^n_s, n_b)."""
-    ex, ey, h0, d, rs = img_m[IMG_X], img_m[IMG_Y], img_m[IMG_H], img_m[IMG_DIR], img_m[IMG_RS]
+    ex = img_m[IMG_X]
+    ey = img_m[IMG_Y]
+    h0 = img_m[IMG_H]
+    d = img_m[IMG_DIR]
+    rs = img_m[IMG_RS]
     b0 = bore[0]
     b1 = bore[1]
     b2 = bore[2]
@@ -942,8 +946,8 @@ def _transmit_terms(k0, sx, sy, img_m, c0, c1, cmax, r0, r1, a0, a1, bore, lo_fr
         rho = wk[0, j]
         s = wk[1, j]
         z = wk[8, j]
-        tau, g0, ig0, ig1, s12, att, sinp, resid = _s_terms(s, rho, h0, z, cmax, r0, r1,
-                                                            c0, c1, a0, a1)
+        tau, g0, ig0, _ig1, s12, att, sinp, resid = _s_terms(s, rho, h0, z, cmax, r0, r1,
+                                                             c0, c1, a0, a1)
         poor = (s >= TABLE_TRUSTED) & (resid > TABLE_RESIDUAL * (h0 + z)) & ~fix[j]
         wk[7, j] = 1.0 if poor else 0.0
         any_poor |= poor
@@ -985,7 +989,7 @@ def _transmit_image(k0, sx, sy, sz, smed, samp, m, img, c, alpha, tabf, nv, rt_r
     ey = img[m, IMG_Y]
     c0 = c[0]
     c1 = c[1]
-    cmax = c0 if c0 > c1 else c1
+    cmax = c0 if c0 > c1 else c1  # noqa: FURB136 (numba: no variadic max)
     r0 = c0 / cmax
     r1 = c1 / cmax
     nw = tabf.size // nv
