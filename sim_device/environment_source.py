@@ -291,7 +291,8 @@ class EnvironmentSource:
         tau_t = np.empty((s.size, img_t.shape[0]), dtype=f)
         amp_t = np.empty((s.size, img_t.shape[0]), dtype=cf)
         transmit_legs(sx, sy, sz, s.med, amp, img_t, *args_env, bore, tb.front, tb.back,
-                      tb.lo_front, tb.lo_back, self.sig, tau_t, amp_t)
+                      tb.lo_front, tb.lo_back, self.sig, tau_t, amp_t,
+                      self.synthesis != "reference")
         seen = np.any(amp_t != 0, axis=1)
         idx = np.flatnonzero(seen)
         t2 = time.perf_counter()

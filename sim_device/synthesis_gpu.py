@@ -42,7 +42,7 @@ from .synthesis_args import bundles
 
 _dev = cuda.jit(device=True)
 _rays = layered_rays.build(_dev, _dev)
-_math = synthesis.build(_dev, _rays)
+_math = synthesis.build(_dev, _rays, math.floor)
 _block_count = block_count_for(globals())
 
 #: media a leg may cross (scratch arrays of the ray solver are this long, per thread)
