@@ -17,10 +17,12 @@ structured argument, :class:`~svss_proc.imaging.kernel_args.KernelArgs` (tap pla
 voxel geometry, travel-time model), and are specialised at compile time on the
 interpolation, delay mode, gating and the number of angle halvings.
 
-Loop order (CPU): prange over along-track slices; per voxel column (along, cross) the
-projector delays and cone mask are computed once per depth, then channels are the outer
-loop and depth the inner one, over the projector cone's depth interval padded to whole
-16-lane vectors (padded lanes weigh 0). Per channel the depth loop runs in three
+Loop order (CPU): prange over along-track slices; per block of COLUMN_BLOCK neighbouring
+voxel columns (along, cross) the projector delays and cone mask are computed once per
+depth, then channels are the outer loop, the block's columns the middle one and depth
+the inner one, over the projector cone's depth interval padded to whole 16-lane vectors
+(padded lanes weigh 0); a channel's tap samples and table rows are thus reused from L1
+across the block (issue 32). Per channel the depth loop runs in three
 branch-free passes: delays, sample indices, fractions and weights (vectorised); the tap
 samples, 16 depths at a time by :mod:`svss_proc.imaging.window_gather` (consecutive depths read
 samples within a 32-sample window, served by two loads and one permute instead of a
