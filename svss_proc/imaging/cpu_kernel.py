@@ -17,10 +17,12 @@ structured argument, :class:`~svss_proc.imaging.kernel_args.KernelArgs` (tap pla
 voxel geometry, travel-time model), and are specialised at compile time on the
 interpolation, delay mode, gating and the number of angle halvings.
 
-Loop order (CPU): prange over along-track slices; per voxel column (along, cross) the
-projector delays and cone mask are computed once per depth, then channels are the outer
-loop and depth the inner one, over the projector cone's depth interval padded to whole
-16-lane vectors (padded lanes weigh 0). Per channel the depth loop runs in three
+Loop order (CPU): prange over along-track slices; per block of COLUMN_BLOCK neighbouring
+voxel columns (along, cross) the projector delays and cone mask are computed once per
+depth, then channels are the outer loop, the block's columns the middle one and depth
+the inner one, over the projector cone's depth interval padded to whole 16-lane vectors
+(padded lanes weigh 0); a channel's tap samples and table rows are thus reused from L1
+across the block (issue 32). Per channel the depth loop runs in three
 branch-free passes: delays, sample indices, fractions and weights (vectorised); the tap
 samples, 16 depths at a time by :mod:`svss_proc.imaging.window_gather` (consecutive depths read
 samples within a 32-sample window, served by two loads and one permute instead of a
@@ -52,6 +54,11 @@ from .kernel_math import build, cast_like, kernel_one
 from .window_gather import LANES, window_gather_1, window_gather_2, window_gather_4
 
 
+#: cross-track columns of a slice that the column kernel sweeps per channel (issue 32:
+#: on a 2-core Zen 3 without AVX-512, 8 gave 1.1-1.3x the one-column order, 16 about the
+#: same as 8, 32 less: the block's work rows then outgrow L1)
+COLUMN_BLOCK = 8
+
 _cpu = build(nb.njit(inline="always", cache=True), refraction_cpu)
 _voxel_sum = _cpu.voxel_sum          # voxel-order sum (the GPU kernel's building block)
 _cis = _cpu.cis
@@ -62,28 +69,31 @@ _rx_inside64 = _cpu.rx_inside64
 
 @nb.njit(inline="always", cache=True)
 def _position(u, interp, nt, one):
-    """Sample index (unsigned 31-bit: no negative-index wraparound, 32-bit indices),
-    fractional position and validity (0/1) of the fractional sample index u, as in
-    :mod:`svss_proc.imaging.kernel_math` ``sample``."""
+    """Sample index (31-bit, returned unsigned: no negative-index wraparound, 32-bit
+    indices), fractional position and validity (0/1) of the fractional sample index u,
+    as in :mod:`svss_proc.imaging.kernel_math` ``sample``. The clamped index lies in
+    [0, nt), so the signed conversion gives the unsigned one's value: a single
+    ``vcvttps2dq`` on AVX2, where a float-to-unsigned conversion (an AVX-512
+    instruction) took six (issue 32)."""
     zero = one - one
     half = one / (one + one)
     if interp == NEAREST:
         lo = zero
         hi = cast_like(one, nt - 1)
         uc = min(max(u, lo), hi)
-        i0 = np.uint32(uc + half) & np.uint32(0x7FFFFFFF)
+        i0 = np.int32(uc + half) & np.int32(0x7FFFFFFF)
     elif interp == LINEAR:
         lo = zero
         hi = cast_like(one, nt - 1) - cast_like(one, 1e-3)
         uc = min(max(u, lo), hi)
-        i0 = np.uint32(uc) & np.uint32(0x7FFFFFFF)
+        i0 = np.int32(uc) & np.int32(0x7FFFFFFF)
     else:
         lo = one
         hi = cast_like(one, nt - 2) - cast_like(one, 1e-3)
         uc = min(max(u, lo), hi)
-        i0 = np.uint32(uc) & np.uint32(0x7FFFFFFF)
+        i0 = np.int32(uc) & np.int32(0x7FFFFFFF)
     valid = (one if u >= lo else zero) * (one if u <= hi else zero)
-    return i0, uc - cast_like(one, i0), valid
+    return np.uint32(i0), uc - cast_like(one, i0), valid
 
 
 @nb.njit(inline="always", cache=True)
@@ -112,6 +122,12 @@ def _receive_u(mode, u1, r2, k_straight, tz, ez, ir, a, dh, iz, inv_dt, one):
     if mode == STRAIGHT:
         return u1 + r2 * k_straight
     return u1 + _table_time(tz, ez, ir, a, dh, iz, one) * inv_dt
+
+
+@nb.njit(inline="always", cache=True)
+def _padded(n):
+    """``n`` depths rounded up to whole vectors of LANES."""
+    return (n + LANES - 1) // LANES * LANES
 
 
 @nb.njit(cache=True)
@@ -189,7 +205,7 @@ def _make_voxel_kernel(interp: int, mode: int, gating: bool, halvings: int,
 
 
 def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
-                 spread: bool = True):
+                 spread: bool = True, block: int = COLUMN_BLOCK):
     """Column-order kernel for straight rays (mode 0) and the refraction table (mode 1),
     specialised at compile time on interpolation, delay mode and gating (constant
     branches fold away, so that the depth loop vectorises). Keep the prange body free of
@@ -200,6 +216,9 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
 
     ntap = len(TAPS[interp])
     shift_s = SHIFT[interp]                 # phase reference of the fraction, samples
+    if block < 1:
+        raise ValueError(f"column block of {block}: expected 1 or more")
+    nb_col = int(block)                     # cross-track columns per channel sweep
 
     @nb.njit(parallel=True, fastmath=True, cache=True)
     def kernel(img_re, img_im, args, ia0, ia1):
@@ -260,15 +279,19 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
             tz = np.empty((1, 1), dtype=ft)
             ez_tab = np.empty((1, 1), dtype=ft)
         # per along-track slice work rows (allocated here, outside the parallel loop, so
-        # that they reach it as distinct arrays): projector delay and cone mask (zero
-        # beyond the last depth: padded lanes weigh 0), accumulators, and per channel the
-        # sample index, fraction, weight and gathered taps of each depth
+        # that they reach it as distinct arrays). Per column of the slice's current block
+        # of `nb_col` cross-track columns: projector delay and cone mask (zero beyond the
+        # last depth: padded lanes weigh 0), accumulators, and the cone's depth interval;
+        # per slice, for the (column, channel) pair at hand: sample index, fraction,
+        # weight and gathered taps of each depth
         nk = ia1 - ia0
         counts = np.zeros(nk, dtype=np.int64)
-        u1_w = np.zeros(nk * npad, dtype=ft)         # projector delay - t0, samples
-        txm_w = np.zeros(nk * npad, dtype=ft)        # 1 inside the projector cone, else 0
-        acr_w = np.empty(nk * npad, dtype=ft)
-        aci_w = np.empty(nk * npad, dtype=ft)
+        n_blk = nk * nb_col * npad
+        u1_w = np.zeros(n_blk, dtype=ft)             # projector delay - t0, samples
+        txm_w = np.zeros(n_blk, dtype=ft)            # 1 inside the projector cone, else 0
+        acr_w = np.empty(n_blk, dtype=ft)
+        aci_w = np.empty(n_blk, dtype=ft)
+        zr_w = np.zeros(nk * nb_col * 2, dtype=np.int64)   # the cone's depths lo, hi
         idx_w = np.empty(nk * npad, dtype=np.uint32)
         frac_w = np.empty(nk * npad, dtype=ft)
         wt_w = np.empty(nk * npad, dtype=ft)
@@ -282,113 +305,142 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
             bs = np.uint64(k * npad)                 # unsigned: no negative-index wraparound
             bt = np.uint64(k * 2 * ntap * npad)
             n_upd = 0
-            for ic in range(nc):
-                y = cy[ic]
-                ir1, a1, dh1 = _table_row(x, y, h_tx, inv_drho, n_rho, h_ref, one)
-                n_edge = zero                            # depths at the projector's edge
-                for iz in range(nd):
-                    z = dzp[iz]
-                    vz = z + h_tx
-                    r1 = math.sqrt(x * x + y * y + vz * vz)
-                    inside = True
-                    if gating:
-                        m1 = x * b0 + y * b1 + vz * b2 - r1 * cos_tx
-                        inside = m1 >= zero
-                        n_edge += one if abs(m1) <= band * r1 else zero
-                    txm_w[bs + iz] = one if inside else zero
-                    if mode == STRAIGHT:
-                        t1 = r1 * inv_c
-                    else:
-                        t1 = _table_time(tz, ez_tab, ir1, a1, dh1, iz, one)
-                    u1_w[bs + iz] = (t1 - t0) * inv_dt
-                if gating and n_edge > zero:             # rare: decide those in float64
+            for ic0 in range(0, nc, nb_col):
+                ncol = min(nb_col, nc - ic0)
+                n_live = 0
+                for c in range(ncol):                # the block's projector legs
+                    ic = ic0 + c
+                    y = cy[ic]
+                    bc = np.uint64((k * nb_col + c) * npad)
+                    ir1, a1, dh1 = _table_row(x, y, h_tx, inv_drho, n_rho, h_ref, one)
+                    n_edge = zero                        # depths at the projector's edge
                     for iz in range(nd):
-                        vz = dzp[iz] + h_tx
-                        r1 = math.sqrt(x * x + y * y + vz * vz)
-                        if abs(x * b0 + y * b1 + vz * b2 - r1 * cos_tx) <= band * r1:
-                            txm_w[bs + iz] = one if _tx_inside64(gate, ia, ic, iz) else zero
-                # the cone's depth interval, padded to whole vectors (txm = 0 outside)
-                lo = 0
-                while lo < nd and txm_w[bs + lo] == zero:
-                    lo += 1
-                hi = nd
-                while hi > lo and txm_w[bs + hi - 1] == zero:
-                    hi -= 1
-                if hi <= lo:
-                    continue
-                z_lo = np.uint64(lo)
-                z_hi = z_lo + np.uint64((hi - lo + LANES - 1) // LANES * LANES)
-                for iz in range(z_lo, z_hi):
-                    acr_w[bs + iz] = zero
-                    aci_w[bs + iz] = zero
-                for ch in range(nch):
-                    ex = x - rx_dx[ch]
-                    ey = y - rx_dy[ch]
-                    h = rx_h[ch]
-                    e2 = ex * ex + ey * ey
-                    eb = ex * b0 + ey * b1
-                    g0 = apod[ch]
-                    ir, a, dh = _table_row(ex, ey, h, inv_drho, n_rho, h_ref, one)
-                    n_ch = zero                          # updates (exact: < 2^24)
-                    n_edge = zero                        # depths at a receiver cone edge
-                    for iz in range(z_lo, z_hi):        # delays and weights (vectorised)
                         z = dzp[iz]
-                        ez = z + h
-                        g = g0 * txm_w[bs + iz]
-                        r2 = math.sqrt(e2 + ez * ez)     # dead code in ungated table mode
+                        vz = z + h_tx
+                        r1 = math.sqrt(x * x + y * y + vz * vz)
+                        inside = True
                         if gating:
-                            m2 = eb + ez * b2 - r2 * cos_rx
-                            n_edge += one if abs(m2) <= band * r2 else zero
-                            g = g if m2 >= zero else zero
-                        u = _receive_u(mode, u1_w[bs + iz], r2, k_straight, tz, ez_tab, ir,
-                                       a, dh, iz, inv_dt, one)
-                        i0, w, valid = _position(u, interp, nt, one)
-                        idx_w[bs + iz] = i0
-                        frac_w[bs + iz] = w
-                        wt_w[bs + iz] = g * valid
-                    if gating and n_edge > zero:        # rare: decide those in float64
-                        for iz in range(z_lo, min(z_hi, nd)):
-                            ez = dzp[iz] + h
-                            r2 = math.sqrt(e2 + ez * ez)
-                            if abs(eb + ez * b2 - r2 * cos_rx) <= band * r2:
-                                u = _receive_u(mode, u1_w[bs + iz], r2, k_straight, tz,
-                                               ez_tab, ir, a, dh, iz, inv_dt, one)
-                                valid = _position(u, interp, nt, one)[2]
-                                inside = _rx_inside64(gate, ia, ic, iz, ch)
-                                wt_w[bs + iz] = (g0 * txm_w[bs + iz] * valid if inside
-                                                 else zero)
-                    for off in range(z_lo, z_hi, LANES):  # taps, 16 depths at a time
-                        if ntap == 1:
-                            window_gather_1(re, im, ch, idx_w, bs + off, tap_w, bt + off,
-                                            npad)
-                        elif ntap == 2:
-                            window_gather_2(re, im, ch, idx_w, bs + off, tap_w, bt + off,
-                                            npad)
+                            m1 = x * b0 + y * b1 + vz * b2 - r1 * cos_tx
+                            inside = m1 >= zero
+                            n_edge += one if abs(m1) <= band * r1 else zero
+                        txm_w[bc + iz] = one if inside else zero
+                        if mode == STRAIGHT:
+                            t1 = r1 * inv_c
                         else:
-                            window_gather_4(re, im, ch, idx_w, bs + off, tap_w, bt + off,
-                                            npad)
-                    for iz in range(z_lo, z_hi):        # interpolate, phase, sum (vectorised)
-                        w = frac_w[bs + iz]
-                        g = wt_w[bs + iz]
-                        c0, c1, c2, c3 = _weights(interp, w, one)
-                        sr = c0 * tap_w[bt + iz]
-                        si = c0 * tap_w[bt + np.uint64(ntap * npad) + iz]
-                        if ntap > 1:
-                            sr += c1 * tap_w[bt + np.uint64(npad) + iz]
-                            si += c1 * tap_w[bt + np.uint64((ntap + 1) * npad) + iz]
-                        if ntap > 2:
-                            sr += (c2 * tap_w[bt + np.uint64(2 * npad) + iz]
-                                   + c3 * tap_w[bt + np.uint64(3 * npad) + iz])
-                            si += (c2 * tap_w[bt + np.uint64((ntap + 2) * npad) + iz]
-                                   + c3 * tap_w[bt + np.uint64((ntap + 3) * npad) + iz])
-                        cr, ci = _cis(theta * (w - shift), halvings, one)
-                        acr_w[bs + iz] += g * (sr * cr - si * ci)
-                        aci_w[bs + iz] += g * (sr * ci + si * cr)
-                        n_ch += one if g != zero else zero
-                    n_upd += np.int64(n_ch)
-                for iz in range(lo, hi):
-                    img_re[ia, ic, iz] += acr_w[bs + iz]
-                    img_im[ia, ic, iz] += aci_w[bs + iz]
+                            t1 = _table_time(tz, ez_tab, ir1, a1, dh1, iz, one)
+                        u1_w[bc + iz] = (t1 - t0) * inv_dt
+                    if gating and n_edge > zero:         # rare: decide those in float64
+                        for iz in range(nd):
+                            vz = dzp[iz] + h_tx
+                            r1 = math.sqrt(x * x + y * y + vz * vz)
+                            if abs(x * b0 + y * b1 + vz * b2 - r1 * cos_tx) <= band * r1:
+                                txm_w[bc + iz] = (one if _tx_inside64(gate, ia, ic, iz)
+                                                  else zero)
+                    # the cone's depth interval (txm = 0 outside)
+                    lo = 0
+                    while lo < nd and txm_w[bc + lo] == zero:
+                        lo += 1
+                    hi = nd
+                    while hi > lo and txm_w[bc + hi - 1] == zero:
+                        hi -= 1
+                    zc = (k * nb_col + c) * 2
+                    if hi <= lo:
+                        lo = hi = 0
+                    zr_w[zc] = lo
+                    zr_w[zc + 1] = hi
+                    n_live += 1 if hi > lo else 0
+                    for iz in range(np.uint64(lo), np.uint64(lo + _padded(hi - lo))):
+                        acr_w[bc + iz] = zero
+                        aci_w[bc + iz] = zero
+                if n_live == 0:
+                    continue
+                # channels outer, the block's columns inner: a channel's tap samples and
+                # table rows stay in L1 across the block's neighbouring columns instead of
+                # coming back from L2 for every column (issue 32). Each voxel still sums
+                # its channels in channel order: the image is unchanged.
+                for ch in range(nch):
+                    h = rx_h[ch]
+                    g0 = apod[ch]
+                    ex = x - rx_dx[ch]
+                    for c in range(ncol):
+                        zc = (k * nb_col + c) * 2
+                        lo = zr_w[zc]
+                        hi = zr_w[zc + 1]
+                        if hi <= lo:
+                            continue
+                        ic = ic0 + c
+                        bc = np.uint64((k * nb_col + c) * npad)
+                        # the depth interval padded to whole vectors (padded lanes weigh 0)
+                        z_lo = np.uint64(lo)
+                        z_hi = z_lo + np.uint64(_padded(hi - lo))
+                        ey = cy[ic] - rx_dy[ch]
+                        e2 = ex * ex + ey * ey
+                        eb = ex * b0 + ey * b1
+                        ir, a, dh = _table_row(ex, ey, h, inv_drho, n_rho, h_ref, one)
+                        n_ch = zero                      # updates (exact: < 2^24)
+                        n_edge = zero                    # depths at a receiver cone edge
+                        for iz in range(z_lo, z_hi):    # delays and weights (vectorised)
+                            z = dzp[iz]
+                            ez = z + h
+                            g = g0 * txm_w[bc + iz]
+                            r2 = math.sqrt(e2 + ez * ez)  # dead code in ungated table mode
+                            if gating:
+                                m2 = eb + ez * b2 - r2 * cos_rx
+                                n_edge += one if abs(m2) <= band * r2 else zero
+                                g = g if m2 >= zero else zero
+                            u = _receive_u(mode, u1_w[bc + iz], r2, k_straight, tz, ez_tab,
+                                           ir, a, dh, iz, inv_dt, one)
+                            i0, w, valid = _position(u, interp, nt, one)
+                            idx_w[bs + iz] = i0
+                            frac_w[bs + iz] = w
+                            wt_w[bs + iz] = g * valid
+                        if gating and n_edge > zero:    # rare: decide those in float64
+                            for iz in range(z_lo, min(z_hi, nd)):
+                                ez = dzp[iz] + h
+                                r2 = math.sqrt(e2 + ez * ez)
+                                if abs(eb + ez * b2 - r2 * cos_rx) <= band * r2:
+                                    u = _receive_u(mode, u1_w[bc + iz], r2, k_straight, tz,
+                                                   ez_tab, ir, a, dh, iz, inv_dt, one)
+                                    valid = _position(u, interp, nt, one)[2]
+                                    inside = _rx_inside64(gate, ia, ic, iz, ch)
+                                    wt_w[bs + iz] = (g0 * txm_w[bc + iz] * valid if inside
+                                                     else zero)
+                        for off in range(z_lo, z_hi, LANES):  # taps, 16 depths at a time
+                            if ntap == 1:
+                                window_gather_1(re, im, ch, idx_w, bs + off, tap_w, bt + off,
+                                                npad)
+                            elif ntap == 2:
+                                window_gather_2(re, im, ch, idx_w, bs + off, tap_w, bt + off,
+                                                npad)
+                            else:
+                                window_gather_4(re, im, ch, idx_w, bs + off, tap_w, bt + off,
+                                                npad)
+                        for iz in range(z_lo, z_hi):    # interpolate, phase, sum (vectorised)
+                            w = frac_w[bs + iz]
+                            g = wt_w[bs + iz]
+                            c0, c1, c2, c3 = _weights(interp, w, one)
+                            sr = c0 * tap_w[bt + iz]
+                            si = c0 * tap_w[bt + np.uint64(ntap * npad) + iz]
+                            if ntap > 1:
+                                sr += c1 * tap_w[bt + np.uint64(npad) + iz]
+                                si += c1 * tap_w[bt + np.uint64((ntap + 1) * npad) + iz]
+                            if ntap > 2:
+                                sr += (c2 * tap_w[bt + np.uint64(2 * npad) + iz]
+                                       + c3 * tap_w[bt + np.uint64(3 * npad) + iz])
+                                si += (c2 * tap_w[bt + np.uint64((ntap + 2) * npad) + iz]
+                                       + c3 * tap_w[bt + np.uint64((ntap + 3) * npad) + iz])
+                            cr, ci = _cis(theta * (w - shift), halvings, one)
+                            acr_w[bc + iz] += g * (sr * cr - si * ci)
+                            aci_w[bc + iz] += g * (sr * ci + si * cr)
+                            n_ch += one if g != zero else zero
+                        n_upd += np.int64(n_ch)
+                for c in range(ncol):
+                    zc = (k * nb_col + c) * 2
+                    ic = ic0 + c
+                    bc = np.uint64((k * nb_col + c) * npad)
+                    for iz in range(zr_w[zc], zr_w[zc + 1]):
+                        img_re[ia, ic, iz] += acr_w[bc + iz]
+                        img_im[ia, ic, iz] += aci_w[bc + iz]
             counts[k] = n_upd
         return counts.sum()
 
