@@ -14,7 +14,7 @@ from svss_daq.config import ProcessingConfig, config_path, load
 from svss_proc.micronav.autofocus import (_Sampler, accept, accept_holdout, autofocus,
                                           autofocus_settings, bright_points,
                                           image_sharpness, isolated_points, peak_levels,
-                                          point_contributions, shifted)
+                                          shifted)
 
 
 @pytest.fixture(scope="module")

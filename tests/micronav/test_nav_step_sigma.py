@@ -11,7 +11,6 @@ sigma was 5.5 times too small across and 1.9 times down (docs/micronavigation.md
 from __future__ import annotations
 
 import dataclasses
-import math
 import sys
 from pathlib import Path
 
