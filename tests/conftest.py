@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import json
+import os
+import resource
+import time
 from pathlib import Path
 
 import pytest
@@ -20,3 +24,25 @@ def hardware():
 @pytest.fixture(scope="session")
 def demo_processing():
     return load_with_text(ProcessingConfig, config_path("processing-demo.toml"))
+
+
+# SVSS_TEST_CPU_LOG=FILE: one JSON line per test with its wall time and the CPU time it
+# took, this process's (numba's threads included) and its waited-for subprocesses' (the
+# real daemons, workers and devices of the end-to-end tests): where the suite's time goes
+# (issue 27). Off by default.
+_CPU_LOG = os.environ.get("SVSS_TEST_CPU_LOG")
+
+if _CPU_LOG:
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_protocol(item, nextitem):
+        def cpu():
+            s = resource.getrusage(resource.RUSAGE_SELF)
+            c = resource.getrusage(resource.RUSAGE_CHILDREN)
+            return s.ru_utime + s.ru_stime, c.ru_utime + c.ru_stime
+        (s0, c0), t0 = cpu(), time.perf_counter()
+        yield
+        (s1, c1), t1 = cpu(), time.perf_counter()
+        line = {"test": item.nodeid, "wall_s": round(t1 - t0, 3),
+                "cpu_self_s": round(s1 - s0, 3), "cpu_children_s": round(c1 - c0, 3)}
+        with open(_CPU_LOG, "a") as f:
+            f.write(json.dumps(line) + "\n")
