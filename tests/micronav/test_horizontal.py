@@ -22,6 +22,7 @@ from svss_daq.waveform import make_waveform
 from svss_proc.conditioning import Conditioner
 from svss_proc.micronav.horizontal import estimate_displacement, phase_gradient
 
+from ..computed_once import computed_once
 from .posed_source import PosedSource
 
 SWAY_STEP = (14, 0.025)            # from ping 14 on, 25 mm to starboard
@@ -43,7 +44,11 @@ def offsets(i: int) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def estimates():
+def estimates(tmp_path_factory):
+    return computed_once(tmp_path_factory, "test_horizontal-estimates", _estimates)
+
+
+def _estimates():
     import dataclasses
     loaded = load_with_text(HardwareConfig, config_path("hardware.toml"))
     hw = loaded.value
