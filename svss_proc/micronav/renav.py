@@ -64,7 +64,8 @@ import numpy as np
 
 from svss_daq.frames import body_to_ned
 from svss_daq.geometry import array_geometry
-from svss_daq.ping import NAV_BOTTOM_LOCK, NAV_DVL_VELOCITY, NAV_FUSED, NavSnapshot
+from svss_daq.ping import (NAV_BOTTOM_LOCK, NAV_DVL_VELOCITY, NAV_FUSED, NAV_SIMULATED,
+                           NavSnapshot)
 from svss_daq.waveform import make_waveform
 from svss_proc.conditioning import Conditioner
 
@@ -82,9 +83,12 @@ def locked_steps(poses: Sequence[NavSnapshot]) -> np.ndarray:
     """Per step between consecutive poses (n - 1,): both fused from the DVL with bottom
     lock (``NAV_FUSED`` and ``NAV_BOTTOM_LOCK``) and the DVL's velocity carrying the track
     (``NAV_DVL_VELOCITY``: a real DVL sends ranges without a valid velocity, RDI's
-    -32768, and the navigation then holds the velocity: its altitude alone is no lock)."""
+    -32768, and the navigation then holds the velocity: its altitude alone is no lock).
+    The simulator's own poses (``NAV_SIMULATED``, a stream without navigation: the
+    truth) count as locked."""
     need = NAV_FUSED | NAV_BOTTOM_LOCK | NAV_DVL_VELOCITY
-    locked = np.array([(p.quality & need) == need for p in poses], dtype=bool)
+    locked = np.array([(p.quality & need) == need or bool(p.quality & NAV_SIMULATED)
+                       for p in poses], dtype=bool)
     return locked[:-1] & locked[1:]
 
 
@@ -168,7 +172,8 @@ def nav_increment_sigma(poses: Sequence[NavSnapshot], nav_cfg,
     sig = np.where(locked_steps(poses), nav_cfg.dvl_velocity_sigma_m_s,
                    nav_cfg.dvl_gap_velocity_sigma_m_s)
     out = np.repeat((sig * dt)[:, None], 3, axis=1)
-    fused = np.array([bool(p.quality & NAV_FUSED) for p in poses], dtype=bool)
+    fused = np.array([bool(p.quality & (NAV_FUSED | NAV_SIMULATED)) for p in poses],
+                     dtype=bool)
     gps = ~(fused[:-1] & fused[1:])
     out[gps] = [nav_cfg.gps_sigma_m, nav_cfg.gps_sigma_m, nav_cfg.gps_height_sigma_m]
     if lever_m is not None and len(poses) > 1:
