@@ -412,7 +412,17 @@ def fuse_with_navigation(pings: Iterable, poses: Sequence[NavSnapshot], hardware
     if len(poses) < 2:
         return MicronavResult(poses, echoes, sigma, np.zeros((0, 3, 3)))
     inc, cov = echoes.increments()
-    nav_inc = np.diff(np.array([p.ned for p in poses], dtype=np.float64), axis=0)
+    # fused at the array's reference point (what the imaging places, and where the
+    # navigation's error is the DVL's plus the attitude's noise over the lever arm from
+    # the DVL head, and the echoes' is their own): each pose's lever arm to the array
+    # turned by its attitude, added to the navigation's positions and, differenced, to
+    # the echoes' body-origin increments (the estimator was given the same attitudes)
+    arm = np.asarray(hardware.lever_arms.array_m, dtype=np.float64)
+    to_array = np.array([body_to_ned(p.roll_rad, p.pitch_rad, p.heading_rad) @ arm
+                         for p in poses])
+    pos = np.array([p.ned for p in poses], dtype=np.float64) + to_array
+    inc = inc + np.diff(to_array, axis=0)
+    nav_inc = np.diff(pos, axis=0)
     both = locked_steps(poses) & np.all(np.isfinite(inc), axis=1)
     bias = None
     if both.sum() >= micronav_cfg.bias_min_steps:
@@ -425,11 +435,11 @@ def fuse_with_navigation(pings: Iterable, poses: Sequence[NavSnapshot], hardware
     ncov = np.einsum("ki,ij->kij", np.maximum(step_sigma, 1e-9) ** 2, np.eye(3))
     t = np.array([p.time_ns for p in poses], dtype=np.float64) * 1e-9
     interval = float(np.median(np.diff(t)))
-    pos = np.array([p.ned for p in poses], dtype=np.float64)
     x, fcov = fuse_increments(pos, ncov, inc, cov, micronav_cfg.anchor_sigma_m,
                               micronav_cfg.acceleration_sigma_m_s2 * interval ** 2,
                               position_noise=attitude_position_noise(poses, nav_cfg, lever),
                               step_covariance=False)
+    x = x - to_array                                     # back to the body origin
     fused = [dataclasses.replace(p, north_m=float(q[0]), east_m=float(q[1]),
                                  down_m=float(q[2]),
                                  altitude_m=float(p.altitude_m + p.down_m - q[2]))
