@@ -132,3 +132,24 @@ def test_autofocus_stage_refuses_without_isolated_points(runs, tmp_path):
     for x, y in zip(a, b):
         assert np.array_equal(x["image"], y["image"])
         assert "autofocus refused" in x["poses"]
+
+
+@pytest.mark.extended
+def test_svss_batch_autofocuses_as_svss_process(runs, tmp_path):
+    """`svss batch --autofocus` (one local Dask worker): the run's state says applied as
+    the manifest of `svss process --autofocus` does, and the tiles are the same."""
+    processing, run, _, _ = runs
+    manifest = _process(run, tmp_path / "process", processing, "--autofocus")
+    assert main(["-q", "batch", str(run), "--out", str(tmp_path / "batch"), "--processing",
+                 processing, "--no-renavigate", "--autofocus", "--workers", "1"]) == 0
+    state = json.loads((tmp_path / "batch" / "batch_state.json").read_text())
+    (entry,) = state["runs"].values()
+    assert entry["autofocus"] == manifest["autofocus"] and entry["autofocus"]["applied"]
+    assert entry["poses"] == manifest["poses"]
+    got = {p.name: read_tile(p) for p in (tmp_path / "batch" / entry["folder"]).glob(
+        "tile_*.h5")}
+    want = {p.name: read_tile(p) for p in (tmp_path / "process").glob("tile_*.h5")}
+    assert got.keys() == want.keys() and got
+    for name in got:
+        np.testing.assert_array_equal(got[name]["image"], want[name]["image"])
+        assert "autofocus applied" in got[name]["poses"]
