@@ -74,7 +74,7 @@ from .fusion import fuse_increments
 from .horizontal import DisplacementEstimate, estimate_displacement
 
 __all__ = ["EchoIncrements", "MicronavResult", "array_lever_m", "attitude_increment_sigma",
-           "attitude_position_noise",
+           "attitude_position_noise", "fuse_poses",
            "echo_increments", "fuse_with_navigation", "interpolated_noise_factor",
            "locked_steps", "nav_increment_sigma", "refusal_reason", "with_interpolated_bottom"]
 
@@ -400,24 +400,19 @@ class MicronavResult:
                 "seeded_from_echoes": self.echoes.seeded_from_echoes}
 
 
-def fuse_with_navigation(pings: Iterable, poses: Sequence[NavSnapshot], hardware,
-                         processing, nav_cfg, micronav_cfg, **options) -> MicronavResult:
-    """The re-navigated ``poses`` of ``pings`` fused with the echoes' increments (module
-    docstring). ``nav_cfg``: the navigation configuration the poses were made with;
-    ``micronav_cfg``: :class:`~svss_daq.config.MicronavConfig`."""
-    poses = list(poses)
-    sigma = nav_increment_sigma(poses, nav_cfg, array_lever_m(hardware.lever_arms))
-    echoes = echo_increments(pings, poses, hardware, processing, sigma,
-                             micronav_cfg.max_seed_sigma_m, **options)
-    if len(poses) < 2:
-        return MicronavResult(poses, echoes, sigma, np.zeros((0, 3, 3)))
-    inc, cov = echoes.increments()
+def fuse_poses(poses: Sequence[NavSnapshot], inc: np.ndarray, cov: np.ndarray,
+               lever_arms, nav_cfg, micronav_cfg
+               ) -> tuple[list[NavSnapshot], np.ndarray | None, np.ndarray | None]:
+    """The ``poses`` fused with the echoes' body-origin increments ``inc`` (n - 1, 3; NaN
+    rows refused) of covariances ``cov`` (module docstring, 3): (fused poses, the fused
+    steps' covariances (None: not computed), the echoes' bias taken out (None: too few
+    locked steps)). ``lever_arms``: the hardware's ``[lever_arms]``."""
     # fused at the array's reference point (what the imaging places, and where the
     # navigation's error is the DVL's plus the attitude's noise over the lever arm from
     # the DVL head, and the echoes' is their own): each pose's lever arm to the array
     # turned by its attitude, added to the navigation's positions and, differenced, to
     # the echoes' body-origin increments (the estimator was given the same attitudes)
-    arm = np.asarray(hardware.lever_arms.array_m, dtype=np.float64)
+    arm = np.asarray(lever_arms.array_m, dtype=np.float64)
     to_array = np.array([body_to_ned(p.roll_rad, p.pitch_rad, p.heading_rad) @ arm
                          for p in poses])
     pos = np.array([p.ned for p in poses], dtype=np.float64) + to_array
@@ -430,7 +425,7 @@ def fuse_with_navigation(pings: Iterable, poses: Sequence[NavSnapshot], hardware
         inc = inc - bias
     # the steps' own noise (the DVL's, the velocity turned by one attitude) and the
     # attitude's noise turning the lever arm as the positions' noise
-    lever = array_lever_m(hardware.lever_arms)
+    lever = array_lever_m(lever_arms)
     step_sigma = nav_increment_sigma(poses, nav_cfg, lever, lever_term=False)
     ncov = np.einsum("ki,ij->kij", np.maximum(step_sigma, 1e-9) ** 2, np.eye(3))
     t = np.array([p.time_ns for p in poses], dtype=np.float64) * 1e-9
@@ -444,6 +439,23 @@ def fuse_with_navigation(pings: Iterable, poses: Sequence[NavSnapshot], hardware
                                  down_m=float(q[2]),
                                  altitude_m=float(p.altitude_m + p.down_m - q[2]))
              for p, q in zip(poses, x)]
+    return fused, fcov, bias
+
+
+def fuse_with_navigation(pings: Iterable, poses: Sequence[NavSnapshot], hardware,
+                         processing, nav_cfg, micronav_cfg, **options) -> MicronavResult:
+    """The re-navigated ``poses`` of ``pings`` fused with the echoes' increments (module
+    docstring). ``nav_cfg``: the navigation configuration the poses were made with;
+    ``micronav_cfg``: :class:`~svss_daq.config.MicronavConfig`."""
+    poses = list(poses)
+    sigma = nav_increment_sigma(poses, nav_cfg, array_lever_m(hardware.lever_arms))
+    echoes = echo_increments(pings, poses, hardware, processing, sigma,
+                             micronav_cfg.max_seed_sigma_m, **options)
+    if len(poses) < 2:
+        return MicronavResult(poses, echoes, sigma, np.zeros((0, 3, 3)))
+    inc, cov = echoes.increments()
+    fused, fcov, bias = fuse_poses(poses, inc, cov, hardware.lever_arms, nav_cfg,
+                                   micronav_cfg)
     fused, filled = with_interpolated_bottom(fused)
     out = MicronavResult(fused, echoes, sigma, fcov, filled, bias)
     log.info("%d poses %s", len(fused), out.description)
