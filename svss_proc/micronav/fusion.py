@@ -28,6 +28,16 @@ with covariance (N_k^-1 + M_k^-1)^-1 (the test checks the solution against this)
 geometry comes from the echoes where their error is smaller than the DVL's and from the
 DVL where the echoes are weak or absent, step by step. The problem is solved as sparse
 normal equations, 3 unknowns per ping.
+
+**Position noise** (``position_noise`` S, sparse (3n, m)): where part of the
+navigation's error is an error of each position, p_k = x_k + (S theta)_k + (the DVL's
+random walk), theta m unit-variance white unknowns (the attitude's noise turning a lever
+arm: :func:`.renav.attitude_position_noise`), the first sum becomes
+
+    sum_k |x_(k+1) - x_k + (S theta)_(k+1) - (S theta)_k - n_k|^2_(N_k^-1) + |theta|^2
+
+and theta is estimated with the positions (N_k then the steps' own noise only): the
+step errors' correlation between neighbours, which a step noise cannot state.
 """
 
 from __future__ import annotations

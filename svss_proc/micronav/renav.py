@@ -33,7 +33,12 @@ re-navigation").
    GPS heights (0.5 m) would put the array decimetres off its height above the seabed,
    and the patches would be focused at the wrong range. The seabed is the poses' bottom depth
    (body depth + altitude), interpolated across pings without one.
-3. **Fusion** (:func:`~.fusion.fuse_increments`): the positions minimising both sets of
+3. **Fusion** (:func:`fuse_poses`, :func:`~.fusion.fuse_increments`), at the array's
+   reference point (each pose's lever arm to the array turned by its attitude added to
+   its position and, differenced, to the echoes' body-origin increments: there the
+   navigation's error is the DVL's plus the attitude's noise over the lever arm from
+   the DVL head, modelled as the positions' noise, :func:`attitude_position_noise`, and
+   the echoes' is their own): the positions minimising both sets of
    increments' weighted residuals, a weak anchor to the navigation's positions and the
    acceleration prior (``acceleration_sigma_m_s2`` x T^2 per second difference), so a
    step the echoes refused inside a dropout follows its neighbours. Attitude and the
