@@ -70,12 +70,10 @@ from sim_device.device_process import load_sim_device_config  # noqa: E402
 from sim_device.scene import load_scene  # noqa: E402
 from sim_device.track import parse_utc_ns, ping_pose, truth_line  # noqa: E402
 from svss_daq.config import (ProcessingConfig, config_path, load_with_text)  # noqa: E402
-from svss_daq.geometry import place_array  # noqa: E402
 from svss_daq.ping_gate import PingGate, PingRejected  # noqa: E402
 from svss_daq.rawfile import RawRunReader  # noqa: E402
 from svss_proc.imaging.imager import TileImager  # noqa: E402
-from svss_proc.imaging.schedule import along_reach, ping_frame  # noqa: E402
-from svss_proc.imaging.kernel_args import ImageSlice, VoxelAxes, prepare  # noqa: E402
+from svss_proc.micronav.autofocus import _Sampler  # noqa: E402
 from svss.demo import stop_process  # noqa: E402
 
 log = logging.getLogger("bench_focus")
@@ -358,7 +356,7 @@ class Focus:
         self.n_refused = gate.n_refused
         self.line = self.imager.line
         self.tile_s = time.perf_counter() - t0
-        self._kd = {}
+        self._sampler = _Sampler(self.imager.accumulator, self.proc, self.line)
 
     # -- the 2 cm image
     def voxel_peak(self, centre, half) -> tuple[np.ndarray, float]:
@@ -385,38 +383,9 @@ class Focus:
     # -- fine sampling with the imager's kernel
     def sample(self, along, cross, depth) -> np.ndarray:
         """The image at the grid ``along x cross x depth`` (tile frame), complex: the
-        pings the tiles took, each as :meth:`TileImager.add` images it."""
-        im, acc = self.proc.imaging, self.imager.accumulator
-        geo = acc.geometry
-        along, cross, depth = (np.ascontiguousarray(x, dtype=np.float64)
-                               for x in (along, cross, depth))
-        re_ = np.zeros((along.size, cross.size, depth.size), dtype=acc.dtype)
-        im_ = np.zeros_like(re_)
-        max_depth = self.proc.tile.top_m + self.proc.tile.depth_m
-        for p in self.pings:
-            placed = place_array(geo, p.nav, p.projector, ping_frame(self.line, p.nav,
-                                                                     self.proc))
-            tx, rx, bore = placed.tx, placed.rx, placed.bore
-            cond, kd = self._conditioned(p)
-            if im.beam_gating:
-                reach = along_reach(tx, bore, geo.projector_half_angle, max_depth)
-            else:
-                reach = cond.axis.end_s * im.water_sound_speed_m_s / 2
-            ia = np.flatnonzero((along >= tx[0] - reach) & (along <= tx[0] + reach))
-            if not ia.size:
-                continue
-            array, delays = acc.ping_inputs(tx, rx, bore, reach)
-            acc.kernel(ImageSlice(re_, im_, VoxelAxes(along, cross, depth), int(ia[0]),
-                                  int(ia[-1]) + 1), kd, array, delays,
-                       gating=im.beam_gating)
-        return re_.astype(np.float64) + 1j * im_.astype(np.float64)
-
-    def _conditioned(self, p):
-        if p.sequence not in self._kd:
-            cond = self.imager.accumulator.condition(p)
-            self._kd[p.sequence] = (cond, prepare(cond, self.proc.imaging.interpolation,
-                                                  self.imager.accumulator.dtype))
-        return self._kd[p.sequence]
+        pings the tiles took, each as :meth:`TileImager.add` images it (the autofocus's
+        sampler, :class:`svss_proc.micronav.autofocus._Sampler`)."""
+        return self._sampler.grid(self.pings, along, cross, depth)
 
     def _cube(self, c, half, step):
         n = int(round(half / step))

@@ -6,8 +6,10 @@
     svss view [--tiles DIR] [--connect ENDPOINT] [--address A] [--port N]
     svss simulate --scene FILE --out RUN.h5
     svss process RUN.h5 --out DIR [--renavigate | --no-renavigate] [--micronav]
+                 [--autofocus | --no-autofocus]
     svss batch RUN.h5 [RUN2.h5 ...] --out DIR [--scheduler ADDRESS] [--workers N]
                [--renavigate | --no-renavigate] [--micronav | --no-micronav]
+               [--autofocus | --no-autofocus]
     svss worker --connect ENDPOINT --out DIR [--service E] [--runs N]
     svss replay RUN.h5 [RUN2.h5 ...] [--endpoint E] [--service E] [--realtime]
     svss inspect FILE [--json]
@@ -78,7 +80,8 @@ def cmd_process(args) -> int:
     from svss_proc.run_worker import process_raw
 
     files = process_raw(args.run, args.out, _processing(args), force=args.force,
-                        renavigate=args.renavigate, micronav=args.micronav)
+                        renavigate=args.renavigate, micronav=args.micronav,
+                        autofocus=args.autofocus)
     for p in files:
         print(p)
     return 0
@@ -92,7 +95,7 @@ def cmd_batch(args) -> int:
         summary = run_batch(args.run, args.out, _processing(args),
                             scheduler=args.scheduler, workers=args.workers,
                             force=args.force, renavigate=args.renavigate,
-                            micronav=args.micronav)
+                            micronav=args.micronav, autofocus=args.autofocus)
     except (ImportError, BatchError) as exc:
         log.error("%s", exc)
         return 2 if isinstance(exc, ImportError) else 1
@@ -440,6 +443,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "ping-to-ping increments measured from the echoes' common phase "
                         "centres (docs/micronavigation.md); default: the processing "
                         "configuration's [micronav] enabled")
+        sp.add_argument("--autofocus", action=argparse.BooleanOptionalAction,
+                        default=None, help="image each run, focus it on its isolated "
+                        "responses and image it again with the corrected poses where the "
+                        "guard accepts them (docs/micronavigation.md, Autofocus as a "
+                        "stage); default: the processing configuration's [autofocus] "
+                        "enabled")
 
     def common(sp, processing=True):
         sp.add_argument("--hardware", help="hardware TOML (default: config/hardware.toml)")

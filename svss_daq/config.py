@@ -369,6 +369,10 @@ class AutofocusConfig:
     """Autofocus on isolated responses (svss_proc.micronav.autofocus,
     docs/micronavigation.md "Autofocus"): which responses it may focus on and the guard
     that keeps its corrections only where the image gets no worse."""
+    enabled: bool = spec("a stage of svss process and svss batch: each run imaged with its "
+                         "poses, focused on its isolated responses and imaged again with "
+                         "the corrected poses where the guard accepts them "
+                         "(--autofocus / --no-autofocus override it)")
     points: int = spec("isolated responses focused on, at most", lo=1, hi=100)
     candidates: int = spec("local maxima of the image examined, brightest first", lo=1,
                            hi=100000)

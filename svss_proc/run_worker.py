@@ -72,7 +72,8 @@ class Worker:
     def __init__(self, hardware: Loaded[HardwareConfig], processing: Loaded[ProcessingConfig],
                  out_dir: str | Path, *, force: bool = False, run_id: str | None = None,
                  resume: bool = False, poses: str = LIVE_POSES,
-                 max_listed_gaps: int = MAX_LISTED_GAPS, run_label: str | None = None):
+                 max_listed_gaps: int = MAX_LISTED_GAPS, run_label: str | None = None,
+                 live_poses: bool | None = None):
         self.hardware, self.processing = hardware, processing
         #: ranges [first, last] of the run's pings skipped (never imaged: lost on the
         #: stream and not fetched), the first ``max_listed_gaps``; the rest counted
@@ -83,6 +84,9 @@ class Worker:
         self.incomplete_reason: str | None = None
         #: what the pings are posed with (tile provenance and manifest ``poses``)
         self.poses = poses
+        #: what the autofocus stage did (manifest ``autofocus``; None: not a recorded
+        #: run's processing, :func:`focus_poses`)
+        self.autofocus: dict | None = None
         #: imaged pings per navigation flag (:data:`POSE_FLAG_NAMES`)
         self.pose_flags: dict[str, int] = {}
         self.out = Path(out_dir)
@@ -96,8 +100,10 @@ class Worker:
         instrument(self.imager, self.clock)
         #: ``[micronav] live`` on the live poses: each ping imaged at its pose fused with
         #: the echoes' increment from the previous ping (None: off)
+        #: ``live_poses``: the pings carry their live poses (None: ``poses`` says so)
         self.micronav = live_stage(hardware, processing.value, self.imager.accumulator,
-                                   self.clock, poses == LIVE_POSES)
+                                   self.clock, poses == LIVE_POSES if live_poses is None
+                                   else live_poses)
         #: how far behind the sonar the pings fed are (the stream worker judges it)
         self.lag = SonarLag()
         #: set by the stream worker while it is behind with ``when_behind =
@@ -359,6 +365,7 @@ class Worker:
                        "products_deferred": list(self.deferred_tiles)},
             "stage_times": self.clock.totals(),
             "micronav": None if self.micronav is None else self.micronav.summary(),
+            "autofocus": self.autofocus,
             "files": sorted({p.name for p in self.written})}
 
     def run(self, pings: Iterable[Ping], total: int | None = None) -> list[Path]:
@@ -436,19 +443,44 @@ def run_poses(readers: list[RawRunReader], renavigate: bool | None,
     return res.poses, what
 
 
+def focus_poses(readers: list[RawRunReader], poses: list[NavSnapshot] | None, what: str,
+                autofocus: bool | None, processing: ProcessingConfig
+                ) -> tuple[list[NavSnapshot] | None, str, dict]:
+    """The poses of :func:`run_poses` (``poses``, ``what``) after the autofocus stage
+    (:mod:`svss_proc.micronav.af_stage`) where ``autofocus`` (None: the processing
+    configuration's ``[autofocus] enabled``) asks for it: (poses, what they are, the
+    manifest's ``autofocus``)."""
+    from .micronav.af_stage import OFF, autofocus_wanted, focus_run
+    if not autofocus_wanted(autofocus, processing):
+        return poses, what, dict(OFF)
+    pings = (p for r in readers for p in r)
+    if poses is not None:
+        pings = (dataclasses.replace(p, nav=nav) for p, nav in zip(pings, poses, strict=True))
+    navs, outcome = focus_run(pings, readers[0].hardware, processing)
+    log.info("%s: %s", readers[0].path, outcome.description)
+    # refused: the poses as they were (the recorded ones stay None: the worker's live
+    # stage, if on, treats them as without the stage)
+    return (navs if outcome.applied else poses), f"{what}, {outcome.description}", \
+        outcome.summary()
+
+
 def process_raw(path: str | Path, out_dir: str | Path,
                 processing: Loaded[ProcessingConfig], *, force: bool = False,
-                renavigate: bool | None = None, micronav: bool | None = None
-                ) -> list[Path]:
+                renavigate: bool | None = None, micronav: bool | None = None,
+                autofocus: bool | None = None) -> list[Path]:
     """Image a recorded raw run with the hardware configuration it was recorded with,
     into ``out_dir`` directly (the same tiles as the worker's ``OUT/RUN_ID/``), and
     the folder's survey index (``survey_index.csv``, :mod:`.survey_index`). The pings
-    are posed as :func:`run_poses` decides (``renavigate``, ``micronav``); the manifest's and the
-    tiles' ``poses`` say with what."""
+    are posed as :func:`run_poses` decides (``renavigate``, ``micronav``), then corrected
+    by the autofocus stage where ``autofocus`` (None: ``[autofocus] enabled``) asks
+    (:func:`focus_poses`); the manifest's and the tiles' ``poses`` say with what, the
+    manifest's ``autofocus`` what the autofocus did."""
     with RawRunReader(path) as run:
         poses, what = run_poses([run], renavigate, micronav, processing.value)
+        poses, what, focus = focus_poses([run], poses, what, autofocus, processing.value)
         worker = Worker(run.hardware, processing, out_dir, force=force, poses=what,
-                        run_label=run.run_id)
+                        run_label=run.run_id, live_poses=poses is None)
+        worker.autofocus = focus
         pings = iter(run) if poses is None else (
             dataclasses.replace(p, nav=nav) for p, nav in zip(run, poses, strict=True))
         files = worker.run(pings, total=len(run))

@@ -37,7 +37,7 @@ from ..imaging.imager import seam_planes
 from ..imaging.pose_check import check_pose_flags
 from ..imaging.schedule import PingStep, TileSchedule
 from ..imaging.grid import tile_grid
-from ..run_worker import LIVE_POSES, run_poses
+from ..run_worker import LIVE_POSES, focus_poses, run_poses
 
 log = logging.getLogger(__name__)
 
@@ -112,6 +112,8 @@ class RunPlan:
     late_pings: int = 0
     #: what the pings are posed with
     poses: str = LIVE_POSES
+    #: what the autofocus stage did (:func:`svss_proc.run_worker.focus_poses`)
+    autofocus: dict = field(default_factory=lambda: {"enabled": False})
 
 
 def _ranges(refs: list[tuple[int, int]], paths: list[Path]) -> tuple:
@@ -285,11 +287,12 @@ def group_runs(paths: list[str | Path]) -> dict[str, list[Path]]:
 def plan_run(run_id: str, folder: str, paths: list[Path],
              processing: Loaded[ProcessingConfig], renavigate: bool | None = None,
              exclude: dict[tuple[str, int], str] | None = None,
-             micronav: bool | None = None) -> RunPlan:
+             micronav: bool | None = None, autofocus: bool | None = None) -> RunPlan:
     """Plan the tiles of one run (its segment files, in order) for ``processing``, its
     pings posed as :func:`svss_proc.run_worker.run_poses` decides (``renavigate``: the
     whole run, every segment's instrument records together; ``micronav``: fused with the
-    echoes' increments, None as the processing configuration says). ``exclude``: pings found
+    echoes' increments, None as the processing configuration says; ``autofocus``: then
+    corrected by the autofocus stage, :func:`~svss_proc.run_worker.focus_poses`). ``exclude``: pings found
     refused for their samples, (raw file, index) -> reason: refused here as the
     streaming worker's gate refuses them (counted in ``refused``)."""
     exclude = exclude or {}
@@ -307,6 +310,7 @@ def plan_run(run_id: str, folder: str, paths: list[Path],
         planner = TilePlanner(hw, processing.value, processing.source,
                               name=f"batch plan of run {run_id}")
         poses, what = run_poses(readers, renavigate, micronav, processing.value)
+        poses, what, focus = focus_poses(readers, poses, what, autofocus, processing.value)
         dig = hw.value.digitiser
         zeros = np.broadcast_to(np.zeros((), np.int32), (dig.n_channels, dig.window_samples))
         n = 0
@@ -327,7 +331,7 @@ def plan_run(run_id: str, folder: str, paths: list[Path],
             r.close()
     plan = RunPlan(run_id, folder, list(paths), hw.id, n,
                    refused=dict(planner.gate.refused), late_pings=planner.late_pings,
-                   poses=what)
+                   poses=what, autofocus=focus)
     if planner.line is None:
         log.warning("run %s: no ping passed the checks; no tile", run_id)
         return plan

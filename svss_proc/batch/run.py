@@ -201,7 +201,8 @@ def run_batch(paths: list[str | Path], out: str | Path,
               workers: int | None = None, force: bool = False, client=None,
               kernel_threads: int | None = None,
               task: Callable[..., dict] = image_tile,
-              renavigate: bool | None = None, micronav: bool | None = None) -> dict:
+              renavigate: bool | None = None, micronav: bool | None = None,
+              autofocus: bool | None = None) -> dict:
     """Reprocess the raw runs ``paths`` into ``out``; return the summary (also in
     ``out/batch_state.json``). ``scheduler``: a Dask scheduler's address (default: a
     LocalCluster of ``workers`` processes); ``client``: an existing
@@ -214,7 +215,9 @@ def run_batch(paths: list[str | Path], out: str | Path,
     seams*); ``renavigate``: pose each run as :func:`svss_proc.run_worker.run_poses` decides
     (default: re-navigated from its instrument records where it has them; the
     summary's runs say which); ``micronav``: the re-navigated poses fused with the
-    echoes' increments (None: as the processing configuration's ``[micronav]`` says).
+    echoes' increments (None: as the processing configuration's ``[micronav]`` says);
+    ``autofocus``: each run's poses corrected by the autofocus stage (None: as its
+    ``[autofocus] enabled`` says; the state's runs' ``autofocus`` say what it did).
 
     A ping a task finds refused for its samples (:class:`~.task.PingsRefused`) is left
     out of its run's plan, which is made again (tiles whose plan changed are imaged
@@ -229,7 +232,7 @@ def run_batch(paths: list[str | Path], out: str | Path,
     earlier = prepare_batch_dir(out, runs, processing, force)
     excluded = {run_id: _exclusions(earlier.get(run_id), ps) for run_id, ps in runs.items()}
     plans = {run_id: plan_run(run_id, run_folder_name(run_id), ps, processing, renavigate,
-                              excluded[run_id], micronav)
+                              excluded[run_id], micronav, autofocus)
              for run_id, ps in runs.items()}
     t_plan = time.perf_counter() - t0
     tiles = [t for p in plans.values() for t in p.tiles]
@@ -242,7 +245,7 @@ def run_batch(paths: list[str | Path], out: str | Path,
         mine = {p.run_id: {"folder": p.folder, "files": [str(f) for f in p.paths],
                            "pings": p.n_pings, "tiles": len(p.tiles),
                            "refused": p.refused, "late_pings": p.late_pings,
-                           "poses": p.poses,
+                           "poses": p.poses, "autofocus": p.autofocus,
                            "excluded_pings": [
                                {"file": f, "index": i, "reason": why}
                                for (f, i), why in sorted(excluded[p.run_id].items())]}
@@ -298,7 +301,8 @@ def run_batch(paths: list[str | Path], out: str | Path,
                             next(iter(new.values())))
                 old = plans[run_id]
                 plans[run_id] = plan_run(run_id, old.folder, old.paths, processing,
-                                         renavigate, excluded[run_id], micronav)
+                                         renavigate, excluded[run_id], micronav,
+                                         autofocus)
                 todo += _replanned(out, old, plans[run_id], seams)
             if todo:
                 atomic_json(out / STATE, {**state_of(), "complete": False})

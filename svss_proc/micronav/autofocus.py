@@ -144,30 +144,41 @@ class _Sampler:
         self._kd: dict = {}
 
     def _prepared(self, p: Ping):
+        """(conditioned, kernel data) of ping ``p``, once."""
         key = id(p.samples)
         if key not in self._kd:
             cond = self.acc.condition(p)
-            self._kd[key] = prepare(cond, self.proc.imaging.interpolation, self.acc.dtype)
+            self._kd[key] = (cond, prepare(cond, self.proc.imaging.interpolation,
+                                           self.acc.dtype))
         return self._kd[key]
+
+    def _placed(self, p: Ping):
+        """Ping ``p``'s array placed in the tile frame, and its along-track reach (m) as
+        the tiles' schedule has it (:meth:`~svss_proc.imaging.schedule.TileSchedule.step`):
+        the projector's beam to the tile's bottom with ``beam_gating``, else the echo
+        window's range."""
+        geo = self.acc.geometry
+        placed = place_array(geo, p.nav, p.projector, ping_frame(self.line, p.nav, self.proc))
+        im = self.proc.imaging
+        if im.beam_gating:
+            depth = self.proc.tile.top_m + self.proc.tile.depth_m
+            reach = along_reach(placed.tx, placed.bore, geo.projector_half_angle, depth)
+        else:
+            reach = self._prepared(p)[0].axis.end_s * im.water_sound_speed_m_s / 2
+        return placed, reach
 
     def reach(self, p: Ping) -> tuple[float, float]:
         """The projector's along-track position and reach (m) of ping ``p``."""
-        geo = self.acc.geometry
-        placed = place_array(geo, p.nav, p.projector, ping_frame(self.line, p.nav, self.proc))
-        depth = self.proc.tile.top_m + self.proc.tile.depth_m
-        return float(placed.tx[0]), along_reach(placed.tx, placed.bore,
-                                                geo.projector_half_angle, depth)
+        placed, reach = self._placed(p)
+        return float(placed.tx[0]), reach
 
     def value(self, p: Ping, point: np.ndarray) -> complex:
         """Ping ``p``'s contribution at ``point`` (tile frame: along, cross, depth)."""
         im, acc = self.proc.imaging, self.acc
-        geo = acc.geometry
-        placed = place_array(geo, p.nav, p.projector, ping_frame(self.line, p.nav, self.proc))
-        kd = self._prepared(p)
+        placed, reach = self._placed(p)
+        kd = self._prepared(p)[1]
         re_ = np.zeros((1, 1, 1), dtype=acc.dtype)
         im_ = np.zeros_like(re_)
-        depth = self.proc.tile.top_m + self.proc.tile.depth_m
-        reach = along_reach(placed.tx, placed.bore, geo.projector_half_angle, depth)
         array, delays = acc.ping_inputs(placed.tx, placed.rx, placed.bore, reach)
         axes = VoxelAxes(*(np.array([float(v)]) for v in point))
         acc.kernel(ImageSlice(re_, im_, axes, 0, 1), kd, array, delays,
@@ -178,20 +189,19 @@ class _Sampler:
         """The image of ``pings`` at the grid ``along x cross x depth`` (tile frame),
         complex, as the tiles image it."""
         im, acc = self.proc.imaging, self.acc
-        geo = acc.geometry
         along, cross, depth = (np.ascontiguousarray(x, dtype=np.float64)
                                for x in (along, cross, depth))
         re_ = np.zeros((along.size, cross.size, depth.size), dtype=acc.dtype)
         im_ = np.zeros_like(re_)
-        max_depth = self.proc.tile.top_m + self.proc.tile.depth_m
+        # the schedule's slices take the voxels less than one voxel beyond the reach
+        v = self.proc.tile.voxel_m
         for p in pings:
-            placed = place_array(geo, p.nav, p.projector,
-                                 ping_frame(self.line, p.nav, self.proc))
-            kd = self._prepared(p)
-            reach = along_reach(placed.tx, placed.bore, geo.projector_half_angle, max_depth)
-            ia = np.flatnonzero((along >= placed.tx[0] - reach) & (along <= placed.tx[0] + reach))
+            placed, reach = self._placed(p)
+            ia = np.flatnonzero((along > placed.tx[0] - reach - v)
+                                & (along < placed.tx[0] + reach + v))
             if not ia.size:
                 continue
+            kd = self._prepared(p)[1]
             array, delays = acc.ping_inputs(placed.tx, placed.rx, placed.bore, reach)
             acc.kernel(ImageSlice(re_, im_, VoxelAxes(along, cross, depth), int(ia[0]),
                                   int(ia[-1]) + 1), kd, array, delays, gating=im.beam_gating)

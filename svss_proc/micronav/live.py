@@ -26,11 +26,12 @@ import numpy as np
 
 from svss_daq.frames import body_to_ned
 from svss_daq.geometry import array_geometry
-from svss_daq.ping import NAV_BOTTOM_LOCK, NAV_SIMULATED, Ping
+from svss_daq.ping import Ping
 
 from .forward_fusion import FusionState, fusion_start, fusion_step
 from .horizontal import TapCache, estimate_displacement
 from .patch_focus import warm_up
+from .renav import array_lever_m, nav_increment_sigma
 
 log = logging.getLogger(__name__)
 
@@ -57,8 +58,11 @@ class LiveMicronav:
         hw = hardware.value
         self.config = config
         #: the live navigation's configuration (devices.toml ``[navigation]``): its
-        #: velocity sigmas weigh its steps
+        #: velocity and attitude sigmas weigh its steps
         self.nav_cfg = nav_cfg
+        #: the array less the DVL head (body frame, m): the lever arm the attitude's
+        #: noise turns (:func:`.renav.nav_increment_sigma`)
+        self.lever_m = array_lever_m(hw.lever_arms)
         self.geometry = array_geometry(hw)
         self.sound_speed_m_s = processing.imaging.water_sound_speed_m_s
         self.clock = clock
@@ -124,9 +128,8 @@ class LiveMicronav:
                     log.info("ping %d: micronavigation refused (%d so far): %s", seq, n,
                              why)
             if prev is not None:
-                dt = max((ping.nav.time_ns - prev[1].nav.time_ns) * 1e-9, 0.0)
-                self.state, _ = fusion_step(self.state, self._nav_cov(ping, dt), corr, cov,
-                                            self.config.anchor_sigma_m)
+                self.state, _ = fusion_step(self.state, self._nav_cov(prev[1], ping), corr,
+                                            cov, self.config.anchor_sigma_m)
             self.prev = (seq, ping, cond)
             e = self.state.correction_m
             self.max_correction_m = np.maximum(self.max_correction_m, np.abs(e))
@@ -186,14 +189,13 @@ class LiveMicronav:
             passes=self.config.passes, translations=self.config.translations,
             taps=self.taps)
 
-    def _nav_cov(self, ping: Ping, dt_s: float) -> np.ndarray:
-        """The navigation's step covariance: its velocity sigma over the step's time;
-        with bottom lock (or the simulator's poses) the navigation configuration's
-        ``dvl_velocity_sigma_m_s``, without its ``dvl_gap_velocity_sigma_m_s``."""
-        locked = ping.nav.quality & (NAV_BOTTOM_LOCK | NAV_SIMULATED)
-        sv = (self.nav_cfg.dvl_velocity_sigma_m_s if locked
-              else self.nav_cfg.dvl_gap_velocity_sigma_m_s)
-        return np.eye(3) * (sv * max(dt_s, 1e-3)) ** 2
+    def _nav_cov(self, pa: Ping, pb: Ping) -> np.ndarray:
+        """The navigation's covariance of the step from ``pa`` to ``pb``: the
+        re-navigation's own (:func:`.renav.nav_increment_sigma`: its lock rule, the DVL's
+        velocity sigmas over the step's time, the GPS's without fusion, the attitude's
+        noise turning the lever arm to the array), diagonal."""
+        sigma = nav_increment_sigma([pa.nav, pb.nav], self.nav_cfg, self.lever_m)[0]
+        return np.diag(np.maximum(sigma, 1e-9) ** 2)
 
     def summary(self) -> dict:
         """For the run's manifest: ping pairs tried, estimated, refusals by reason, the

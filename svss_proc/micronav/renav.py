@@ -33,7 +33,12 @@ re-navigation").
    GPS heights (0.5 m) would put the array decimetres off its height above the seabed,
    and the patches would be focused at the wrong range. The seabed is the poses' bottom depth
    (body depth + altitude), interpolated across pings without one.
-3. **Fusion** (:func:`~.fusion.fuse_increments`): the positions minimising both sets of
+3. **Fusion** (:func:`fuse_poses`, :func:`~.fusion.fuse_increments`), at the array's
+   reference point (each pose's lever arm to the array turned by its attitude added to
+   its position and, differenced, to the echoes' body-origin increments: there the
+   navigation's error is the DVL's plus the attitude's noise over the lever arm from
+   the DVL head, modelled as the positions' noise, :func:`attitude_position_noise`, and
+   the echoes' is their own): the positions minimising both sets of
    increments' weighted residuals, a weak anchor to the navigation's positions and the
    acceleration prior (``acceleration_sigma_m_s2`` x T^2 per second difference), so a
    step the echoes refused inside a dropout follows its neighbours. Attitude and the
@@ -61,10 +66,12 @@ from dataclasses import dataclass
 from typing import Iterable, Sequence
 
 import numpy as np
+import scipy.sparse as sp
 
 from svss_daq.frames import body_to_ned
 from svss_daq.geometry import array_geometry
-from svss_daq.ping import NAV_BOTTOM_LOCK, NAV_DVL_VELOCITY, NAV_FUSED, NavSnapshot
+from svss_daq.ping import (NAV_BOTTOM_LOCK, NAV_DVL_VELOCITY, NAV_FUSED, NAV_SIMULATED,
+                           NavSnapshot)
 from svss_daq.waveform import make_waveform
 from svss_proc.conditioning import Conditioner
 
@@ -72,6 +79,7 @@ from .fusion import fuse_increments
 from .horizontal import DisplacementEstimate, estimate_displacement
 
 __all__ = ["EchoIncrements", "MicronavResult", "array_lever_m", "attitude_increment_sigma",
+           "attitude_position_noise", "fuse_poses",
            "echo_increments", "fuse_with_navigation", "interpolated_noise_factor",
            "locked_steps", "nav_increment_sigma", "refusal_reason", "with_interpolated_bottom"]
 
@@ -82,9 +90,12 @@ def locked_steps(poses: Sequence[NavSnapshot]) -> np.ndarray:
     """Per step between consecutive poses (n - 1,): both fused from the DVL with bottom
     lock (``NAV_FUSED`` and ``NAV_BOTTOM_LOCK``) and the DVL's velocity carrying the track
     (``NAV_DVL_VELOCITY``: a real DVL sends ranges without a valid velocity, RDI's
-    -32768, and the navigation then holds the velocity: its altitude alone is no lock)."""
+    -32768, and the navigation then holds the velocity: its altitude alone is no lock).
+    The simulator's own poses (``NAV_SIMULATED``, a stream without navigation: the
+    truth) count as locked."""
     need = NAV_FUSED | NAV_BOTTOM_LOCK | NAV_DVL_VELOCITY
-    locked = np.array([(p.quality & need) == need for p in poses], dtype=bool)
+    locked = np.array([(p.quality & need) == need or bool(p.quality & NAV_SIMULATED)
+                       for p in poses], dtype=bool)
     return locked[:-1] & locked[1:]
 
 
@@ -125,12 +136,15 @@ def _turned(poses: Sequence[NavSnapshot], vec_body: np.ndarray) -> np.ndarray:
 
 
 def attitude_increment_sigma(poses: Sequence[NavSnapshot], nav_cfg,
-                             lever_m: Sequence[float]) -> np.ndarray:
+                             lever_m: Sequence[float], lever_term: bool = True
+                             ) -> np.ndarray:
     """Per step between consecutive poses, the sigma (n - 1, 3) the attitude's noise adds
     to the increment of a point ``lever_m`` (body frame) from the DVL head, per NED axis,
     m (module docstring, 1): the lever arm turned by the change of the heading (HDT) and
     roll and pitch (DVL) noise between the two pings, and the DVL's displacement over the
-    step turned by the noise of one interpolated attitude."""
+    step turned by the noise of one interpolated attitude. ``lever_term`` False leaves the
+    lever arm's part out (the fusion models it as the positions' noise:
+    :func:`attitude_position_noise`)."""
     n = len(poses)
     if n < 2:
         return np.zeros((0, 3))
@@ -151,28 +165,81 @@ def attitude_increment_sigma(poses: Sequence[NavSnapshot], nav_cfg,
                                                            p.heading_rad) for p in poses[:-1]]),
                        v_ned)
     j_vel = _turned(poses[:-1], v_body * dt[:, None])
-    var = (np.einsum("a,kai->ki", lever_var, j_lever ** 2)
-           + np.einsum("a,kai->ki", one_var, j_vel ** 2))
+    var = np.einsum("a,kai->ki", one_var, j_vel ** 2)
+    if lever_term:
+        var = var + np.einsum("a,kai->ki", lever_var, j_lever ** 2)
     return np.sqrt(var)
 
 
+#: sub-samples per attitude interval of :func:`attitude_position_noise`'s white noise
+POSITION_NOISE_SUBSAMPLES = 8
+
+
+def attitude_position_noise(poses: Sequence[NavSnapshot], nav_cfg,
+                            lever_m: Sequence[float]) -> sp.csr_matrix:
+    """The array positions' error from the attitude's noise turning the lever arm
+    ``lever_m`` (body frame, m) from the DVL head to the array, as a sparse (3 n, m)
+    matrix S: the error of pose k (N, E, D) is rows 3k..3k+2 of S theta, theta m white
+    unit-variance unknowns (docs/micronavigation.md, "Position noise"). Each angle
+    (roll and pitch sampled every ``dvl_interval_s`` with ``dvl_tilt_sigma_deg``, the
+    heading every ``heading_interval_s`` with ``heading_sigma_deg``) interpolated
+    linearly to the poses' times (module docstring, 1) has, averaged over the samples'
+    phase to the pings (not known here), the covariance sigma^2 R(tau / T) with
+    R(u) = 2/3 - u^2 + |u|^3 / 2 (|u| <= 1), (2 - |u|)^3 / 6 (1 <= |u| <= 2), 0 beyond:
+    that of white noise smoothed by the interpolation's hat, which S realises on
+    :data:`POSITION_NOISE_SUBSAMPLES` sub-samples a sample interval. The steps' errors
+    are then correlated between neighbours, which a step noise cannot say."""
+    n = len(poses)
+    t = np.array([p.time_ns for p in poses], dtype=np.float64) * 1e-9
+    t = t - t[0]
+    jac = _turned(poses, np.asarray(lever_m, dtype=np.float64))       # (n, 3 angles, 3)
+    sub = POSITION_NOISE_SUBSAMPLES
+    rows, cols, vals = [], [], []
+    col0 = 0
+    for a, (interval, sig_deg) in enumerate((
+            (nav_cfg.dvl_interval_s, nav_cfg.dvl_tilt_sigma_deg),
+            (nav_cfg.dvl_interval_s, nav_cfg.dvl_tilt_sigma_deg),
+            (nav_cfg.heading_interval_s, nav_cfg.heading_sigma_deg))):
+        sig = math.radians(sig_deg) / math.sqrt(sub)
+        # sub-sample j at time (j - sub + 0.5) interval / sub: from one interval before
+        u = t / interval * sub
+        first = np.floor(u).astype(int)
+        m = int(first.max()) + 2 * sub + 1
+        for off in range(-sub, sub + 1):
+            j = first + off                             # sub-sample index past -interval
+            ts = (j + 0.5) / sub                       # its time, in intervals
+            w = np.maximum(0.0, 1.0 - np.abs(t / interval - ts))
+            keep = w > 0
+            for i in range(3):
+                rows.append(3 * np.flatnonzero(keep) + i)
+                cols.append(col0 + j[keep] + sub)
+                vals.append(sig * w[keep] * jac[keep, a, i])
+        col0 += m + sub
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                         shape=(3 * n, col0))
+
+
 def nav_increment_sigma(poses: Sequence[NavSnapshot], nav_cfg,
-                        lever_m: Sequence[float] | None = None) -> np.ndarray:
+                        lever_m: Sequence[float] | None = None,
+                        lever_term: bool = True) -> np.ndarray:
     """Per step between consecutive poses, the sigma (n - 1, 3) of the navigation's
     increment per NED axis, m (module docstring, 1); with ``lever_m`` (body frame, m:
     the array's reference point less the DVL head's) the attitude's noise turning that
     lever arm (:func:`attitude_increment_sigma`) is added: the increments are those of
-    the array."""
+    the array. ``lever_term`` False: without the lever arm's part (the step noise
+    independent from step to step; the fusion models the rest as the positions' noise,
+    :func:`attitude_position_noise`)."""
     t = np.array([p.time_ns for p in poses], dtype=np.float64) * 1e-9
     dt = np.diff(t)
     sig = np.where(locked_steps(poses), nav_cfg.dvl_velocity_sigma_m_s,
                    nav_cfg.dvl_gap_velocity_sigma_m_s)
     out = np.repeat((sig * dt)[:, None], 3, axis=1)
-    fused = np.array([bool(p.quality & NAV_FUSED) for p in poses], dtype=bool)
+    fused = np.array([bool(p.quality & (NAV_FUSED | NAV_SIMULATED)) for p in poses],
+                     dtype=bool)
     gps = ~(fused[:-1] & fused[1:])
     out[gps] = [nav_cfg.gps_sigma_m, nav_cfg.gps_sigma_m, nav_cfg.gps_height_sigma_m]
     if lever_m is not None and len(poses) > 1:
-        out = np.hypot(out, attitude_increment_sigma(poses, nav_cfg, lever_m))
+        out = np.hypot(out, attitude_increment_sigma(poses, nav_cfg, lever_m, lever_term))
     return out
 
 
@@ -299,7 +366,8 @@ class MicronavResult:
     poses: list[NavSnapshot]
     echoes: EchoIncrements
     nav_sigma_m: np.ndarray
-    fused_cov_m2: np.ndarray
+    #: the fused steps' covariances (None: not computed, :func:`~.fusion.fuse_increments`)
+    fused_cov_m2: np.ndarray | None
     #: poses given an altitude from the interpolated bottom depth (no bottom lock)
     altitude_filled: int = 0
     #: the echoes' mean error against the navigation's locked steps, taken out (3,), m;
@@ -337,6 +405,48 @@ class MicronavResult:
                 "seeded_from_echoes": self.echoes.seeded_from_echoes}
 
 
+def fuse_poses(poses: Sequence[NavSnapshot], inc: np.ndarray, cov: np.ndarray,
+               lever_arms, nav_cfg, micronav_cfg
+               ) -> tuple[list[NavSnapshot], np.ndarray | None, np.ndarray | None]:
+    """The ``poses`` fused with the echoes' body-origin increments ``inc`` (n - 1, 3; NaN
+    rows refused) of covariances ``cov`` (module docstring, 3): (fused poses, the fused
+    steps' covariances (None: not computed), the echoes' bias taken out (None: too few
+    locked steps)). ``lever_arms``: the hardware's ``[lever_arms]``."""
+    # fused at the array's reference point (what the imaging places, and where the
+    # navigation's error is the DVL's plus the attitude's noise over the lever arm from
+    # the DVL head, and the echoes' is their own): each pose's lever arm to the array
+    # turned by its attitude, added to the navigation's positions and, differenced, to
+    # the echoes' body-origin increments (the estimator was given the same attitudes)
+    arm = np.asarray(lever_arms.array_m, dtype=np.float64)
+    to_array = np.array([body_to_ned(p.roll_rad, p.pitch_rad, p.heading_rad) @ arm
+                         for p in poses])
+    pos = np.array([p.ned for p in poses], dtype=np.float64) + to_array
+    inc = inc + np.diff(to_array, axis=0)
+    nav_inc = np.diff(pos, axis=0)
+    both = locked_steps(poses) & np.all(np.isfinite(inc), axis=1)
+    bias = None
+    if both.sum() >= micronav_cfg.bias_min_steps:
+        bias = np.mean(inc[both] - nav_inc[both], axis=0)
+        inc = inc - bias
+    # the steps' own noise (the DVL's, the velocity turned by one attitude) and the
+    # attitude's noise turning the lever arm as the positions' noise
+    lever = array_lever_m(lever_arms)
+    step_sigma = nav_increment_sigma(poses, nav_cfg, lever, lever_term=False)
+    ncov = np.einsum("ki,ij->kij", np.maximum(step_sigma, 1e-9) ** 2, np.eye(3))
+    t = np.array([p.time_ns for p in poses], dtype=np.float64) * 1e-9
+    interval = float(np.median(np.diff(t)))
+    x, fcov = fuse_increments(pos, ncov, inc, cov, micronav_cfg.anchor_sigma_m,
+                              micronav_cfg.acceleration_sigma_m_s2 * interval ** 2,
+                              position_noise=attitude_position_noise(poses, nav_cfg, lever),
+                              step_covariance=False)
+    x = x - to_array                                     # back to the body origin
+    fused = [dataclasses.replace(p, north_m=float(q[0]), east_m=float(q[1]),
+                                 down_m=float(q[2]),
+                                 altitude_m=float(p.altitude_m + p.down_m - q[2]))
+             for p, q in zip(poses, x)]
+    return fused, fcov, bias
+
+
 def fuse_with_navigation(pings: Iterable, poses: Sequence[NavSnapshot], hardware,
                          processing, nav_cfg, micronav_cfg, **options) -> MicronavResult:
     """The re-navigated ``poses`` of ``pings`` fused with the echoes' increments (module
@@ -349,22 +459,8 @@ def fuse_with_navigation(pings: Iterable, poses: Sequence[NavSnapshot], hardware
     if len(poses) < 2:
         return MicronavResult(poses, echoes, sigma, np.zeros((0, 3, 3)))
     inc, cov = echoes.increments()
-    nav_inc = np.diff(np.array([p.ned for p in poses], dtype=np.float64), axis=0)
-    both = locked_steps(poses) & np.all(np.isfinite(inc), axis=1)
-    bias = None
-    if both.sum() >= micronav_cfg.bias_min_steps:
-        bias = np.mean(inc[both] - nav_inc[both], axis=0)
-        inc = inc - bias
-    ncov = np.einsum("ki,ij->kij", sigma ** 2, np.eye(3))
-    t = np.array([p.time_ns for p in poses], dtype=np.float64) * 1e-9
-    interval = float(np.median(np.diff(t)))
-    pos = np.array([p.ned for p in poses], dtype=np.float64)
-    x, fcov = fuse_increments(pos, ncov, inc, cov, micronav_cfg.anchor_sigma_m,
-                              micronav_cfg.acceleration_sigma_m_s2 * interval ** 2)
-    fused = [dataclasses.replace(p, north_m=float(q[0]), east_m=float(q[1]),
-                                 down_m=float(q[2]),
-                                 altitude_m=float(p.altitude_m + p.down_m - q[2]))
-             for p, q in zip(poses, x)]
+    fused, fcov, bias = fuse_poses(poses, inc, cov, hardware.lever_arms, nav_cfg,
+                                   micronav_cfg)
     fused, filled = with_interpolated_bottom(fused)
     out = MicronavResult(fused, echoes, sigma, fcov, filled, bias)
     log.info("%d poses %s", len(fused), out.description)

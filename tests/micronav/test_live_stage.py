@@ -33,7 +33,9 @@ from svss_daq.config import (HardwareConfig, ProcessingConfig, config_path, load
 from svss_daq.frames import body_to_ned
 from svss_daq.ping import NAV_FUSED, NAV_GPS_FIX
 from svss_proc.conditioning import Conditioner
+from svss_daq.nav.renavigate import current_navigation_config
 from svss_proc.micronav.horizontal import estimate_displacement
+from svss_proc.micronav.renav import array_lever_m, attitude_increment_sigma
 from svss_proc.run_worker import Worker
 from svss_proc.tiles import read_tile
 
@@ -133,13 +135,18 @@ def expected_poses(pings) -> list:
     geo = array_geometry(hw)
     cond = Conditioner(hw.digitiser, make_waveform(hw.waveform), 2, 1)
     cs = [cond.ping(p) for p in pings]
+    nav_cfg = current_navigation_config()
+    assert nav_cfg.dvl_gap_velocity_sigma_m_s == 0.3
     s2 = 0.3 ** 2
     x, cov = pings[0].nav.ned.copy(), np.eye(3) * s2
     out = [pings[0]]
     for (pa, ca), (pb, cb) in zip(zip(pings, cs), zip(pings[1:], cs[1:])):
         na, nb = pa.nav, pb.nav
         n_inc = nb.ned - na.ned
-        n_cov = np.eye(3) * (0.3 * 0.1) ** 2
+        # the held velocity's sigma (no bottom lock) over the step, and the attitude's
+        # noise turning the lever arm to the array (the re-navigation's sigma)
+        n_cov = np.diag(np.hypot(0.3 * 0.1, attitude_increment_sigma(
+            [na, nb], nav_cfg, array_lever_m(hw.lever_arms))[0]) ** 2)
         est = estimate_displacement(
             ca.data, cb.data, ca.t0_s, ca.dt_s, geo, pa.projector, pb.projector,
             body_to_ned(na.roll_rad, na.pitch_rad, na.heading_rad), na.ned,
