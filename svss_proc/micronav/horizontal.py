@@ -44,7 +44,8 @@ Where it refuses (``DisplacementEstimate.refused`` says why): the phase centres 
 overlap (fewer than ``min_pairs`` pairs sharing a translation within ``tolerance_m``;
 for example consecutive pings across the projector sequence's wrap, 5 -> 0, whose phase
 centres are 57 cm apart across against the array's 50 cm), there is no coherent seabed
-return at nadir (``min_nadir_coherence``), or too few patches cohere above
+return at nadir (``min_nadir_coherence``), the nadir return is not a seabed's layer (a
+point's echo or noise: :func:`seabed_layer`), or too few patches cohere above
 ``min_coherence`` (the echoes decorrelated).
 """
 
@@ -62,8 +63,8 @@ from .patch_focus import SubAperture, focus, ping_taps
 from .phase_centres import PhaseCentrePairs, near_pairs, phase_centres
 
 __all__ = ["DisplacementEstimate", "Patch", "TapCache", "displacement_pass",
-           "estimate_displacement", "focus_points", "phase_gradient", "seabed_patches",
-           "translated_pairs"]
+           "estimate_displacement", "focus_points", "layer_offsets", "phase_gradient",
+           "seabed_layer", "seabed_patches", "translated_pairs"]
 
 #: the measured scatter of the estimates over their Cramer-Rao sigma (simulated sand, seed
 #: scene, configured order at 1 m/s, 50 ping pairs at pings 40-70 and 70-100 of
@@ -79,6 +80,52 @@ PATCH_NAMES = ("nadir", "ahead", "astern", "starboard", "port", "ahead-starboard
 PATCH_DIRECTIONS = ((0.0, 0.0), (1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0),
                     (0.5 ** 0.5, 0.5 ** 0.5), (0.5 ** 0.5, -0.5 ** 0.5),
                     (-0.5 ** 0.5, 0.5 ** 0.5), (-0.5 ** 0.5, -0.5 ** 0.5))
+
+
+#: the seabed layer test (:func:`seabed_layer`): ping a's nadir patch focused at depth
+#: offsets from the navigation's seabed within +-LAYER_WINDOW_M, every LAYER_STEP_M (the
+#: 15 kHz chirp resolves 5 cm in range); its strongest return must lie within
+#: LAYER_TOLERANCE_M of the seabed (the navigation's altitude error) and stand
+#: LAYER_CONTRAST_DB over the mean of the water column LAYER_TOLERANCE_M and more above
+#: it. Measured on the simulated sand (seed scene, interface and volume): the return peaks
+#: at the seabed and the water 10-20 cm above is 20-60 dB below it. The demo scene (points
+#: in water, no seabed): noise within +-5 dB over the window, or a point below nadir
+#: whose return keeps growing with depth (each passed the nadir coherence test and gave
+#: increments 10-27 mm wrong with a stated 3-6 mm).
+LAYER_WINDOW_M = 0.20
+LAYER_STEP_M = 0.05
+LAYER_TOLERANCE_M = 0.10
+LAYER_CONTRAST_DB = 10.0
+
+
+def layer_offsets(window_m: float = LAYER_WINDOW_M, step_m: float = LAYER_STEP_M
+                  ) -> np.ndarray:
+    """The depth offsets from the seabed (m, down positive) :func:`seabed_layer` looks at."""
+    n = int(round(window_m / step_m))
+    return step_m * np.arange(-n, n + 1, dtype=np.float64)
+
+
+def seabed_layer(offsets_m: np.ndarray, power: np.ndarray,
+                 tolerance_m: float = LAYER_TOLERANCE_M,
+                 contrast_db: float = LAYER_CONTRAST_DB) -> str | None:
+    """None where the nadir patch's mean focused power ``power`` at depth ``offsets_m``
+    (from the navigation's seabed, down positive) is a seabed's: its strongest return
+    within ``tolerance_m`` of the seabed, ``contrast_db`` over the mean power of the
+    water ``tolerance_m`` and more above it. Otherwise why not (a refusal's reason)."""
+    d = np.asarray(offsets_m, dtype=np.float64)
+    p = np.asarray(power, dtype=np.float64)
+    top = int(np.argmax(p))
+    head = "no seabed layer under the array: "
+    if not abs(d[top]) <= tolerance_m + 1e-9:
+        return (head + f"the nadir return is strongest {d[top]:+.2f} m from the "
+                f"navigation's seabed (within {tolerance_m:g} m needed: a point's echo "
+                "or the sediment, not the interface)")
+    water = p[d <= d[top] - tolerance_m + 1e-9]
+    level = 10.0 * math.log10(max(float(p[top]), 1e-300) / max(float(water.mean()), 1e-300))
+    if not level >= contrast_db:
+        return (head + f"the nadir return stands {level:.1f} dB over the water "
+                f"{tolerance_m:g} m and more above it ({contrast_db:g} dB needed)")
+    return None
 
 
 def focus_points(bb: np.ndarray, t0_s: float, dt_s: float, center_hz: float,
@@ -324,7 +371,9 @@ def displacement_pass(bb_a: np.ndarray, bb_b: np.ndarray, t0_s: float, dt_s: flo
     first return is the strongest and most coherent echo there is (0.80-0.99 on the
     simulated sand); without it the other patches' phases are noise and point echoes
     (the demo scene, with no seabed: nadir 0.14-0.22, and the patches' 0.3-0.8 gave
-    estimates 15-30 mm wrong before this test).
+    estimates 15-30 mm wrong before this test). A coherent nadir patch must also be a
+    seabed's layer (:func:`seabed_layer` on ping a's nadir patch focused at depths about
+    the seabed): a point echo below nadir coheres at 0.9-0.98 too.
     ``gradient``: "offset" corrects each patch's phase for the sub-apertures' offset by
     where its focused power comes from (:func:`phase_gradient`), "full" also moves the
     patch's look direction there, "none" neither (the choice measured in
@@ -403,8 +452,22 @@ def displacement_pass(bb_a: np.ndarray, bb_b: np.ndarray, t0_s: float, dt_s: flo
     phases, gammas = np.array(phases), np.array(gammas)
     if gammas[0] < min_nadir_coherence:
         return _no_seabed(gammas[0], min_nadir_coherence, len(pairs), len(patches))
+    offs = layer_offsets()
+    profile = _layer_points(patches[0].points, offs)
+    va = focus_points(bb_a[pairs.channel_a], t0_s, dt_s, center_hz, c, tx_a, rx_a,
+                      profile.reshape(-1, 3))
+    why = seabed_layer(offs, np.mean(np.abs(va.reshape(len(offs), -1)) ** 2, axis=1))
+    if why:
+        return _refused(why, len(pairs), len(patches))
     return _fit(patches, phases, gammas, np.array(rows), np.array(sig), k, min_coherence,
                 min_patches, pairs, ob, oa, mismatch)
+
+
+def _layer_points(nadir: np.ndarray, offsets_m: np.ndarray) -> np.ndarray:
+    """The nadir patch's points (m, 3) moved down by each offset: (n_offsets, m, 3)."""
+    out = np.repeat(np.asarray(nadir, dtype=np.float64)[None], len(offsets_m), axis=0)
+    out[..., 2] += np.asarray(offsets_m)[:, None]
+    return out
 
 
 def _no_seabed(gamma: float, min_nadir_coherence: float, n_pairs: int, n_patch: int
@@ -495,7 +558,7 @@ def _patch_stats(bb_a, bb_b, t0_s, dt_s, center_hz, c, k, pairs, tx_a, rx_a, tx_
     """The patches' phases, coherences, rows and phase sigmas as the reference loop of
     :func:`displacement_pass` computes them, focused by :mod:`.patch_focus` in a frame
     centred on ``centre``, all patches at once; the nadir patch first (a refusal when
-    it does not cohere, before the others are focused)."""
+    it does not cohere or is not a seabed's layer, before the others are focused)."""
     ta = cache.taps(bb_a, t0_s, dt_s, center_hz)
     tb = cache.taps(bb_b, t0_s, dt_s, center_hz)
     sub_a = SubAperture(pairs.channel_a, tx_a - centre, rx_a - centre)
@@ -516,6 +579,13 @@ def _patch_stats(bb_a, bb_b, t0_s, dt_s, center_hz, c, k, pairs, tx_a, rx_a, tx_
     g0 = float(abs(np.sum(va0 * np.conj(vb0))) / math.sqrt(max(pa0 * pb0, 1e-300)))
     if g0 < min_nadir_coherence:
         return _no_seabed(g0, min_nadir_coherence, len(pairs), n_patch)
+    offs = layer_offsets()
+    flat = _layer_points(pts[0], offs).reshape(-1, 3)
+    vl = cache.focused(bb_a, geo_a + ("layer", flat.tobytes()),
+                       lambda: focus(ta, sub_a, flat, c))
+    why = seabed_layer(offs, np.mean(np.abs(vl.reshape(len(offs), m)) ** 2, axis=1))
+    if why:
+        return _refused(why, len(pairs), n_patch)
     va1, vb1 = part(slice(1, None), "rest")
     va, vb = np.concatenate([va0, va1]), np.concatenate([vb0, vb1])
     cross = np.sum(va * np.conj(vb), axis=1)

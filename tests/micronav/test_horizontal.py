@@ -184,22 +184,68 @@ def test_focus_points_brings_a_point_echo_into_phase_only_at_the_point():
     assert abs(math.remainder(np.angle(v1) - want, 2 * math.pi)) < 0.1
 
 
-def test_refuses_without_a_seabed():
-    """The demo scene: six points in water, no seabed. The patches still cohere 0.3-0.8
-    on noise and the points' echoes (and gave increments 15-30 mm wrong, the truth being
-    the straight track's), so the estimator must refuse on the nadir patch."""
+def _demo_pair(i: int, **options):
+    """The estimate between the demo scene's pings i and i + 1 (six points in water, no
+    seabed), posed by the simulator's straight track (the truth: no correction)."""
     loaded = load_with_text(HardwareConfig, config_path("hardware.toml"))
     hw = loaded.value
     from sim_device.environment_source import EnvironmentSource
     src = EnvironmentSource(loaded, load_scene(config_path("scenes/demo.toml")))
     cond = Conditioner(hw.digitiser, make_waveform(hw.waveform), 2)
-    pa, pb = src.ping(42), src.ping(43)
+    pa, pb = src.ping(i), src.ping(i + 1)
     ca, cb = cond.ping(pa), cond.ping(pb)
     na, nb = pa.nav, pb.nav
-    est = estimate_displacement(
+    return estimate_displacement(
         ca.data, cb.data, ca.t0_s, ca.dt_s, src.geometry, pa.projector, pb.projector,
         body_to_ned(na.roll_rad, na.pitch_rad, na.heading_rad), na.ned,
         body_to_ned(nb.roll_rad, nb.pitch_rad, nb.heading_rad), nb.ned,
-        na.down_m + na.altitude_m, 1500.0, hw.waveform.center_hz)
+        na.down_m + na.altitude_m, 1500.0, hw.waveform.center_hz, **options)
+
+
+def test_refuses_without_a_seabed():
+    """The demo scene: six points in water, no seabed. The patches still cohere 0.3-0.8
+    on noise and the points' echoes (and gave increments 15-30 mm wrong, the truth being
+    the straight track's), so the estimator must refuse on the nadir patch."""
+    est = _demo_pair(42)
     assert est.refused is not None and "no coherent seabed return" in est.refused, est
     assert np.isnan(est.correction_m).all()
+
+
+@pytest.mark.parametrize("kernel", ["numba", "numpy"])
+def test_refuses_a_point_echo_below_nadir(kernel):
+    """The demo scene's first point (on the track, 0.30 m below the nominal bottom) under
+    the array at pings 24-33: its echo coheres at 0.94-0.98 over the nadir patch, and
+    without the layer test those pairs gave increments 20-27 mm wrong across with a stated
+    sigma of 3-6 mm (the fusion then focused the demo scene worse than the navigation
+    alone). The nadir return grows with depth there: it is no seabed."""
+    est = _demo_pair(25, kernel=kernel)
+    assert est.refused is not None and "no seabed layer under the array" in est.refused, est
+    assert "strongest +0.20 m from the navigation's seabed" in est.refused, est.refused
+    assert np.isnan(est.correction_m).all()
+
+
+def test_seabed_layer_wants_an_interface_at_the_seabed_depth():
+    """The layer test on profiles of the nadir patch's power (offsets from the
+    navigation's seabed, down positive): an interface's return (peaked at the seabed, the
+    water 20-60 dB below: the simulated sand's), also 5 cm off; the same 10 cm further
+    down than the tolerance; a point below nadir whose return grows with depth; noise."""
+    from svss_proc.micronav.horizontal import LAYER_TOLERANCE_M, layer_offsets, seabed_layer
+    d = layer_offsets()
+    assert d[0] == pytest.approx(-0.2) and d[-1] == pytest.approx(0.2) and 0.0 in d
+    sand = 10.0 ** (-np.minimum(np.abs(d) * 200.0, 60.0 * (d < 0) + 20.0 * (d >= 0)) / 10.0)
+    assert seabed_layer(d, sand) is None
+    assert seabed_layer(d, np.roll(sand, 1)) is None                # the seabed 5 cm deeper
+    deep = np.roll(sand, 3)                                          # 15 cm deeper
+    why = seabed_layer(d, deep)
+    assert why and why.startswith("no seabed layer") and "+0.15 m" in why, why
+    assert seabed_layer(d, deep, tolerance_m=0.15) is None
+    point = 10.0 ** (np.clip(d, 0.0, None) * 200.0 / 10.0)           # +40 dB at 0.2 m
+    assert "strongest +0.20 m" in seabed_layer(d, point)
+    rng = np.random.default_rng(3)
+    noise = rng.uniform(0.5, 1.5, d.size)
+    noise[np.argmin(np.abs(d))] = 4.0                                # 6-9 dB over the rest
+    assert noise.argmax() == np.argmin(np.abs(d))
+    why = seabed_layer(d, noise)
+    assert why and "dB over the water" in why and "(10 dB needed)" in why, why
+    assert seabed_layer(d, noise, contrast_db=0.0) is None
+    assert LAYER_TOLERANCE_M == pytest.approx(0.10)
