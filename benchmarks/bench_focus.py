@@ -810,10 +810,12 @@ def print_micronav_table(cases: list[dict]) -> None:
             continue
         e = m["all_steps"]
         f = lambda v: "/".join(f"{x:.2f}" for x in v)            # noqa: E731
+        coh = m["nadir_coherence_median"]
         print(f"{c['scene']:6} {c['variant']:19} {m['from_echoes']}/{m['pairs']} "
               f"echo {f(e['echo_rms_error_mm'])} [{f(e['echo_rms_error_over_sigma'])}] "
               f"renav {f(e['nav_rms_error_mm'])} [{f(e['nav_rms_error_over_sigma'])}] "
-              f"fused {f(e['fused_rms_error_mm'])}; coh {m['nadir_coherence_median']:.2f}")
+              f"fused {f(e['fused_rms_error_mm'])}; coh "
+              + ("n/a (no pair accepted)" if coh is None else f"{coh:.2f}"))
 
 
 def main(argv=None) -> int:
@@ -906,9 +908,6 @@ def main(argv=None) -> int:
                       zip(c["poses"]["true"]["points"], ref["poses"]["true"]["points"])]
                 c["motion_true_vs_level_true_db"] = {"per_point": lv,
                                                      "mean": float(np.mean(lv))}
-    print_tables(cases)
-    if args.micronav:
-        print_micronav_table(cases)
     result = {"command": " ".join([os.path.basename(sys.executable)] + sys.argv),
               "git": git_info(args.source_revision), "machine": machine_info(),
               "processing": str(Path(args.processing).resolve().relative_to(ROOT))
@@ -919,10 +918,15 @@ def main(argv=None) -> int:
                                   "cube2": [CUBE2_HALF, CUBE2_STEP],
                                   "lines": [LINE_HALF, LINE_STEP]},
               "cases": cases, "wall_s": time.perf_counter() - t_start}
-    print(f"\nwall time {result['wall_s']:.0f} s")
+    # the results saved before they are printed: a table's formatting never loses a run
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(json.dumps(result, indent=1, default=_json_default))
+    print_tables(cases)
+    if args.micronav:
+        print_micronav_table(cases)
+    print(f"\nwall time {result['wall_s']:.0f} s")
+    if args.out:
         print(f"wrote {args.out}")
     return 0
 
