@@ -5,6 +5,11 @@ and depth slices of the background-normalised, compressed volume, with the detec
 marked, a colour bar in dB re background and the tile's identity.
 :func:`mip_png`: the three projections of ``|image|`` in dB re the tile's peak, for tiles
 processed without products.
+
+Both are drawn by :mod:`svss_proc.products.raster` straight into pixels, not by
+matplotlib (which took ten times as long, see there); matplotlib provides the colour
+maps and the fonts. :func:`save_png` writes a matplotlib figure (the run's mosaic) on
+the same palette.
 """
 
 from __future__ import annotations
@@ -13,69 +18,26 @@ import functools
 import logging
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib import colormaps
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.cm import ScalarMappable  # noqa: E402
-from matplotlib.colors import Normalize  # noqa: E402
-from matplotlib.ticker import MaxNLocator  # noqa: E402
+from svss_daq.config import ProductsConfig
+from svss_daq.decibels import amplitude_to_db_floored
 
-from svss_daq.config import ProductsConfig  # noqa: E402
-from svss_daq.decibels import amplitude_to_db_floored  # noqa: E402
-
-from .drc import compress  # noqa: E402
-from ..imaging.grid import TileGrid  # noqa: E402
+from .drc import compress
+from .raster import Canvas, View, rgb8, save_rgb_palette_png
+from ..imaging.grid import TileGrid
 
 log = logging.getLogger(__name__)
 
 CMAP = "magma"
+#: the colour map of the quick looks without products (dB re the tile's peak)
+MIP_CMAP = "viridis"
 
 
 def _edges(axis: np.ndarray, voxel_m: float) -> tuple[float, float]:
     half = voxel_m / 2 if np.isfinite(voxel_m) else 0.0
     return float(axis[0] - half), float(axis[-1] + half)
-
-
-def _show(ax, img, xe, ye, xlabel, ylabel, title, cmap, vmin, vmax, depth_down):
-    """Draw ``img`` (x index first) with axes in metres; depth increases downwards."""
-    extent = (xe[0], xe[1], ye[1], ye[0]) if depth_down else (xe[0], xe[1], ye[0], ye[1])
-    im = ax.imshow(img.T, origin="upper" if depth_down else "lower", extent=extent,
-                   vmin=vmin, vmax=vmax, cmap=cmap, aspect="equal", interpolation="nearest")
-    ax.set_xlabel(xlabel, fontsize=8)
-    ax.set_ylabel(ylabel, fontsize=8)
-    ax.set_title(title, fontsize=9)
-    ax.tick_params(labelsize=7)
-    return im
-
-
-def mip_png(path: str | Path, image: np.ndarray, grid: TileGrid, title: str,
-            dynamic_range_db: float = 40.0) -> Path:
-    """Write the three maximum intensity projections of |image| (dB re its peak)."""
-    mag = np.abs(image)
-    peak = mag.max()
-    rel = (amplitude_to_db_floored(mag / peak, -300.0) if peak > 0
-           else np.full(mag.shape, -dynamic_range_db))
-    v = grid.voxel_m
-    ea, ec, ed = _edges(grid.along, v), _edges(grid.cross, v), _edges(grid.depth, v)
-    fig, axes = plt.subplots(3, 1, figsize=(10, 9), constrained_layout=True,
-                             height_ratios=[grid.cross.size, grid.depth.size,
-                                            grid.depth.size])
-    panels = [(rel.max(axis=2), ea, ec, "along-track (m)", "cross-track (m)",
-               "depth MIP (top view)", False),
-              (rel.max(axis=1), ea, ed, "along-track (m)", "depth (m)",
-               "cross-track MIP (side view)", True),
-              (rel.max(axis=0), ec, ed, "cross-track (m)", "depth (m)",
-               "along-track MIP (end view)", True)]
-    for ax, (img, xe, ye, xl, yl, name, down) in zip(axes, panels):
-        im = _show(ax, img, xe, ye, xl, yl, name, "viridis", -dynamic_range_db, 0.0, down)
-        fig.colorbar(im, ax=ax, label="dB re tile peak", shrink=0.9)
-    fig.suptitle(title)
-    path = Path(path)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
 
 
 #: colour of voxels no ping imaged (RGBA): distinct from every colour of the map
@@ -94,6 +56,9 @@ COLORBAR_GAP_IN, COLORBAR_W_IN, COLORBAR_LABELS_IN = 0.6, 0.25, 1.9
 #: zlib level of the PNGs: 3 wrote a default tile's quick look in a sixth of the time of
 #: PIL's ``optimize`` (level 9) for 4 % more bytes (issue 32)
 PNG_COMPRESS_LEVEL = 3
+#: the contacts' circles: diameter (points; matplotlib's scatter of 60 square points) and
+#: colour, also their numbers'
+MARKER_PT, MARKER_RGB = 60 ** 0.5, (0.0, 1.0, 1.0)
 DEPTH_LABEL = "depth below seabed (m)"
 CROSS_LABEL = "cross-track (m), starboard +"
 
@@ -105,7 +70,7 @@ def view_rgba(display: np.ndarray, imaged: np.ndarray | None, floor_db: float,
     :data:`NO_DATA_RGBA` where ``imaged`` is False (no ping reached the voxels) or the
     value is NaN; low signal stays at the dark end of the map."""
     u = compress(display, floor_db, knee_db, ceiling_db)
-    rgba = plt.get_cmap(CMAP)(np.nan_to_num(u, nan=0.0))
+    rgba = colormaps[CMAP](np.nan_to_num(u, nan=0.0))
     missing = np.isnan(display) if imaged is None else (~imaged | np.isnan(display))
     rgba[missing] = NO_DATA_RGBA
     return rgba
@@ -132,27 +97,24 @@ def _panel_height(extent_m: float, along_m: float, width_in: float) -> tuple[flo
     return h, h / natural
 
 
-def _draw(ax, rgba, xe, ye, xlabel, ylabel, title, depth_down):
-    extent = (xe[0], xe[1], ye[1], ye[0]) if depth_down else (xe[0], xe[1], ye[0], ye[1])
-    ax.imshow(np.transpose(rgba, (1, 0, 2)), origin="upper" if depth_down else "lower",
-              extent=extent, aspect="auto", interpolation="nearest")
-    ax.set_xlabel(xlabel, fontsize=8)
-    ax.set_ylabel(ylabel, fontsize=8)
-    ax.set_title(title, fontsize=9, loc="left")
-    ax.tick_params(labelsize=7)
+def _draw(canvas: Canvas, box, rgba, xe, ye, xlabel, ylabel, title, depth_down) -> View:
+    """A view: the image with its axes in metres, their labels and its title."""
+    v = canvas.view(box, rgba, xe, ye, depth_down)
+    canvas.x_axis(v, xlabel)
+    canvas.y_axis(v, ylabel)
+    canvas.title(v, title)
+    return v
 
 
-def _sides(ax, horizontal: bool) -> None:
+def _sides(canvas: Canvas, v: View, horizontal: bool) -> None:
     """Mark port and starboard on a view whose cross-track axis is vertical (top view,
     depth slices; starboard up) or horizontal (end view; starboard right)."""
-    kw = {"transform": ax.transAxes, "fontsize": 7, "color": "white", "weight": "bold",
-          "bbox": {"boxstyle": "round,pad=0.15", "fc": "0.15", "ec": "none", "alpha": 0.7}}
     if horizontal:
-        ax.text(0.99, 0.02, "STBD →", ha="right", va="bottom", **kw)
-        ax.text(0.01, 0.02, "← PORT", ha="left", va="bottom", **kw)
+        canvas.label_box(v.at(0.99, 0.02), "STBD \u2192", 7, "rd")
+        canvas.label_box(v.at(0.01, 0.02), "\u2190 PORT", 7, "ld")
     else:
-        ax.text(0.005, 0.97, "STBD", ha="left", va="top", **kw)
-        ax.text(0.005, 0.03, "PORT", ha="left", va="bottom", **kw)
+        canvas.label_box(v.at(0.005, 0.97), "STBD", 7, "la")
+        canvas.label_box(v.at(0.005, 0.03), "PORT", 7, "ld")
 
 
 def products_png(path: str | Path, mips: dict[str, np.ndarray], level: np.ndarray,
@@ -203,73 +165,118 @@ def products_png(path: str | Path, mips: dict[str, np.ndarray], level: np.ndarra
     bottom_h = BOTTOM_VIEW_IN
     slot = TITLE_IN + XLABEL_IN             # a panel's title above, its x axis below
     height = SUPTITLE_IN + sum(h for h, _ in heights) + len(panels) * slot + slot + bottom_h
-    # the layout is fixed here, in inches (no layout engine: it drew the figure once
-    # more to measure its texts, 40 % of the quick look's time); labels are placed in
-    # its pixels, and saving draws the figure once
-    fig = plt.figure(figsize=(width, height))
-    fig.set_dpi(cfg.quicklook.dpi)
-
-    def box(left_in, top_in, w_in, h_in):
-        return [left_in / width, 1.0 - (top_in + h_in) / height, w_in / width, h_in / height]
-
+    # the layout is fixed here, in inches; the views are placed in its pixels
+    canvas = Canvas(width, height, cfg.quicklook.dpi)
     n_det = len(detections)
     order = np.arange(n_det)
     drawn = []
     top = SUPTITLE_IN
     for (img, ye, _, ylabel, name, down, keys, sel), (h, exag) in zip(panels, heights):
-        ax = fig.add_axes(box(LEFT_IN, top + TITLE_IN, axes_w, h))
+        box = canvas.box(LEFT_IN, top + TITLE_IN, axes_w, h)
         top += h + slot
         if abs(exag - 1.0) > 0.05:
-            name += f" (vertical scale ×{exag:.1f})"
-        _draw(ax, img, ea, ye, "along-track (m)", ylabel, name, down)
+            name += f" (vertical scale \u00d7{exag:.1f})"
+        v = _draw(canvas, box, img, ea, ye, "along-track (m)", ylabel, name, down)
         if not down:
-            _sides(ax, horizontal=False)
-        idx = order if sel is None else order[sel]
-        drawn.append((ax, idx, keys))
+            _sides(canvas, v, horizontal=False)
+        drawn.append((v, order if sel is None else order[sel], keys))
     # the bottom row: the end view (true scale), the colour bar, the contact list
     end_w = min(bottom_h * lc / ld, 0.4 * axes_w) if ld > 0 else bottom_h
     end_h = min(bottom_h, end_w * ld / lc) if lc > 0 else bottom_h
-    ax = fig.add_axes(box(LEFT_IN, top + TITLE_IN, end_w, end_h))
-    _draw(ax, rgba(mips["mip_along"], None if hit is None else hit.any(axis=0)), ec, ed,
-          CROSS_LABEL, DEPTH_LABEL, "end view: maximum over along-track", True)
-    ax.set_aspect("equal")
-    ax.apply_aspect()
-    ax.xaxis.set_major_locator(MaxNLocator(5))
-    _sides(ax, horizontal=True)
-    drawn.append((ax, order, ("cross_m", "depth_m")))
+    v = canvas.view(canvas.box(LEFT_IN, top + TITLE_IN, end_w, end_h),
+                    rgba(mips["mip_along"], None if hit is None else hit.any(axis=0)), ec,
+                    ed, True)
+    canvas.x_axis(v, CROSS_LABEL, max_ticks=5)
+    canvas.y_axis(v, DEPTH_LABEL)
+    canvas.title(v, "end view: maximum over along-track")
+    _sides(canvas, v, horizontal=True)
+    drawn.append((v, order, ("cross_m", "depth_m")))
     cbar_left = LEFT_IN + end_w + COLORBAR_GAP_IN
-    cax = fig.add_axes(box(cbar_left, top + TITLE_IN, COLORBAR_W_IN, bottom_h))
     levels = sorted({lv for lv in (d.floor_db, 0.0, 10.0, d.knee_db, d.knee_db + 10.0,
                                    d.ceiling_db, d.ceiling_db + 20.0) if lv >= d.floor_db})
-    cb = fig.colorbar(ScalarMappable(Normalize(0.0, 1.0), CMAP), cax=cax)
-    cb.set_ticks(compress(np.asarray(levels), d.floor_db, d.knee_db, d.ceiling_db))
-    cb.set_ticklabels([f"{lv:g}" for lv in levels])
     gain = cfg.depth_gain
     label = "normalised level, dB re background\n(compressed scale; grey: no ping)"
     if gain.db_per_m:
         label += f"\n+ display gain {gain.db_per_m:g} dB/m below {gain.start_m:g} m"
-    cb.set_label(label, fontsize=8)
-    cb.ax.tick_params(labelsize=7)
+    canvas.colour_bar(canvas.box(cbar_left, top + TITLE_IN, COLORBAR_W_IN, bottom_h),
+                      _lut(CMAP), compress(np.asarray(levels), d.floor_db, d.knee_db,
+                                           d.ceiling_db), [f"{lv:g}" for lv in levels],
+                      label)
     text_left = cbar_left + COLORBAR_W_IN + COLORBAR_LABELS_IN
-    fig.text(text_left / width, 1.0 - (top + TITLE_IN) / height,
-             _detection_lines(detections, 25), va="top", ha="left", family="monospace",
-             fontsize=7)
-    fig.suptitle(f"{title}\n{n_det} detection(s) at {cfg.detection.threshold_db:g} dB re "
-                 f"background (numbered: the strongest {max_labels} on each view)\n"
-                 f"{identity}", fontsize=8, y=1.0 - 0.08 / height, va="top")
-    for ax, idx, keys in drawn:
-        _mark(ax, detections, idx, keys, max_labels)
+    canvas.text((text_left * canvas.dpi, (top + TITLE_IN) * canvas.dpi),
+                _detection_lines(detections, 25), 7, "la", "mono")
+    canvas.text((canvas.width / 2, 0.08 * canvas.dpi),
+                f"{title}\n{n_det} detection(s) at {cfg.detection.threshold_db:g} dB re "
+                f"background (numbered: the strongest {max_labels} on each view)\n"
+                f"{identity}", 8, "ma", align="center")
+    for v, idx, keys in drawn:
+        _mark(canvas, v, detections, idx, keys, max_labels)
     path = Path(path)
-    save_png(fig, path, cfg.quicklook.dpi)
-    plt.close(fig)
+    canvas.save_palette_png(path, _palette(), PNG_COMPRESS_LEVEL)
     return path
 
 
-@functools.lru_cache(maxsize=1)
-def _palette() -> tuple[int, ...]:
-    """The 256 colours of a quicklook: the colour map at 224 levels, greys, white,
-    black, the marker cyan and the no-data colour (made once)."""
-    cols = [tuple(c) for c in plt.get_cmap(CMAP)(np.linspace(0.0, 1.0, 224))[:, :3]]
+def mip_png(path: str | Path, image: np.ndarray, grid: TileGrid, title: str,
+            dynamic_range_db: float = 40.0, dpi: int = 90) -> Path:
+    """Write the three maximum intensity projections of |image| (dB re its peak), each
+    at true scale, stacked, with a colour bar."""
+    mag = np.abs(image)
+    peak = mag.max()
+    rel = (amplitude_to_db_floored(mag / peak, -300.0) if peak > 0
+           else np.full(mag.shape, -dynamic_range_db))
+    v = grid.voxel_m
+    ea, ec, ed = _edges(grid.along, v), _edges(grid.cross, v), _edges(grid.depth, v)
+    la, lc, ld = (e[1] - e[0] for e in (ea, ec, ed))
+    width = float(np.clip(la + 1.6, MIN_WIDTH_IN, MAX_WIDTH_IN)) + COLORBAR_LABELS_IN
+    axes_w = width - LEFT_IN - RIGHT_IN - COLORBAR_GAP_IN - COLORBAR_W_IN \
+        - COLORBAR_LABELS_IN
+    panels = [(rel.max(axis=2), ea, ec, "along-track (m)", CROSS_LABEL,
+               "depth MIP (top view)", False),
+              (rel.max(axis=1), ea, ed, "along-track (m)", DEPTH_LABEL,
+               "cross-track MIP (side view)", True),
+              (rel.max(axis=0), ec, ed, CROSS_LABEL, DEPTH_LABEL,
+               "along-track MIP (end view)", True)]
+    sizes = []
+    for _, xe, ye, *_rest in panels:
+        w = axes_w
+        h = w * (ye[1] - ye[0]) / (xe[1] - xe[0])
+        if h > MAX_PANEL_IN:                # true scale: narrower rather than taller
+            w, h = w * MAX_PANEL_IN / h, MAX_PANEL_IN
+        sizes.append((w, max(h, 0.2)))
+    slot = TITLE_IN + XLABEL_IN
+    height = SUPTITLE_IN + sum(h for _, h in sizes) + len(panels) * slot
+    canvas = Canvas(width, height, dpi)
+    lut = _lut(MIP_CMAP)
+    top = SUPTITLE_IN
+    for (img, xe, ye, xl, yl, name, down), (w, h) in zip(panels, sizes):
+        u = np.clip((img + dynamic_range_db) / dynamic_range_db, 0.0, 1.0)
+        rgba = lut[np.round(u * (len(lut) - 1)).astype(np.int64)]
+        _draw(canvas, canvas.box(LEFT_IN, top + TITLE_IN, w, h), rgba, xe, ye, xl, yl,
+              name, down)
+        ticks = np.arange(0.0, 1.0001, 10.0 / dynamic_range_db) if dynamic_range_db > 0 \
+            else np.array([0.0])
+        canvas.colour_bar(canvas.box(LEFT_IN + w + COLORBAR_GAP_IN, top + TITLE_IN,
+                                     COLORBAR_W_IN, h), lut, ticks,
+                          [f"{dynamic_range_db * (t - 1):g}" for t in ticks],
+                          "dB re tile peak")
+        top += h + slot
+    canvas.text((canvas.width / 2, 0.12 * canvas.dpi), title, 10, "ma", align="center")
+    path = Path(path)
+    canvas.save_palette_png(path, _palette(MIP_CMAP), PNG_COMPRESS_LEVEL)
+    return path
+
+
+@functools.lru_cache(maxsize=4)
+def _lut(name: str) -> np.ndarray:
+    """The colour map ``name`` at 256 levels, RGBA floats."""
+    return colormaps[name](np.linspace(0.0, 1.0, 256))
+
+
+@functools.lru_cache(maxsize=2)
+def _palette(cmap: str = CMAP) -> tuple[int, ...]:
+    """The 256 colours of a quicklook: the colour map ``cmap`` at 224 levels, greys,
+    white, black, the marker cyan and the no-data colour (made once)."""
+    cols = [tuple(c) for c in colormaps[cmap](np.linspace(0.0, 1.0, 224))[:, :3]]
     cols += [(g, g, g) for g in np.linspace(0.0, 1.0, 24)]
     cols += [(0.0, 1.0, 1.0), (0.0, 0.75, 0.75), (0.5, 1.0, 1.0), NO_DATA_RGBA[:3],
              (0.15, 0.15, 0.15), (0.6, 0.6, 0.6), (0.3, 0.3, 0.3), (0.9, 0.9, 0.9)]
@@ -277,19 +284,17 @@ def _palette() -> tuple[int, ...]:
 
 
 def save_png(fig, path: Path, dpi: int) -> None:
-    """Save ``fig`` as a palette PNG (:func:`_palette`: the colour map at 224 levels and
-    the few other colours a quicklook uses; a third of the bytes of full colour), zlib
-    level :data:`PNG_COMPRESS_LEVEL`."""
+    """Save the matplotlib figure ``fig`` (the run's mosaic) as a palette PNG
+    (:func:`_palette`: the colour map at 224 levels and the few other colours a
+    quicklook uses; a third of the bytes of full colour), zlib level
+    :data:`PNG_COMPRESS_LEVEL`."""
     from PIL import Image
 
     fig.set_dpi(dpi)
     fig.canvas.draw()                      # the pixels, no PNG encoding between
     rgba = np.asarray(fig.canvas.buffer_rgba())
-    pal = Image.new("P", (1, 1))
-    pal.putpalette(list(_palette()))
-    Image.fromarray(rgba[..., :3], "RGB").quantize(palette=pal,
-                                                   dither=Image.Dither.NONE).save(
-        path, format="PNG", compress_level=PNG_COMPRESS_LEVEL)
+    save_rgb_palette_png(Image.fromarray(rgba[..., :3], "RGB"), path, _palette(),
+                         PNG_COMPRESS_LEVEL)
 
 
 def _detection_lines(detections: np.ndarray, n_max: int = 20) -> str:
@@ -307,17 +312,17 @@ def _detection_lines(detections: np.ndarray, n_max: int = 20) -> str:
     return "\n".join(lines)
 
 
-def _mark(ax, detections: np.ndarray, idx: np.ndarray, keys: tuple[str, str],
-          max_labels: int) -> list[int]:
+def _mark(canvas: Canvas, v: View, detections: np.ndarray, idx: np.ndarray,
+          keys: tuple[str, str], max_labels: int) -> list[int]:
     """Circle the contacts ``idx`` (rows of ``detections``, strongest first) on a view
     and number those :func:`choose_labels` picks; returns the numbered rows."""
     if len(idx) == 0:
         return []
-    x, y = detections[keys[0]][idx], detections[keys[1]][idx]
-    ax.scatter(x, y, s=60, facecolors="none", edgecolors="cyan", linewidths=0.8)
-    px = ax.transData.transform(np.column_stack([x, y]))
+    px = v.to_px(detections[keys[0]][idx], detections[keys[1]][idx])
+    canvas.circles(px, MARKER_PT, MARKER_RGB, 0.8, v)
     chosen = choose_labels(px, max_labels)
+    off = canvas.px(4.0)
     for j in chosen:
-        ax.annotate(str(int(idx[j])), (x[j], y[j]), xytext=(4, 4),
-                    textcoords="offset points", color="cyan", fontsize=7, weight="bold")
+        canvas.text((px[j, 0] + off, px[j, 1] - off), str(int(idx[j])), 7, "ls", "bold",
+                    rgb8(MARKER_RGB))
     return [int(idx[j]) for j in chosen]

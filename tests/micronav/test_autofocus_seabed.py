@@ -27,6 +27,7 @@ from svss_proc.imaging.imager import TileImager
 from svss_proc.micronav.autofocus import (_Sampler, autofocus_image, autofocus_settings,
                                           bright_points, shifted)
 
+from ..computed_once import computed_once
 from .posed_source import PosedSource, interface_sand_scene
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
@@ -46,7 +47,12 @@ pytestmark = pytest.mark.slow
 @pytest.fixture(scope="module")
 def seabed(tmp_path_factory):
     """(processing, hardware, the true first ping's tile frame, true-pose pings, the
-    scene's track line)."""
+    scene's track line): synthesised once for the session's workers."""
+    return computed_once(tmp_path_factory, "test_autofocus_seabed-seabed",
+                         lambda: _seabed(tmp_path_factory))
+
+
+def _seabed(tmp_path_factory):
     hw = load_with_text(HardwareConfig, config_path("hardware.toml"))
     sand = interface_sand_scene()
     # the volume's speckle too (the seed's 4000 scatterers a cubic metre): 0.5 s a ping

@@ -30,6 +30,7 @@ from svss_daq.rawfile import RawRunWriter
 from svss_proc.micronav.autofocus import shifted
 from svss_proc.tiles import read_tile
 
+from ..computed_once import computed_once
 from .posed_source import PosedSource, interface_sand_scene
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
@@ -65,11 +66,16 @@ def _record(path: Path, points: bool) -> Path:
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("af_stage")
-    proc = bench_focus.sand_processing(bench_focus.DEFAULT_PROCESSING, folder)
-    assert proc.value.autofocus is None           # the settings: config/processing.toml's
-    return (proc.source, _record(folder / "points.h5", True),
-            _record(folder / "plain.h5", False), folder)
+    """(the processing file, the run with the points, the run without, their folder):
+    recorded once for the session's workers (the files stay in the first one's
+    folder)."""
+    def record():
+        folder = tmp_path_factory.mktemp("af_stage")
+        proc = bench_focus.sand_processing(bench_focus.DEFAULT_PROCESSING, folder)
+        assert proc.value.autofocus is None       # the settings: config/processing.toml's
+        return (proc.source, _record(folder / "points.h5", True),
+                _record(folder / "plain.h5", False), folder)
+    return computed_once(tmp_path_factory, "test_autofocus_stage-runs", record)
 
 
 def _process(run: Path, out: Path, processing: str, *flags: str) -> dict:
