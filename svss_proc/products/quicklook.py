@@ -8,8 +8,7 @@ processed without products.
 
 Both are drawn by :mod:`svss_proc.products.raster` straight into pixels, not by
 matplotlib (which took ten times as long, see there); matplotlib provides the colour
-maps and the fonts. :func:`save_png` writes a matplotlib figure (the run's mosaic) on
-the same palette.
+maps and the fonts. The run's mosaic (:mod:`.run_products`) is drawn the same way.
 """
 
 from __future__ import annotations
@@ -281,20 +280,6 @@ def _palette(cmap: str = CMAP) -> tuple[int, ...]:
     cols += [(0.0, 1.0, 1.0), (0.0, 0.75, 0.75), (0.5, 1.0, 1.0), NO_DATA_RGBA[:3],
              (0.15, 0.15, 0.15), (0.6, 0.6, 0.6), (0.3, 0.3, 0.3), (0.9, 0.9, 0.9)]
     return tuple(int(round(255 * v)) for c in cols[:256] for v in c)
-
-
-def save_png(fig, path: Path, dpi: int) -> None:
-    """Save the matplotlib figure ``fig`` (the run's mosaic) as a palette PNG
-    (:func:`_palette`: the colour map at 224 levels and the few other colours a
-    quicklook uses; a third of the bytes of full colour), zlib level
-    :data:`PNG_COMPRESS_LEVEL`."""
-    from PIL import Image
-
-    fig.set_dpi(dpi)
-    fig.canvas.draw()                      # the pixels, no PNG encoding between
-    rgba = np.asarray(fig.canvas.buffer_rgba())
-    save_rgb_palette_png(Image.fromarray(rgba[..., :3], "RGB"), path, _palette(),
-                         PNG_COMPRESS_LEVEL)
 
 
 def _detection_lines(detections: np.ndarray, n_max: int = 20) -> str:

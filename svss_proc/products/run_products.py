@@ -43,6 +43,7 @@ from pathlib import Path
 
 import h5py
 import numpy as np
+from matplotlib import colormaps
 
 from svss_daq.config import (
     ConfigError,
@@ -62,7 +63,8 @@ from .detect import Footprint, sidelobe_filter
 from .drc import compress
 from .georef import (CONTACTS_GPKG, MOSAIC_TIF, SurveyProjection, utm_grid,
                      write_contacts_gpkg, write_mosaic_geotiff)
-from .quicklook import choose_labels, save_png
+from .quicklook import CMAP, MARKER_RGB, PNG_COMPRESS_LEVEL, _palette, choose_labels
+from .raster import Canvas, rgb8
 
 log = logging.getLogger(__name__)
 
@@ -569,48 +571,59 @@ def write_mosaic_h5(path: Path, m: dict, origin) -> Path:
     return path
 
 
+#: the mosaic's layout, inches: left margin (the y axis), title block, bottom (the x
+#: axis), the colour bar's gap, width and room for its labels
+MOSAIC_LEFT_IN, MOSAIC_TOP_IN, MOSAIC_BOTTOM_IN = 0.95, 0.45, 0.6
+MOSAIC_BAR_GAP_IN, MOSAIC_BAR_W_IN, MOSAIC_BAR_LABELS_IN = 0.3, 0.2, 1.1
+#: the contacts' circles on the mosaic, points (diameter)
+MOSAIC_MARKER_PT = 8.0
+
+
 def write_mosaic_png(path: Path, m: dict, contacts: list[dict], pcfg: ProductsConfig,
                      title: str, max_labels: int) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.cm import ScalarMappable
-    from matplotlib.colors import Normalize
-
+    """The plan-view mosaic as a palette PNG, drawn as the tiles' quicklooks are
+    (:mod:`svss_proc.products.raster`): north up, east right, at true scale (at most 9
+    inches a side and 300 inches a metre), the numbered contacts circled, a colour
+    bar in dB re background."""
     d = pcfg.drc
     img = compress(m["mip_db"], d.floor_db, d.knee_db, d.ceiling_db)
     img = np.where(np.isnan(m["mip_db"]), np.nan, img)
     cell = m["cell_m"]
     n, e = m["north"], m["east"]
-    extent = (e[0] - cell / 2, e[-1] + cell / 2, n[0] - cell / 2, n[-1] + cell / 2)
-    w, h = extent[1] - extent[0], extent[3] - extent[2]
+    ee = (float(e[0] - cell / 2), float(e[-1] + cell / 2))
+    ne = (float(n[0] - cell / 2), float(n[-1] + cell / 2))
+    w, h = ee[1] - ee[0], ne[1] - ne[0]
     scale = min(9.0 / max(w, 1e-6), 9.0 / max(h, 1e-6), 300.0)
-    fig, ax = plt.subplots(figsize=(max(w * scale, 5.0) + 1.5, max(h * scale, 3.0) + 1.2),
-                           constrained_layout=True)
-    rgba = plt.get_cmap("magma")(np.nan_to_num(img, nan=0.0))
+    view_w, view_h = w * scale, h * scale
+    canvas = Canvas(MOSAIC_LEFT_IN + max(view_w, 3.5) + MOSAIC_BAR_GAP_IN + MOSAIC_BAR_W_IN
+                    + MOSAIC_BAR_LABELS_IN,
+                    MOSAIC_TOP_IN + max(view_h, 2.0) + MOSAIC_BOTTOM_IN,
+                    pcfg.quicklook.dpi)
+    rgba = colormaps[CMAP](np.nan_to_num(img, nan=0.0))
     rgba[np.isnan(img) & (m["tile"] >= 0)] = (0.6, 0.6, 0.6, 1.0)    # in a tile, no ping
     rgba[m["tile"] < 0] = (1.0, 1.0, 1.0, 1.0)                        # outside every tile
-    ax.imshow(rgba, extent=extent, origin="lower", interpolation="nearest")
-    im = ScalarMappable(Normalize(0.0, 1.0), "magma")
-    ax.set_xlabel("east (m, survey frame)")
-    ax.set_ylabel("north (m, survey frame)")
-    ax.set_aspect("equal")
-    xy = np.array([[c["east_m"], c["north_m"]] for c in contacts]).reshape(-1, 2)
-    for i in choose_labels(ax.transData.transform(xy), max_labels):
-        c = contacts[i]
-        ax.plot(c["east_m"], c["north_m"], "o", mfc="none", mec="cyan", ms=8)
-        ax.annotate(str(c["contact"]), (c["east_m"], c["north_m"]), xytext=(4, 4),
-                    textcoords="offset points", color="cyan", fontsize=7)
-    cb = fig.colorbar(im, ax=ax, shrink=0.8)
+    v = canvas.view(canvas.box(MOSAIC_LEFT_IN, MOSAIC_TOP_IN, view_w, view_h),
+                    np.transpose(rgba, (1, 0, 2)), ee, ne, y_down=False)
+    canvas.x_axis(v, "east (m, survey frame)")
+    canvas.y_axis(v, "north (m, survey frame)")
+    canvas.text((v.x0 + v.w / 2, v.y0 - canvas.px(4)), title, 9, "md")
+    xy = v.to_px([c["east_m"] for c in contacts], [c["north_m"] for c in contacts])
+    chosen = choose_labels(xy, max_labels)
+    canvas.circles(xy[chosen], MOSAIC_MARKER_PT, MARKER_RGB, 1.0, v)
+    off = canvas.px(4.0)
+    for i in chosen:
+        canvas.text((xy[i, 0] + off, xy[i, 1] - off), str(contacts[i]["contact"]), 7, "ls",
+                    fill=rgb8(MARKER_RGB))
     levels = [lv for lv in (d.floor_db, 0.0, 10.0, d.knee_db, d.ceiling_db) if lv >= d.floor_db]
-    cb.set_ticks(compress(np.asarray(levels, dtype=np.float64), d.floor_db, d.knee_db,
-                          d.ceiling_db))
-    cb.set_ticklabels([f"{lv:g}" for lv in levels])
-    cb.set_label("plan-view MIP, dB re background (grey: no ping)", fontsize=8)
-    ax.set_title(title, fontsize=9)
-    save_png(fig, path, pcfg.quicklook.dpi)
-    plt.close(fig)
+    bar_h = 0.8 * max(view_h, 2.0)
+    canvas.colour_bar(canvas.box(MOSAIC_LEFT_IN + view_w + MOSAIC_BAR_GAP_IN,
+                                 MOSAIC_TOP_IN + (view_h - bar_h) / 2 if view_h > bar_h
+                                 else MOSAIC_TOP_IN, MOSAIC_BAR_W_IN, bar_h),
+                      colormaps[CMAP](np.linspace(0.0, 1.0, 256)),
+                      compress(np.asarray(levels, dtype=np.float64), d.floor_db, d.knee_db,
+                               d.ceiling_db), [f"{lv:g}" for lv in levels],
+                      "plan-view MIP, dB re background\n(grey: no ping)")
+    canvas.save_palette_png(path, _palette(), PNG_COMPRESS_LEVEL)
     return path
 
 

@@ -96,22 +96,29 @@ def test_default_tile_quicklook_is_legible(default_tile, tmp_path):
 
 
 @pytest.mark.parametrize("size_in", [(6.006, 3.337), (10.0, 9.0), (7.25, 2.995)])
-def test_palette_png_has_the_size_and_pixels_matplotlib_saves(tmp_path, size_in):
+def test_palette_png_has_the_size_and_the_nearest_palette_colours(tmp_path, size_in):
     # a size whose pixels are not whole (6.006 in at 100 dpi: 600.6 px) failed once the
     # pixels were taken raw (the mosaic of the demo was not written)
-    import matplotlib.pyplot as plt
     from PIL import Image
 
-    from svss_proc.products.quicklook import _palette, save_png
-    fig = plt.figure(figsize=size_in)
-    fig.add_subplot().imshow(np.arange(64.0).reshape(8, 8), cmap="magma")
-    save_png(fig, tmp_path / "palette.png", 100)
-    fig.savefig(tmp_path / "full.png", dpi=100)
-    plt.close(fig)
-    pal = Image.new("P", (1, 1))
-    pal.putpalette(_palette())
-    with Image.open(tmp_path / "palette.png") as a, Image.open(tmp_path / "full.png") as b:
-        assert a.mode == "P" and a.size == b.size
-        want = b.convert("RGB").quantize(palette=pal, dither=Image.Dither.NONE)
-        # matplotlib's own rendering, put on the same palette: the same pixels
-        np.testing.assert_array_equal(np.asarray(a), np.asarray(want))
+    from svss_proc.products.quicklook import _palette
+    from svss_proc.products.raster import Canvas
+    c = Canvas(*size_in, 100)
+    rng = np.random.default_rng(2)
+    c.view(c.box(0.5, 0.5, size_in[0] - 1.0, size_in[1] - 1.0), rng.uniform(
+        0, 1, (17, 9, 3)), (0.0, 1.0), (0.0, 1.0), False)
+    c.text((10, 10), "tile 12: 3.5 m", 9)
+    c.save_palette_png(tmp_path / "p.png", _palette(), 3)
+    pal = np.array(_palette()).reshape(-1, 3)
+    with Image.open(tmp_path / "p.png") as a:
+        assert a.mode == "P"
+        assert a.size == (round(size_in[0] * 100), round(size_in[1] * 100))
+        got = pal[np.asarray(a)]
+    want = c.pixels().astype(np.int64).reshape(-1, 3)
+    got = got.reshape(-1, 3)
+    # every pixel is the palette colour nearest to the drawn one (no dithering)
+    colours, inverse = np.unique(want, axis=0, return_inverse=True)
+    best = ((colours[:, None, :] - pal[None, :, :]) ** 2).sum(-1).min(-1)[inverse.ravel()]
+    chosen = ((want - got) ** 2).sum(-1)
+    assert np.all(chosen <= best + 3 * 255)            # PIL's colour cube rounds
+    assert np.mean(np.sqrt(chosen) - np.sqrt(best)) < 1.0
