@@ -14,6 +14,7 @@ import pytest
 from svss_daq.config import ProcessingConfig, config_path, load_with_text
 from svss_daq.rawfile import RawRunReader, RawRunWriter
 from svss_proc.tiles import read_tile
+from tests.computed_once import computed_once
 from tests.worker.conftest import simulate
 
 N_A = 30                      # pings of run A (3 s at 10 pings/s)
@@ -55,22 +56,27 @@ def split_run(whole: Path, out_dir: Path, run_id: str, split: int) -> list[Path]
 @pytest.fixture(scope="session")
 def survey(tmp_path_factory) -> dict:
     """Run A (one file, run id 'lineA') and run B (whole, and as two segments of run
-    'lineB')."""
-    d = tmp_path_factory.mktemp("survey")
-    a = simulate(d / "lineA.h5", N_A, run_attrs={"run_id": "lineA"})
-    whole = simulate(d / "lineB-whole.h5", N_B, skip=frozenset(range(8)))
-    return {"A": a, "B_whole": whole, "B_segments": split_run(whole, d, "lineB", SPLIT)}
+    'lineB'); made once for the session's workers."""
+    def make():
+        d = tmp_path_factory.mktemp("survey")
+        a = simulate(d / "lineA.h5", N_A, run_attrs={"run_id": "lineA"})
+        whole = simulate(d / "lineB-whole.h5", N_B, skip=frozenset(range(8)))
+        return {"A": a, "B_whole": whole, "B_segments": split_run(whole, d, "lineB", SPLIT)}
+    return computed_once(tmp_path_factory, "batch-survey", make)
 
 
 @pytest.fixture(scope="session")
 def reference(survey, coarse_proc, tmp_path_factory) -> dict:
     """`svss process` (in process: the same function) of run A and of run B whole."""
     from svss_proc.run_worker import process_raw
-    out = {}
-    for run, key in (("lineA", "A"), ("lineB", "B_whole")):
-        out[run] = tmp_path_factory.mktemp(f"process-{run}")
-        process_raw(survey[key], out[run], coarse_proc)
-    return out
+
+    def make():
+        out = {}
+        for run, key in (("lineA", "A"), ("lineB", "B_whole")):
+            out[run] = tmp_path_factory.mktemp(f"process-{run}")
+            process_raw(survey[key], out[run], coarse_proc)
+        return out
+    return computed_once(tmp_path_factory, "batch-reference", make)
 
 
 @pytest.fixture(scope="session")

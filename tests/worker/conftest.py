@@ -13,6 +13,7 @@ import pytest
 
 from svss_daq.config import ProcessingConfig, config_path, load_with_text
 from svss_proc.tiles import read_tile
+from tests.computed_once import computed_once
 
 ROOT = Path(__file__).resolve().parents[2]
 N_PINGS = 90                       # 9 s at 10 pings/s
@@ -82,7 +83,8 @@ def write_pings(path: Path, pings, run_attrs: dict | None = None) -> Path:
 
 @pytest.fixture(scope="session")
 def raw_run(tmp_path_factory) -> Path:
-    return simulate(tmp_path_factory.mktemp("raw") / "line1.h5")
+    return computed_once(tmp_path_factory, "worker-raw_run",
+                         lambda: simulate(tmp_path_factory.mktemp("raw") / "line1.h5"))
 
 
 @pytest.fixture(scope="session")
@@ -90,7 +92,8 @@ def short_run(tmp_path_factory) -> Path:
     """The demo scene's first :data:`N_SHORT` pings (those of :func:`raw_run`: the
     simulation is seeded) as run "line1": for the tests whose point needs no tile
     closed mid-run (a third of the imaging of :func:`raw_run`)."""
-    return simulate(tmp_path_factory.mktemp("short") / "line1.h5", N_SHORT)
+    return computed_once(tmp_path_factory, "worker-short_run", lambda: simulate(
+        tmp_path_factory.mktemp("short") / "line1.h5", N_SHORT))
 
 
 @pytest.fixture(scope="session")
@@ -105,18 +108,24 @@ def first_pings(short_run) -> list:
 def processed(raw_run, small_proc, tmp_path_factory) -> Path:
     """`svss process` of the raw run (in process: the same function)."""
     from svss_proc.run_worker import process_raw
-    out = tmp_path_factory.mktemp("processed")
-    process_raw(raw_run, out, small_proc)
-    return out
+
+    def run():
+        out = tmp_path_factory.mktemp("processed")
+        process_raw(raw_run, out, small_proc)
+        return out
+    return computed_once(tmp_path_factory, "worker-processed", run)
 
 
 @pytest.fixture(scope="session")
 def short_processed(short_run, small_proc, tmp_path_factory) -> Path:
     """`svss process` of :func:`short_run` (in process: the same function)."""
     from svss_proc.run_worker import process_raw
-    out = tmp_path_factory.mktemp("short-processed")
-    process_raw(short_run, out, small_proc)
-    return out
+
+    def run():
+        out = tmp_path_factory.mktemp("short-processed")
+        process_raw(short_run, out, small_proc)
+        return out
+    return computed_once(tmp_path_factory, "worker-short_processed", run)
 
 
 def svss(*args, **kw) -> subprocess.Popen:
