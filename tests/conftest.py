@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import resource
+import sys
 import time
 from pathlib import Path
 
@@ -14,6 +15,26 @@ from svss_daq.config import HardwareConfig, ProcessingConfig, config_path, load_
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = ROOT.parent / "shared" / "data"
+
+
+#: the project's packages, compiled to bytecode once at the start of a session
+PACKAGES = ("svss", "svss_daq", "svss_proc", "sim_device")
+
+
+def pytest_configure(config):
+    """Bytecode for the session's processes, even where the environment says
+    PYTHONDONTWRITEBYTECODE (this project's machines do): without it each of the some
+    130 real daemons, workers and devices the end-to-end tests start compiled the
+    project's modules from source (0.6 CPU s each on the 2-core Zen 3), and each test
+    process rewrote and compiled the test modules afresh (20 CPU s of collection). The
+    first process (the xdist controller, or the only one) compiles the packages; the
+    caches are __pycache__ folders, ignored by git."""
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+    sys.dont_write_bytecode = False
+    if not hasattr(config, "workerinput"):
+        import compileall
+        for pkg in PACKAGES:
+            compileall.compile_dir(str(ROOT / pkg), quiet=1)
 
 
 def pytest_xdist_auto_num_workers(config):
