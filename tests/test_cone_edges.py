@@ -157,6 +157,7 @@ def test_premise_the_voxels_are_at_the_edges_for_float64(cases):
     assert (counts["receiver-outside"] > 0).all()       # inside the projector cone
 
 
+@pytest.mark.slow
 def test_float32_kernels_gate_edge_voxels_as_float64(cases, tmp_path):
     nch = cases[0][2].shape[0]
     kd64, kd32 = _planes(nch, np.float64), _planes(nch, np.float32)

@@ -96,6 +96,7 @@ def _compare(got, per_launch: int, only=None):
                                    err_msg=name)
 
 
+@pytest.mark.slow
 def test_gpu_batches_under_the_simulator_add_what_the_cpu_kernel_adds(tmp_path):
     """The combinations of a real-GPU run (every interpolation, precision and delay model
     once). Batching is the same code for all of them; the other combinations differ only

@@ -91,6 +91,7 @@ def far_tile(hardware):
     return out
 
 
+@pytest.mark.slow
 def test_premise_realistic_far_tile(far_tile, hardware):
     tile, calls = far_tile["float32"]
     assert tile.grid.index >= 20 and tile.grid.along[0] >= FAR_M      # 300 m out
@@ -191,6 +192,7 @@ def test_real_gpu_float32_far_tile_matches_float64(far_tile, tmp_path):
     _check_gpu(far_tile, tmp_path, simulator=False, half=HALF_GPU)
 
 
+@pytest.mark.slow
 def test_scalar_math_keeps_float32_in_float32():
     """The scalar functions the GPU kernel is built from (kernel_math, here compiled for
     the CPU as they are for CUDA) keep float32 inputs in float32. Before issue 16 the

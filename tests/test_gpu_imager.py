@@ -13,6 +13,7 @@ import sys
 import textwrap
 
 import numpy as np
+import pytest
 
 from tests.test_gpu_kernel import ROOT, requires_cuda, subprocess_env
 
@@ -82,6 +83,7 @@ def _compare(r, precisions):
                                    atol=tol * np.abs(ref).max(), err_msg=prec)
 
 
+@pytest.mark.slow
 def test_gpu_imager_under_the_simulator_matches_the_cpu_imager(tmp_path):
     # float32 alone under the simulator (the precision whose device arithmetic differs)
     _compare(_run(tmp_path, simulator=True, precisions="float32"), "float32")

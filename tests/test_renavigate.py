@@ -310,6 +310,7 @@ def svss(*args):
                           text=True, cwd=ROOT, timeout=600)
 
 
+@pytest.mark.slow
 def test_svss_process_images_with_the_renavigated_poses_and_says_so(tmp_path, instrumented,
                                                                     hardware):
     from svss_proc.tiles import read_tile_header

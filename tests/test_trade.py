@@ -33,6 +33,7 @@ def rows_of(result, area):
     return [r for r in result["rows"] if r["area"] == area]
 
 
+@pytest.mark.slow
 def test_files_written(trade):
     out, result = trade
     for name in ["trade.csv", "trade.json", "trade.md"] + [f"pareto_{a}.png" for a in AREAS]:

@@ -117,6 +117,7 @@ def not_alarmed(*names):
         set(names) & {a["name"] for a in s["alarms"]})
 
 
+@pytest.mark.slow
 def test_alarms_raise_and_clear_through_real_processes_and_follow_survives_runs(
         rig, tmp_path):
     port = free_port()

@@ -74,6 +74,7 @@ def recorded(files) -> tuple[list, dict]:
     return pings, summary
 
 
+@pytest.mark.slow
 def test_twice_the_ping_rate_every_ping_recorded_and_counts_reconcile(rig, hardware):
     dev = rig.device("--time-scale", "2")
     acq = rig.acquire(dev, "--pings", "60", "--wait-subscribers", "1")
@@ -114,6 +115,7 @@ def test_twice_the_ping_rate_every_ping_recorded_and_counts_reconcile(rig, hardw
         assert err < 1.5, (k, err)
 
 
+@pytest.mark.slow
 def test_slow_subscriber_never_slows_acquisition(rig, tmp_path):
     daq = tmp_path / "daq.toml"
     text = (CONFIG / "daq.toml").read_text()
@@ -145,6 +147,7 @@ def test_slow_subscriber_never_slows_acquisition(rig, tmp_path):
     assert "stayed full for 1.0 s" in acq.logs()      # daq.toml's end_timeout_s
 
 
+@pytest.mark.slow
 def test_sigkill_leaves_the_recording_readable_to_its_last_flush(rig):
     dev = rig.device()
     acq = rig.acquire(dev, "--duration", "120")
@@ -163,6 +166,7 @@ def test_sigkill_leaves_the_recording_readable_to_its_last_flush(rig):
     assert run.summary is None                   # killed: no closing summary
 
 
+@pytest.mark.slow
 def test_full_disk_stops_recording_cleanly(rig):
     dev = rig.device()
     limit = 8 * 2**20                            # ~16 pings of 480 kB
@@ -180,6 +184,7 @@ def test_full_disk_stops_recording_cleanly(rig):
     assert all(p.samples.any() for p in pings)
 
 
+@pytest.mark.slow
 def test_two_survey_lines_on_one_device(rig):
     """The daemon restarted for the next line (same device, same folder): both runs are
     recorded whole, each in its own files."""

@@ -67,6 +67,7 @@ EXPECTED_EVENTS = ("digitiser.disconnected", "digitiser.reconnected", "digitiser
                    "gps.vanished", "gps.returned")
 
 
+@pytest.mark.slow
 def test_every_injected_fault_is_flagged_counted_and_survived(rig, tmp_path):
     faults = tmp_path / "faults.toml"
     faults.write_text(FAULTS)

@@ -27,6 +27,7 @@ seconds = 3.0
 PENDING = 3
 
 
+@pytest.mark.slow
 def test_pings_waiting_for_navigation_past_the_bound_are_posed_at_once(rig, tmp_path):
     faults = tmp_path / "faults.toml"
     faults.write_text(FAULTS)

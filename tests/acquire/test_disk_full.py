@@ -32,6 +32,7 @@ def _mounted_tmpfs(where, size_bytes: int) -> bool:
 
 
 @pytest.mark.parametrize("full", ["EFBIG", "ENOSPC"])
+@pytest.mark.slow
 def test_full_disk_stream_recording_and_summary_agree(rig, tmp_path, full):
     """The hostile tester's run: 139 pings recorded, published and imaged, 130 in the
     file, no summary. Here the daemon flushes every 10th ping, as it did then."""

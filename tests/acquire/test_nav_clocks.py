@@ -86,6 +86,7 @@ class Replay(threading.Thread):
         self._play(self.then, lambda: False)
 
 
+@pytest.mark.slow
 def test_dvl_clock_years_off_is_named_retimed_and_posed(rig, tmp_path):
     for f in (NO_BT, WITH_BT):
         if not f.exists():

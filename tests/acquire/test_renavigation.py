@@ -70,6 +70,7 @@ def max_aperture_spread(poses, scene, t0, aperture_s: float = 4.0):
     return max(spreads)
 
 
+@pytest.mark.slow
 def test_daemon_recording_renavigates_to_the_truth_and_svss_process_uses_it(rig, tmp_path):
     dev = rig.device()
     acq = rig.acquire(dev, "--pings", str(N_PINGS))

@@ -32,6 +32,7 @@ def _rss_mib(pid: int) -> float:
     raise AssertionError("no VmRSS")
 
 
+@pytest.mark.slow
 def test_clients_that_never_read_neither_grow_nor_keep_the_daemon(rig, tmp_path):
     """Issue 27 item 2: such clients grew the daemon by ~450 MiB each, blocked the
     service thread 10 s per stuck reply (a reading client's fetch timed out) and kept

@@ -61,6 +61,7 @@ def batch(survey, coarse_proc, client, tmp_path_factory) -> dict:
     return {"out": out, "summary": summary, "marker": marker}
 
 
+@pytest.mark.slow
 def test_tiles_equal_svss_process_voxel_for_voxel(batch, reference):
     """Images and products, these across the seams (products.background.across_seams,
     the default): each tile's products take the neighbouring tiles' planes and the
@@ -148,6 +149,7 @@ def test_survey_index_lists_every_tile(batch, reference):
         pd.testing.assert_frame_equal(ref[cols], mine[cols])
 
 
+@pytest.mark.slow
 def test_rerun_skips_finished_tiles_and_redoes_a_half_written_one(batch, reference, survey,
                                                                   coarse_proc, cluster,
                                                                   tmp_path, capsys):
@@ -296,6 +298,7 @@ def _segments_with_records(whole: Path, out_dir: Path, run_id: str, split: int):
     return paths
 
 
+@pytest.mark.slow
 def test_runs_with_instrument_records_are_renavigated_and_say_so(client, coarse_proc,
                                                                    hardware, tmp_path):
     """A run the daemon recorded with its instrument records: batch re-navigates it

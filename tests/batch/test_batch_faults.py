@@ -44,6 +44,7 @@ def corrupted(survey, coarse_proc, tmp_path_factory) -> dict:
     return {"path": path, "ref": ref, "manifest": manifest}
 
 
+@pytest.mark.slow
 def test_a_corrupted_ping_is_refused_as_svss_process_refuses_it(corrupted, survey,
                                                                 coarse_proc, client,
                                                                 tmp_path):

@@ -46,6 +46,7 @@ CLOSE = """
 """
 
 
+@pytest.mark.slow
 def test_closing_a_held_up_cluster_logs_no_heartbeat_traceback(tmp_path):
     script = tmp_path / "close.py"
     script.write_text(textwrap.dedent(CLOSE))

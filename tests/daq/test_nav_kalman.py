@@ -201,6 +201,7 @@ def test_live_navigator_keeps_the_aperture_geometry(cfg):
     assert absolute.max() < 0.3
 
 
+@pytest.mark.slow
 def test_live_poses_keep_the_geometry_across_gaps_in_the_pings(cfg):
     """Pings dropped for 2.4 s and 6 s (a loaded simulator dropped them; the DVL and the
     GPS went on): apertures across the gaps keep the geometry the same pings have when
@@ -296,6 +297,7 @@ print("COMPILED", compiled)
 
 
 @pytest.mark.parametrize("warm", ["warm", pytest.param("cold", marks=pytest.mark.extended)])
+@pytest.mark.slow
 def test_warm_up_compiles_what_the_daemon_calls_before_the_sonar_starts(warm, tmp_path):
     """The daemon calls warm_up() before it starts the sonar (daemon.start): with an empty
     numba cache, the filter's first real call must then compile nothing (a compile there

@@ -12,6 +12,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from svss_daq.rawfile import RawRunReader
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -112,6 +114,7 @@ def test_stop_signals_inside_a_raw_writers_appends_leave_a_whole_file(tmp_path):
         assert [run.ping(k).sequence for k in range(len(run))] == expected
 
 
+@pytest.mark.slow
 def test_stop_signals_inside_appends_fail_no_segment_and_leave_file_and_counts_agreeing(
         tmp_path):
     res = subprocess.run([sys.executable, "-c", RECORDER, str(tmp_path), str(N_PINGS)],

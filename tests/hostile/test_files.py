@@ -623,6 +623,7 @@ def _bounded(fn):
 @pytest.mark.parametrize("kind", ["clean", "killed"])
 @fuzz_settings()
 @given(data=st.data())
+@pytest.mark.slow
 def test_fuzzed_raw_run_gives_data_or_raw_file_error(fuzz_runs, kind, tmp_path,
                                                        quick_refusal, data):
     template, offsets = fuzz_runs[kind]
@@ -656,6 +657,7 @@ def fuzz_tile(tile_path):
 
 @fuzz_settings(max_examples=max(1, FUZZ_EXAMPLES // 2))   # a tile read costs 2x a raw run's
 @given(data=st.data())
+@pytest.mark.slow
 def test_fuzzed_tile_gives_data_or_tile_file_error(fuzz_tile, tmp_path, quick_refusal,
                                                     data):
     template, offsets = fuzz_tile

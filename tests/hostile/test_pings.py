@@ -399,6 +399,7 @@ def _svss(*args, **kw):
                           capture_output=True, text=True, timeout=300, **kw)
 
 
+@pytest.mark.slow
 def test_simulate_stopped_by_sigterm_leaves_a_clean_readable_run(tmp_path):
     from svss_daq.rawfile import RawRunReader
     run = tmp_path / "run.h5"

@@ -36,6 +36,7 @@ def scene_run(hardware):
     return proc, imager.accumulator, line, pings, points
 
 
+@pytest.mark.slow
 def test_autofocus_recovers_the_focus_a_noisy_track_lost(scene_run):
     proc, acc, line, pings, points = scene_run
     k = np.arange(len(pings))

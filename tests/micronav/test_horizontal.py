@@ -87,6 +87,7 @@ def _table(estimates):
                   f"{np.round(est.coherence, 2)}")
 
 
+@pytest.mark.slow
 def test_refuses_across_the_sequence_wrap_and_nowhere_else(estimates):
     _table(estimates)
     for i, (pa, pb, est, _) in estimates.items():

@@ -171,6 +171,7 @@ def expected_poses(pings) -> list:
     return out
 
 
+@pytest.mark.slow
 def test_the_worker_images_each_ping_at_its_fused_pose(sand_run, tmp_path):
     pings, run = sand_run
     # small tiles about the interface

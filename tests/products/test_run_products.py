@@ -71,6 +71,7 @@ def local_latlon(north_m, east_m, origin):
             origin[1] + math.degrees(east_m / (n * math.cos(lat0))))
 
 
+@pytest.mark.slow
 def test_six_points_all_detected_and_no_false_alarm(demo_run):
     r = score_tiles(demo_run, SCENE)
     s = r["summary"]

@@ -42,6 +42,7 @@ def silt():
                                                            centre).excess_db}
 
 
+@pytest.mark.slow
 def test_sand_first_order_multipath_from_the_image(sand):
     assert sand["first"] is not None, sand["features"]
     assert abs(sand["first"]["depth"] - 0.6) <= 0.05
@@ -68,6 +69,7 @@ def test_sand_excess_as_the_seed(sand):
     assert abs(sand["peak"][2] - (1.0 - 0.1575)) <= 0.05
 
 
+@pytest.mark.slow
 def test_silt_excess_higher_than_sand(sand, silt):
     assert silt["excess_db"] > sand["excess_db"], (silt, sand["excess_db"])
     # over the surroundings (which the products' window does not guarantee for a

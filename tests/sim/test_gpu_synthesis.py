@@ -144,6 +144,7 @@ def rel(a, b):
 
 
 @pytest.mark.parametrize("name", CASES)
+@pytest.mark.slow
 def test_simulated_gpu_equals_the_cpu_fast_path(simulated, name):
     """sand: interface and volume scatterers in a sediment, direct and multipath images,
     a level cut-off on one path; water: the demo's points in water; exact: every

@@ -185,6 +185,7 @@ def chromium_path() -> str | None:
     return None
 
 
+@pytest.mark.slow
 def test_page_in_headless_chromium(view, tmp_path):
     sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (the test "
                                    "extras) drives the browser")

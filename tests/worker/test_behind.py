@@ -83,6 +83,7 @@ def test_worker_config_is_checked(tmp_path):
         load(DaqConfig, bad / "daq.toml")
 
 
+@pytest.mark.slow
 def test_behind_worker_degrades_to_quick_looks_first_and_drops_no_ping(raw_run, tmp_path):
     cfg = _config_dir(tmp_path, "[worker]\nbehind_s = 1.0\ncaught_up_s = 0.5\n"
                       'when_behind = "quicklook_first"\nmax_deferred_tiles = 20\n')

@@ -65,6 +65,7 @@ def _stop(proc: subprocess.Popen) -> None:
             proc.wait(5)
 
 
+@pytest.mark.slow
 def test_second_signal_does_not_interrupt_the_flush_and_one_worker_per_folder(
         raw_run, small_proc_path, tmp_path):
     replay = _svss("replay", raw_run, "--endpoint", "tcp://127.0.0.1:*", "--service",

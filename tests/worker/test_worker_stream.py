@@ -44,6 +44,7 @@ def _serve_in_thread(result, *args, **kw):
     return t
 
 
+@pytest.mark.slow
 def test_dropped_pings_are_fetched_from_the_recording(raw_run, processed, hw, small_proc,
                                                       tmp_path):
     out = tmp_path / "w"
