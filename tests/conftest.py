@@ -37,14 +37,6 @@ def pytest_configure(config):
             compileall.compile_dir(str(ROOT / pkg), quiet=1)
 
 
-def pytest_collection_modifyitems(session, config, items):
-    """The end-to-end runs (marked ``slow``) first, in their files' order: handed out
-    first, the long tests no longer end the session on one process while the others
-    have finished (the longest first is the classic rule for packing jobs on
-    machines)."""
-    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
-
-
 def pytest_xdist_auto_num_workers(config):
     """``-n auto``: half as many test processes again as CPUs (3 on 2 cores). A third of
     the suite's wall time is its end-to-end tests waiting on real processes, sockets and
