@@ -2,11 +2,11 @@
 ticks and labels, colour bars, texts and contact markers, drawn straight into pixels
 (numpy for the images, PIL for text and shapes) and saved as a palette PNG.
 
-Why not matplotlib: a tile's quicklook (six views, some 150 texts) took 1.2-1.8 CPU s
-with matplotlib on a 2-core Zen 3, nearly all of it in creating and drawing artists;
-the worker writes one a tile, every ``svss process`` and ``svss batch`` too (issue 32,
-docs/products.md). Here the same figure costs a tenth of that, and importing the
-quicklooks no longer imports pyplot.
+Why not matplotlib: a 3 m tile's products quicklook (six views, some 150 texts) took
+0.9-1.7 CPU s with matplotlib on a 2-core Zen 3, nearly all of it in creating and
+drawing artists; the worker writes one a tile, every ``svss process`` and ``svss
+batch`` too (issue 32, docs/products.md). Here the same figure costs 0.10-0.12 s, and
+importing the quicklooks no longer imports pyplot.
 
 Conventions: pixel coordinates with the origin at the image's top-left, x to the right
 and y down; sizes of texts and lines are in points (1/72 inch) at the canvas's dpi; a
