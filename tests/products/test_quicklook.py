@@ -5,13 +5,14 @@ top of another."""
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import matplotlib.image
 import numpy as np
 import pytest
 
-from svss_daq.config import ProcessingConfig, QuicklookConfig, config_path, load, omitted_default
-from svss_proc.imaging.grid import tile_grid
-from svss_proc.products import detect
+from svss_daq.config import QuicklookConfig, omitted_default
 from svss_proc.products.quicklook import (
     MAX_PANEL_IN,
     MIN_PANEL_IN,
@@ -20,7 +21,9 @@ from svss_proc.products.quicklook import (
     products_png,
     view_rgba,
 )
-from svss_proc.tiles import MIPS
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+import bench_quicklook  # noqa: E402
 
 DEFAULT_MAX_LABELS = omitted_default(QuicklookConfig, "max_labels")
 
@@ -28,23 +31,8 @@ DEFAULT_MAX_LABELS = omitted_default(QuicklookConfig, "max_labels")
 @pytest.fixture(scope="module")
 def default_tile():
     """Products of a default tile, made up: speckle-like levels, 39 contacts, and the
-    first 1.5 m along-track imaged by no ping."""
-    proc = load(ProcessingConfig, config_path("processing.toml"))
-    grid = tile_grid(proc.tile, 0)
-    rng = np.random.default_rng(3)
-    level = rng.normal(0.0, 5.0, grid.shape).astype(np.float32)
-    coverage = np.full(grid.shape, 20, dtype=np.uint16)
-    coverage[:75] = 0
-    level[:75] = -300.0                       # what an unimaged voxel's level is
-    gain = np.zeros(grid.shape[2], dtype=np.float32)
-    mips = {k: level.max(axis=axis) for k, (axis, _) in MIPS.items()}
-    det = np.zeros(39, dtype=detect.DTYPE)
-    det["along_m"] = rng.uniform(2.0, 14.0, 39)
-    det["cross_m"] = rng.uniform(-0.9, 0.9, 39)
-    det["depth_m"] = rng.uniform(0.05, 1.9, 39)
-    det["excess_db"] = np.sort(rng.uniform(14.0, 40.0, 39))[::-1]
-    det["extent_along_m"] = 0.1
-    return proc, grid, level, gain, mips, det, coverage
+    first 1.5 m along-track imaged by no ping (bench_quicklook's tile)."""
+    return bench_quicklook.default_tile()[:7]
 
 
 def _count(img: np.ndarray, rgba, tol: float = 0.02) -> int:
