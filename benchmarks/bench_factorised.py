@@ -24,8 +24,9 @@ imaging of `bench_imaging.py`'s options table is the default's -43 dB. Reported 
 error (rms over the voxels within 40 dB of the peak, and the largest), and the level
 change of the point responses. The prototype's kernels are plain numba (float64,
 unoptimised), so its seconds are not a speed figure; the update counts are the work.
-The pings are `bench_imaging.py`'s demo pings (point scatterers, the 80-channel array,
-12-27 m along the track), imaged into their fullest tile.
+The pings are `bench_imaging.py`'s demo pings 100-239 (its point scatterers moved 12 m
+along the track, the 80-channel array, the tile frame some 230 m from the survey
+origin), imaged into their fullest tile.
 
     python benchmarks/bench_factorised.py --grids 2:2,3:3 --out benchmarks/results/bench_factorised.json
 """
