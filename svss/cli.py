@@ -6,10 +6,10 @@
     svss view [--tiles DIR] [--connect ENDPOINT] [--address A] [--port N]
     svss simulate --scene FILE --out RUN.h5
     svss process RUN.h5 --out DIR [--renavigate | --no-renavigate] [--micronav]
-                 [--autofocus | --no-autofocus]
+                 [--autofocus | --no-autofocus] [--sediment-speed estimate|configured]
     svss batch RUN.h5 [RUN2.h5 ...] --out DIR [--scheduler ADDRESS] [--workers N]
                [--renavigate | --no-renavigate] [--micronav | --no-micronav]
-               [--autofocus | --no-autofocus]
+               [--autofocus | --no-autofocus] [--sediment-speed estimate|configured]
     svss worker --connect ENDPOINT --out DIR [--service E] [--runs N]
     svss replay RUN.h5 [RUN2.h5 ...] [--endpoint E] [--service E] [--realtime]
     svss inspect FILE [--json]
@@ -66,6 +66,7 @@ def cmd_simulate(args) -> int:
     scene = load_scene(args.scene)
     daq = load(DaqConfig, config_path("daq.toml"))
     source = EnvironmentSource(hw, scene)
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     with RawRunWriter(args.out, hw, overwrite=args.force,
                       flush_every_pings=daq.recorder.flush_every_pings,
                       flush_interval_s=daq.recorder.flush_interval_s,
@@ -81,7 +82,7 @@ def cmd_process(args) -> int:
 
     files = process_raw(args.run, args.out, _processing(args), force=args.force,
                         renavigate=args.renavigate, micronav=args.micronav,
-                        autofocus=args.autofocus)
+                        autofocus=args.autofocus, sediment_speed=args.sediment_speed)
     for p in files:
         print(p)
     return 0
@@ -95,7 +96,8 @@ def cmd_batch(args) -> int:
         summary = run_batch(args.run, args.out, _processing(args),
                             scheduler=args.scheduler, workers=args.workers,
                             force=args.force, renavigate=args.renavigate,
-                            micronav=args.micronav, autofocus=args.autofocus)
+                            micronav=args.micronav, autofocus=args.autofocus,
+                            sediment_speed=args.sediment_speed)
     except (ImportError, BatchError) as exc:
         log.error("%s", exc)
         return 2 if isinstance(exc, ImportError) else 1
@@ -449,6 +451,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "guard accepts them (docs/micronavigation.md, Autofocus as a "
                         "stage); default: the processing configuration's [autofocus] "
                         "enabled")
+        sp.add_argument("--sediment-speed", choices=("estimate", "configured"),
+                        default=None, help="the sediment's sound speed the tiles are "
+                        "imaged with: estimated from the echoes (the speed that focuses "
+                        "the buried responses best; the configured one kept where nothing "
+                        "below the interface constrains it) or as configured "
+                        "(docs/seabed.md); default: the processing configuration's "
+                        "[seabed] speed")
 
     def common(sp, processing=True):
         sp.add_argument("--hardware", help="hardware TOML (default: config/hardware.toml)")

@@ -109,6 +109,7 @@ def summarise_tile(path: str | Path) -> dict:
         "provenance": {k: attrs.get(k) for k in ("software_name", "software_version",
                                                  "creation_time_utc", "hardware_config_id",
                                                  "processing_config_id")},
+        "seabed": t.get("seabed"),
     }
     if "products_timing_s" in attrs:
         try:
@@ -226,6 +227,9 @@ def _format_tile(s: dict) -> str:
     if "products_timing_s" in s:
         lines.append("  timing     " + ", ".join(f"{k} {v:.2f} s"
                                                  for k, v in s["products_timing_s"].items()))
+    sb = s.get("seabed")
+    if sb:
+        lines.append("  sediment   " + seabed_line(sb))
     det = s["detections"]
     lines.append(f"  detections {len(det)}")
     if det:
@@ -243,6 +247,21 @@ def _format_tile(s: dict) -> str:
                  f"{p['creation_time_utc']}, hardware config {p['hardware_config_id']}, "
                  f"processing config {p['processing_config_id']}")
     return "\n".join(lines)
+
+
+def seabed_line(sb: dict) -> str:
+    """One line for the sediment speed a tile or run was imaged with (its ``seabed``)."""
+    c = sb.get("sediment_sound_speed_m_s")
+    if sb.get("status") == "estimated":
+        text = (f"{_f(c, '.0f')} +/- {_f(sb.get('sigma_m_s'), '.0f')} m/s estimated from "
+                f"{len(sb.get('responses') or [])} buried response(s)")
+        if sb.get("disagrees"):
+            text += f"; configured {_f(sb.get('configured_m_s'), '.0f')} m/s disagrees"
+        return text
+    if sb.get("status") == "unconstrained":
+        return (f"{_f(c, '.0f')} m/s configured: not constrained by the echoes "
+                f"({sb.get('reason')})")
+    return f"{_f(c, '.0f')} m/s as configured"
 
 
 def _fmt_pos(p) -> str:

@@ -166,6 +166,14 @@ class ConditioningConfig:
 
 
 @dataclass(frozen=True)
+class SedimentLayerConfig:
+    """One sediment layer above the half-space of ``sediment_sound_speed_m_s`` (a core
+    sample's stratum, top first)."""
+    thickness_m: float = spec("the layer's thickness, m", lo=0.0, hi=100.0)
+    sound_speed_m_s: float = spec("the layer's sound speed, m/s", lo=1000, hi=3000)
+
+
+@dataclass(frozen=True)
 class ImagingConfig:
     water_sound_speed_m_s: float = spec("water sound speed for imaging delays, m/s",
                                         lo=1000, hi=2500)
@@ -183,8 +191,13 @@ class ImagingConfig:
     delays: str = spec("travel times: straight rays at water_sound_speed_m_s; 'table': per-ping "
                        "refraction table; 'exact': Fermat path per voxel and element",
                        choices=("straight", "table", "exact"))
-    sediment_sound_speed_m_s: float = spec("sediment sound speed for refracted delays, m/s",
-                                           lo=1000, hi=3000)
+    sediment_sound_speed_m_s: float = spec(
+        "sediment sound speed for refracted delays (the half-space below any "
+        "sediment_layers; with [seabed] speed = 'estimate' the value kept where the echoes "
+        "do not constrain it), m/s", lo=1000, hi=3000)
+    sediment_layers: tuple[SedimentLayerConfig, ...] = spec(
+        "sediment layers between the interface and the half-space, top first (table "
+        "delays only; omitted: none)", min_length=0)
     table_step_m: float = spec("refraction table spacing in offset and depth, m",
                                lo=1e-4, hi=0.5)
     interpolation: str = spec("sample interpolation", choices=("nearest", "linear", "cubic"))
@@ -412,6 +425,44 @@ class AutofocusConfig:
 
 
 @dataclass(frozen=True)
+class SeabedConfig:
+    """The sediment's sound speed from the echoes (svss_proc.seabed, docs/seabed.md): the
+    speed that best focuses the isolated buried responses of a run."""
+    speed: str = spec("the sediment speed the tiles are imaged with: 'estimate' (from the "
+                      "echoes; imaging.sediment_sound_speed_m_s kept where nothing below "
+                      "the interface constrains it) or 'configured' (as given)",
+                      choices=("estimate", "configured"))
+    speed_range_m_s: tuple[float, float] = spec(
+        "the speeds searched, m/s (the seed's sediments: 1476 silt to 1767 sand)",
+        length=2)
+    coarse_step_m_s: float = spec("the first scan's step, m/s", lo=1.0, hi=500.0)
+    fine_step_m_s: float = spec("the second scan's step about the first's best, m/s",
+                                lo=0.5, hi=100.0)
+    points: int = spec("isolated buried responses focused on, at most", lo=1, hi=100)
+    rounds: int = spec("picks and scans: each round after the first picks the responses "
+                       "again on an image made with the last round's estimate (focused "
+                       "there, deeper responses stand out of their background)", lo=1,
+                       hi=5)
+    min_points: int = spec("responses needed for an estimate (fewer: the configured "
+                           "speed kept, saying so)", lo=1, hi=100)
+    min_depth_m: float = spec("responses at least this far below the interface: the "
+                              "speed must act on them, m", lo=0.0, hi=10.0)
+    min_contrast_db: float = spec("a response's peak over its local background (median), "
+                                  "at least, dB", lo=0.0, hi=100.0)
+    min_isolation_db: float = spec("a response's peak over the brightest voxel of its box "
+                                   "outside its main lobe, at least, dB", lo=0.0, hi=100.0)
+    search_voxel_m: float = spec("voxel edge of the image the responses are picked from "
+                                 "(coarser than the tiles': cheaper), m", lo=1e-3, hi=0.2)
+    box_m: tuple[float, float, float] = spec(
+        "half-size (along, cross, depth) of the box imaged about each response at each "
+        "trial speed, m (its depth follows the speed)", length=3)
+    box_step_m: float = spec("voxel edge of those boxes, m", lo=1e-3, hi=0.1)
+    disagree_sigmas: float = spec("a configured speed this many of the estimate's "
+                                  "standard deviations away is reported as disagreeing",
+                                  lo=0.0, hi=100.0)
+
+
+@dataclass(frozen=True)
 class ProcessingConfig:
     tile: TileConfig = spec("image tile geometry")
     conditioning: ConditioningConfig = spec("signal conditioning")
@@ -424,6 +475,30 @@ class ProcessingConfig:
                                            "the tile worker (omitted: off in both)")
     autofocus: AutofocusConfig | None = spec("autofocus on isolated responses (omitted: "
                                              "config/processing.toml's)")
+    seabed: SeabedConfig | None = spec("the sediment's speed from the echoes (omitted: "
+                                       "the configured speed, as given)")
+
+    def config_problem(self) -> tuple[str, str] | None:
+        """(dotted key, what is wrong) across tables, or None (checked on load)."""
+        for i, layer in enumerate(self.imaging.sediment_layers):
+            if layer.thickness_m < self.tile.voxel_m:
+                return (f"imaging.sediment_layers[{i}].thickness_m",
+                        f"got {layer.thickness_m!r} m, thinner than a voxel "
+                        f"(tile.voxel_m = {self.tile.voxel_m!r} m): a layer must span at "
+                        f"least one voxel")
+        if self.imaging.sediment_layers and self.imaging.delays != "table":
+            return ("imaging.sediment_layers", "layers need imaging.delays = 'table' (got "
+                    f"{self.imaging.delays!r})")
+        sb = self.seabed
+        if sb is not None:
+            lo, hi = sb.speed_range_m_s
+            if not (1000.0 <= lo < hi <= 3000.0):
+                return ("seabed.speed_range_m_s", f"got {[lo, hi]}: expected two speeds "
+                        "in [1000, 3000] m/s, the first below the second")
+            if sb.min_points > sb.points:
+                return ("seabed.min_points", f"got {sb.min_points}, more than seabed.points "
+                        f"({sb.points})")
+        return None
 
 
 # ---------------------------------------------------------------------------- daq
@@ -646,7 +721,13 @@ def _build(cls: type[T], data: dict, prefix: str, file: str) -> T:
                 continue
             raise ConfigError(f"{file}: missing key '{key}'; expected {_expected(f, tp)}")
         kwargs[name] = _convert(data[name], tp, f, key, file)
-    return cls(**kwargs)
+    obj = cls(**kwargs)
+    check = getattr(obj, "config_problem", None)
+    if check is not None:
+        problem = check()
+        if problem is not None:
+            raise ConfigError(f"{file}: key '{_join(prefix, problem[0])}': {problem[1]}")
+    return obj
 
 
 def _join(prefix: str, name: str) -> str:

@@ -36,6 +36,7 @@ from .live_clock import SonarLag, StageClock, instrument
 from .micronav.live import live_stage
 from .products.chain import Seams, save_quicklook, save_tile
 from .products.run_products import run_products_at_end
+from .seabed.speed import configured_speed
 from .run_folder import (JOURNAL, JOURNAL_SCHEMA, JOURNAL_VERSION, MANIFEST, atomic_json,
                          prepare_output_dir, read_journal)
 from .survey_index import write_survey_index
@@ -87,6 +88,10 @@ class Worker:
         #: what the autofocus stage did (manifest ``autofocus``; None: not a recorded
         #: run's processing, :func:`focus_poses`)
         self.autofocus: dict | None = None
+        #: the sediment speed the tiles are imaged with and where it came from (manifest
+        #: and tiles' ``seabed``; :mod:`svss_proc.seabed`): as configured unless a stage
+        #: (:func:`svss_proc.seabed.stage.seabed_stage`) says otherwise
+        self.seabed: dict = configured_speed(processing.value).summary()
         #: imaged pings per navigation flag (:data:`POSE_FLAG_NAMES`)
         self.pose_flags: dict[str, int] = {}
         self.out = Path(out_dir)
@@ -259,7 +264,7 @@ class Worker:
         """Write a completed tile: with its full products, or (behind, or behind tiles
         still waiting: the seams need the products in tile order) its quick look only,
         the tile kept for :meth:`complete_deferred`."""
-        tile.poses, tile.run_id = self.poses, self.run_label
+        tile.poses, tile.run_id, tile.seabed = self.poses, self.run_label, self.seabed
         entry = {"tile": tile.grid.index, "pings": len(tile.pings),
                  "first_ping": min(tile.pings) if tile.pings else None,
                  "last_ping": max(tile.pings) if tile.pings else None,
@@ -365,7 +370,7 @@ class Worker:
                        "products_deferred": list(self.deferred_tiles)},
             "stage_times": self.clock.totals(),
             "micronav": None if self.micronav is None else self.micronav.summary(),
-            "autofocus": self.autofocus,
+            "autofocus": self.autofocus, "seabed": self.seabed,
             "files": sorted({p.name for p in self.written})}
 
     def run(self, pings: Iterable[Ping], total: int | None = None) -> list[Path]:
@@ -467,20 +472,27 @@ def focus_poses(readers: list[RawRunReader], poses: list[NavSnapshot] | None, wh
 def process_raw(path: str | Path, out_dir: str | Path,
                 processing: Loaded[ProcessingConfig], *, force: bool = False,
                 renavigate: bool | None = None, micronav: bool | None = None,
-                autofocus: bool | None = None) -> list[Path]:
+                autofocus: bool | None = None,
+                sediment_speed: str | None = None) -> list[Path]:
     """Image a recorded raw run with the hardware configuration it was recorded with,
     into ``out_dir`` directly (the same tiles as the worker's ``OUT/RUN_ID/``), and
     the folder's survey index (``survey_index.csv``, :mod:`.survey_index`). The pings
     are posed as :func:`run_poses` decides (``renavigate``, ``micronav``), then corrected
     by the autofocus stage where ``autofocus`` (None: ``[autofocus] enabled``) asks
     (:func:`focus_poses`); the manifest's and the tiles' ``poses`` say with what, the
-    manifest's ``autofocus`` what the autofocus did."""
+    manifest's ``autofocus`` what the autofocus did. The sediment speed is then
+    estimated from the echoes where ``sediment_speed`` ('estimate' / 'configured'; None:
+    ``[seabed] speed``) asks (:func:`~svss_proc.seabed.stage.seabed_stage`); the
+    manifest's and the tiles' ``seabed`` say what the tiles were imaged with."""
+    from .seabed.stage import seabed_stage
     with RawRunReader(path) as run:
         poses, what = run_poses([run], renavigate, micronav, processing.value)
         poses, what, focus = focus_poses([run], poses, what, autofocus, processing.value)
-        worker = Worker(run.hardware, processing, out_dir, force=force, poses=what,
+        used, seabed = seabed_stage([run], poses, processing, sediment_speed)
+        worker = Worker(run.hardware, used, out_dir, force=force, poses=what,
                         run_label=run.run_id, live_poses=poses is None)
         worker.autofocus = focus
+        worker.seabed = seabed.summary()
         pings = iter(run) if poses is None else (
             dataclasses.replace(p, nav=nav) for p, nav in zip(run, poses, strict=True))
         files = worker.run(pings, total=len(run))

@@ -113,6 +113,9 @@ class Tile:
     poses: str = ""
     #: the run the tile belongs to (root attribute ``run_id``; "" unknown)
     run_id: str = ""
+    #: the sediment speed it was imaged with and where it came from (provenance group
+    #: ``seabed``'s attributes; :class:`svss_proc.seabed.speed.SpeedEstimate` summary)
+    seabed: dict | None = None
     #: per ping of :attr:`pings`: (transmit time ns UTC, body origin north m, east m)
     track: list[tuple[int, float, float]] = field(default_factory=list)
     #: the next tile's first along-track planes, complete when this tile was: (magnitude,
@@ -294,6 +297,21 @@ def _write(f: h5py.File, tile: Tile, hardware: Loaded[HardwareConfig],
                        "processing_config_source": processing.source})
     if tile.poses:
         prov.attrs["poses"] = tile.poses
+    if tile.seabed:
+        _write_seabed(prov, tile.seabed)
+
+
+def _write_seabed(prov: h5py.Group, seabed: dict) -> None:
+    """The sediment speed a tile was imaged with, its source and uncertainty
+    (``/provenance/seabed`` attributes; the responses as a JSON text)."""
+    g = prov.create_group("seabed")
+    for k in ("status", "reason"):
+        g.attrs[k] = str(seabed.get(k) or "")
+    for k in ("sediment_sound_speed_m_s", "sigma_m_s", "configured_m_s", "reduced_chi2"):
+        v = seabed.get(k)
+        g.attrs[k] = np.nan if v is None else float(v)
+    g.attrs["disagrees"] = bool(seabed.get("disagrees", False))
+    g.attrs["responses_json"] = json.dumps(seabed.get("responses", []))
 
 
 def _write_coverage(f: h5py.File, c: Coverage, keep) -> None:
@@ -461,6 +479,27 @@ def _header(f: h5py.File, path: Path) -> dict:
     prov = f.get("provenance")
     out["poses"] = (_text(prov.attrs.get("poses")) if isinstance(prov, h5py.Group)
                     else None)
+    out["seabed"] = _read_seabed(prov)
+    return out
+
+
+def _read_seabed(prov) -> dict | None:
+    """``/provenance/seabed`` as written by :func:`_write_seabed` (None: a tile written
+    before it was kept)."""
+    g = prov.get("seabed") if isinstance(prov, h5py.Group) else None
+    if not isinstance(g, h5py.Group):
+        return None
+    out = {}
+    for k in ("status", "reason"):
+        out[k] = _text(g.attrs.get(k, ""))
+    for k in ("sediment_sound_speed_m_s", "sigma_m_s", "configured_m_s", "reduced_chi2"):
+        v = float(g.attrs.get(k, np.nan))
+        out[k] = None if not np.isfinite(v) else v
+    out["disagrees"] = bool(g.attrs.get("disagrees", False))
+    try:
+        out["responses"] = json.loads(_text(g.attrs.get("responses_json", "[]")))
+    except ValueError:
+        out["responses"] = []
     return out
 
 

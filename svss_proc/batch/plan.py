@@ -38,6 +38,7 @@ from ..imaging.pose_check import check_pose_flags
 from ..imaging.schedule import PingStep, TileSchedule
 from ..imaging.grid import tile_grid
 from ..run_worker import LIVE_POSES, focus_poses, run_poses
+from ..seabed.stage import seabed_stage
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +69,10 @@ class TilePlan:
     poses: tuple[NavSnapshot, ...] | None = None
     #: what the pings are posed with (tile provenance ``poses``)
     pose_source: str = LIVE_POSES
+    #: the run's sediment speed from its sediment-speed stage (None: the processing
+    #: configuration's) and that stage's summary (tile provenance ``seabed``)
+    sediment_sound_speed_m_s: float | None = None
+    seabed: dict | None = None
     #: products without seams (:class:`Handback`): where ``svss process`` hands the
     #: tile back among the run's tiles (0, 1, ...); whether the tile handed back just
     #: before it is tile ``index - 1`` (its last planes and contacts are then this
@@ -114,6 +119,9 @@ class RunPlan:
     poses: str = LIVE_POSES
     #: what the autofocus stage did (:func:`svss_proc.run_worker.focus_poses`)
     autofocus: dict = field(default_factory=lambda: {"enabled": False})
+    #: the sediment speed the run is imaged with and where it came from
+    #: (:func:`svss_proc.seabed.stage.seabed_stage`)
+    seabed: dict | None = None
 
 
 def _ranges(refs: list[tuple[int, int]], paths: list[Path]) -> tuple:
@@ -287,12 +295,15 @@ def group_runs(paths: list[str | Path]) -> dict[str, list[Path]]:
 def plan_run(run_id: str, folder: str, paths: list[Path],
              processing: Loaded[ProcessingConfig], renavigate: bool | None = None,
              exclude: dict[tuple[str, int], str] | None = None,
-             micronav: bool | None = None, autofocus: bool | None = None) -> RunPlan:
+             micronav: bool | None = None, autofocus: bool | None = None,
+             sediment_speed: str | None = None) -> RunPlan:
     """Plan the tiles of one run (its segment files, in order) for ``processing``, its
     pings posed as :func:`svss_proc.run_worker.run_poses` decides (``renavigate``: the
     whole run, every segment's instrument records together; ``micronav``: fused with the
     echoes' increments, None as the processing configuration says; ``autofocus``: then
-    corrected by the autofocus stage, :func:`~svss_proc.run_worker.focus_poses`). ``exclude``: pings found
+    corrected by the autofocus stage, :func:`~svss_proc.run_worker.focus_poses`;
+    ``sediment_speed``: the sediment-speed stage,
+    :func:`~svss_proc.seabed.stage.seabed_stage`). ``exclude``: pings found
     refused for their samples, (raw file, index) -> reason: refused here as the
     streaming worker's gate refuses them (counted in ``refused``)."""
     exclude = exclude or {}
@@ -311,6 +322,9 @@ def plan_run(run_id: str, folder: str, paths: list[Path],
                               name=f"batch plan of run {run_id}")
         poses, what = run_poses(readers, renavigate, micronav, processing.value)
         poses, what, focus = focus_poses(readers, poses, what, autofocus, processing.value)
+        used, seabed = seabed_stage(readers, poses, processing, sediment_speed)
+        speed = (used.value.imaging.sediment_sound_speed_m_s
+                 if seabed.status == "estimated" else None)
         dig = hw.value.digitiser
         zeros = np.broadcast_to(np.zeros((), np.int32), (dig.n_channels, dig.window_samples))
         n = 0
@@ -331,7 +345,7 @@ def plan_run(run_id: str, folder: str, paths: list[Path],
             r.close()
     plan = RunPlan(run_id, folder, list(paths), hw.id, n,
                    refused=dict(planner.gate.refused), late_pings=planner.late_pings,
-                   poses=what, autofocus=focus)
+                   poses=what, autofocus=focus, seabed=seabed.summary())
     if planner.line is None:
         log.warning("run %s: no ping passed the checks; no tile", run_id)
         return plan
@@ -347,6 +361,7 @@ def plan_run(run_id: str, folder: str, paths: list[Path],
             run_id, folder, k, _ranges([r for r, _ in refs], paths),
             tuple(s for _, s in refs), (all_tiles[0], all_tiles[-1]), line, hw.id,
             poses=tuple(navs[r] for r, _ in refs) if navs else None, pose_source=what,
+            sediment_sound_speed_m_s=speed, seabed=plan.seabed,
             **dict(zip(("order", "before", "after_pings", "after_final"), seams[k]))))
     log.info("run %s: %d ping(s) in %d file(s) -> %d tile(s) (frame origin N %.2f E %.2f m, "
              "heading %.1f deg)", run_id, n, len(paths), len(plan.tiles), line[0], line[1],

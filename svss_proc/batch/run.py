@@ -202,7 +202,7 @@ def run_batch(paths: list[str | Path], out: str | Path,
               kernel_threads: int | None = None,
               task: Callable[..., dict] = image_tile,
               renavigate: bool | None = None, micronav: bool | None = None,
-              autofocus: bool | None = None) -> dict:
+              autofocus: bool | None = None, sediment_speed: str | None = None) -> dict:
     """Reprocess the raw runs ``paths`` into ``out``; return the summary (also in
     ``out/batch_state.json``). ``scheduler``: a Dask scheduler's address (default: a
     LocalCluster of ``workers`` processes); ``client``: an existing
@@ -217,7 +217,9 @@ def run_batch(paths: list[str | Path], out: str | Path,
     summary's runs say which); ``micronav``: the re-navigated poses fused with the
     echoes' increments (None: as the processing configuration's ``[micronav]`` says);
     ``autofocus``: each run's poses corrected by the autofocus stage (None: as its
-    ``[autofocus] enabled`` says; the state's runs' ``autofocus`` say what it did).
+    ``[autofocus] enabled`` says; the state's runs' ``autofocus`` say what it did);
+    ``sediment_speed``: 'estimate' / 'configured' (None: ``[seabed] speed``), each
+    run's sediment speed from its echoes (the state's runs' ``seabed``).
 
     A ping a task finds refused for its samples (:class:`~.task.PingsRefused`) is left
     out of its run's plan, which is made again (tiles whose plan changed are imaged
@@ -232,7 +234,7 @@ def run_batch(paths: list[str | Path], out: str | Path,
     earlier = prepare_batch_dir(out, runs, processing, force)
     excluded = {run_id: _exclusions(earlier.get(run_id), ps) for run_id, ps in runs.items()}
     plans = {run_id: plan_run(run_id, run_folder_name(run_id), ps, processing, renavigate,
-                              excluded[run_id], micronav, autofocus)
+                              excluded[run_id], micronav, autofocus, sediment_speed)
              for run_id, ps in runs.items()}
     t_plan = time.perf_counter() - t0
     tiles = [t for p in plans.values() for t in p.tiles]
@@ -246,6 +248,7 @@ def run_batch(paths: list[str | Path], out: str | Path,
                            "pings": p.n_pings, "tiles": len(p.tiles),
                            "refused": p.refused, "late_pings": p.late_pings,
                            "poses": p.poses, "autofocus": p.autofocus,
+                           "seabed": p.seabed,
                            "excluded_pings": [
                                {"file": f, "index": i, "reason": why}
                                for (f, i), why in sorted(excluded[p.run_id].items())]}
@@ -302,7 +305,7 @@ def run_batch(paths: list[str | Path], out: str | Path,
                 old = plans[run_id]
                 plans[run_id] = plan_run(run_id, old.folder, old.paths, processing,
                                          renavigate, excluded[run_id], micronav,
-                                         autofocus)
+                                         autofocus, sediment_speed)
                 todo += _replanned(out, old, plans[run_id], seams)
             if todo:
                 atomic_json(out / STATE, {**state_of(), "complete": False})

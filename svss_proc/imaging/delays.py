@@ -1,5 +1,6 @@
 """Imaging delays: travel times through a flat water-sediment interface (Fermat's
-principle), exactly per voxel and element or from a per-ping table.
+principle), exactly per voxel and element or from a per-ping table; the table also
+through horizontal sediment layers (:func:`layered_ray`, :class:`SpeedProfile`).
 
 Geometry: an element at height ``h`` > 0 above the interface, a point at depth ``z`` > 0
 below it and horizontal offset ``rho`` >= 0. The ray crosses the interface at horizontal
@@ -98,6 +99,110 @@ one_way_time = _cpu.one_way_time
 vertical_slowness = _cpu.vertical_slowness
 
 
+@nb.njit(cache=True)
+def layered_ray(h, rho, z, cw, tops, speeds):
+    """(one-way time s, water-side vertical slowness s/m) from an element at height h
+    above the interface to a point at horizontal offset rho and depth z below it,
+    through horizontal sediment layers: layer k from depth ``tops[k]`` (``tops[0]`` = 0)
+    down to ``tops[k + 1]`` (the last: a half-space) at ``speeds[k]`` m/s.
+
+    The ray crosses media j (the water, each layer above the point's, the point's own
+    down to z) of vertical extents e_j at speeds c_j with one horizontal slowness p
+    (Snell). With c_m the fastest of them, r_j = c_j / c_m and t the tangent of the
+    ray's angle from the vertical in that medium, the horizontal reach is
+
+        X(t) = sum_j e_j r_j t / sqrt(1 + t^2 (1 - r_j^2)),
+
+    increasing from 0 to infinity without a singularity at the critical angle. Its root
+    X(t) = rho lies in [rho / sum e_j r_j, rho / E_m] (E_m the extent of the fastest
+    media: X(t) >= E_m t) and is found by Newton steps kept inside that shrinking bracket.
+    The time uses the tau-p form T = p rho + sum_j e_j cos_j / c_j, stationary in p,
+    so the root's residual enters only to second order."""
+    if z <= 0.0:
+        dz = h + z
+        r = math.sqrt(rho * rho + dz * dz)
+        return r / cw, (dz / (cw * r) if r > 0.0 else 1.0 / cw)
+    n = tops.size
+    k = 0
+    while k + 1 < n and z > tops[k + 1]:
+        k += 1
+    m = k + 2                                   # the water, layers 0..k
+    ext = np.empty(m)
+    spd = np.empty(m)
+    ext[0] = h
+    spd[0] = cw
+    for j in range(k + 1):
+        spd[j + 1] = speeds[j]
+        ext[j + 1] = (tops[j + 1] if j < k else z) - tops[j]
+    cm = spd.max()
+    sum_er = 0.0
+    e_fast = 0.0
+    for j in range(m):
+        sum_er += ext[j] * spd[j] / cm
+        if spd[j] == cm:
+            e_fast += ext[j]
+    t = 0.0
+    if rho > 0.0:
+        lo = rho / sum_er
+        hi = rho / e_fast
+        t = lo
+        for _ in range(200):
+            x = 0.0
+            dx = 0.0
+            for j in range(m):
+                r = spd[j] / cm
+                q = 1.0 + t * t * (1.0 - r * r)
+                x += ext[j] * r * t / math.sqrt(q)
+                dx += ext[j] * r / (q * math.sqrt(q))
+            g = x - rho
+            if g > 0.0:
+                hi = t
+            else:
+                lo = t
+            tn = t - g / dx
+            if not (lo < tn < hi):
+                tn = 0.5 * (lo + hi)
+            if abs(tn - t) <= 1e-14 * (1.0 + t) or hi - lo <= 1e-14 * (1.0 + t):
+                t = tn
+                break
+            t = tn
+    s2 = t * t / (1.0 + t * t)                 # sin^2 in the fastest medium
+    p = math.sqrt(s2) / cm
+    time = p * rho
+    eta0 = 0.0
+    for j in range(m):
+        r = spd[j] / cm
+        cosj = math.sqrt(max(1.0 - r * r * s2, 0.0))
+        time += ext[j] * cosj / spd[j]
+        if j == 0:
+            eta0 = cosj / spd[j]
+    return time, eta0
+
+
+@dataclass(frozen=True)
+class SpeedProfile:
+    """The sediment below the interface: layers from depths ``tops`` (m, ``tops[0]`` = 0)
+    at ``speeds`` (m/s), the last a half-space."""
+    tops: tuple[float, ...]
+    speeds: tuple[float, ...]
+
+    @classmethod
+    def of(cls, imaging) -> "SpeedProfile":
+        """From a processing configuration's ``[imaging]``: its ``sediment_layers`` over
+        the half-space ``sediment_sound_speed_m_s``."""
+        tops, speeds, d = [0.0], [], 0.0
+        for layer in imaging.sediment_layers:
+            d += layer.thickness_m
+            tops.append(d)
+            speeds.append(layer.sound_speed_m_s)
+        speeds.append(imaging.sediment_sound_speed_m_s)
+        return cls(tuple(tops), tuple(float(c) for c in speeds))
+
+    @property
+    def layered(self) -> bool:
+        return len(self.speeds) > 1
+
+
 @dataclass(frozen=True)
 class TravelTimeTable:
     """One-way travel times from an element at height ``h_ref`` above the interface,
@@ -119,6 +224,15 @@ class TravelTimeTable:
 
 
 @nb.njit(parallel=True, cache=True)
+def _fill_layered(h, drho, z0, dz, cw, tops, speeds, time, eta):
+    n_rho, n_z = time.shape
+    for i in nb.prange(n_rho):
+        rho = i * drho
+        for j in range(n_z):
+            time[i, j], eta[i, j] = layered_ray(h, rho, z0 + j * dz, cw, tops, speeds)
+
+
+@nb.njit(parallel=True, cache=True)
 def _fill_table(h, drho, z0, dz, cw, cs, time, eta):
     n_rho, n_z = time.shape
     for i in nb.prange(n_rho):
@@ -130,9 +244,11 @@ def _fill_table(h, drho, z0, dz, cw, cs, time, eta):
 
 
 def build_table(h_ref: float, rho_max: float, z_min: float, z_max: float, step: float,
-                water_sound_speed: float, sediment_sound_speed: float) -> TravelTimeTable:
+                water_sound_speed: float, sediment_sound_speed: float,
+                profile: SpeedProfile | None = None) -> TravelTimeTable:
     """Tabulate one-way times for offsets 0..rho_max and depths z_min..z_max (m), for
-    the water and sediment sound speeds (m/s)."""
+    the water and sediment sound speeds (m/s), or through a layered ``profile`` (then
+    ``sediment_sound_speed`` is not used)."""
     if h_ref <= 0:
         raise ValueError(f"travel-time table: element height above the interface must be "
                          f"positive, got {h_ref} m")
@@ -140,5 +256,11 @@ def build_table(h_ref: float, rho_max: float, z_min: float, z_max: float, step: 
     n_z = int(math.ceil((z_max - z_min) / step)) + 2
     time = np.empty((n_rho, n_z))
     eta = np.empty((n_rho, n_z))
-    _fill_table(h_ref, step, z_min, step, water_sound_speed, sediment_sound_speed, time, eta)
+    if profile is not None and profile.layered:
+        _fill_layered(h_ref, step, z_min, step, water_sound_speed,
+                      np.asarray(profile.tops, dtype=np.float64),
+                      np.asarray(profile.speeds, dtype=np.float64), time, eta)
+    else:
+        cs = profile.speeds[0] if profile is not None else sediment_sound_speed
+        _fill_table(h_ref, step, z_min, step, water_sound_speed, cs, time, eta)
     return TravelTimeTable(h_ref, step, z_min, step, time, eta)

@@ -29,7 +29,7 @@ from ..products.background import kernel_voxels
 from ..tiles import Tile
 from .coverage import Coverage
 from .cpu_kernel import run_ping
-from .delays import TravelTimeTable, build_table
+from .delays import SpeedProfile, TravelTimeTable, build_table
 from .grid import tile_grid
 from .kernel_args import DelayModel, ImageSlice, PingArray, VoxelAxes, prepare
 from .pose_check import check_pose_flags
@@ -78,6 +78,8 @@ class PingAccumulator:
         self._dtype = np.float32 if processing.imaging.precision == "float32" else np.float64
         self._apod = receive_apodisation(geometry.receivers, processing.imaging.apodisation)
         self._tables: dict[int, TravelTimeTable] = {}
+        #: the sediment's layers and half-space speed the tables refract through
+        self._profile = SpeedProfile.of(processing.imaging)
         #: on the GPU a tile's updates are counted on the device (``count=`` of the
         #: kernel's front door) and read when the tile is handed back or
         #: :attr:`updates` is read, so that no ping waits for its kernel to finish: the
@@ -242,7 +244,7 @@ class PingAccumulator:
             self._tables[key] = build_table(
                 key / TABLE_KEYS_PER_M, rho_max, tcfg.top_m - im.table_step_m,
                 tcfg.top_m + tcfg.depth_m + im.table_step_m, im.table_step_m,
-                im.water_sound_speed_m_s, im.sediment_sound_speed_m_s)
+                im.water_sound_speed_m_s, im.sediment_sound_speed_m_s, self._profile)
         return self._tables[key]
 
 

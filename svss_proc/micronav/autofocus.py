@@ -62,11 +62,9 @@ import numpy as np
 from scipy.optimize import minimize
 
 from svss_daq.frames import TrackLine
-from svss_daq.geometry import place_array
 from svss_daq.ping import Ping
 
-from ..imaging.kernel_args import ImageSlice, VoxelAxes, prepare
-from ..imaging.schedule import along_reach, ping_frame
+from ..imaging.sampler import PointSampler as _Sampler
 
 log = logging.getLogger(__name__)
 
@@ -131,81 +129,6 @@ def shifted(ping: Ping, line: TrackLine, cross_m: float, down_m: float) -> Ping:
     return dataclasses.replace(ping, nav=dataclasses.replace(
         nav, north_m=nav.north_m - cross_m * sh, east_m=nav.east_m + cross_m * ch,
         down_m=nav.down_m + down_m, altitude_m=nav.altitude_m - down_m))
-
-
-class _Sampler:
-    """Each ping's contribution at single points, with an imager's accumulator (its
-    conditioner, geometry, tables and kernel), in the tile frame ``line``."""
-
-    def __init__(self, accumulator, processing, line: TrackLine):
-        self.acc = accumulator
-        self.proc = processing
-        self.line = line
-        self._kd: dict = {}
-
-    def _prepared(self, p: Ping):
-        """(conditioned, kernel data) of ping ``p``, once."""
-        key = id(p.samples)
-        if key not in self._kd:
-            cond = self.acc.condition(p)
-            self._kd[key] = (cond, prepare(cond, self.proc.imaging.interpolation,
-                                           self.acc.dtype))
-        return self._kd[key]
-
-    def _placed(self, p: Ping):
-        """Ping ``p``'s array placed in the tile frame, and its along-track reach (m) as
-        the tiles' schedule has it (:meth:`~svss_proc.imaging.schedule.TileSchedule.step`):
-        the projector's beam to the tile's bottom with ``beam_gating``, else the echo
-        window's range."""
-        geo = self.acc.geometry
-        placed = place_array(geo, p.nav, p.projector, ping_frame(self.line, p.nav, self.proc))
-        im = self.proc.imaging
-        if im.beam_gating:
-            depth = self.proc.tile.top_m + self.proc.tile.depth_m
-            reach = along_reach(placed.tx, placed.bore, geo.projector_half_angle, depth)
-        else:
-            reach = self._prepared(p)[0].axis.end_s * im.water_sound_speed_m_s / 2
-        return placed, reach
-
-    def reach(self, p: Ping) -> tuple[float, float]:
-        """The projector's along-track position and reach (m) of ping ``p``."""
-        placed, reach = self._placed(p)
-        return float(placed.tx[0]), reach
-
-    def value(self, p: Ping, point: np.ndarray) -> complex:
-        """Ping ``p``'s contribution at ``point`` (tile frame: along, cross, depth)."""
-        im, acc = self.proc.imaging, self.acc
-        placed, reach = self._placed(p)
-        kd = self._prepared(p)[1]
-        re_ = np.zeros((1, 1, 1), dtype=acc.dtype)
-        im_ = np.zeros_like(re_)
-        array, delays = acc.ping_inputs(placed.tx, placed.rx, placed.bore, reach)
-        axes = VoxelAxes(*(np.array([float(v)]) for v in point))
-        acc.kernel(ImageSlice(re_, im_, axes, 0, 1), kd, array, delays,
-                   gating=im.beam_gating)
-        return complex(float(re_[0, 0, 0]), float(im_[0, 0, 0]))
-
-    def grid(self, pings: list, along, cross, depth) -> np.ndarray:
-        """The image of ``pings`` at the grid ``along x cross x depth`` (tile frame),
-        complex, as the tiles image it."""
-        im, acc = self.proc.imaging, self.acc
-        along, cross, depth = (np.ascontiguousarray(x, dtype=np.float64)
-                               for x in (along, cross, depth))
-        re_ = np.zeros((along.size, cross.size, depth.size), dtype=acc.dtype)
-        im_ = np.zeros_like(re_)
-        # the schedule's slices take the voxels less than one voxel beyond the reach
-        v = self.proc.tile.voxel_m
-        for p in pings:
-            placed, reach = self._placed(p)
-            ia = np.flatnonzero((along > placed.tx[0] - reach - v)
-                                & (along < placed.tx[0] + reach + v))
-            if not ia.size:
-                continue
-            kd = self._prepared(p)[1]
-            array, delays = acc.ping_inputs(placed.tx, placed.rx, placed.bore, reach)
-            acc.kernel(ImageSlice(re_, im_, VoxelAxes(along, cross, depth), int(ia[0]),
-                                  int(ia[-1]) + 1), kd, array, delays, gating=im.beam_gating)
-        return re_.astype(np.float64) + 1j * im_.astype(np.float64)
 
 
 def point_contributions(sampler: _Sampler, pings: list, points: np.ndarray
