@@ -457,6 +457,12 @@ class SeabedConfig:
         "half-size (along, cross, depth) of the box imaged about each response at each "
         "trial speed, m (its depth follows the speed)", length=3)
     box_step_m: float = spec("voxel edge of those boxes, m", lo=1e-3, hi=0.1)
+    layers: bool = spec("a two-layer profile where the picking image shows a layer "
+                        "boundary with responses above and below it")
+    boundary_min_db: float = spec("a layer boundary: a depth whose median level stands "
+                                  "this far over the median of the levels about it, dB",
+                                  lo=0.0, hi=60.0)
+    boundary_window_m: float = spec("the depth span of those levels, m", lo=0.05, hi=10.0)
     disagree_sigmas: float = spec("a configured speed this many of the estimate's "
                                   "standard deviations away is reported as disagreeing",
                                   lo=0.0, hi=100.0)

@@ -69,9 +69,8 @@ class TilePlan:
     poses: tuple[NavSnapshot, ...] | None = None
     #: what the pings are posed with (tile provenance ``poses``)
     pose_source: str = LIVE_POSES
-    #: the run's sediment speed from its sediment-speed stage (None: the processing
-    #: configuration's) and that stage's summary (tile provenance ``seabed``)
-    sediment_sound_speed_m_s: float | None = None
+    #: the run's sediment-speed stage's summary (the tiles are imaged with its estimate,
+    #: :func:`svss_proc.seabed.speed.applied`; tile provenance ``seabed``)
     seabed: dict | None = None
     #: products without seams (:class:`Handback`): where ``svss process`` hands the
     #: tile back among the run's tiles (0, 1, ...); whether the tile handed back just
@@ -322,9 +321,7 @@ def plan_run(run_id: str, folder: str, paths: list[Path],
                               name=f"batch plan of run {run_id}")
         poses, what = run_poses(readers, renavigate, micronav, processing.value)
         poses, what, focus = focus_poses(readers, poses, what, autofocus, processing.value)
-        used, seabed = seabed_stage(readers, poses, processing, sediment_speed)
-        speed = (used.value.imaging.sediment_sound_speed_m_s
-                 if seabed.status == "estimated" else None)
+        _, seabed = seabed_stage(readers, poses, processing, sediment_speed)
         dig = hw.value.digitiser
         zeros = np.broadcast_to(np.zeros((), np.int32), (dig.n_channels, dig.window_samples))
         n = 0
@@ -361,7 +358,7 @@ def plan_run(run_id: str, folder: str, paths: list[Path],
             run_id, folder, k, _ranges([r for r, _ in refs], paths),
             tuple(s for _, s in refs), (all_tiles[0], all_tiles[-1]), line, hw.id,
             poses=tuple(navs[r] for r, _ in refs) if navs else None, pose_source=what,
-            sediment_sound_speed_m_s=speed, seabed=plan.seabed,
+            seabed=plan.seabed,
             **dict(zip(("order", "before", "after_pings", "after_final"), seams[k]))))
     log.info("run %s: %d ping(s) in %d file(s) -> %d tile(s) (frame origin N %.2f E %.2f m, "
              "heading %.1f deg)", run_id, n, len(paths), len(plan.tiles), line[0], line[1],

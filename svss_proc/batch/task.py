@@ -39,7 +39,7 @@ from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
 from svss_daq.ping_gate import PingRejected
 from svss_daq.rawfile import RawFileError, RawRunReader
 
-from ..seabed.speed import with_speed
+from ..seabed.speed import applied
 from ..imaging.imager import TileImager, seam_planes
 from ..products.chain import Before, Seams, save_tile
 from ..tiles import Tile, read_detections, read_tile_header, tile_file_paths, tile_line
@@ -125,9 +125,7 @@ def _form(plan: TilePlan, processing: Loaded[ProcessingConfig]):
             if r.hardware.id != plan.hardware_id:
                 raise RawFileError(f"{r.path}: hardware configuration {r.hardware.id}, the "
                                    f"plan was made with {plan.hardware_id} (file changed?)")
-        proc = processing.value
-        if plan.sediment_sound_speed_m_s is not None:   # the run's sediment-speed stage
-            proc = with_speed(proc, plan.sediment_sound_speed_m_s)
+        proc = applied(processing.value, plan.seabed)   # the run's sediment-speed stage
         imager = TileImager(hardware, proc, source=processing.source)
         # the run's frame; its other tiles written (only this one is formed); the poses
         # judged against the whole run's track by the plan (a tile's pings alone are not

@@ -33,7 +33,7 @@ from typing import Sequence
 
 import numpy as np
 
-from svss_daq.config import ProcessingConfig
+from svss_daq.config import ProcessingConfig, SedimentLayerConfig
 from svss_daq.ping import Ping
 from svss_daq.ping_gate import PingRejected
 
@@ -45,7 +45,7 @@ from .focus import (combine, curve_peak, depth_at_time, focus_measure, point_sig
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SpeedEstimate", "configured_speed", "estimate_speed", "speed_wanted",
+__all__ = ["SpeedEstimate", "applied", "configured_speed", "estimate_speed", "speed_wanted",
            "with_speed"]
 
 #: points of the fine scan either side of the coarse scan's best
@@ -67,6 +67,15 @@ class SpeedEstimate:
     chi2: float | None = None
     disagree_sigmas: float = 3.0
     responses: list = field(default_factory=list)
+    #: estimated layers above the half-space of ``speed_m_s``, top first: thickness,
+    #: speed and its standard deviation, the boundary's level over its surroundings (dB)
+    layers: tuple = ()
+
+    def apply(self, processing: ProcessingConfig) -> ProcessingConfig:
+        """``processing`` imaging with this estimate (its layers over its half-space, as
+        :meth:`summary` rounds them, so that a tile imaged from the summary alone, as
+        ``svss batch``'s tasks image it, is the same); unchanged unless estimated."""
+        return applied(processing, self.summary())
 
     @property
     def disagrees(self) -> bool:
@@ -82,6 +91,9 @@ class SpeedEstimate:
         if self.status == "estimated":
             text = (f"sediment speed {self.speed_m_s:.0f} +/- {self.sigma_m_s:.0f} m/s from "
                     f"{len(self.responses)} buried response(s)")
+            for l_ in self.layers:
+                text += (f" below {l_['thickness_m']:.2f} m at {l_['speed_m_s']:.0f} +/- "
+                         f"{l_['sigma_m_s']:.0f} m/s")
             if self.disagrees:
                 text += (f"; the configured {self.configured_m_s:.0f} m/s disagrees "
                          f"({abs(self.configured_m_s - self.speed_m_s) / self.sigma_m_s:.1f}"
@@ -101,8 +113,25 @@ class SpeedEstimate:
                 "reason": self.reason, "responses": [
                     {"along_m": r(p["position"][0], 3), "cross_m": r(p["position"][1], 3),
                      "depth_m": r(p["position"][2], 3), "speed_m_s": r(p["speed"], 1),
-                     "sigma_m_s": r(p["sigma"], 1), "contrast_db": r(p["contrast_db"], 1)}
-                    for p in self.responses]}
+                     "sigma_m_s": r(p["sigma"], 1), "contrast_db": r(p["contrast_db"], 1),
+                     "layer": p.get("layer")}
+                    for p in self.responses],
+                "layers": [{k: r(v, 3) for k, v in l_.items()} for l_ in self.layers]}
+
+
+def applied(processing: ProcessingConfig, summary: dict | None) -> ProcessingConfig:
+    """``processing`` imaging with the sediment of a :meth:`SpeedEstimate.summary`
+    (unchanged where it was not estimated, or None)."""
+    if not summary or summary.get("status") != "estimated":
+        return processing
+    out = with_speed(processing, summary["sediment_sound_speed_m_s"])
+    if summary.get("layers"):
+        out = dataclasses.replace(out, imaging=dataclasses.replace(
+            out.imaging, sediment_layers=tuple(
+                SedimentLayerConfig(thickness_m=float(l_["thickness_m"]),
+                                    sound_speed_m_s=float(l_["speed_m_s"]))
+                for l_ in summary["layers"])))
+    return out
 
 
 def configured_speed(processing: ProcessingConfig) -> SpeedEstimate:
@@ -161,20 +190,23 @@ class _Scanner:
     """Boxes about responses imaged at trial speeds, each speed's tables built once."""
 
     def __init__(self, hardware, processing: ProcessingConfig, line, pings: Sequence[Ping],
-                 used: list[int]):
+                 used: list[int], base: SpeedProfile):
         self.hw = hardware
+        #: the profile scanned: ``processing``'s layers over a half-space at trial speeds
         self.proc = processing
         self.line = line
         self.pings = pings
         #: the conditioned pings of the response being scanned (shared by the speeds)
         self.prepared: dict = {}
         self._samplers: dict[float, PointSampler] = {}
-        self.base = SpeedProfile.of(processing.imaging)
+        #: the profile the responses were picked with (their depths are its)
+        self.base = base
+        self.scanned = SpeedProfile.of(processing.imaging)
         ref = self._sampler(processing.imaging.sediment_sound_speed_m_s)
-        self.reach = []                     # (index, projector along, reach)
+        self.reach = []       # (index, projector along, reach, projector depth)
         for i in used:
-            x0, reach = ref.reach(pings[i])
-            self.reach.append((i, x0, reach))
+            placed, reach = ref._placed(pings[i])
+            self.reach.append((i, float(placed.tx[0]), reach, float(placed.tx[2])))
         self._near: list[Ping] = []
 
     def _sampler(self, c: float) -> PointSampler:
@@ -187,11 +219,11 @@ class _Scanner:
         return s
 
     def depth_for(self, depth0: float, c: float) -> float:
-        """Where a response imaged at ``depth0`` with the picking image's speed lies with
-        half-space speed ``c``: the same vertical travel time."""
-        tops = np.asarray(self.base.tops)
-        t = vertical_time(depth0, tops, np.asarray(self.base.speeds))
-        return depth_at_time(t, tops, np.asarray(self.base.speeds[:-1] + (c,)))
+        """Where a response imaged at ``depth0`` with the picking image's profile lies in
+        the scanned profile with half-space speed ``c``: the same vertical travel time."""
+        t = vertical_time(depth0, np.asarray(self.base.tops), np.asarray(self.base.speeds))
+        return depth_at_time(t, np.asarray(self.scanned.tops),
+                             np.asarray(self.scanned.speeds[:-1] + (c,)))
 
     def focus(self, position: np.ndarray, c: float) -> float:
         """The focus measure of the box about ``position`` (configured-speed image) at
@@ -207,13 +239,14 @@ class _Scanner:
                                     np.maximum(z, 1e-3))
         return focus_measure(box)
 
-    def scan(self, position: np.ndarray, contrast_db: float) -> tuple[float, float]:
-        """(speed, uncertainty) of one response: a coarse scan, then a fine one about
-        its best."""
+    def scan(self, position: np.ndarray, contrast_db: float) -> dict:
+        """One response: a coarse scan, then a fine one about its best; its ``speed``
+        and ``sigma`` (m/s), the log of its focus at the best speed (``log_focus``)
+        and the ``curve`` (speeds, focus values) scanned."""
         sb = self.proc.seabed
         lo, hi = sb.speed_range_m_s
         self.prepared.clear()               # one response's pings held at a time
-        self._near = [self.pings[i] for i, x0, reach in self.reach
+        self._near = [self.pings[i] for i, x0, reach, _ in self.reach
                       if abs(position[0] - x0) <= reach + sb.box_m[0]]
         speeds = list(np.arange(lo, hi + 0.5 * sb.coarse_step_m_s, sb.coarse_step_m_s))
         values = [self.focus(position, c) for c in speeds]
@@ -224,46 +257,116 @@ class _Scanner:
                 speeds.append(float(c))
                 values.append(self.focus(position, float(c)))
         s, v = np.array(speeds), np.array(values)
+        order = np.argsort(s)
+        curve = (s[order], v[order])
         keep = np.abs(s - best) <= FINE_HALF_STEPS * sb.fine_step_m_s + 1e-9
         if keep.sum() >= 3:
             s, v = s[keep], v[keep]
         c, curv = curve_peak(s, v)
-        if not (lo < c < hi):
-            return c, math.inf                     # at an end of the scan: no peak
-        return c, point_sigma(curv, contrast_db, sb.fine_step_m_s / math.sqrt(12.0))
+        log_focus = float(np.log(max(float(np.max(v)), 1e-300)))
+        if not (lo < c < hi):                    # at an end of the scan: no peak
+            return {"speed": c, "sigma": math.inf, "log_focus": log_focus, "curve": curve}
+        return {"speed": c, "sigma": point_sigma(curv, contrast_db,
+                                                 sb.fine_step_m_s / math.sqrt(12.0)),
+                "log_focus": log_focus, "curve": curve}
+
+    def boundary_depth(self, c: float, around_m: float) -> float | None:
+        """The depth of a layer boundary's echo in a fine image of the middle of the run
+        made with a uniform sediment of speed ``c`` (half-space speed of this scanner's
+        profile): the peak of the median level against depth (1 cm steps) within
+        ``[seabed] boundary_window_m`` / 2 of ``around_m``; None: no peak inside. With
+        the boundary's true top-layer speed the peak lies on the boundary; with another
+        speed it lies where the boundary's vertical travel time puts it."""
+        from .layers import profile_peak
+        sb = self.proc.seabed
+        x = np.array([x0 for _, x0, _, _ in self.reach])
+        mid = float(np.median(x))
+        near = [self.pings[i] for i, x0, reach, _ in self.reach if abs(mid - x0) <= reach]
+        half = 0.5 * sb.boundary_window_m
+        along = mid + np.arange(-0.7, 0.7 + 1e-9, 0.02)
+        cross = np.arange(-0.3, 0.3 + 1e-9, 0.02)
+        depth = np.arange(max(around_m - half, sb.min_depth_m), around_m + half + 1e-9, 0.01)
+        self.prepared.clear()
+        img = self._sampler(c).grid(near, along, cross, depth)
+        self.prepared.clear()
+        mag = np.abs(img).reshape(-1, depth.size)
+        level = np.array([20 * np.log10(max(float(np.median(m[m > 0])), 1e-300))
+                          if np.any(m > 0) else -np.inf for m in mag.T])
+        return profile_peak(depth, level)
+
+    def surface_ghost_depth(self) -> float:
+        """Where the interface's echo by way of the sea surface (one bounce) appears in
+        the picking image, m below the interface: the projector's median depth below the
+        surface (the survey frame's down 0) in water, as vertical one-way time."""
+        d = float(self.line.interface_down) + float(np.median([z for *_, z in self.reach]))
+        t = max(d, 0.0) / self.proc.imaging.water_sound_speed_m_s
+        return depth_at_time(t, np.asarray(self.base.tops), np.asarray(self.base.speeds))
 
 
 def estimate_speed(pings: Sequence[Ping], hardware, processing: ProcessingConfig
                    ) -> SpeedEstimate:
     """The sediment speed of a run's ``pings`` (in order, posed as they are to be
     imaged; any sequence: each is read when needed, e.g. :class:`.stage.RunPings` from
-    the raw files) with ``hardware`` (its :class:`~svss_daq.config.Loaded` configuration) and
-    ``processing`` (its ``[seabed]`` the settings; module docstring)."""
+    the raw files) with ``hardware`` (its :class:`~svss_daq.config.Loaded`
+    configuration) and ``processing`` (its ``[seabed]`` the settings; module
+    docstring)."""
     sb = processing.seabed
     configured = float(processing.imaging.sediment_sound_speed_m_s)
     if sb is None:
         return SpeedEstimate("configured", configured, configured, "no [seabed] table")
-    out = None
+    out, last = None, None
     pick_speed = configured
     for round_ in range(sb.rounds):
-        found = _one_round(pings, hardware, with_speed(processing, pick_speed), configured)
+        found, seen = _one_round(pings, hardware, with_speed(processing, pick_speed),
+                                 configured)
         if found.status != "estimated":
-            return out if out is not None else found
-        out = found
-        if round_ + 1 < sb.rounds and abs(found.speed_m_s - pick_speed) <= sb.fine_step_m_s:
+            if out is None:
+                return found
+            break
+        out, last = found, seen
+        if abs(found.speed_m_s - pick_speed) <= sb.fine_step_m_s:
             break                           # picked at the estimate already
         pick_speed = found.speed_m_s
+    if sb.layers and not processing.imaging.sediment_layers and last is not None:
+        layered = _layered(out, last, pings, hardware, processing)
+        if layered is not None:
+            return layered
+    return out
+
+
+@dataclass
+class _Seen:
+    """What a round saw: its picking image's tiles, frame, imaged pings, processing
+    and the responses it scanned."""
+    tiles: list
+    line: object
+    used: list[int]
+    processing: ProcessingConfig
+    responses: list
+    #: where the interface's surface-bounce echo appears in the picking image, m
+    ghost_depth_m: float
+
+
+def _responses(scanner: _Scanner, points, contrasts, quiet: bool = False) -> list[dict]:
+    out = []
+    for pos, con in zip(points, contrasts):
+        r = scanner.scan(pos, float(con))
+        r.update(position=[float(v) for v in pos], contrast_db=float(con))
+        out.append(r)
+        if not quiet:
+            log.info("seabed scan: response at %.2f m along, %.2f m across, %.2f m deep: "
+                     "%.0f +/- %.0f m/s", pos[0], pos[1], pos[2], r["speed"], r["sigma"])
     return out
 
 
 def _one_round(pings: Sequence[Ping], hardware, processing: ProcessingConfig,
-               configured: float) -> SpeedEstimate:
+               configured: float) -> tuple[SpeedEstimate, _Seen | None]:
     """Pick the responses on an image made with ``processing``'s speed and scan them."""
     sb = processing.seabed
     tiles, line, used = _search_image(pings, hardware, processing)
     if line is None or not tiles:
         return SpeedEstimate("unconstrained", configured, configured, "no ping imaged",
-                             disagree_sigmas=sb.disagree_sigmas)
+                             disagree_sigmas=sb.disagree_sigmas), None
     pick = _pick_isolated(tiles, processing)
     log.info("seabed scan at %.0f m/s: %d isolated buried response(s) of %d local maxima "
              "examined (%s)", processing.imaging.sediment_sound_speed_m_s, len(pick.points),
@@ -272,24 +375,111 @@ def _one_round(pings: Sequence[Ping], hardware, processing: ProcessingConfig,
         reason = pick.refused or (f"{len(pick.points)} isolated buried response(s), "
                                   f"{sb.min_points} needed")
         return SpeedEstimate("unconstrained", configured, configured, reason,
-                             disagree_sigmas=sb.disagree_sigmas)
-    scanner = _Scanner(hardware, processing, line, pings, used)
-    responses = []
-    for pos, con in zip(pick.points, pick.contrast_db):
-        c, sig = scanner.scan(pos, float(con))
-        responses.append({"position": [float(v) for v in pos], "speed": c, "sigma": sig,
-                          "contrast_db": float(con)})
-        log.info("seabed scan: response at %.2f m along, %.2f m across, %.2f m deep: "
-                 "%.0f +/- %.0f m/s", pos[0], pos[1], pos[2], c, sig)
+                             disagree_sigmas=sb.disagree_sigmas), None
+    scanner = _Scanner(hardware, processing, line, pings, used,
+                       SpeedProfile.of(processing.imaging))
+    responses = _responses(scanner, pick.points, pick.contrast_db)
+    seen = _Seen(tiles, line, used, processing, responses, scanner.surface_ghost_depth())
     speed, sigma, chi2 = combine(np.array([r["speed"] for r in responses]),
                                  np.array([r["sigma"] for r in responses]))
     if not math.isfinite(speed):
         return SpeedEstimate("unconstrained", configured, configured,
                              "no response's focus peaked inside the scanned speeds "
                              f"{list(sb.speed_range_m_s)} m/s",
-                             disagree_sigmas=sb.disagree_sigmas, responses=responses)
+                             disagree_sigmas=sb.disagree_sigmas, responses=responses), seen
     return SpeedEstimate("estimated", speed, configured, "focus of buried responses",
-                         sigma, chi2, sb.disagree_sigmas, responses)
+                         sigma, chi2, sb.disagree_sigmas, responses), seen
+
+
+def _layered(uniform: SpeedEstimate, seen: _Seen, pings, hardware,
+             processing: ProcessingConfig) -> SpeedEstimate | None:
+    """A two-layer profile where the picking image shows a layer boundary below the
+    interface (:func:`.layers.find_boundary`; the interface's surface-bounce echo told
+    apart) with responses above and below it. For each trial top-layer speed c1 (about
+    the responses-above estimate) the layer's thickness is where the boundary's echo
+    peaks in a fine image made with c1 (:meth:`_Scanner.boundary_depth`), and the
+    responses below are scanned for the half-space speed c2 through that layer; c1 is
+    the trial that maximises the responses' summed log focus (those above at c1, from
+    their one-speed scans; those below at their best c2). None: no such boundary, or
+    nothing above or below it to focus on."""
+    from .layers import find_boundary
+    sb = processing.seabed
+    base = SpeedProfile.of(seen.processing.imaging)
+    boundary = find_boundary(seen.tiles, sb.min_depth_m, sb.boundary_window_m,
+                             sb.boundary_min_db, exclude=(seen.ghost_depth_m, sb.box_m[2]))
+    if boundary is None:
+        return None
+    z_b, level_db = boundary
+    guard = sb.box_m[2]
+    above = [r for r in seen.responses if r["position"][2] < z_b - guard]
+    below = [r for r in seen.responses if r["position"][2] > z_b + guard]
+    log.info("seabed scan: a layer boundary about %.2f m below the interface (%.1f dB over "
+             "the levels about it; %d response(s) above it, %d below; the surface echo's "
+             "at %.2f m)", z_b, level_db, len(above), len(below), seen.ghost_depth_m)
+    if not above or not below:
+        return None
+    c1_0, s1_0, _ = combine(np.array([r["speed"] for r in above]),
+                            np.array([r["sigma"] for r in above]))
+    if not math.isfinite(c1_0):
+        return None
+    t_b = vertical_time(z_b, np.asarray(base.tops), np.asarray(base.speeds))
+    lo, hi = sb.speed_range_m_s
+    uniform_scan = _Scanner(hardware, seen.processing, seen.line, pings, seen.used, base)
+
+    def deep_at(c1: float) -> tuple[float, list[dict]] | None:
+        thickness = uniform_scan.boundary_depth(c1, t_b * c1)
+        if thickness is None or thickness < processing.tile.voxel_m:
+            return None
+        top = SedimentLayerConfig(thickness_m=float(thickness), sound_speed_m_s=float(c1))
+        scan_proc = dataclasses.replace(seen.processing, imaging=dataclasses.replace(
+            seen.processing.imaging, sediment_layers=(top,)))
+        scanner = _Scanner(hardware, scan_proc, seen.line, pings, seen.used, base)
+        return thickness, _responses(scanner, [np.array(r["position"]) for r in below],
+                                     [r["contrast_db"] for r in below], quiet=True)
+
+    def total(c1: float, deep: list[dict]) -> float:
+        j = sum(float(np.interp(c1, r["curve"][0], np.log(np.maximum(r["curve"][1],
+                                                                       1e-300))))
+                for r in above)
+        return j + sum(r["log_focus"] for r in deep)
+
+    step = sb.coarse_step_m_s
+    trials: dict[float, tuple[float, float, list]] = {}
+    for c1 in np.clip(c1_0 + step * np.arange(-2, 3), lo, hi):
+        c1 = float(c1)
+        if c1 not in trials:
+            got = deep_at(c1)
+            if got is not None:
+                trials[c1] = (total(c1, got[1]), *got)
+                log.info("seabed scan: top layer %.0f m/s, %.3f m thick: summed log focus "
+                         "%.3f", c1, got[0], trials[c1][0])
+    if len(trials) < 3:
+        return None
+    cs = np.array(sorted(trials))
+    js = np.array([trials[c][0] for c in cs])
+    c1, curv = curve_peak(cs, np.exp(js - js.max()))
+    got = deep_at(c1)
+    if got is None:
+        return None
+    thickness, deep = got
+    c2, s2, chi2 = combine(np.array([r["speed"] for r in deep]),
+                           np.array([r["sigma"] for r in deep]))
+    if not math.isfinite(c2):
+        return None
+    noise = 4.0 * sum(10.0 ** (-r["contrast_db"] / 20.0) for r in above + below)
+    s1 = (max(math.sqrt(noise / -curv), sb.fine_step_m_s / math.sqrt(12.0)) if curv < 0
+          else s1_0)
+    for r in above:
+        r["layer"] = 0
+    for r in deep:
+        r["layer"] = 1
+        log.info("seabed scan: response at %.2f m along, %.2f m across, %.2f m deep, below "
+                 "the boundary: %.0f +/- %.0f m/s", *r["position"], r["speed"], r["sigma"])
+    layers = ({"thickness_m": float(thickness), "speed_m_s": float(c1), "sigma_m_s": float(s1),
+               "boundary_db": float(level_db)},)
+    return SpeedEstimate("estimated", c2, uniform.configured_m_s,
+                         "focus of buried responses above and below a layer boundary",
+                         s2, chi2, sb.disagree_sigmas, above + deep, layers)
 
 
 def _pick_isolated(tiles, processing):

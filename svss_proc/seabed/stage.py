@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from svss_daq.config import Loaded, ProcessingConfig
 from svss_daq.ping import NavSnapshot, Ping
 
-from .speed import SpeedEstimate, configured_speed, estimate_speed, speed_wanted, with_speed
+from .speed import SpeedEstimate, configured_speed, estimate_speed, speed_wanted
 
 log = logging.getLogger(__name__)
 
@@ -72,4 +72,4 @@ def seabed_stage(readers, poses: list[NavSnapshot] | None,
                     readers[0].path, configured, est.speed_m_s, est.sigma_m_s)
     if est.status != "estimated":
         return processing, est
-    return dataclasses.replace(processing, value=with_speed(proc, est.speed_m_s)), est
+    return dataclasses.replace(processing, value=est.apply(proc)), est
