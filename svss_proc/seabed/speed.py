@@ -151,9 +151,11 @@ def speed_wanted(processing: ProcessingConfig, flag: str | None = None) -> bool:
 
 def with_speed(processing: ProcessingConfig, speed_m_s: float) -> ProcessingConfig:
     """``processing`` imaging with half-space sediment speed ``speed_m_s`` (its layers,
-    if any, kept)."""
+    if any, kept); straight-ray delays, which know no sediment, become the refraction
+    table's."""
+    delays = "table" if processing.imaging.delays == "straight" else processing.imaging.delays
     return dataclasses.replace(processing, imaging=dataclasses.replace(
-        processing.imaging, sediment_sound_speed_m_s=float(speed_m_s)))
+        processing.imaging, sediment_sound_speed_m_s=float(speed_m_s), delays=delays))
 
 
 def _pick_settings(processing: ProcessingConfig):

@@ -1,0 +1,50 @@
+"""Bad sediment settings get an error naming the file and the key."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from svss_daq.config import ConfigError, ProcessingConfig, config_path, load
+
+SHIPPED = config_path("processing.toml").read_text()
+LAYER = "\n[[imaging.sediment_layers]]\nthickness_m = {t}\nsound_speed_m_s = {c}\n"
+
+
+def _load(tmp_path: Path, text: str):
+    p = tmp_path / "processing.toml"
+    p.write_text(text)
+    return load(ProcessingConfig, p)
+
+
+def _with_layer(t, c):
+    # the layer table right after [imaging]'s keys (before the next table)
+    head, tail = SHIPPED.split("\n[ping_gate]", 1)
+    return head + LAYER.format(t=t, c=c) + "\n[ping_gate]" + tail
+
+
+def test_a_configured_layer_loads(tmp_path):
+    p = _load(tmp_path, _with_layer(0.5, 1476.0))
+    assert [(x.thickness_m, x.sound_speed_m_s) for x in p.imaging.sediment_layers] == \
+        [(0.5, 1476.0)]
+
+
+@pytest.mark.parametrize("text, key, says", [
+    (SHIPPED.replace("sediment_sound_speed_m_s = 1500.0", "sediment_sound_speed_m_s = -1767.0"),
+     "imaging.sediment_sound_speed_m_s", "below the minimum"),
+    (SHIPPED.replace("sediment_sound_speed_m_s = 1500.0", "sediment_sound_speed_m_s = 17670.0"),
+     "imaging.sediment_sound_speed_m_s", "above the maximum"),
+    (_with_layer(0.01, 1476.0), "imaging.sediment_layers[0].thickness_m", "thinner than a voxel"),
+    (_with_layer(0.5, 150.0), "imaging.sediment_layers[0].sound_speed_m_s", "below the minimum"),
+    (_with_layer(0.5, 1476.0).replace('delays = "table"', 'delays = "exact"'),
+     "imaging.sediment_layers", "delays = 'table'"),
+    (SHIPPED.replace("speed_range_m_s = [1400.0, 2100.0]", "speed_range_m_s = [2100.0, 1400.0]"),
+     "seabed.speed_range_m_s", "the first below the second"),
+    (SHIPPED.replace('speed = "estimate"', 'speed = "guess"'), "seabed.speed", "'guess'"),
+])
+def test_bad_sediment_settings_name_the_key(tmp_path, text, key, says):
+    with pytest.raises(ConfigError) as err:
+        _load(tmp_path, text)
+    msg = str(err.value)
+    assert "processing.toml" in msg and f"'{key}'" in msg and says in msg, msg
