@@ -90,6 +90,14 @@ def find_boundary(tiles: list, min_depth_m: float, window_m: float, min_db: floa
 def profile_peak(depth: np.ndarray, level_db: np.ndarray) -> float | None:
     """The depth (m) of the largest finite level inside the profile (not at either
     end), refined to a parabola's vertex through its neighbours; None: none inside."""
+    got = profile_peak_level(depth, level_db)
+    return None if got is None else got[0]
+
+
+def profile_peak_level(depth: np.ndarray, level_db: np.ndarray
+                       ) -> tuple[float, float] | None:
+    """(depth m, level dB) of :func:`profile_peak`'s peak, the level the parabola's
+    vertex's."""
     level = np.where(np.isfinite(level_db), level_db, -np.inf)
     if level.size < 3:
         return None
@@ -97,8 +105,6 @@ def profile_peak(depth: np.ndarray, level_db: np.ndarray) -> float | None:
     if i == 0 or i == level.size - 1 or not np.all(np.isfinite(level[i - 1:i + 2])):
         return None
     step = float(depth[i + 1] - depth[i])
-    a, b, _ = np.polyfit([-step, 0.0, step], level[i - 1:i + 2], 2)
-    z = float(depth[i])
-    if a < 0:
-        z += float(np.clip(-b / (2 * a), -step, step))
-    return z
+    a, b, c = np.polyfit([-step, 0.0, step], level[i - 1:i + 2], 2)
+    dz = float(np.clip(-b / (2 * a), -step, step)) if a < 0 else 0.0
+    return float(depth[i]) + dz, float(a * dz * dz + b * dz + c)

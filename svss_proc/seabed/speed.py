@@ -248,8 +248,10 @@ class _Scanner:
         sb = self.proc.seabed
         lo, hi = sb.speed_range_m_s
         self.prepared.clear()               # one response's pings held at a time
-        self._near = [self.pings[i] for i, x0, reach, _ in self.reach
-                      if abs(position[0] - x0) <= reach + sb.box_m[0]]
+        self._near = self._symmetric(float(position[0]))
+        if not self._near:
+            return {"speed": math.nan, "sigma": math.inf, "log_focus": -math.inf,
+                    "curve": (np.zeros(0), np.zeros(0))}
         speeds = list(np.arange(lo, hi + 0.5 * sb.coarse_step_m_s, sb.coarse_step_m_s))
         values = [self.focus(position, c) for c in speeds]
         best, _ = curve_peak(np.array(speeds), np.array(values))
@@ -272,14 +274,14 @@ class _Scanner:
                                                  sb.fine_step_m_s / math.sqrt(12.0)),
                 "log_focus": log_focus, "curve": curve}
 
-    def boundary_depth(self, c: float, around_m: float) -> float | None:
+    def boundary_depth(self, c: float, around_m: float) -> tuple[float, float] | None:
         """The depth of a layer boundary's echo in a fine image of the middle of the run
         made with a uniform sediment of speed ``c`` (half-space speed of this scanner's
         profile): the peak of the median level against depth (1 cm steps) within
         ``[seabed] boundary_window_m`` / 2 of ``around_m``; None: no peak inside. With
         the boundary's true top-layer speed the peak lies on the boundary; with another
         speed it lies where the boundary's vertical travel time puts it."""
-        from .layers import profile_peak
+        from .layers import profile_peak_level
         sb = self.proc.seabed
         x = np.array([x0 for _, x0, _, _ in self.reach])
         mid = float(np.median(x))
@@ -294,7 +296,23 @@ class _Scanner:
         mag = np.abs(img).reshape(-1, depth.size)
         level = np.array([20 * np.log10(max(float(np.median(m[m > 0])), 1e-300))
                           if np.any(m > 0) else -np.inf for m in mag.T])
-        return profile_peak(depth, level)
+        return profile_peak_level(depth, level)
+
+    def _symmetric(self, along: float) -> list[Ping]:
+        """The pings that reach ``along``, on a synthetic aperture symmetric about it: a
+        response near a run's end is seen from one side only, and a one-sided aperture
+        couples its along-track position with the speed (a response 0.6 m inside a
+        run's first pings' reach scanned +4 % fast). Empty: less than a quarter of the
+        full aperture on its shorter side."""
+        sb = self.proc.seabed
+        x = [(i, x0, reach) for i, x0, reach, _ in self.reach
+             if abs(along - x0) <= reach + sb.box_m[0]]
+        if not x:
+            return []
+        half = min(along - min(x0 for _, x0, _ in x), max(x0 for _, x0, _ in x) - along)
+        if half < 0.25 * float(np.median([r for _, _, r in x])):
+            return []
+        return [self.pings[i] for i, x0, _ in x if abs(along - x0) <= half + 1e-9]
 
     def surface_ghost_depth(self) -> float:
         """Where the interface's echo by way of the sea surface (one bounce) appears in
@@ -413,8 +431,9 @@ def _layered(uniform: SpeedEstimate, seen: _Seen, pings, hardware,
         return None
     z_b, level_db = boundary
     guard = sb.box_m[2]
-    above = [r for r in seen.responses if r["position"][2] < z_b - guard]
-    below = [r for r in seen.responses if r["position"][2] > z_b + guard]
+    scanned = [r for r in seen.responses if math.isfinite(r["sigma"])]
+    above = [r for r in scanned if r["position"][2] < z_b - guard]
+    below = [r for r in scanned if r["position"][2] > z_b + guard]
     log.info("seabed scan: a layer boundary about %.2f m below the interface (%.1f dB over "
              "the levels about it; %d response(s) above it, %d below; the surface echo's "
              "at %.2f m)", z_b, level_db, len(above), len(below), seen.ghost_depth_m)
@@ -429,9 +448,11 @@ def _layered(uniform: SpeedEstimate, seen: _Seen, pings, hardware,
     uniform_scan = _Scanner(hardware, seen.processing, seen.line, pings, seen.used, base)
 
     def deep_at(c1: float) -> tuple[float, list[dict]] | None:
-        thickness = uniform_scan.boundary_depth(c1, t_b * c1)
-        if thickness is None or thickness < processing.tile.voxel_m:
+        got = uniform_scan.boundary_depth(c1, t_b * c1)
+        if got is None or got[0] < processing.tile.voxel_m:
             return None
+        thickness = got[0]
+        log.info("seabed scan: boundary echo at %.0f m/s: %.3f m, %.2f dB", c1, *got)
         top = SedimentLayerConfig(thickness_m=float(thickness), sound_speed_m_s=float(c1))
         scan_proc = dataclasses.replace(seen.processing, imaging=dataclasses.replace(
             seen.processing.imaging, sediment_layers=(top,)))

@@ -72,12 +72,19 @@ def hw():
     return load_with_text(HardwareConfig, config_path("hardware.toml"))
 
 
-@pytest.mark.slow
-def test_process_images_buried_points_at_their_depth_with_the_estimated_speed(tmp_path, hw):
-    run = tmp_path / "sand.h5"
+@pytest.fixture(scope="module")
+def sand_run(hw, tmp_path_factory):
+    run = tmp_path_factory.mktemp("seabed") / "sand.h5"
     with RawRunWriter(run, hw) as rec:
         for p in EnvironmentSource(hw, _scene(80, False, POINTS)):
             rec.append(p)
+    return run
+
+
+@pytest.mark.slow
+def test_process_images_buried_points_at_their_depth_with_the_estimated_speed(
+        tmp_path, sand_run):
+    run = sand_run
     processing = load_with_text(ProcessingConfig, config_path("processing-demo.toml"))
     assert processing.value.seabed is None            # the shipped [seabed] settings
     out = tmp_path / "tiles"
@@ -111,3 +118,23 @@ def test_nothing_buried_keeps_the_configured_speed_and_says_why(hw):
     assert "not constrained" in est.description and "1500" in est.description
     assert est.summary()["sigma_m_s"] is None
     assert np.isfinite(est.configured_m_s)
+
+
+@pytest.mark.slow
+def test_batch_plans_a_run_with_its_estimate_and_images_with_it(sand_run):
+    """svss batch's plan carries the run's estimate to every tile task, which images
+    with it (:func:`~svss_proc.seabed.speed.applied`), and says nothing of a speed where
+    asked for the configured one."""
+    from svss_proc.batch.plan import plan_run
+    from svss_proc.seabed.speed import applied
+    processing = load_with_text(ProcessingConfig, config_path("processing-demo.toml"))
+    plan = plan_run("sand", "sand", [sand_run], processing, sediment_speed="estimate")
+    assert plan.seabed["status"] == "estimated"
+    assert abs(plan.seabed["sediment_sound_speed_m_s"] / SAND - 1) < 0.02
+    assert plan.tiles and all(t.seabed == plan.seabed for t in plan.tiles)
+    used = applied(processing.value, plan.tiles[0].seabed)
+    assert used.imaging.sediment_sound_speed_m_s == plan.seabed["sediment_sound_speed_m_s"]
+    assert used.imaging.delays == "table"         # the demo's straight rays refract now
+    plain = plan_run("sand", "sand", [sand_run], processing, sediment_speed="configured")
+    assert plain.seabed["status"] == "configured"
+    assert applied(processing.value, plain.tiles[0].seabed) == processing.value
