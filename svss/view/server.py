@@ -40,6 +40,7 @@ from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
+from svss.summary import seabed_line
 from svss_daq.endpoints import check_endpoint
 from svss_daq.status import StatusSubscriber, format_status
 from svss_proc.products.run_products import TileView, run_contacts, survey_origin
@@ -385,6 +386,7 @@ class Handler(BaseHTTPRequestHandler):
         png = p.with_name(p.stem + QUICKLOOK_SUFFIX)
         self._json({"name": p.stem, "pings": int(d["ping_sequence"].size),
                     "poses": d.get("poses"), "run_id": _text(a.get("run_id")),
+                    "sediment": seabed_line(d["seabed"]) if d.get("seabed") else None,
                     "created_utc": _text(a.get("creation_time_utc")),
                     "quicklook": (f"/files/{png.name}?m={png.stat().st_mtime}"
                                   if png.is_file() else None),

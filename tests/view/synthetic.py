@@ -50,6 +50,10 @@ def write_synthetic_tile(out: str | Path, index: int, run_id: str, seed: int = 0
     cov = Coverage(np.full(shape, 30, np.uint16), np.full(shape, 3000, np.uint16), 128,
                    np.zeros((4, 3)), height_sum_m=3.0 * len(pings), n_pings=len(pings),
                    geodetic_ref=(float(lat), float(lon), *map(float, ned[0])))
+    from svss_proc.seabed.speed import SpeedEstimate
+    seabed = SpeedEstimate("estimated", 1767.0, 1500.0, "focus of buried responses", 20.0,
+                           0.5, 3.0, [{"position": [1.0, 0.0, 0.5], "speed": 1767.0,
+                                       "sigma": 20.0, "contrast_db": 30.0}]).summary()
     tile = Tile(grid, tl, img.real.copy(), img.imag.copy(), pings=pings, updates=1,
-                coverage=cov, poses="synthetic", run_id=run_id, track=track)
+                coverage=cov, poses="synthetic", run_id=run_id, track=track, seabed=seabed)
     return save_tile(tile, out, hw, proc)

@@ -160,7 +160,10 @@ def test_page_assets_status_and_a_tile_over_http(view):
     assert "tile_0001" in [r["name"] for r in regions]
     quick, ctype = get(view.url + t["tiles"][-1]["quicklook"].lstrip("/"))
     assert ctype == "image/png" and quick.startswith(b"\x89PNG")
-    assert get_json(view.url + "api/tile/tile_0001")["detections"]
+    one = get_json(view.url + "api/tile/tile_0001")
+    assert one["detections"]
+    assert one["sediment"] == ("1767 +/- 20 m/s estimated from 1 buried response(s); "
+                               "configured 1500 m/s disagrees")
     # nothing outside the run folder is served
     for bad in ("files/..%2Fx_mip.png", "files/tile_0001.h5", "static/..%2F__init__.py",
                 "api/tile/nope"):

@@ -154,7 +154,8 @@ function openTile(name) {
   fetch("/api/tile/" + encodeURIComponent(name)).then((r) => r.json()).then((t) => {
     $("tile-title").textContent = `${t.name} — run ${t.run_id || "?"}`;
     $("tile-meta").textContent = `${t.pings} pings; written ${t.created_utc || "?"};`
-      + ` poses: ${t.poses || "?"}; ${t.detections.length} detection(s) in the tile`;
+      + ` poses: ${t.poses || "?"}; sediment: ${t.sediment || "?"};`
+      + ` ${t.detections.length} detection(s) in the tile`;
     const img = $("tile-img");
     if (t.quicklook) img.src = t.quicklook; else img.removeAttribute("src");
     $("tile-contacts").replaceChildren(el("h3", {}, "Run contacts in this tile"),
