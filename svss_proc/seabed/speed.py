@@ -387,19 +387,23 @@ def _one_round(pings: Sequence[Ping], hardware, processing: ProcessingConfig,
     if line is None or not tiles:
         return SpeedEstimate("unconstrained", configured, configured, "no ping imaged",
                              disagree_sigmas=sb.disagree_sigmas), None
-    pick = _pick_isolated(tiles, processing)
+    scanner = _Scanner(hardware, processing, line, pings, used,
+                       SpeedProfile.of(processing.imaging))
+    ghost = scanner.surface_ghost_depth()
+    pick, n_ghost = _pick_isolated(tiles, processing, ghost)
     log.info("seabed scan at %.0f m/s: %d isolated buried response(s) of %d local maxima "
-             "examined (%s)", processing.imaging.sediment_sound_speed_m_s, len(pick.points),
-             pick.examined, ", ".join(f"{k}: {v}" for k, v in pick.rejected.items()))
+             "examined (%s; %d voxels on the interface's surface echo at %.2f m left out)",
+             processing.imaging.sediment_sound_speed_m_s, len(pick.points), pick.examined,
+             ", ".join(f"{k}: {v}" for k, v in pick.rejected.items()), n_ghost, ghost)
     if len(pick.points) < sb.min_points:
         reason = pick.refused or (f"{len(pick.points)} isolated buried response(s), "
                                   f"{sb.min_points} needed")
+        reason += (f"; the interface's echo by way of the surface at {ghost:.2f} m "
+                   "not searched")
         return SpeedEstimate("unconstrained", configured, configured, reason,
                              disagree_sigmas=sb.disagree_sigmas), None
-    scanner = _Scanner(hardware, processing, line, pings, used,
-                       SpeedProfile.of(processing.imaging))
     responses = _responses(scanner, pick.points, pick.contrast_db)
-    seen = _Seen(tiles, line, used, processing, responses, scanner.surface_ghost_depth())
+    seen = _Seen(tiles, line, used, processing, responses, ghost)
     speed, sigma, chi2 = combine(np.array([r["speed"] for r in responses]),
                                  np.array([r["sigma"] for r in responses]))
     if not math.isfinite(speed):
@@ -505,6 +509,23 @@ def _layered(uniform: SpeedEstimate, seen: _Seen, pings, hardware,
                          s2, chi2, sb.disagree_sigmas, above + deep, layers)
 
 
-def _pick_isolated(tiles, processing):
+def _pick_isolated(tiles, processing, ghost_depth_m: float):
+    """(the isolated responses to scan, how many local maxima lay on the interface's
+    echo by way of the sea surface): that echo is a bright sheet at ``ghost_depth_m``
+    whose speckle stands out of the levels above and below it (in the seed's sand every
+    pick lay there and scanned 1800-2040 m/s) and crowds the brightest maxima; the
+    depths within the box's depth of it are left out of the picking image."""
+    from types import SimpleNamespace
+
     from ..micronav.autofocus import isolated_points
-    return isolated_points(tiles, _pick_settings(processing))
+    sb = processing.seabed
+    masked, n_ghost = [], 0
+    for t in tiles:
+        img = np.asarray(t.image)
+        band = np.abs(np.asarray(t.grid.depth) - ghost_depth_m) <= sb.box_m[2]
+        if band.any():
+            img = img.copy()
+            n_ghost += int(np.count_nonzero(img[:, :, band]))
+            img[:, :, band] = 0
+        masked.append(SimpleNamespace(image=img, grid=t.grid))
+    return isolated_points(masked, _pick_settings(processing)), n_ghost
