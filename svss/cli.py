@@ -306,6 +306,31 @@ def cmd_inspect(args) -> int:
     return 0
 
 
+def _positive(kind):
+    """An argparse type: a number of ``kind`` above zero."""
+    def convert(text: str):
+        try:
+            v = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not v > 0:
+            raise argparse.ArgumentTypeError(f"{text} is not above zero")
+        return v
+    convert.__name__ = f"positive {kind.__name__}"
+    return convert
+
+
+def _tcp_port(text: str) -> int:
+    """An argparse type: a TCP port for the web page, 0 (any free one) to 65535."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port number") from None
+    if not 0 <= v <= 65535:
+        raise argparse.ArgumentTypeError(f"web port {v} is outside 0-65535")
+    return v
+
+
 def cmd_products(args) -> int:
     from svss_proc.products.run_products import write_run_products
 
@@ -317,6 +342,10 @@ def cmd_products(args) -> int:
             return 2
         origin = (args.origin[0], args.origin[1],
                   args.origin[2] if len(args.origin) == 3 else 0.0)
+    if not Path(args.tiles).is_dir():
+        log.error("%s: not a folder; svss products takes a run's tile folder (the one "
+                  "holding its tile_NNNN.h5 files)", args.tiles)
+        return 2
     files = write_run_products(args.tiles, args.out, origin)
     if not files:
         log.error("%s: no tiles with products; nothing written", args.tiles)
@@ -487,11 +516,11 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--out", help="raw-run folder replacing run.out_dir")
     sp.add_argument("--hardware", help="hardware TOML replacing run.hardware")
     sp.add_argument("--run-id", help="run id (default: run.name and the UTC start time)")
-    sp.add_argument("--pings", type=int, default=None,
+    sp.add_argument("--pings", type=_positive(int), default=None,
                     help="stop once this many pings were delivered (pings delivered "
                     "beside the last one are recorded too)")
-    sp.add_argument("--duration", type=float, default=None, help="stop after this many "
-                    "seconds")
+    sp.add_argument("--duration", type=_positive(float), default=None,
+                    help="stop after this many seconds")
     sp.add_argument("--ephemeral-ports", action="store_true", help="bind the publisher, "
                     "catch-up service and status stream to free loopback ports")
     sp.add_argument("--endpoints-out", help="write the bound endpoints (JSON) here")
@@ -518,8 +547,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--config", help="acquisition TOML naming the status endpoint and "
                     "the page's [view] address and port")
     sp.add_argument("--address", help="address to serve on, replacing [view] address")
-    sp.add_argument("--port", type=int, help="port to serve on, replacing [view] port "
-                    "(0: a free port; the URL is printed)")
+    sp.add_argument("--port", type=_tcp_port, help="web port to serve on, replacing "
+                    "[view] port (0: a free port; the URL is printed)")
     sp.set_defaults(func=cmd_view)
 
     sp = sub.add_parser("simulate", help="simulate a scene into a raw-run file")
