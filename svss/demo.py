@@ -121,12 +121,12 @@ def _after_stop(procs: dict[str, subprocess.Popen], killed: list[str], runs: Pat
             with RawRunReader(seg) as r:
                 summary = r.summary
         except RawFileError as exc:
-            summary, why = None, str(exc)
+            summary, trouble = None, str(exc)
         else:
-            why = "no acquisition summary: not closed"
-        if summary is None:
-            problems.append(f"{seg}: {why} (acquire exit code {rc.get('acquire')}; see "
-                            f"{logs / 'acquire.log'})")
+            trouble = "no acquisition summary: not closed"
+        if summary is None:        # (``why``, the stop's cause, is not this file's)
+            problems.append(f"{seg}: {trouble} (acquire exit code {rc.get('acquire')}; "
+                            f"see {logs / 'acquire.log'})")
     if problems:
         raise DemoError(f"svss demo stopped by {why}, but not cleanly: "
                         + "; ".join(problems))

@@ -64,6 +64,11 @@ def test_ctrl_c_on_the_demo_flushes_what_it_says(tmp_path):
     assert rc == 130, logs[-3000:]
     assert "Traceback" not in logs, logs[-3000:]
     assert "what was done is flushed" in logs and "not cleanly" not in logs, logs[-3000:]
+    # the stop's cause, not a file's state (it said "stopped by no acquisition summary:
+    # not closed" of a recording closed with its summary)
+    assert "svss demo stopped by signal SIGINT: the worker wrote" in logs \
+        and "no acquisition summary" not in logs, \
+        logs[-3000:]
     tiles = out / "tiles"
     top = json.loads((tiles / "manifest.json").read_text())
     run = json.loads((tiles / "demo" / "manifest.json").read_text())
