@@ -17,7 +17,8 @@ Layout of one ensemble (all integers little-endian), after the Teledyne RDI
 Decoded values are in SI units: m, m/s, s, Pa, radians (angles); temperature in
 degrees Celsius. Times are int64 nanoseconds since the Unix epoch (UTC). Bad-value
 markers (velocity -32768) and "no bottom found" (bottom-track range 0) become NaN, the
-missing pressure 0xFFFFFFFF None. Bottom-track ranges are RDI's vertical ranges (beam
+missing pressure 0xFFFFFFFF None (a pressure field from 0x80000000 up is a small
+negative reading wrapped: ``signed_pressure_dapa``). Bottom-track ranges are RDI's vertical ranges (beam
 range x cos(beam angle), not corrected for pitch and roll), as sent.
 Array fields are read-only numpy arrays. Raw counts (correlation, echo intensity,
 percent good) stay as uint8 arrays.
@@ -77,6 +78,18 @@ BAD_VELOCITY = -32768
 #: A uint32 field of all ones: RDI's missing value (variable leader pressure and its
 #: variance; 4.29e9 daPa would be 4.3e6 dbar).
 MISSING_U32 = 0xFFFFFFFF
+
+
+def signed_pressure_dapa(raw: int) -> int:
+    """The variable leader's pressure (decapascals re one atmosphere) from its uint32
+    field. RDI's output-format documentation gives the field as unsigned (0 to
+    4,294,967,295 daPa), but a Workhorse at the surface sends readings just under
+    2^32: read as unsigned they are 4.29e10 Pa, more than any ocean by four orders of
+    magnitude (RDI_withBT.000: 30 of 1721 ensembles, between neighbours of 0.1-0.3 dbar),
+    and as two's complement -7 to -153 daPa, the sensor's offset from one atmosphere at
+    the surface. So a field from 2^31 up (over 21,000 km of water) is that negative
+    reading; 0xFFFFFFFF stays RDI's missing value (the caller's test, before this)."""
+    return raw - (1 << 32) if raw >= (1 << 31) else raw
 #: Largest possible ensemble on the wire: 16-bit byte count plus the checksum.
 MAX_ENSEMBLE_BYTES = 0xFFFF + 2
 
@@ -508,7 +521,7 @@ def _decode_variable(buf, p: int, length: int, base: int) -> VariableLeader:
     if length >= 56:
         pr, prv = struct.unpack_from("<II", buf, p + 48)
         # decapascal -> Pa; 0xFFFFFFFF is RDI's "no pressure sensor / no data"
-        pres = None if pr == MISSING_U32 else pr * 10.0
+        pres = None if pr == MISSING_U32 else signed_pressure_dapa(pr) * 10.0
         pres_var = None if prv == MISSING_U32 else prv * 10.0
     return VariableLeader(
         ensemble_number=ens + (ens_msb << 16),

@@ -188,6 +188,15 @@ def test_withbt_whole_file_in_odd_chunks():
     assert np.isfinite(rng).sum() > 3000 and np.isfinite(vel).sum() > 3000
     assert np.nanmin(rng) > 0.5 and np.nanmax(rng) < 25.0
     assert np.nanmax(np.abs(vel)) < 3.0
+    # pressure near the surface: 30 ensembles send fields just under 2^32 (read unsigned,
+    # 4.29e10 Pa); they are readings of -7 to -153 daPa between neighbours of 0.1-0.3 dbar
+    pres = np.array([np.nan if e.variable.pressure_pa is None else e.variable.pressure_pa
+                     for e in ens])
+    negative = pres < 0
+    assert negative.sum() == 30 and np.nanmax(pres) < 1e5
+    assert -2000.0 <= pres[negative].min() and pres[negative].max() < 0   # -7 to -153 daPa
+    near = np.concatenate([pres[np.flatnonzero(negative) - 1], pres[np.flatnonzero(negative) + 1]])
+    assert np.nanmedian(np.abs(near)) < 5e3               # their neighbours: under 0.5 dbar
 
 
 def _bt_offset(ens_bytes: bytes) -> int:
