@@ -108,6 +108,10 @@ _NAV_UNITS = {"north_m": "m", "east_m": "m", "down_m": "m", "vel_north_m_s": "m/
               "pitch_rad": "rad", "heading_rad": "rad", "altitude_m": "m",
               "latitude_deg": "degrees_north", "longitude_deg": "degrees_east",
               "quality": "1"}
+#: CF standard names of the navigation snapshot's fields that have one
+_NAV_STANDARD_NAMES = {"latitude_deg": "latitude", "longitude_deg": "longitude",
+                       "heading_rad": "platform_orientation", "roll_rad": "platform_roll",
+                       "pitch_rad": "platform_pitch"}
 _NAV_LONG_NAMES = {
     "north_m": "north of the body origin in the survey frame (local NED)",
     "east_m": "east of the body origin in the survey frame (local NED)",
@@ -280,6 +284,8 @@ class RawRunWriter:
                 continue
             ds = _appendable(plat, name, "<i8" if name == "quality" else "<f8",
                              doc=_NAV_LONG_NAMES[name], units=_NAV_UNITS[name])
+            if name in _NAV_STANDARD_NAMES:          # CF: what a GIS tool looks for
+                ds.attrs["standard_name"] = _NAV_STANDARD_NAMES[name]
             _dims(ds, time1)
             self._nav[name] = ds
         nmea = plat.create_group("NMEA")

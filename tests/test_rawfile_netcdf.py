@@ -68,6 +68,9 @@ def test_raw_run_opens_in_xarray_with_times_dimensions_and_units(run, hardware):
         assert plat["north_m"].dims == ("time1",) and plat["north_m"].attrs["units"] == "m"
         assert plat["heading_rad"].attrs["units"] == "rad"
         assert plat["latitude_deg"].attrs["units"] == "degrees_north"
+        assert plat["latitude_deg"].attrs["standard_name"] == "latitude"
+        assert plat["longitude_deg"].attrs["standard_name"] == "longitude"
+        assert plat["roll_rad"].attrs["standard_name"] == "platform_roll"
         np.testing.assert_array_equal(plat["time1"].values.astype(np.int64),
                                       [p.nav.time_ns for p in sent])
         # every other time variable is decoded too
