@@ -548,16 +548,41 @@ def utm_mosaic(views: list[TileView], projection: SurveyProjection) -> dict:
     return out
 
 
+def survey_grid_mapping(origin) -> dict:
+    """CF grid-mapping attributes of the survey frame's north/east plane about
+    ``origin`` (lat deg, lon deg, h m): a plane tangent at the origin, north and east
+    from it in metres, i.e. WGS 84 azimuthal equidistant about the origin (they differ
+    by r^3 / R^2: 25 um at 1 km)."""
+    from pyproj import CRS
+    lat, lon = float(origin[0]), float(origin[1])
+    crs = CRS.from_proj4(f"+proj=aeqd +lat_0={lat!r} +lon_0={lon!r} +x_0=0 +y_0=0 "
+                         "+datum=WGS84 +units=m +no_defs")
+    cf = crs.to_cf()
+    cf["crs_wkt"] = crs.to_wkt()
+    return cf
+
+
 def write_mosaic_h5(path: Path, m: dict, origin) -> Path:
+    """The run mosaic on the survey frame's north/east grid; with a survey ``origin``
+    its CF grid mapping (variable ``crs``, :func:`survey_grid_mapping`), so that a GIS
+    or xarray places it (the GeoTIFF is the same mosaic on a UTM grid)."""
     with h5py.File(path, "w") as f:
         f.attrs.update({"title": "SVSS run mosaic: plan-view MIP of the tiles",
                         "cell_m": m["cell_m"], "tiles": json.dumps(m["tiles"]),
                         "survey_origin_lat_lon_h": (np.asarray(origin, dtype=np.float64)
                                                     if origin is not None else np.nan)})
-        for name, units in (("north", "m"), ("east", "m")):
+        for name, units, std in (("north", "m", "projection_y_coordinate"),
+                                 ("east", "m", "projection_x_coordinate")):
             ds = f.create_dataset(name, data=m[name])
-            ds.attrs["units"] = units
+            ds.attrs.update({"units": units, "standard_name": std,
+                             "long_name": f"{name} of the survey origin (survey frame)"})
             ds.make_scale(name)
+        mapping = None
+        if origin is not None and np.all(np.isfinite(np.asarray(origin, dtype=float)[:2])):
+            crs = f.create_dataset("crs", data=np.int32(0))
+            for k, v in survey_grid_mapping(origin).items():
+                crs.attrs[k] = v
+            mapping = "crs"
         for name, units, long_name in (
                 ("mip_db", "dB re background", ("maximum over depth and tiles of the "
                                                 "normalised level plus display gain")),
@@ -566,6 +591,8 @@ def write_mosaic_h5(path: Path, m: dict, origin) -> Path:
             ds = f.create_dataset(name, data=m[name].astype(np.uint8) if name == "imaged"
                                   else m[name], compression="gzip", compression_opts=1)
             ds.attrs.update({"units": units, "long_name": long_name})
+            if mapping:
+                ds.attrs["grid_mapping"] = mapping
             ds.dims[0].attach_scale(f["north"])
             ds.dims[1].attach_scale(f["east"])
     return path

@@ -192,6 +192,38 @@ def test_map_products_read_back_with_gdal_at_the_navigations_place(demo_run, tmp
         assert spot > np.nanmedian(img) + 20.0
 
 
+def test_mosaic_h5_carries_the_survey_frame_as_a_cf_grid_mapping(demo_run, tmp_path):
+    """mosaic.h5's crs (CF grid mapping) places its north/east cells where the survey
+    frame's own geodesy (svss_daq.navigation.ned_to_geodetic) puts them: to a
+    millimetre over the demo's 100 m from the survey origin; without an origin, no
+    mapping is claimed."""
+    from pyproj import CRS, Transformer
+
+    from svss_daq.navigation import ned_to_geodetic
+    with h5py.File(demo_run / MOSAIC_H5, "r") as f:        # no geodetic position
+        assert "crs" not in f and "grid_mapping" not in f["mip_db"].attrs
+    write_run_products(demo_run, tmp_path, ORIGIN)
+    with h5py.File(tmp_path / MOSAIC_H5, "r") as f:
+        north, east = f["north"][()], f["east"][()]
+        assert f["mip_db"].attrs["grid_mapping"] == b"crs" or \
+            f["mip_db"].attrs["grid_mapping"] == "crs"
+        assert f["north"].attrs["standard_name"] == "projection_y_coordinate"
+        attrs = dict(f["crs"].attrs)
+        origin = f.attrs["survey_origin_lat_lon_h"]
+    attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in attrs.items()}
+    assert attrs["grid_mapping_name"] == "azimuthal_equidistant"
+    crs = CRS.from_cf(attrs)
+    inv = Transformer.from_crs(crs, CRS.from_epsg(4326), always_xy=True)
+    n, e = np.meshgrid(north[[0, -1]], east[[0, -1]], indexing="ij")
+    lon, lat = inv.transform(e.ravel(), n.ravel())
+    want_lat, want_lon, _ = ned_to_geodetic(np.c_[n.ravel(), e.ravel(), np.zeros(n.size)],
+                                            tuple(origin))
+    fwd = Transformer.from_crs(CRS.from_epsg(4326), crs, always_xy=True)
+    x, y = fwd.transform(want_lon, want_lat)
+    assert np.abs(np.c_[y, x] - np.c_[n.ravel(), e.ravel()]).max() < 1e-3
+    assert np.abs(np.asarray(lat) - want_lat).max() < 1e-8
+
+
 def test_survey_origin_recovered_from_a_geodetic_reference():
     from svss_daq.navigation import ned_to_geodetic
     ned = np.array([123.4, -56.7, 1.5])
