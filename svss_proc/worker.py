@@ -48,6 +48,8 @@ log = logging.getLogger(__name__)
 
 #: at a run's end, how long pings the recording has not flushed yet are waited for, s
 END_WAIT_S = 10.0
+#: how often the catch-up service is asked again about a run it did not announce, s
+UNANNOUNCED_RECHECK_S = 1.0
 #: daq.toml's [subscriber] gap_wait_s, reorder_pings and max_sequence_jump where a caller gives none: the loader's defaults for the omitted keys
 GAP_WAIT_S = omitted_default(SubscriberConfig, "gap_wait_s")
 REORDER_PINGS = omitted_default(SubscriberConfig, "reorder_pings")
@@ -128,6 +130,10 @@ class StreamWorker:
         self.client_id = re.sub(r"[^A-Za-z0-9._:-]", "_", (
             f"{socket.gethostname()[:32]}-{os.getpid()}-{secrets.token_hex(4)}"))[:64]
         self.ends_refused = 0            # end markers the catch-up service contradicted
+        #: pings naming a run the catch-up service does not announce (refused: they
+        #: never open a run, never interrupt one), by run id
+        self.foreign_refused: dict[str, int] = {}
+        self._unannounced_at: dict[str, float] = {}   # run id -> when the service said no
         self.out = Path(out)
         self.hardware, self.processing = hardware, processing
         self.fetcher = fetcher
@@ -302,12 +308,45 @@ class StreamWorker:
                                              "service says it is still being recorded"))
         self._finish_run(r, finished=False)
 
+    def _announced(self, run_id: str, seq: int) -> bool:
+        """Whether a stream ping naming run ``run_id`` (not the one being imaged) may
+        open it: the catch-up service knows the run (the daemon is recording or has
+        recorded it). A run it does not know is refused and counted, its ping
+        dropped: a foreign ping on the stream must not move the worker off its run or
+        image into a folder of its naming. The service is asked again about an unknown
+        run at most once a second. With no service to ask, or none answering while no
+        run is being imaged, the stream is followed as it says (nothing can be checked;
+        a run being imaged is not left for one the service cannot vouch for)."""
+        if self.fetcher is None:
+            return True
+        now = time.monotonic()
+        asked = self._unannounced_at.get(run_id)
+        if asked is None or now - asked >= UNANNOUNCED_RECHECK_S:
+            info, answered = self._run_info(run_id)
+            if info is not None:
+                self._unannounced_at.pop(run_id, None)
+                return True
+            if not answered and self.run is None:
+                return True
+            self._unannounced_at[run_id] = now
+        n = self.foreign_refused.get(run_id, 0) + 1
+        self.foreign_refused[run_id] = n
+        if n == 1 or n % 100 == 0:
+            log.warning("ping %d of run %r refused: the catch-up service does not announce "
+                        "that run (%d of its ping(s) refused); the worker stays on %s",
+                        seq, run_id, n,
+                        f"run {self.run.run_id}" if self.run is not None and
+                        self.run.run_id else "no run")
+        return False
+
     def on_ping(self, ping: Ping, run_id: str | None = None) -> None:
         """A ping from the stream; ``run_id``: the run its header names (None: a
         publisher that does not say, its run is then found from the catch-up service or
         its end marker)."""
         seq = ping.sequence
         if run_id is not None and (self.run is None or self.run.run_id != run_id):
+            if not self._announced(run_id, seq):
+                return
             if self.run is not None:
                 self._leave(self.run, run_id)
             self.run = self._open_tagged(run_id, seq)
@@ -714,6 +753,7 @@ class StreamWorker:
             "fetch_errors": self.fetch_errors, "dropped_reorder_full": self.overflow,
             "implausible_sequences": self.implausible,
             "end_markers_refused": self.ends_refused,
+            "foreign_pings_refused": dict(sorted(self.foreign_refused.items())),
             "runs": {name: {"run_id": s["run_id"], "complete": s["complete"],
                             "incomplete": s["incomplete"], "pings": s["pings"],
                             "skipped_pings": s["skipped_pings"], "skipped": s["skipped"],
