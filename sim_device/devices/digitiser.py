@@ -35,6 +35,24 @@ logger = logging.getLogger(__name__)
 C, S = proto.CommandCode, proto.ReplyStatus
 
 
+#: a fault's pings logged: the first few, then every n-th (a 1005-ping gap logged 5025
+#: lines, one a frame)
+FAULT_LOG_FIRST = 3
+FAULT_LOG_EVERY = 100
+
+
+def _frames(ks: list[int]) -> str:
+    """Frame indices as ranges: [0, 1, 2, 4] -> '0-2, 4'."""
+    parts, start = [], None
+    for i, k in enumerate(ks):
+        if start is None:
+            start = k
+        if i + 1 == len(ks) or ks[i + 1] != k + 1:
+            parts.append(str(start) if start == k else f"{start}-{k}")
+            start = None
+    return ", ".join(parts)
+
+
 class DigitiserEmulator:
     """TCP digitiser on ``127.0.0.1:port`` (``port=0``: an ephemeral port, see
     :attr:`port`). Free-running ping numbers continue across clients and start at
@@ -65,6 +83,9 @@ class DigitiserEmulator:
         self.overflowed = 0      #: triggered pings discarded: the client did not keep up
         self.frames_dropped = 0
         self.frames_corrupted = 0
+        #: pings with frames dropped / corrupted by a fault (their log lines: the first
+        #: FAULT_LOG_FIRST, then every FAULT_LOG_EVERY-th)
+        self._fault_pings = {"dropped": 0, "corrupted": 0}
         self.resets = 0
         self._stop = threading.Event()
         self._lock = threading.Lock()
@@ -84,7 +105,8 @@ class DigitiserEmulator:
     def close(self) -> None:
         """Stop serving; the client's connection is closed (it sees the device go away)."""
         self._stop.set()
-        self._thread.join(2.0)
+        if self._thread.ident is not None:          # (never started: nothing to join)
+            self._thread.join(2.0)
         for s in (self._client, self._server):
             if s is not None:
                 try:
@@ -192,6 +214,7 @@ class DigitiserEmulator:
             drop = self._faults_for(self._drop_next, len(frames))
             corrupt = self._faults_for(self._corrupt_next, len(frames))
         out = bytearray()
+        dropped, corrupted = [], []
         for k, fr in enumerate(frames):
             with self._lock:
                 garbage, self._garbage = self._garbage, []
@@ -199,15 +222,24 @@ class DigitiserEmulator:
                 out += g
             if (n, k) in self._drop or k in drop:
                 self.frames_dropped += 1
-                logger.info("digitiser emulator: frame %d of ping %d dropped (fault)", k, n)
+                dropped.append(k)
                 continue
             if (n, k) in self._corrupt or k in corrupt:
                 fr = bytearray(fr)
                 fr[proto.HEADER_SIZE + 3] ^= 0x5A
                 fr = bytes(fr)
                 self.frames_corrupted += 1
-                logger.info("digitiser emulator: frame %d of ping %d corrupted (fault)", k, n)
+                corrupted.append(k)
             out += fr
+        for what, ks in (("dropped", dropped), ("corrupted", corrupted)):
+            if ks:
+                self._fault_pings[what] += 1
+                m = self._fault_pings[what]
+                if m <= FAULT_LOG_FIRST or m % FAULT_LOG_EVERY == 0:   # not a line a frame
+                    logger.info("digitiser emulator: ping %d: frame(s) %s %s (fault; %d "
+                                "ping(s), %d frame(s) %s so far)", n, _frames(ks), what, m,
+                                self.frames_dropped if what == "dropped"
+                                else self.frames_corrupted, what)
         self.pings_sent += 1
         return bytes(out)
 
