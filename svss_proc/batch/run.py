@@ -174,6 +174,39 @@ def _client(scheduler: str | None, workers: int | None):
     return distributed.Client(cluster), cluster
 
 
+class ExpectedFailureFilter(logging.Filter):
+    """Drops Dask's "Compute Failed" error (with its traceback) for a tile that found
+    pings refused for their samples (:class:`~.task.PingsRefused`, or a neighbour's
+    across a seam): the batch plans the run again without them and says so once per
+    run; it is not a failure (one such error a tile, with a traceback, where the batch
+    succeeded)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        msg = record.msg if isinstance(record.msg, str) else ""
+        if not msg.startswith("Compute Failed"):
+            return True
+        text = " ".join(str(a) for a in (record.args or ()))
+        return "PingsRefused(" not in text
+
+
+def _install_expected_failure_filter(dask_worker=None) -> None:
+    """In a worker (``client.run``) or here: :class:`ExpectedFailureFilter` on Dask's
+    worker logger, once."""
+    lg = logging.getLogger("distributed.worker")
+    if not any(isinstance(f, ExpectedFailureFilter) for f in lg.filters):
+        lg.addFilter(ExpectedFailureFilter())
+
+
+def _quiet_expected_failures(client) -> None:
+    """:func:`_install_expected_failure_filter` in every worker of ``client`` (and in
+    this process, where threads may compute)."""
+    _install_expected_failure_filter()
+    try:
+        client.run(_install_expected_failure_filter)
+    except Exception as exc:                      # noqa: BLE001 - logging only
+        log.debug("batch: the workers' log filter was not installed (%s)", exc)
+
+
 def _stop_heartbeat(dask_worker) -> None:
     """In a worker: stop its heartbeats to the scheduler (the batch is over)."""
     pc = dask_worker.periodic_callbacks.get("heartbeat")
@@ -274,6 +307,7 @@ def run_batch(paths: list[str | Path], out: str | Path,
                     n = len(cluster.workers)
                     kernel_threads = max(1, (os.cpu_count() or 1) // n)
                     log.info("batch: %d kernel thread(s) per worker", kernel_threads)
+            _quiet_expected_failures(client)
             t_run0 = time.perf_counter()
             if seams:
                 made, failed, n_workers = _dispatch_seams(client, todo, plans, out,

@@ -110,3 +110,34 @@ def test_failures_say_whether_a_rerun_can_make_the_tile(survey, coarse_proc, cli
     assert f"tile {first} " in fixed and "damaged" in fixed and f"tile {second} " not in fixed
     assert f"tile {second} " in again and "No space left" in again
     assert not json.loads((out / STATE).read_text())["complete"]
+
+
+def test_a_refused_ping_is_no_compute_failed_error_in_the_workers_logs(client):
+    """Dask logs a "Compute Failed" error with a traceback for every task that raises;
+    a tile finding a ping refused raises PingsRefused so that the batch plans the run
+    again, which is no failure: the batch's filter, installed in the workers, drops
+    that error and only that one (a batch of the corrupted run logged one per tile)."""
+    import logging
+
+    from svss_proc.batch.run import ExpectedFailureFilter, _quiet_expected_failures
+    from svss_proc.batch.task import PingsRefused
+
+    def record(exc: BaseException) -> logging.LogRecord:
+        return logging.LogRecord(
+            "distributed.worker", logging.ERROR, __file__, 1,
+            "Compute Failed\nKey:       %s\nState:     %s\nTask:  %s\nException: %r\n"
+            "Traceback: %r\n", ("tile-lineA-0", "executing", "<Task ...>", repr(exc),
+                                "  File ..."), None)
+
+    refused = PingsRefused([("a.h5", 3, 3, "ADC range")], "run lineA tile 0: ")
+    f = ExpectedFailureFilter()
+    assert not f.filter(record(refused))
+    assert f.filter(record(OSError(28, "No space left on device")))
+    assert f.filter(logging.LogRecord("distributed.worker", logging.INFO, __file__, 1,
+                                      "Starting Worker plugin %s", ("x",), None))
+    # installed in the session's real worker processes, once each however often asked
+    _quiet_expected_failures(client)
+    _quiet_expected_failures(client)
+    counts = client.run(lambda: sum(isinstance(x, ExpectedFailureFilter) for x in
+                                    logging.getLogger("distributed.worker").filters))
+    assert counts and set(counts.values()) == {1}, counts
