@@ -147,8 +147,16 @@ def write_contacts_gpkg(path: Path, contacts: list[dict], fields: list[str],
             data.append(np.array([str(c[k]) for c in contacts], dtype=object))
         else:
             data.append(np.array([c[k] for c in contacts], dtype=np.float64))
-    pyogrio.raw.write(str(path), geometry, data, list(fields), layer=CONTACTS_LAYER,
-                      driver="GPKG", geometry_type="Point", crs=f"EPSG:{projection.epsg}")
+    # pyogrio logs GDAL's "Created N records" at INFO: this module says what it wrote
+    io_log = logging.getLogger("pyogrio._io")
+    level = io_log.level
+    io_log.setLevel(max(level, logging.WARNING))
+    try:
+        pyogrio.raw.write(str(path), geometry, data, list(fields), layer=CONTACTS_LAYER,
+                          driver="GPKG", geometry_type="Point",
+                          crs=f"EPSG:{projection.epsg}")
+    finally:
+        io_log.setLevel(level)
     return path
 
 

@@ -192,7 +192,8 @@ def test_map_products_read_back_with_gdal_at_the_navigations_place(demo_run, tmp
         assert spot > np.nanmedian(img) + 20.0
 
 
-def test_mosaic_h5_carries_the_survey_frame_as_a_cf_grid_mapping(demo_run, tmp_path):
+def test_mosaic_h5_carries_the_survey_frame_as_a_cf_grid_mapping(demo_run, tmp_path,
+                                                                  caplog):
     """mosaic.h5's crs (CF grid mapping) places its north/east cells where the survey
     frame's own geodesy (svss_daq.navigation.ned_to_geodetic) puts them: to a
     millimetre over the demo's 100 m from the survey origin; without an origin, no
@@ -202,7 +203,12 @@ def test_mosaic_h5_carries_the_survey_frame_as_a_cf_grid_mapping(demo_run, tmp_p
     from svss_daq.navigation import ned_to_geodetic
     with h5py.File(demo_run / MOSAIC_H5, "r") as f:        # no geodetic position
         assert "crs" not in f and "grid_mapping" not in f["mip_db"].attrs
-    write_run_products(demo_run, tmp_path, ORIGIN)
+    import logging
+    with caplog.at_level(logging.INFO):
+        write_run_products(demo_run, tmp_path, ORIGIN)
+    # no library's own lines ("Created 6 records", GDAL's by way of pyogrio)
+    assert not [r for r in caplog.records if not r.name.startswith("svss")], \
+        [(r.name, r.getMessage()) for r in caplog.records]
     with h5py.File(tmp_path / MOSAIC_H5, "r") as f:
         north, east = f["north"][()], f["east"][()]
         assert f["mip_db"].attrs["grid_mapping"] == b"crs" or \
