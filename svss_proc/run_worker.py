@@ -393,6 +393,17 @@ class Worker:
         return self.finish(complete=False)
 
 
+def shipped_micronav():
+    """config/processing.toml's ``[micronav]`` (for a configuration without the
+    table, e.g. config/processing-demo.toml, when ``--micronav`` asks for it)."""
+    from svss_daq.config import ConfigError, config_path, load
+    path = config_path("processing.toml")
+    cfg = load(ProcessingConfig, path).micronav
+    if cfg is None:
+        raise ConfigError(f"{path}: no [micronav] table (micronavigation's settings)")
+    return cfg
+
+
 def run_poses(readers: list[RawRunReader], renavigate: bool | None,
               micronav: bool | None = False,
               processing: ProcessingConfig | None = None
@@ -407,15 +418,16 @@ def run_poses(readers: list[RawRunReader], renavigate: bool | None,
 
     ``micronav``: True fuses the re-navigated poses with the echoes' ping-to-ping
     increments (:mod:`svss_proc.micronav.renav`, settings of ``processing``'s
-    ``[micronav]``; raises :class:`RenavigationError` where the run cannot be
-    re-navigated or the configuration has no ``[micronav]`` table); None does so where
+    ``[micronav]``, else config/processing.toml's; raises :class:`RenavigationError`
+    where the run cannot be re-navigated); None does so where
     ``processing``'s ``[micronav] enabled`` says (logged where it cannot); False not."""
     where = str(readers[0].path)
     mcfg = processing.micronav if processing is not None else None
     fuse = bool(micronav) if micronav is not None else bool(mcfg and mcfg.enabled)
-    if fuse and mcfg is None:
-        raise RenavigationError("micronavigation asked for, but the processing "
-                                "configuration has no [micronav] table (its settings)")
+    if fuse and mcfg is None:              # asked for by the command line (--micronav)
+        mcfg = shipped_micronav()
+        log.info("%s: micronavigation with config/processing.toml's [micronav] settings "
+                 "(the processing configuration has none)", where)
     if renavigate is False:
         if micronav:
             raise RenavigationError("micronavigation fuses the re-navigated poses: it "
