@@ -239,7 +239,10 @@ class ScheduledSerialDevice(SerialDevice, abc.ABC):
             t_meas = nxt[s]
             if not self.clock.sleep_until(t_meas + int(self.streams[s][1] * 1e9), self._stop):
                 break
-            offset = self.clock.now_ns() - self.clock.true_ns()  # clock steps so far
+            # the clock's steps so far, read at once (now_ns() - true_ns() read the host
+            # clock twice: a thread held up between the reads stamped its output that
+            # much early, 0.2 s at time scale 5 on a loaded machine)
+            offset = self.clock.offset_ns
             try:
                 data = self._emit(s, t_meas, t_meas + offset)
             except Exception:  # a bug must not silence the instrument for good

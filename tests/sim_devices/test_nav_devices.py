@@ -297,3 +297,47 @@ def test_gps_outage_and_lost_bottom_lock_as_the_instruments_show_them(setup, tmp
     assert q_dr.quality & NAV_DEAD_RECKONED and not q_dr.quality & NAV_NO_HEADING
     p = s["truth"](t_dr)
     assert math.hypot(q_dr.north_m - p.north_m, q_dr.east_m - p.east_m) < 3 * g.position_sigma_m
+
+
+def test_outputs_are_stamped_with_their_measurement_time_however_late_the_thread(setup,
+                                                                              tmp_path):
+    """An emulator stamps each output with its measurement time plus the clock's steps,
+    read at once: it read the host clock twice, and a thread held up between the two
+    reads (a loaded machine) stamped its output early by the hold-up times the time
+    scale (DVL roll 0.0054 rad from the truth, 0.2 s at time scale 5). At a time scale
+    of 1e5 every microsecond between two reads is 0.1 s: every GGA and every ensemble
+    must still sit on its instrument's period grid (NMEA and PD0 carry hundredths of a
+    second)."""
+    s = setup
+    g, d = s["inst"].gps, s["inst"].dvl
+    clock = SimClock(s["start_ns"], 1e5)
+    lev = s["hw"].lever_arms
+    gps = GpsEmulator(g, lev, clock, s["truth"], tmp_path)
+    dvl = DvlEmulator(d, lev, clock, s["truth"], tmp_path)
+    got_nmea, got_pd0 = [], []
+    links = []
+    try:
+        clock.start()
+        gps.start()
+        dvl.start()
+        for dev, parser, out in ((gps, NmeaStreamParser(), got_nmea),
+                                 (dvl, Pd0StreamParser(), got_pd0)):
+            link = SerialLink(dev.port, parser, on_record=out.append,
+                              reconnect_initial_s=0.02, reconnect_max_s=0.1)
+            link.start(wait_connected_s=WAIT_S)
+            links.append(link)
+        deadline = time.monotonic() + 30.0
+        while (len([r for r in got_nmea if isinstance(r, nmea.GgaFix)]) < 50
+               or len(got_pd0) < 50) and time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        for link in links:
+            link.stop()
+        gps.close()
+        dvl.close()
+    ggas = [r for r in got_nmea if isinstance(r, nmea.GgaFix) and r.time_ns is not None]
+    assert len(ggas) >= 50 and len(got_pd0) >= 50
+    for period_ns, stamps in ((int(round(1e9 / g.rate_hz)), [r.time_ns for r in ggas]),
+                              (int(round(1e9 / d.rate_hz)), [e.time_ns for e in got_pd0])):
+        off = [t % period_ns for t in stamps]
+        assert all(o == 0 for o in off), sorted(set(off))[:10]
