@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import time
 from pathlib import Path
 from typing import Iterable
@@ -132,6 +133,12 @@ class Worker:
         self.seams = Seams()       # the previous tile, for products without seams
         self.last_sequence: int | None = None
         self.gaps = 0
+        #: pings missing between imaged ones (sequence numbers never imaged) and the
+        #: first ``max_listed_gaps`` gaps: first and last missing sequence, how many,
+        #: and the distance the body moved across the gap (m; manifest ``gaps``)
+        self.missing_in_sequence = 0
+        self.gap_list: list[dict] = []
+        self._last_ne: tuple[float, float] | None = None
         self.imaging_errors = 0
         self.malformed_messages = 0
         self.resume_sequence: int | None = None
@@ -249,8 +256,22 @@ class Worker:
             self._tally_flags(ping.nav.quality)
             if self.last_sequence is not None and seq != self.last_sequence + 1:
                 self.gaps += 1
-                log.warning("ping sequence jumps from %d to %d: %d ping(s) missing",
-                            self.last_sequence, seq, seq - self.last_sequence - 1)
+                n_missing = seq - self.last_sequence - 1
+                self.missing_in_sequence += max(n_missing, 0)
+                ne = (float(ping.nav.north_m), float(ping.nav.east_m))
+                moved = (math.hypot(ne[0] - self._last_ne[0], ne[1] - self._last_ne[1])
+                         if self._last_ne is not None else None)
+                if n_missing > 0 and len(self.gap_list) < self.max_listed_gaps:
+                    self.gap_list.append({
+                        "first": self.last_sequence + 1, "last": seq - 1,
+                        "pings": n_missing,
+                        "distance_m": None if moved is None or not math.isfinite(moved)
+                        else round(moved, 3)})
+                log.warning("ping sequence jumps from %d to %d: %d ping(s) missing%s",
+                            self.last_sequence, seq, n_missing,
+                            "" if moved is None or not math.isfinite(moved)
+                            else f" over {moved:.1f} m of track")
+            self._last_ne = (float(ping.nav.north_m), float(ping.nav.east_m))
         if type(seq) is int and (self.last_sequence is None or seq > self.last_sequence):
             self.last_sequence = seq
         for tile in tiles:
@@ -355,7 +376,12 @@ class Worker:
 
     def summary(self, complete: bool) -> dict:
         return {
-            "complete": complete, "run_id": self.run_id, "pings": self.imager.n_pings,
+            "complete": complete,
+            # what is missing, where a reader looks first: pings the sonar's sequence
+            # skipped between imaged pings (never recorded, or lost), with the track
+            # they span; ``complete`` says the run was finished, not that it is whole
+            "missing_pings": self.missing_in_sequence, "gaps": list(self.gap_list),
+            "run_id": self.run_id, "pings": self.imager.n_pings,
             "poses": self.poses, "pose_flags": dict(sorted(self.pose_flags.items())),
             "pings_refused": self.gate.n_refused, "refused": dict(self.gate.refused),
             "imaging_errors": self.imaging_errors, "late_pings": self.imager.late_pings,

@@ -757,6 +757,8 @@ class StreamWorker:
             "runs": {name: {"run_id": s["run_id"], "complete": s["complete"],
                             "incomplete": s["incomplete"], "pings": s["pings"],
                             "skipped_pings": s["skipped_pings"], "skipped": s["skipped"],
+                            "missing_pings": s.get("missing_pings", 0),
+                            "gaps": s.get("gaps", []),
                             "tiles": sum(f.endswith(".h5") for f in s["files"])}
                      for name, s in runs.items()},
             "files": [f"{name}/{f}" for name, s in runs.items() for f in s["files"]]})
