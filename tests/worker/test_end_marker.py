@@ -6,6 +6,7 @@ serving a simulated raw run as it is published."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import subprocess
 import sys
@@ -33,9 +34,12 @@ def wait_for(pred, what: str, timeout_s: float = DEADLINE_S):
         time.sleep(0.05)
 
 
-@pytest.mark.slow
-def test_end_marker_mid_run_is_refused_and_the_run_goes_on(short_run, short_processed,
-                                                           small_proc_path, tmp_path):
+@contextlib.contextmanager
+def streamed_worker(short_run, small_proc_path, tmp_path):
+    """A real ``svss worker --runs 1`` on this test's stream and catch-up service (on
+    loopback) serving ``short_run`` as it is published: yields (publisher, service,
+    the run's pings, the worker process, its log file, its output folder); the worker
+    is killed if it has not exited by the end."""
     out, log = tmp_path / "w", tmp_path / "worker.log"
     ctx = zmq.Context()
     with RawRunStore([short_run]) as store, \
@@ -50,23 +54,30 @@ def test_end_marker_mid_run_is_refused_and_the_run_goes_on(short_run, short_proc
         try:
             pub.wait_for_subscribers(timeout_s=60)
             svc.store.begin("line1")
-            pings = list(run)
-            for p in pings[:15]:
-                pub.publish(p)
-            # mid-run, while the recording goes on: an end marker counting 15 pings
-            pub.publish(messages.RunEnd("line1", 15))
-            wait_for(lambda: worker.poll() is not None
-                     or "end marker of run line1 (15 pings) refused" in log.read_text(),
-                     "the worker to take the end marker")
-            for p in pings[15:]:
-                pub.publish(p)
-            svc.store.end("line1")
-            pub.publish(messages.RunEnd("line1", len(pings)))
-            assert worker.wait(DEADLINE_S) == 0, log.read_text()[-3000:]
+            yield pub, svc, list(run), worker, log, out
         finally:
             if worker.poll() is None:
                 worker.kill()
     ctx.term()
+
+
+@pytest.mark.slow
+def test_end_marker_mid_run_is_refused_and_the_run_goes_on(short_run, short_processed,
+                                                           small_proc_path, tmp_path):
+    with streamed_worker(short_run, small_proc_path, tmp_path) as (pub, svc, pings,
+                                                                   worker, log, out):
+        for p in pings[:15]:
+            pub.publish(p)
+        # mid-run, while the recording goes on: an end marker counting 15 pings
+        pub.publish(messages.RunEnd("line1", 15))
+        wait_for(lambda: worker.poll() is not None
+                 or "end marker of run line1 (15 pings) refused" in log.read_text(),
+                 "the worker to take the end marker")
+        for p in pings[15:]:
+            pub.publish(p)
+        svc.store.end("line1")
+        pub.publish(messages.RunEnd("line1", len(pings)))
+        assert worker.wait(DEADLINE_S) == 0, log.read_text()[-3000:]
     m = json.loads((out / "manifest.json").read_text())
     assert m["complete"] and m["pings"] == len(pings) == N_SHORT, m
     assert m["end_markers_refused"] == 1, m

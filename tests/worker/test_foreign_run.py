@@ -9,20 +9,13 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import subprocess
-import sys
 
 import pytest
-import zmq
 
 from svss_daq import messages
-from svss_daq.catchup_stores import RawRunStore, ReplayStore
-from svss_daq.ping_service import PingService
-from svss_daq.publisher import PingPublisher
-from svss_daq.rawfile import RawRunReader
 
-from .conftest import N_SHORT, ROOT, assert_same_tiles
-from .test_end_marker import DEADLINE_S, wait_for
+from .conftest import N_SHORT, assert_same_tiles
+from .test_end_marker import DEADLINE_S, streamed_worker, wait_for
 
 EVIL = "../../evil run"
 
@@ -30,39 +23,22 @@ EVIL = "../../evil run"
 @pytest.mark.slow
 def test_a_foreign_run_on_the_stream_is_refused_and_the_run_goes_on(
         short_run, short_processed, small_proc_path, tmp_path):
-    out, log = tmp_path / "w", tmp_path / "worker.log"
-    ctx = zmq.Context()
-    with RawRunStore([short_run]) as store, \
-            PingService("tcp://127.0.0.1:*", ReplayStore(store), ctx=ctx) as svc, \
-            PingPublisher("tcp://127.0.0.1:*", 1000, ctx=ctx) as pub, \
-            RawRunReader(short_run) as run, open(log, "wb") as err:
-        worker = subprocess.Popen(
-            [sys.executable, "-m", "svss", "worker", "--connect", pub.endpoint,
-             "--service", svc.endpoint, "--out", str(out), "--processing",
-             str(small_proc_path), "--runs", "1", "--idle-timeout", "120"],
-            stdout=subprocess.DEVNULL, stderr=err, cwd=ROOT)
-        try:
-            pub.wait_for_subscribers(timeout_s=60)
-            svc.store.begin("line1")
-            pings = list(run)
-            for p in pings[:15]:
-                pub.publish(p, run_id="line1")
-            # mid-run: one ping of a run nobody records, and its end marker
-            forged = dataclasses.replace(pings[15], sequence=pings[15].sequence + 1000)
-            pub.publish(forged, run_id=EVIL)
-            pub.publish(messages.RunEnd(EVIL, 1))
-            wait_for(lambda: worker.poll() is not None
-                     or "end marker of run ../../evil run" in log.read_text(),
-                     "the worker to take the foreign run's end marker")
-            for p in pings[15:]:
-                pub.publish(p, run_id="line1")
-            svc.store.end("line1")
-            pub.publish(messages.RunEnd("line1", len(pings)))
-            assert worker.wait(DEADLINE_S) == 0, log.read_text()[-3000:]
-        finally:
-            if worker.poll() is None:
-                worker.kill()
-    ctx.term()
+    with streamed_worker(short_run, small_proc_path, tmp_path) as (pub, svc, pings,
+                                                                   worker, log, out):
+        for p in pings[:15]:
+            pub.publish(p, run_id="line1")
+        # mid-run: one ping of a run nobody records, and its end marker
+        forged = dataclasses.replace(pings[15], sequence=pings[15].sequence + 1000)
+        pub.publish(forged, run_id=EVIL)
+        pub.publish(messages.RunEnd(EVIL, 1))
+        wait_for(lambda: worker.poll() is not None
+                 or "end marker of run ../../evil run" in log.read_text(),
+                 "the worker to take the foreign run's end marker")
+        for p in pings[15:]:
+            pub.publish(p, run_id="line1")
+        svc.store.end("line1")
+        pub.publish(messages.RunEnd("line1", len(pings)))
+        assert worker.wait(DEADLINE_S) == 0, log.read_text()[-3000:]
     text = log.read_text()
     m = json.loads((out / "manifest.json").read_text())
     assert m["complete"] and m["pings"] == len(pings) == N_SHORT, m
