@@ -39,7 +39,7 @@ class PointSampler:
                                            self.acc.dtype))
         return self._kd[key]
 
-    def _placed(self, p: Ping):
+    def placed(self, p: Ping):
         """Ping ``p``'s array placed in the tile frame, and its along-track reach (m) as
         the tiles' schedule has it (:meth:`~svss_proc.imaging.schedule.TileSchedule.step`):
         the projector's beam to the tile's bottom with ``beam_gating``, else the echo
@@ -56,13 +56,13 @@ class PointSampler:
 
     def reach(self, p: Ping) -> tuple[float, float]:
         """The projector's along-track position and reach (m) of ping ``p``."""
-        placed, reach = self._placed(p)
+        placed, reach = self.placed(p)
         return float(placed.tx[0]), reach
 
     def value(self, p: Ping, point: np.ndarray) -> complex:
         """Ping ``p``'s contribution at ``point`` (tile frame: along, cross, depth)."""
         im, acc = self.proc.imaging, self.acc
-        placed, reach = self._placed(p)
+        placed, reach = self.placed(p)
         kd = self._prepared(p)[1]
         re_ = np.zeros((1, 1, 1), dtype=acc.dtype)
         im_ = np.zeros_like(re_)
@@ -83,7 +83,7 @@ class PointSampler:
         # the schedule's slices take the voxels less than one voxel beyond the reach
         v = self.proc.tile.voxel_m
         for p in pings:
-            placed, reach = self._placed(p)
+            placed, reach = self.placed(p)
             ia = np.flatnonzero((along > placed.tx[0] - reach - v)
                                 & (along < placed.tx[0] + reach + v))
             if not ia.size:

@@ -125,9 +125,9 @@ def applied(processing: ProcessingConfig, summary: dict | None) -> ProcessingCon
     if not summary or summary.get("status") != "estimated":
         return processing
     out = with_speed(processing, summary["sediment_sound_speed_m_s"])
-    if summary.get("layers"):
+    if summary.get("layers"):               # only the table refracts through layers
         out = dataclasses.replace(out, imaging=dataclasses.replace(
-            out.imaging, sediment_layers=tuple(
+            out.imaging, delays="table", sediment_layers=tuple(
                 SedimentLayerConfig(thickness_m=float(l_["thickness_m"]),
                                     sound_speed_m_s=float(l_["speed_m_s"]))
                 for l_ in summary["layers"])))
@@ -169,30 +169,36 @@ def _pick_settings(processing: ProcessingConfig):
 
 
 def _search_image(pings: Sequence[Ping], hardware, processing: ProcessingConfig):
-    """The run imaged on the coarse search grid: (tiles, the tile frame, the indices of
-    the pings imaged)."""
+    """The run imaged on the coarse search grid: (tiles, the tile frame, per ping imaged
+    its index, projector along-track position and reach and projector depth (tile
+    frame, m) as the scans' samplers place it). Each ping is read once here; the scans
+    read only the pings about their response."""
     sb = processing.seabed
     coarse = dataclasses.replace(
         processing, products=None,
         tile=dataclasses.replace(processing.tile, voxel_m=sb.search_voxel_m))
     imager = TileImager(hardware, coarse)
-    tiles, used = [], []
+    tiles, reach, placer = [], [], None
     for i in range(len(pings)):
+        p = pings[i]
         try:
-            tiles += imager.add(pings[i])
+            tiles += imager.add(p)
         except PingRejected as exc:
             log.debug("seabed scan: %s", exc)
             continue
-        used.append(i)
+        if placer is None:                  # the frame is set by the first ping imaged
+            placer = PointSampler(imager.accumulator, coarse, imager.line)
+        placed, r = placer.placed(p)
+        reach.append((i, float(placed.tx[0]), r, float(placed.tx[2])))
     tiles += imager.finish()
-    return tiles, imager.line, used
+    return tiles, imager.line, reach
 
 
 class _Scanner:
     """Boxes about responses imaged at trial speeds, each speed's tables built once."""
 
     def __init__(self, hardware, processing: ProcessingConfig, line, pings: Sequence[Ping],
-                 used: list[int], base: SpeedProfile):
+                 reach: list[tuple[int, float, float, float]], base: SpeedProfile):
         self.hw = hardware
         #: the profile scanned: ``processing``'s layers over a half-space at trial speeds
         self.proc = processing
@@ -204,11 +210,9 @@ class _Scanner:
         #: the profile the responses were picked with (their depths are its)
         self.base = base
         self.scanned = SpeedProfile.of(processing.imaging)
-        ref = self._sampler(processing.imaging.sediment_sound_speed_m_s)
-        self.reach = []       # (index, projector along, reach, projector depth)
-        for i in used:
-            placed, reach = ref._placed(pings[i])
-            self.reach.append((i, float(placed.tx[0]), reach, float(placed.tx[2])))
+        #: per ping imaged: (index, projector along, reach, projector depth), the
+        #: picking image's (:func:`_search_image`)
+        self.reach = reach
         self._near: list[Ping] = []
 
     def _sampler(self, c: float) -> PointSampler:
@@ -356,11 +360,11 @@ def estimate_speed(pings: Sequence[Ping], hardware, processing: ProcessingConfig
 
 @dataclass
 class _Seen:
-    """What a round saw: its picking image's tiles, frame, imaged pings, processing
-    and the responses it scanned."""
+    """What a round saw: its picking image's tiles, frame, imaged pings' placement
+    (:func:`_search_image`), processing and the responses it scanned."""
     tiles: list
     line: object
-    used: list[int]
+    reach: list
     processing: ProcessingConfig
     responses: list
     #: where the interface's surface-bounce echo appears in the picking image, m
@@ -383,11 +387,11 @@ def _one_round(pings: Sequence[Ping], hardware, processing: ProcessingConfig,
                configured: float) -> tuple[SpeedEstimate, _Seen | None]:
     """Pick the responses on an image made with ``processing``'s speed and scan them."""
     sb = processing.seabed
-    tiles, line, used = _search_image(pings, hardware, processing)
+    tiles, line, reach = _search_image(pings, hardware, processing)
     if line is None or not tiles:
         return SpeedEstimate("unconstrained", configured, configured, "no ping imaged",
                              disagree_sigmas=sb.disagree_sigmas), None
-    scanner = _Scanner(hardware, processing, line, pings, used,
+    scanner = _Scanner(hardware, processing, line, pings, reach,
                        SpeedProfile.of(processing.imaging))
     ghost = scanner.surface_ghost_depth()
     pick, n_ghost = _pick_isolated(tiles, processing, ghost)
@@ -403,7 +407,7 @@ def _one_round(pings: Sequence[Ping], hardware, processing: ProcessingConfig,
         return SpeedEstimate("unconstrained", configured, configured, reason,
                              disagree_sigmas=sb.disagree_sigmas), None
     responses = _responses(scanner, pick.points, pick.contrast_db)
-    seen = _Seen(tiles, line, used, processing, responses, ghost)
+    seen = _Seen(tiles, line, reach, processing, responses, ghost)
     speed, sigma, chi2 = combine(np.array([r["speed"] for r in responses]),
                                  np.array([r["sigma"] for r in responses]))
     if not math.isfinite(speed):
@@ -449,7 +453,7 @@ def _layered(uniform: SpeedEstimate, seen: _Seen, pings, hardware,
         return None
     t_b = vertical_time(z_b, np.asarray(base.tops), np.asarray(base.speeds))
     lo, hi = sb.speed_range_m_s
-    uniform_scan = _Scanner(hardware, seen.processing, seen.line, pings, seen.used, base)
+    uniform_scan = _Scanner(hardware, seen.processing, seen.line, pings, seen.reach, base)
 
     def deep_at(c1: float) -> tuple[float, list[dict]] | None:
         got = uniform_scan.boundary_depth(c1, t_b * c1)
@@ -460,7 +464,7 @@ def _layered(uniform: SpeedEstimate, seen: _Seen, pings, hardware,
         top = SedimentLayerConfig(thickness_m=float(thickness), sound_speed_m_s=float(c1))
         scan_proc = dataclasses.replace(seen.processing, imaging=dataclasses.replace(
             seen.processing.imaging, sediment_layers=(top,)))
-        scanner = _Scanner(hardware, scan_proc, seen.line, pings, seen.used, base)
+        scanner = _Scanner(hardware, scan_proc, seen.line, pings, seen.reach, base)
         return thickness, _responses(scanner, [np.array(r["position"]) for r in below],
                                      [r["contrast_db"] for r in below], quiet=True)
 

@@ -48,3 +48,24 @@ def test_bad_sediment_settings_name_the_key(tmp_path, text, key, says):
         _load(tmp_path, text)
     msg = str(err.value)
     assert "processing.toml" in msg and f"'{key}'" in msg and says in msg, msg
+
+
+def test_an_estimate_with_layers_images_through_the_table():
+    """Only the refraction table refracts through layers: an estimated layered profile
+    applied to a configuration with exact (per-voxel Fermat, half-space) delays makes it
+    table delays, as the configuration's own check demands of configured layers."""
+    from dataclasses import replace
+
+    from svss_proc.seabed.speed import applied
+    p = load(ProcessingConfig, config_path("processing.toml"))
+    exact = replace(p, imaging=replace(p.imaging, delays="exact"))
+    summary = {"status": "estimated", "sediment_sound_speed_m_s": 1767.0,
+               "layers": [{"thickness_m": 0.5, "speed_m_s": 1476.0}]}
+    got = applied(exact, summary)
+    assert got.imaging.delays == "table" and got.config_problem() is None
+    assert [(x.thickness_m, x.sound_speed_m_s) for x in got.imaging.sediment_layers] == \
+        [(0.5, 1476.0)]
+    assert got.imaging.sediment_sound_speed_m_s == 1767.0
+    # a half-space estimate keeps exact delays
+    half = applied(exact, {**summary, "layers": []})
+    assert half.imaging.delays == "exact" and not half.imaging.sediment_layers
