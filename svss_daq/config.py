@@ -207,6 +207,11 @@ class ImagingConfig:
     gpu_pings_per_launch: int | None = spec(
         "on the GPU, pings of a tile imaged by one kernel launch (each voxel summed over "
         "them, then added once); omitted: 16", lo=1, hi=256, default=16)
+    interface_slope_deg: tuple[float, float] | None = spec(
+        "the interface as a plane: its slope along the track line and across it, deg, "
+        "positive where it deepens ahead and to starboard (voxel depths are then below "
+        "the plane at each column; with [seabed] speed = 'estimate' it is estimated); "
+        "omitted: level", lo=-45, hi=45, length=2, default=(0.0, 0.0))
 
 
 @dataclass(frozen=True)

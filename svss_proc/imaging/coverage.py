@@ -32,6 +32,8 @@ import numpy as np
 
 from svss_daq.geometry import cone_reach
 
+from .kernel_args import VoxelAxes, surface_of
+
 #: largest count a coverage volume holds
 SATURATE = 65535
 
@@ -76,10 +78,12 @@ def _leg_time(dx, dy, z, h, inv_cw, inv_cs):
 
 
 @nb.njit(inline="always", cache=True)
-def _count(x, y, z, xa, yc, h_tx, h_min, rx, corners, b0, b1, b2, cos_tx, cos_rx, gating,
-           t_lo, t_hi, inv_cw, inv_cs):
+def _count(x, y, z, s, xa, yc, h_tx, h_min, rx, corners, b0, b1, b2, cos_tx, cos_rx,
+           gating, t_lo, t_hi, inv_cw, inv_cs):
     """Channels one ping reaches at one voxel (``x, y``: its offset from the projector,
-    ``xa, yc``: its position, ``z``: its depth), and whether every channel does."""
+    ``xa, yc``: its position, ``z``: its depth below its column's interface, ``s`` below
+    the level the element heights are from; ``h_tx``, ``h_min``: heights above the
+    column's interface), and whether every channel does."""
     nch = rx.shape[0]
     vz = z + h_tx
     r1 = math.sqrt(x * x + y * y + vz * vz)
@@ -97,12 +101,12 @@ def _count(x, y, z, xa, yc, h_tx, h_min, rx, corners, b0, b1, b2, cos_tx, cos_rx
         e = corners[k]
         ex = xa - rx[e, 0]
         ey = yc - rx[e, 1]
-        ez = z - rx[e, 2]
+        ez = z + s - rx[e, 2]
         if gating:
             r2 = math.sqrt(ex * ex + ey * ey + ez * ez)
             if ex * b0 + ey * b1 + ez * b2 < r2 * cos_rx:
                 ok = False
-        if t1 + _leg_time(ex, ey, z, -rx[e, 2], inv_cw, inv_cs) > t_hi:
+        if t1 + _leg_time(ex, ey, z, s - rx[e, 2], inv_cw, inv_cs) > t_hi:
             ok = False
     if ok:
         return nch, True
@@ -110,12 +114,12 @@ def _count(x, y, z, xa, yc, h_tx, h_min, rx, corners, b0, b1, b2, cos_tx, cos_rx
     for e in range(nch):
         ex = xa - rx[e, 0]
         ey = yc - rx[e, 1]
-        ez = z - rx[e, 2]
+        ez = z + s - rx[e, 2]
         if gating:
             r2 = math.sqrt(ex * ex + ey * ey + ez * ez)
             if ex * b0 + ey * b1 + ez * b2 < r2 * cos_rx:
                 continue
-        t = t1 + _leg_time(ex, ey, z, -rx[e, 2], inv_cw, inv_cs)
+        t = t1 + _leg_time(ex, ey, z, s - rx[e, 2], inv_cw, inv_cs)
         if t_lo <= t <= t_hi:
             n += 1
     return n, False
@@ -130,7 +134,7 @@ def _add(pings, channels, ia, ic, iz, n):
 
 
 @nb.njit(parallel=True, cache=True)
-def _accumulate(pings, channels, ax, cy, dz, ia0, ia1, tx, rx, corners, bore, cos_tx,
+def _accumulate(pings, channels, ax, cy, dz, surf, ia0, ia1, tx, rx, corners, bore, cos_tx,
                 cos_rx, gating, t_lo, t_hi, inv_cw, inv_cs, rho_max):
     """Per voxel column, the voxels every channel reaches form one depth interval (the
     intersection of the beam cones, convex, with a vertical line, and a window on a
@@ -151,10 +155,12 @@ def _accumulate(pings, channels, ax, cy, dz, ia0, ia1, tx, rx, corners, bore, co
             y = yc - tx[1]
             if x * x + y * y > rho_max * rho_max:       # outside the cone at every depth
                 continue
+            s = surf[ia, ic]
             first = -1
             for iz in range(nd):
-                n, full = _count(x, y, dz[iz], xa, yc, h_tx, h_min, rx, corners, b0, b1,
-                                 b2, cos_tx, cos_rx, gating, t_lo, t_hi, inv_cw, inv_cs)
+                n, full = _count(x, y, dz[iz], s, xa, yc, h_tx + s, h_min + s, rx, corners,
+                                 b0, b1, b2, cos_tx, cos_rx, gating, t_lo, t_hi, inv_cw,
+                                 inv_cs)
                 _add(pings, channels, ia, ic, iz, n)
                 if full:
                     first = iz
@@ -163,8 +169,9 @@ def _accumulate(pings, channels, ax, cy, dz, ia0, ia1, tx, rx, corners, bore, co
                 continue
             last = nd - 1
             while last > first:
-                n, full = _count(x, y, dz[last], xa, yc, h_tx, h_min, rx, corners, b0, b1,
-                                 b2, cos_tx, cos_rx, gating, t_lo, t_hi, inv_cw, inv_cs)
+                n, full = _count(x, y, dz[last], s, xa, yc, h_tx + s, h_min + s, rx,
+                                 corners, b0, b1, b2, cos_tx, cos_rx, gating, t_lo, t_hi,
+                                 inv_cw, inv_cs)
                 _add(pings, channels, ia, ic, last, n)
                 if full:
                     break
@@ -182,7 +189,8 @@ def add_ping(pings: np.ndarray, channels: np.ndarray, along: np.ndarray,
              cross: np.ndarray, depth: np.ndarray, ia0: int, ia1: int, tx: np.ndarray,
              rx: np.ndarray, corners: np.ndarray, bore: np.ndarray, half_tx_rad: float,
              half_rx_rad: float, gating: bool, window_s: tuple[float, float],
-             water_m_s: float, sediment_m_s: float) -> None:
+             water_m_s: float, sediment_m_s: float,
+             surface: np.ndarray | None = None) -> None:
     """Add one ping's coverage to ``pings`` and ``channels`` (uint16 volumes, along x
     cross x depth, changed in place) over along-track voxels ``ia0:ia1``.
 
@@ -190,14 +198,18 @@ def add_ping(pings: np.ndarray, channels: np.ndarray, along: np.ndarray,
     frame (m; depth below the interface); ``corners``: :func:`aperture_corners`;
     ``half_*_rad``: beam half-angles; ``window_s``: the receive window (first and last
     arrival time the samples hold, s after transmit); speeds in m/s (the sediment speed
-    equal to the water's for straight-ray delays)."""
+    equal to the water's for straight-ray delays); ``surface``: the interface's depth
+    at each column below the level the array's heights are from (None: flat;
+    :func:`~svss_proc.imaging.kernel_args.surface_of`)."""
+    surf = surface_of(VoxelAxes(along, cross, depth, surface))
     # the widest the projector cone gets within the tile: a column further away is
     # outside it at every depth (its tilt added to the half-angle, as the imager does)
-    rho_max = (cone_reach(max(float(np.max(depth)), 0.0) - float(tx[2]), float(bore[2]),
-                          half_tx_rad) + 1e-9 if gating else math.inf)
+    lowest = max(float(np.max(depth)) + float(surf.max(initial=0.0)), 0.0)
+    rho_max = (cone_reach(lowest - float(tx[2]), float(bore[2]), half_tx_rad) + 1e-9
+               if gating else math.inf)
     _accumulate(pings, channels, np.ascontiguousarray(along, dtype=np.float64),
                 np.ascontiguousarray(cross, dtype=np.float64),
-                np.ascontiguousarray(depth, dtype=np.float64), int(ia0), int(ia1),
+                np.ascontiguousarray(depth, dtype=np.float64), surf, int(ia0), int(ia1),
                 np.asarray(tx, dtype=np.float64), np.ascontiguousarray(rx, dtype=np.float64),
                 np.asarray(corners, dtype=np.int64), np.asarray(bore, dtype=np.float64),
                 math.cos(half_tx_rad), math.cos(half_rx_rad), bool(gating),
@@ -248,7 +260,7 @@ class Coverage:
         add_ping(self.pings, self.channels, grid.along, grid.cross, grid.depth, ia0, ia1,
                  placed.tx, placed.rx, self.corners, placed.bore,
                  geometry.projector_half_angle, geometry.receiver_half_angle,
-                 imaging.beam_gating, window_s, cw, cs)
+                 imaging.beam_gating, window_s, cw, cs, getattr(grid, "surface", None))
         self.height_sum_m += float(-placed.tx[2])
         self.tx_along_min_m = min(self.tx_along_min_m, float(placed.tx[0]))
         self.tx_along_max_m = max(self.tx_along_max_m, float(placed.tx[0]))

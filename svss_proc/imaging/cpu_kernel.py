@@ -167,15 +167,16 @@ def _make_voxel_kernel(interp: int, mode: int, gating: bool, halvings: int,
         # rebuild them inside the loop
         p, g, d = args.planes, args.geometry, args.delays
         re, im, t0, inv_dt, theta = p.re, p.im, p.t0, p.inv_dt, p.theta
-        ax, cy, dz, h_tx, rx_dx, rx_dy, rx_h, apod, bore, cos_tx, cos_rx = (
+        ax, cy, dz, h_tx, rx_dx, rx_dy, rx_h, apod, bore, cos_tx, cos_rx, surf = (
             g.ax, g.cy, g.dz, g.h_tx, g.rx_dx, g.rx_dy, g.rx_h, g.apod, g.bore, g.cos_tx,
-            g.cos_rx)
+            g.cos_rx, g.surf)
         inv_cw, cw, cs, ttab, etab, inv_drho, z0, inv_dz, h_ref, tzd, ezd = (
             d.inv_cw, d.cw, d.cs, d.time, d.eta, d.inv_drho, d.z0, d.inv_dz, d.h_ref, d.tz,
             d.ez)
         c = args.gate
-        gx, gy, gz, gh, gdx, gdy, gdh, gb, gct, gcr = (
-            c.ax, c.cy, c.dz, c.h_tx, c.rx_dx, c.rx_dy, c.rx_h, c.bore, c.cos_tx, c.cos_rx)
+        gx, gy, gz, gh, gdx, gdy, gdh, gb, gct, gcr, gs = (
+            c.ax, c.cy, c.dz, c.h_tx, c.rx_dx, c.rx_dy, c.rx_h, c.bore, c.cos_tx, c.cos_rx,
+            c.surf)
         one = kernel_one(re)
         nc = cy.size
         nd = dz.size
@@ -185,10 +186,10 @@ def _make_voxel_kernel(interp: int, mode: int, gating: bool, halvings: int,
             k = (j * step) % (ia1 - ia0)             # balanced order (spread_step)
             a = KernelArgs(TapPlanes(re, im, t0, inv_dt, theta),
                            VoxelGeometry(ax, cy, dz, h_tx, rx_dx, rx_dy, rx_h, apod, bore,
-                                         cos_tx, cos_rx),
+                                         cos_tx, cos_rx, surf),
                            TravelTimes(inv_cw, cw, cs, ttab, etab, inv_drho, z0, inv_dz,
                                        h_ref, tzd, ezd),
-                           ConeGate(gx, gy, gz, gh, gdx, gdy, gdh, gb, gct, gcr))
+                           ConeGate(gx, gy, gz, gh, gdx, gdy, gdh, gb, gct, gcr, gs))
             ia = ia0 + k
             n_upd = 0
             for ic in range(nc):
@@ -239,6 +240,7 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
         bore = args.geometry.bore
         cos_tx = args.geometry.cos_tx
         cos_rx = args.geometry.cos_rx
+        surf = args.geometry.surf
         inv_c = args.delays.inv_cw
         ttab = args.delays.time
         etab = args.delays.eta
@@ -246,7 +248,7 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
         tz0 = args.delays.z0
         inv_dz = args.delays.inv_dz
         h_ref = args.delays.h_ref
-        gx, gy, gz, gh, gdx, gdy, gdh, gb, gct, gcr = args.gate   # float64: cone edges
+        gx, gy, gz, gh, gdx, gdy, gdh, gb, gct, gcr, gs = args.gate   # float64: cone edges
         one = cast_like(re[0, 0, 0], 1)          # the kernel precision
         zero = one - one
         shift = cast_like(one, shift_s)
@@ -301,7 +303,7 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
             k = (j * step) % nk
             ia = ia0 + k
             x = ax[ia]
-            gate = ConeGate(gx, gy, gz, gh, gdx, gdy, gdh, gb, gct, gcr)
+            gate = ConeGate(gx, gy, gz, gh, gdx, gdy, gdh, gb, gct, gcr, gs)
             bs = np.uint64(k * npad)                 # unsigned: no negative-index wraparound
             bt = np.uint64(k * 2 * ntap * npad)
             n_upd = 0
@@ -312,11 +314,12 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
                     ic = ic0 + c
                     y = cy[ic]
                     bc = np.uint64((k * nb_col + c) * npad)
-                    ir1, a1, dh1 = _table_row(x, y, h_tx, inv_drho, n_rho, h_ref, one)
+                    h1 = h_tx + surf[ia, ic]             # above this column's interface
+                    ir1, a1, dh1 = _table_row(x, y, h1, inv_drho, n_rho, h_ref, one)
                     n_edge = zero                        # depths at the projector's edge
                     for iz in range(nd):
                         z = dzp[iz]
-                        vz = z + h_tx
+                        vz = z + h1
                         r1 = math.sqrt(x * x + y * y + vz * vz)
                         inside = True
                         if gating:
@@ -331,7 +334,7 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
                         u1_w[bc + iz] = (t1 - t0) * inv_dt
                     if gating and n_edge > zero:         # rare: decide those in float64
                         for iz in range(nd):
-                            vz = dzp[iz] + h_tx
+                            vz = dzp[iz] + h1
                             r1 = math.sqrt(x * x + y * y + vz * vz)
                             if abs(x * b0 + y * b1 + vz * b2 - r1 * cos_tx) <= band * r1:
                                 txm_w[bc + iz] = (one if _tx_inside64(gate, ia, ic, iz)
@@ -359,7 +362,7 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
                 # coming back from L2 for every column (issue 32). Each voxel still sums
                 # its channels in channel order: the image is unchanged.
                 for ch in range(nch):
-                    h = rx_h[ch]
+                    h0 = rx_h[ch]
                     g0 = apod[ch]
                     ex = x - rx_dx[ch]
                     for c in range(ncol):
@@ -374,6 +377,7 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
                         z_lo = np.uint64(lo)
                         z_hi = z_lo + np.uint64(_padded(hi - lo))
                         ey = cy[ic] - rx_dy[ch]
+                        h = h0 + surf[ia, ic]            # above this column's interface
                         e2 = ex * ex + ey * ey
                         eb = ex * b0 + ey * b1
                         ir, a, dh = _table_row(ex, ey, h, inv_drho, n_rho, h_ref, one)

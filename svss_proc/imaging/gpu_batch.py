@@ -74,8 +74,8 @@ _KERNELS: dict = {}
 
 def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
     @cuda.jit
-    def kernel(img_re, img_im, planes, rows, rows64, ranges, nk, tt, na, nc, nch, ia0,
-               ia1, ic0, ic1, count):
+    def kernel(img_re, img_im, planes, rows, rows64, ranges, nk, tt, surf, surf64, na,
+               nc, nch, ia0, ia1, ic0, ic1, count):
         i = cuda.grid(1)
         ncb = ic1 - ic0
         nd = img_re.shape[2]
@@ -108,10 +108,11 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
                               g[o_s + 5]),
                     VoxelGeometry(g[0:o_c], g[o_c:o_d], g[o_d:o_x], g[o_s], g[o_x:o_y],
                                   g[o_y:o_h], g[o_h:o_w], g[o_w:o_b], g[o_b:o_s],
-                                  g[o_s + 1], g[o_s + 2]),
+                                  g[o_s + 1], g[o_s + 2], surf),
                     tt,
                     ConeGate(f[0:o_c], f[o_c:o_d], f[o_d:o_x], f[o_s], f[o_x:o_y],
-                             f[o_y:o_h], f[o_h:o_w], f[o_b:o_s], f[o_s + 1], f[o_s + 2]))
+                             f[o_y:o_h], f[o_h:o_w], f[o_b:o_s], f[o_s + 1], f[o_s + 2],
+                             surf64))
                 sr, si, m = _voxel_sum(ia, ic, iz, interp, mode, gating, halvings, args,
                                        one)
                 acc_re += sr
@@ -192,7 +193,7 @@ class PingBatcher:
         if out.ia1 <= out.ia0 or ic1 <= ic0 or len(out.axes.depth) == 0:
             return None
         key = (kd.interp, delays.code, bool(gating), kd.halvings, kd.planes.re.shape,
-               id(count), id(delays.table))
+               id(count), id(delays.table), id(args.gate.surf))
         q = self._queues.get(id(out.re))
         if q is not None and (q.key != key or q.delays.table is not delays.table):
             self._launch(q)
@@ -243,6 +244,7 @@ class PingBatcher:
         kernel = kernel_for(interp, mode, gating, halvings)
         kernel[math.ceil(n / THREADS), THREADS](
             q.out.re, q.out.im, d_planes, d_rows, d_rows64, d_ranges, nk,
-            _delays_to_device(a0.delays), na, nc, nch, ia0, ia1, ic0, ic1, q.count)
+            _delays_to_device(a0.delays), _BUFFERS.table(g0.surf),
+            _BUFFERS.table(a0.gate.surf), na, nc, nch, ia0, ia1, ic0, ic1, q.count)
         self.launches += 1
         self.pings += nk

@@ -105,14 +105,15 @@ def _geometry_to_device(g: VoxelGeometry) -> VoxelGeometry:
     ax, cy, dz, rx_dx, rx_dy, rx_h, apod, bore = _BUFFERS.upload_parts(
         "geometry", (g.ax, g.cy, g.dz, g.rx_dx, g.rx_dy, g.rx_h, g.apod, g.bore))
     return VoxelGeometry(ax, cy, dz, g.h_tx, rx_dx, rx_dy, rx_h, apod, bore, g.cos_tx,
-                         g.cos_rx)
+                         g.cos_rx, _BUFFERS.table(g.surf))
 
 
 def _gate_to_device(c: ConeGate) -> ConeGate:
     """The float64 cone geometry on the device in one copy."""
     ax, cy, dz, rx_dx, rx_dy, rx_h, bore = _BUFFERS.upload_parts(
         "gate", (c.ax, c.cy, c.dz, c.rx_dx, c.rx_dy, c.rx_h, c.bore))
-    return ConeGate(ax, cy, dz, c.h_tx, rx_dx, rx_dy, rx_h, bore, c.cos_tx, c.cos_rx)
+    return ConeGate(ax, cy, dz, c.h_tx, rx_dx, rx_dy, rx_h, bore, c.cos_tx, c.cos_rx,
+                    _BUFFERS.table(c.surf))
 
 
 def _delays_to_device(d: TravelTimes) -> TravelTimes:

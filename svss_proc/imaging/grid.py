@@ -14,11 +14,14 @@ from svss_daq.config import TileConfig
 class TileGrid:
     """Voxel-centre axes of tile ``index``: along-track covers
     [index * length, (index + 1) * length), cross-track is centred on the line, depth
-    starts at ``top`` below the interface."""
+    starts at ``top`` below the interface (of each column: ``surface``)."""
     index: int
     along: np.ndarray
     cross: np.ndarray
     depth: np.ndarray
+    #: (n_along, n_cross) the interface's depth at each column below the frame's level,
+    #: m (None: level; :mod:`svss_proc.imaging.surface`)
+    surface: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -34,15 +37,17 @@ def n_voxels(extent_m: float, voxel_m: float) -> int:
     return max(1, int(math.floor(extent_m / voxel_m + 0.5)))
 
 
-def tile_grid(cfg: TileConfig, index: int) -> TileGrid:
-    """Grid of tile ``index`` for the tile configuration ``cfg``."""
+def tile_grid(cfg: TileConfig, index: int, shape=None) -> TileGrid:
+    """Grid of tile ``index`` for the tile configuration ``cfg``, over an interface of
+    ``shape`` (an :class:`~svss_proc.imaging.surface.InterfaceShape`; None: level)."""
     v = cfg.voxel_m
     na, nc, nd = (n_voxels(cfg.length_m, v), n_voxels(cfg.width_m, v),
                   n_voxels(cfg.depth_m, v))
     along = index * cfg.length_m + (np.arange(na) + 0.5) * v
     cross = -0.5 * nc * v + (np.arange(nc) + 0.5) * v
     depth = cfg.top_m + (np.arange(nd) + 0.5) * v
-    return TileGrid(index, along, cross, depth)
+    return TileGrid(index, along, cross, depth,
+                    None if shape is None else shape.grid(along, cross))
 
 
 def tile_index(cfg: TileConfig, along_m: float) -> int:

@@ -31,6 +31,7 @@ from .coverage import Coverage
 from .cpu_kernel import run_ping
 from .delays import SpeedProfile, TravelTimeTable, build_table
 from .grid import tile_grid
+from .surface import InterfaceShape
 from .kernel_args import DelayModel, ImageSlice, PingArray, VoxelAxes, prepare
 from .pose_check import check_pose_flags
 from .schedule import PingStep, TileSchedule
@@ -183,7 +184,7 @@ class PingAccumulator:
 
     def new_tile(self, index: int, line: TrackLine) -> Tile:
         """An empty tile ``index`` in frame ``line``, its planes where the kernel runs."""
-        grid = tile_grid(self._proc.tile, index)
+        grid = tile_grid(self._proc.tile, index, InterfaceShape.of(self._proc.imaging))
         return Tile(grid, line, self._zeros(grid.shape, dtype=self._dtype),
                     self._zeros(grid.shape, dtype=self._dtype),
                     coverage=Coverage.new(grid.shape, self._geometry.receivers))

@@ -69,6 +69,11 @@ class VoxelGeometry(NamedTuple):
     bore: np.ndarray      # (3,) boresight, unit vector
     cos_tx: float         # cosine of the projector cone's half angle
     cos_rx: float         # cosine of the receiver cone's half angle
+    #: (n_along, n_cross) the interface's depth at each voxel column below the level the
+    #: element heights are measured from, m (:mod:`svss_proc.imaging.surface`; zeros: a
+    #: flat interface). Voxel depths ``dz`` are below the interface of their own column,
+    #: so the vertical offset from an element h above the level is z + h + surf[ia, ic]
+    surf: np.ndarray
 
 
 _EMPTY_TABLE = np.zeros((2, 2))
@@ -110,6 +115,7 @@ class ConeGate(NamedTuple):
     bore: np.ndarray
     cos_tx: float
     cos_rx: float
+    surf: np.ndarray
 
 
 class KernelArgs(NamedTuple):
@@ -200,6 +206,31 @@ class VoxelAxes(NamedTuple):
     along: np.ndarray     # (n_along,)
     cross: np.ndarray     # (n_cross,)
     depth: np.ndarray     # (n_depth,) below the interface
+    #: (n_along, n_cross) the interface's depth at each column below the frame's
+    #: interface level, m (None: flat; :mod:`svss_proc.imaging.surface`)
+    surface: np.ndarray | None = None
+
+
+_FLAT: dict = {}
+
+
+def surface_of(axes) -> np.ndarray:
+    """The interface's depth (float64, (n_along, n_cross)) at each voxel column of
+    ``axes`` below the frame's interface level: ``axes.surface`` when it has one, else
+    zeros (one cached array per shape: the GPU uploads it once)."""
+    shape = (len(axes.along), len(axes.cross))
+    surf = getattr(axes, "surface", None)
+    if surf is None:
+        flat = _FLAT.get(shape)
+        if flat is None:
+            flat = _FLAT[shape] = np.zeros(shape)
+        return flat
+    surf = np.asarray(surf, dtype=np.float64)
+    if surf.shape != shape:
+        raise ValueError(f"interface surface of shape {surf.shape}; the voxel axes make "
+                         f"{shape}")
+    _finite("interface surface", surf, MAX_COORDINATE_M)
+    return surf
 
 
 class ImageSlice(NamedTuple):
@@ -270,13 +301,14 @@ def kernel_args(kd: KernelData, array: PingArray, axes, delays: DelayModel) -> K
         raise ValueError(f"kernel input sample rate {float(p.inv_dt)!r} is not positive")
     if apod is not None and np.shape(apod) != (nch,):
         raise ValueError(f"apodisation of shape {np.shape(apod)}; expected ({nch},)")
+    surf = surface_of(axes)
     gate = ConeGate(
         np.ascontiguousarray(np.asarray(along, dtype=np.float64) - tx[0]),
         np.ascontiguousarray(np.asarray(cross, dtype=np.float64) - tx[1]),
         np.ascontiguousarray(depth, dtype=np.float64), float(-tx[2]),
         np.ascontiguousarray(rx[:, 0] - tx[0]), np.ascontiguousarray(rx[:, 1] - tx[1]),
         np.ascontiguousarray(-rx[:, 2]), np.ascontiguousarray(bore, dtype=np.float64),
-        float(cos_tx), float(cos_rx))
+        float(cos_tx), float(cos_rx), surf)
 
     def cast(a):
         return a if a.dtype == ft else np.ascontiguousarray(a, dtype=ft)
@@ -284,7 +316,7 @@ def kernel_args(kd: KernelData, array: PingArray, axes, delays: DelayModel) -> K
         cast(gate.ax), cast(gate.cy), cast(gate.dz), ft(gate.h_tx), cast(gate.rx_dx),
         cast(gate.rx_dy), cast(gate.rx_h),
         np.ones(nch, dtype=ft) if apod is None else np.ascontiguousarray(apod, dtype=ft),
-        cast(gate.bore), ft(cos_tx), ft(cos_rx))
+        cast(gate.bore), ft(cos_tx), ft(cos_rx), _cast_surface(surf, ft))
     t = delays.table
     if delays.code == TABLE:
         tables = (t.time, t.eta, 1.0 / t.drho, float(t.z0), 1.0 / t.dz, float(t.h_ref),
@@ -294,6 +326,24 @@ def kernel_args(kd: KernelData, array: PingArray, axes, delays: DelayModel) -> K
         tables = (_EMPTY_TABLE, _EMPTY_TABLE, 1.0, 0.0, 1.0, 0.0, empty, empty)
     cw, cs = float(delays.water_sound_speed), float(delays.sediment_sound_speed)
     return KernelArgs(kd.planes, geo, TravelTimes(ft(1.0 / cw), cw, cs, *tables), gate)
+
+
+_SURFACES: dict = {}
+
+
+def _cast_surface(surf: np.ndarray, ft) -> np.ndarray:
+    """``surf`` in the kernel precision, the same array object for the same surface
+    (one per tile: the GPU uploads it once)."""
+    if surf.dtype == ft:
+        return surf
+    hit = _SURFACES.get(id(surf))
+    if hit is not None and hit[0] is surf and hit[1].dtype == ft:
+        return hit[1]
+    if len(_SURFACES) >= 32:
+        _SURFACES.clear()
+    out = np.ascontiguousarray(surf, dtype=ft)
+    _SURFACES[id(surf)] = (surf, out)
+    return out
 
 
 _DEPTH_TABLES: dict = {}

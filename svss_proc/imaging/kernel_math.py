@@ -179,7 +179,7 @@ def build(jit, refr):
         float64 kernels decide it."""
         x = c.ax[ia]
         y = c.cy[ic]
-        vz = c.dz[iz] + c.h_tx
+        vz = c.dz[iz] + c.h_tx + c.surf[ia, ic]
         r = math.sqrt(x * x + y * y + vz * vz)
         return x * c.bore[0] + y * c.bore[1] + vz * c.bore[2] >= r * c.cos_tx
 
@@ -189,14 +189,16 @@ def build(jit, refr):
         :func:`tx_inside64`)."""
         ex = c.ax[ia] - c.rx_dx[ch]
         ey = c.cy[ic] - c.rx_dy[ch]
-        ez = c.dz[iz] + c.rx_h[ch]
+        ez = c.dz[iz] + c.rx_h[ch] + c.surf[ia, ic]
         r = math.sqrt(ex * ex + ey * ey + ez * ez)
         return ex * c.bore[0] + ey * c.bore[1] + ez * c.bore[2] >= r * c.cos_rx
 
     @jit
     def voxel_sum(ia, ic, iz, interp, mode, gating, halvings, args, one):
         """One ping's coherent sum at voxel (ia, ic, iz) of the geometry's axes (offsets
-        from the projector, depth below the interface); ``args`` a
+        from the projector, depth below the interface of its column, ``surf[ia, ic]``
+        below the level the element heights are measured from: each leg is refracted
+        at that depth, the interface taken as level about the column); ``args`` a
         :class:`~svss_proc.imaging.kernel_args.KernelArgs`. Returns (re, im, updates); no
         update when the voxel is outside the projector's cone (with gating). Cone
         decisions within GATE_BAND of an edge are made in float64 (``args.gate``)."""
@@ -207,6 +209,7 @@ def build(jit, refr):
         x = g.ax[ia]
         y = g.cy[ic]
         z = g.dz[iz]
+        s = g.surf[ia, ic]                           # this column's interface depth
         band = cast_like(one, GATE_BAND)
         re = p.re
         im = p.im
@@ -219,7 +222,8 @@ def build(jit, refr):
         b2 = g.bore[2]
         nch = re.shape[1]
         nt = re.shape[2]
-        vz = z + g.h_tx                              # vertical offset below the projector
+        h_tx = g.h_tx + s                            # the projector above this column's
+        vz = z + h_tx                                # interface; the voxel below it
         r1 = math.sqrt(x * x + y * y + vz * vz)
         if gating:
             m1 = x * b0 + y * b1 + vz * b2 - r1 * g.cos_tx
@@ -233,16 +237,17 @@ def build(jit, refr):
         # formed and differenced)
         inv_dt = p.inv_dt
         if mode == TABLE:
-            u1 = (depth_table_time(x, y, iz, g.h_tx, tt, one) - p.t0) * inv_dt
+            u1 = (depth_table_time(x, y, iz, h_tx, tt, one) - p.t0) * inv_dt
         else:
-            u1 = (travel_time(mode, x, y, z, g.h_tx, tt) - p.t0) * inv_dt
+            u1 = (travel_time(mode, x, y, z, h_tx, tt) - p.t0) * inv_dt
         acc_re = zero
         acc_im = zero
         n_upd = 0
         for ch in range(nch):
             ex = x - rx_dx[ch]
             ey = y - rx_dy[ch]
-            ez = z + rx_h[ch]
+            h = rx_h[ch] + s
+            ez = z + h
             w = apod[ch]
             if gating:
                 r2 = math.sqrt(ex * ex + ey * ey + ez * ez)
@@ -252,9 +257,9 @@ def build(jit, refr):
                 else:
                     w = w if m2 >= zero else zero
             if mode == TABLE:
-                u = u1 + depth_table_time(ex, ey, iz, rx_h[ch], tt, one) * inv_dt
+                u = u1 + depth_table_time(ex, ey, iz, h, tt, one) * inv_dt
             else:
-                u = u1 + travel_time(mode, ex, ey, z, rx_h[ch], tt) * inv_dt
+                u = u1 + travel_time(mode, ex, ey, z, h, tt) * inv_dt
             sr, si, valid = sample(re, im, ch, u, interp, halvings, p.theta, nt, one)
             w = w * valid
             acc_re += w * sr

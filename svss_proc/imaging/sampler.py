@@ -13,7 +13,8 @@ from svss_daq.geometry import place_array
 from svss_daq.ping import Ping
 
 from .kernel_args import ImageSlice, VoxelAxes, prepare
-from .schedule import along_reach, ping_frame
+from .schedule import gated_reach, ping_frame
+from .surface import InterfaceShape
 
 
 class PointSampler:
@@ -48,8 +49,7 @@ class PointSampler:
         placed = place_array(geo, p.nav, p.projector, ping_frame(self.line, p.nav, self.proc))
         im = self.proc.imaging
         if im.beam_gating:
-            depth = self.proc.tile.top_m + self.proc.tile.depth_m
-            reach = along_reach(placed.tx, placed.bore, geo.projector_half_angle, depth)
+            reach = gated_reach(placed.tx, placed.bore, geo.projector_half_angle, self.proc)
         else:
             reach = self._prepared(p)[0].axis.end_s * im.water_sound_speed_m_s / 2
         return placed, reach
@@ -59,6 +59,11 @@ class PointSampler:
         placed, reach = self.placed(p)
         return float(placed.tx[0]), reach
 
+    def _axes(self, along, cross, depth) -> VoxelAxes:
+        """Voxel axes over the configured interface (depths below each column's)."""
+        return VoxelAxes(along, cross, depth,
+                         InterfaceShape.of(self.proc.imaging).grid(along, cross))
+
     def value(self, p: Ping, point: np.ndarray) -> complex:
         """Ping ``p``'s contribution at ``point`` (tile frame: along, cross, depth)."""
         im, acc = self.proc.imaging, self.acc
@@ -67,7 +72,7 @@ class PointSampler:
         re_ = np.zeros((1, 1, 1), dtype=acc.dtype)
         im_ = np.zeros_like(re_)
         array, delays = acc.ping_inputs(placed.tx, placed.rx, placed.bore, reach)
-        axes = VoxelAxes(*(np.array([float(v)]) for v in point))
+        axes = self._axes(*(np.array([float(v)]) for v in point))
         acc.kernel(ImageSlice(re_, im_, axes, 0, 1), kd, array, delays,
                    gating=im.beam_gating)
         return complex(float(re_[0, 0, 0]), float(im_[0, 0, 0]))
@@ -80,6 +85,7 @@ class PointSampler:
                                for x in (along, cross, depth))
         re_ = np.zeros((along.size, cross.size, depth.size), dtype=acc.dtype)
         im_ = np.zeros_like(re_)
+        axes = self._axes(along, cross, depth)
         # the schedule's slices take the voxels less than one voxel beyond the reach
         v = self.proc.tile.voxel_m
         for p in pings:
@@ -90,6 +96,6 @@ class PointSampler:
                 continue
             kd = self._prepared(p)[1]
             array, delays = acc.ping_inputs(placed.tx, placed.rx, placed.bore, reach)
-            acc.kernel(ImageSlice(re_, im_, VoxelAxes(along, cross, depth), int(ia[0]),
-                                  int(ia[-1]) + 1), kd, array, delays, gating=im.beam_gating)
+            acc.kernel(ImageSlice(re_, im_, axes, int(ia[0]), int(ia[-1]) + 1), kd, array,
+                       delays, gating=im.beam_gating)
         return re_.astype(np.float64) + 1j * im_.astype(np.float64)

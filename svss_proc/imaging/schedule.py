@@ -44,6 +44,7 @@ from ..conditioning import Conditioner
 from ..preflight import preflight
 from .grid import tile_grid, tile_index
 from .pose_check import TrackGuard
+from .surface import InterfaceShape, level_offset
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +61,22 @@ def along_reach(tx_tile: np.ndarray, bore: np.ndarray, half_angle: float,
     return cone_reach(max_depth - float(tx_tile[2]), float(bore[2]), half_angle)
 
 
+def gated_reach(tx_tile: np.ndarray, bore: np.ndarray, half_angle: float,
+                proc: ProcessingConfig) -> float:
+    """:func:`along_reach` to the bottom of the tiles of ``proc``; on a sloping
+    interface to the bottom where the plane lies deepest within twice that reach."""
+    tcfg = proc.tile
+    deepest = tcfg.top_m + tcfg.depth_m
+    reach = along_reach(tx_tile, bore, half_angle, deepest)
+    shape = InterfaceShape.of(proc.imaging)
+    if shape.level:
+        return reach
+    a = float(tx_tile[0]) + np.array([-2.0, 2.0, -2.0, 2.0]) * reach
+    c = np.array([-0.5, -0.5, 0.5, 0.5]) * tcfg.width_m
+    return along_reach(tx_tile, bore, half_angle,
+                       deepest + max(float(shape.depth(a, c).max()), 0.0))
+
+
 def line_from_ping(ping: Ping, proc: ProcessingConfig) -> TrackLine:
     """The tile frame, from the processing configuration and (if so configured) the
     first ping's pose."""
@@ -69,23 +86,30 @@ def line_from_ping(ping: Ping, proc: ProcessingConfig) -> TrackLine:
         origin, heading = tuple(im.line_origin_ne_m), math.radians(im.line_heading_deg)
     else:
         origin, heading = (nav.north_m, nav.east_m), nav.heading_rad
-    interface = (im.interface_down_m if im.interface == "fixed"
-                 else nav.down_m + nav.altitude_m)
-    return TrackLine(origin, heading, interface)
+    if im.interface == "fixed":
+        return TrackLine(origin, heading, im.interface_down_m)
+    line = TrackLine(origin, heading, nav.down_m + nav.altitude_m)
+    return dataclasses.replace(line, interface_down=line.interface_down - level_offset(
+        InterfaceShape.of(im), line, nav.north_m, nav.east_m))
 
 
 def ping_frame(frame: TrackLine, nav, proc: ProcessingConfig) -> TrackLine:
     """The frame one ping is placed in: the tile frame, except that with
     ``imaging.interface = "altitude"`` the interface lies at this ping's measured
     altitude below the body (DVL bottom track), so that the array's height above the
-    seabed is the DVL's rather than the GPS height's (decimetres of noise). Without an
-    altitude (lost bottom lock) the tile frame's interface is used."""
+    seabed is the DVL's rather than the GPS height's (decimetres of noise); on a sloping
+    interface (``imaging.interface_slope_deg``) the frame's level is the plane's zero,
+    placed so that the plane passes through the bed the ping measured under its body
+    (:func:`~svss_proc.imaging.surface.level_offset`). Without an altitude (lost bottom
+    lock) the tile frame's interface is used."""
     if proc.imaging.interface != "altitude":
         return frame
     interface = nav.down_m + nav.altitude_m
     if not math.isfinite(interface):
         return frame
-    return dataclasses.replace(frame, interface_down=interface)
+    shape = InterfaceShape.of(proc.imaging)
+    return dataclasses.replace(frame, interface_down=interface - level_offset(
+        shape, frame, nav.north_m, nav.east_m))
 
 
 @dataclass(frozen=True)
@@ -221,8 +245,7 @@ class TileSchedule:
         tx = placed.tx
         fix = self._track.check(ping.sequence, ping.nav, tx)
         if proc.imaging.beam_gating:
-            reach = along_reach(tx, placed.bore, geo.projector_half_angle,
-                                tcfg.top_m + tcfg.depth_m)
+            reach = gated_reach(tx, placed.bore, geo.projector_half_angle, proc)
         else:
             end = self.echo_end_s(ping) if echo_end_s is None else echo_end_s
             reach = end * proc.imaging.water_sound_speed_m_s / 2

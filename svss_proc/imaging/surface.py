@@ -1,0 +1,75 @@
+"""The water-sediment interface as a surface under the tile: its depth at each voxel
+column, below the level the array's heights are measured from.
+
+A tile's voxel depths are below the interface *of their own column* (a buried object's
+depth is what a crew digs), so on a sloping bed the grid follows the seabed. The kernels
+refract each leg at the column's interface taken as level about the column (the depth
+``surf[ia, ic]`` of :class:`~svss_proc.imaging.kernel_args.VoxelGeometry`): exact on a
+level bed, and on a slope an approximation whose cost in depth and peak level
+``benchmarks/bench_seabed.py`` measures against a simulator that refracts at the tilted
+plane itself.
+
+The shape is a plane through the tile frame's origin, ``[imaging] interface_slope_deg``
+(along the track line, across it to starboard; positive where the bed deepens):
+
+    s(a, c) = a tan(slope_along) + c tan(slope_across).
+
+A ping's frame puts its interface level where its own altitude says the bed is, under
+its body (:func:`level_offset`), so each ping's array is placed against the bed it
+measured and the shape supplies the rest of the tile.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class InterfaceShape:
+    """The interface's depth below the tile frame's level, as a function of along-track
+    ``a`` and cross-track ``c`` (tile frame, m): a plane of gradients ``grad_along``
+    and ``grad_across`` (m of depth per m; the tangents of the slopes)."""
+    grad_along: float = 0.0
+    grad_across: float = 0.0
+
+    @classmethod
+    def of(cls, imaging) -> "InterfaceShape":
+        """From a processing configuration's ``[imaging]``."""
+        slope = imaging.interface_slope_deg or (0.0, 0.0)
+        return cls(math.tan(math.radians(slope[0])), math.tan(math.radians(slope[1])))
+
+    @property
+    def level(self) -> bool:
+        return self.grad_along == 0.0 and self.grad_across == 0.0
+
+    @property
+    def slope_deg(self) -> tuple[float, float]:
+        return (math.degrees(math.atan(self.grad_along)),
+                math.degrees(math.atan(self.grad_across)))
+
+    def depth(self, along, cross):
+        """The interface's depth (m) below the frame's level at (along, cross)."""
+        return (self.grad_along * np.asarray(along, dtype=np.float64)
+                + self.grad_across * np.asarray(cross, dtype=np.float64))
+
+    def grid(self, along: np.ndarray, cross: np.ndarray) -> np.ndarray | None:
+        """The depth at every voxel column of axes ``along`` x ``cross`` (float64,
+        (n_along, n_cross)); None on a level bed (the kernels' flat default)."""
+        if self.level:
+            return None
+        return np.ascontiguousarray(self.depth(np.asarray(along)[:, None],
+                                               np.asarray(cross)[None, :]))
+
+
+def level_offset(shape: InterfaceShape, frame, north_m: float, east_m: float) -> float:
+    """How far the interface under a body at (north, east) lies below the tile frame's
+    level of ``frame`` (a :class:`~svss_daq.frames.TrackLine`), m: subtracted from the
+    depth of the bed the ping measured there, it gives the level its frame puts the
+    shape's zero at."""
+    if shape.level:
+        return 0.0
+    along, cross, _ = frame.ned_to_tile(np.array([north_m, east_m, 0.0]))
+    return float(shape.depth(along, cross))
