@@ -200,6 +200,15 @@ class SimDevice:
                  workers, self.sonar.lookahead_pings)
         return ps.PoolSynthesis(self.hw, self.scene_path, workers, self.sonar.lookahead_pings)
 
+    def _bed(self):
+        """The scene's sloping bed for the DVL (down = k0 + kn north + ke east), or None."""
+        seabed = self.scene.seabed
+        if seabed is None or seabed.slope_deg is None or not any(seabed.slope_deg):
+            return None
+        from sim_device.bed_plane import BedPlane, ned_plane
+        from sim_device.track import truth_line
+        return ned_plane(BedPlane.from_slopes(*seabed.slope_deg), truth_line(self.scene.track))
+
     def _pose_fn(self):
         from sim_device.track import pose_at
         track, seed, t0 = self.scene.track, self.scene.scene.seed, self.clock.start_ns
@@ -219,7 +228,7 @@ class SimDevice:
             from sim_device.devices.gps import GpsEmulator
             lever = self.hw.value.lever_arms
             self.dvl = DvlEmulator(self.cfg.dvl, lever, self.clock, self._pose_fn(),
-                                   self.run_dir, "dvl")
+                                   self.run_dir, "dvl", bed=self._bed())
             self.gps = GpsEmulator(self.cfg.gps, lever, self.clock, self._pose_fn(),
                                    self.run_dir, "gps")
         self.clock.start()

@@ -43,6 +43,7 @@ from svss_daq.scaling import quantise
 from svss_daq.waveform import make_waveform
 
 from .acoustics import Sediment
+from .bed_plane import BedPlane, leg_image_position
 from .beams import beam_table, interface_sigma_table, reflection_tables
 from .environment import Environment, build_environment
 from .fidelity import densities, resolution_cell, volume_depth_limits
@@ -85,6 +86,10 @@ class EnvironmentSource:
         self.geometry = array_geometry(hw)
         self.waveform = make_waveform(hw.waveform)
         self.line = truth_line(scene.track)
+        slope = scene.seabed.slope_deg if scene.seabed is not None else None
+        #: a sloping bed (sim_device.bed_plane): geometry goes into its frame; None: level
+        self.bed = (BedPlane.from_slopes(*slope)
+                    if slope is not None and any(slope) else None)
         self.env: Environment = build_environment(scene, sediments)
         self.fc = fc = self.waveform.center_hz
         self.media = media = self.env.media(fc)
@@ -131,7 +136,7 @@ class EnvironmentSource:
                                         self.env.has_surface)
         self.receiver_noise = ReceiverNoise(scene.noise, hw.waveform, dig)
         self.noise_power = self.receiver_noise.power
-        self.points = scene_points(scene, self.env, self.p0)
+        self.points = scene_points(scene, self.env, self.p0, self.bed)
         self.synthesis = (sc.synthesis if sc is not None and sc.synthesis is not None
                           else "fast")
         #: pass 2 on the GPU ([scattering] device = "cuda", sim_device.synthesis_gpu)
@@ -165,6 +170,10 @@ class EnvironmentSource:
         #: (n_channels, n_samples) uPa, added by pressure(i); the scene's targets are one
         self.contributions: list = []
         self.targets = build_targets(scene, media, source=f"scene {scene.scene.name!r}")
+        if self.bed is not None:
+            for t in self.targets:
+                t.position = self.bed.buried(*t.position)
+                t.axis = self.bed.vector_to_bed(t.axis)
         if self.targets:
             self.contributions.append(TargetEchoes(self, self.targets))
         self.last_stats: dict = {}
@@ -184,23 +193,48 @@ class EnvironmentSource:
     def n_pings(self) -> int:
         return self.scene.track.n_pings
 
-    def frame(self, i: int) -> PingGeometry:
-        """Projector, receivers and boresight of ping ``i`` in the tile frame."""
+    def pose(self, i: int) -> NavSnapshot:
+        """The true pose of ping ``i``; over a sloping bed its altitude is the body's
+        vertical height above the bed below it."""
         nav = ping_pose(self.scene.track, self.hw, i, self.seed)
-        placed = place_array(self.geometry, nav, self.assembler.projector_of(i), self.line)
-        return PingGeometry(placed.tx, placed.rx, placed.bore, placed.projector, nav)
+        if self.bed is None:
+            return nav
+        body = self.line.ned_to_tile(np.array([nav.north_m, nav.east_m, nav.down_m]))
+        altitude = float(self.bed.vertical_height(body))
+        if not altitude > 0.0:
+            raise ValueError(f"scene {self.scene.scene.name!r}: key 'seabed.slope_deg': "
+                             f"the bed reaches the platform at ping {i} (altitude "
+                             f"{altitude:.2f} m)")
+        return dataclasses.replace(nav, altitude_m=altitude)
 
-    def _images(self, pos: np.ndarray) -> np.ndarray:
-        """Element-image rows (..., m_max + 1, 6) for element positions (..., 3)."""
+    def frame(self, i: int) -> PingGeometry:
+        """Projector, receivers and boresight of ping ``i`` in the tile frame (the bed
+        frame over a sloping bed: :mod:`sim_device.bed_plane`)."""
+        nav = self.pose(i)
+        placed = place_array(self.geometry, nav, self.assembler.projector_of(i), self.line)
+        if self.bed is None:
+            return PingGeometry(placed.tx, placed.rx, placed.bore, placed.projector, nav)
+        b = self.bed
+        return PingGeometry(b.to_bed(placed.tx), b.to_bed(placed.rx),
+                            b.vector_to_bed(placed.bore), placed.projector, nav)
+
+    def _images(self, pos: np.ndarray, origin_xy: tuple[float, float]) -> np.ndarray:
+        """Element-image rows (..., m_max + 1, 6) for element positions (..., 3) of the
+        ping's frame, x and y made relative to ``origin_xy``."""
         depth = self.water_depth if self.water_depth is not None else 0.0
         rows = []
         for m in range(self.m_max + 1):
             li = leg_image(m)
-            h = -image_depth(m, pos[..., 2], depth)
-            one = np.ones_like(h)
+            if self.bed is None:
+                p = np.array(pos, dtype=np.float64)
+                p[..., 2] = image_depth(m, pos[..., 2], depth)
+            else:
+                p = leg_image_position(m, pos, self.bed, depth)
+            one = np.ones(p.shape[:-1])
             f_surf = self.env.surface_reflection ** li.n_surface
-            rows.append(np.stack([pos[..., 0], pos[..., 1], h, li.direction * one,
-                                  f_surf * one, li.n_bottom * one], axis=-1))
+            rows.append(np.stack([p[..., 0] - origin_xy[0], p[..., 1] - origin_xy[1],
+                                  -p[..., 2], li.direction * one, f_surf * one,
+                                  li.n_bottom * one], axis=-1))
         return np.ascontiguousarray(np.stack(rows, axis=-2))
 
     # --------------------------------------------------------------- path choice
@@ -278,8 +312,8 @@ class EnvironmentSource:
         rx = g.rx - [ox, oy, 0.0]
         f = np.float32 if self.precision == "float32" else np.float64
         cf = np.complex64 if self.precision == "float32" else np.complex128
-        img_t = self._images(tx[None, :])[0].astype(f)
-        img_r = self._images(rx).astype(f)
+        img_t = self._images(g.tx[None, :], (ox, oy))[0].astype(f)
+        img_r = self._images(g.rx, (ox, oy)).astype(f)
         sx, sy, sz = (s.x - ox).astype(f), (s.y - oy).astype(f), s.z.astype(f)
         amp = s.amp.astype(cf)
         m = self.media
@@ -373,8 +407,7 @@ class EnvironmentSource:
         codes, clipped = quantise(p, self.hw.digitiser)
         if clipped:
             log.warning("ping %d: %d samples clipped at full scale", i, clipped)
-        return self.assembler.from_simulation(i, codes, ping_pose(self.scene.track, self.hw,
-                                                                 i, self.seed))
+        return self.assembler.from_simulation(i, codes, self.pose(i))
 
     def __iter__(self):
         for i in range(self.n_pings):

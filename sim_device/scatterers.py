@@ -50,13 +50,18 @@ def empty_scatterers() -> Scatterers:
     return Scatterers(z, z, z, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=complex))
 
 
-def scene_points(scene: SceneConfig, env: Environment, p0: float) -> Scatterers:
-    """The scene's point scatterers, strength p0 * 10^(TS/20)."""
+def scene_points(scene: SceneConfig, env: Environment, p0: float,
+                 bed=None) -> Scatterers:
+    """The scene's point scatterers, strength p0 * 10^(TS/20); over a sloping ``bed``
+    (a :class:`~sim_device.bed_plane.BedPlane`) in its frame, each ``depth_m``
+    vertically below the interface above it."""
     pts = scene.points
     if not pts:
         return empty_scatterers()
     atd = np.array([[p.along_m, p.cross_m, p.depth_m] for p in pts], dtype=np.float64)
-    med = np.array([env.medium_at(p.depth_m) for p in pts], dtype=np.int64)
+    if bed is not None:
+        atd = bed.buried(atd[:, 0], atd[:, 1], atd[:, 2])
+    med = np.array([env.medium_at(float(z)) for z in atd[:, 2]], dtype=np.int64)
     amp = p0 * 10.0 ** (np.array([p.target_strength_db for p in pts]) / 20.0)
     return Scatterers(atd[:, 0].copy(), atd[:, 1].copy(), atd[:, 2].copy(), med,
                       amp.astype(complex))

@@ -114,6 +114,11 @@ class SedimentLayer:
 @dataclass(frozen=True)
 class SeabedConfig:
     layers: tuple[SedimentLayer, ...] = spec("sediment layers, top first", min_length=1)
+    slope_deg: tuple[float, float] | None = spec(
+        "the interface as a tilted plane through the level under the first ping: its "
+        "slope along the track and across it, deg, positive where it deepens ahead and to "
+        "starboard (layers parallel to it; sim_device.bed_plane); absent: level",
+        lo=-30, hi=30, length=2)
 
 
 @dataclass(frozen=True)

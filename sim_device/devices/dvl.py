@@ -14,7 +14,7 @@ and is sent ``latency_s`` later. Contents:
   beam (RDI's convex layout, :func:`~svss_daq.navigation.janus_beam_vectors`: 1 port,
   2 starboard, 3 forward, 4 aft, ``beam_angle_deg`` from the head's axis, turned by the
   true attitude) to a flat bottom at the track's depth (``body_down_m + altitude_m``),
-  plus noise, times cos(``beam_angle_deg``), not corrected for pitch and roll (the
+  or to the scene's sloping bed (``bed``: down = k0 + kn north + ke east), plus noise, times cos(``beam_angle_deg``), not corrected for pitch and roll (the
   manual's bottom-track range); a beam whose range along it is beyond ``max_range_m``
   finds no bottom (0). With fewer than three beams on the bottom the velocity is bad
   (-32768). The fixed leader carries ``beam_angle_deg``.
@@ -61,11 +61,13 @@ _DIFF_S = 0.05  # half-window of the central difference for the head velocity, s
 
 class DvlEmulator(ScheduledSerialDevice):
     """The DVL at ``<directory>/<name>``. ``pose_fn(true_ns) -> NavSnapshot``: the true
-    pose (its ``down_m + altitude_m`` is the bottom's depth); ``lever_arms``:
-    :class:`svss_daq.config.LeverArms`."""
+    pose (its ``down_m + altitude_m`` is the bottom's depth, unless ``bed`` gives the
+    bottom as a plane, down = k0 + kn north + ke east: :func:`sim_device.bed_plane.ned_plane`);
+    ``lever_arms``: :class:`svss_daq.config.LeverArms`."""
 
     def __init__(self, cfg: DvlSimConfig, lever_arms, clock: SimClock,
-                 pose_fn: Callable[[int], NavSnapshot], directory, name: str = "dvl") -> None:
+                 pose_fn: Callable[[int], NavSnapshot], directory, name: str = "dvl",
+                 bed: tuple[float, float, float] | None = None) -> None:
         super().__init__(directory, name, clock, {"ensemble": (1.0 / cfg.rate_hz, cfg.latency_s)})
         self.cfg = cfg
         self.setup = Pd0Setup(frequency_hz=cfg.frequency_khz * 1e3,
@@ -75,6 +77,7 @@ class DvlEmulator(ScheduledSerialDevice):
         self.setup.check()
         self.lever_m = np.asarray(lever_arms.dvl_m, dtype=np.float64)
         self.pose_fn = pose_fn
+        self.bed = bed
         self.beams = janus_beam_vectors(math.radians(cfg.beam_angle_deg))
         self._rng = np.random.default_rng(cfg.seed)
         self._lost_until_ns = -1
@@ -122,8 +125,13 @@ class DvlEmulator(ScheduledSerialDevice):
                      - antenna_ned(self.pose_fn(t_true_ns - dt), self.lever_m)) / (2 * _DIFF_S)
             v_body = (self.error_matrix @ (rot.T @ v_ned)
                       + rng.normal(0.0, c.velocity_sigma_m_s, 3))
-            height = pose.down_m + pose.altitude_m - head[2]  # head above the flat bottom
-            vert = (self.beams @ rot.T)[:, 2]
+            k0, kn, ke = ((pose.down_m + pose.altitude_m, 0.0, 0.0) if self.bed is None
+                          else self.bed)
+            # the head's height above the bottom below it, and each beam's closing rate
+            # on the bottom per metre along it (its vertical part on a flat bottom)
+            height = k0 + kn * head[0] + ke * head[1] - head[2]
+            d = self.beams @ rot.T
+            vert = d[:, 2] - kn * d[:, 0] - ke * d[:, 1]
             ranges = [height / v + c.range_sigma_m * rng.normal() if v > 0 else math.nan
                       for v in vert]
             cos_beam = math.cos(math.radians(c.beam_angle_deg))
