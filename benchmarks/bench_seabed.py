@@ -3,16 +3,17 @@
 speed estimated from the echoes against the shipped configuration and the truth.
 
 Each scene of ``config/scenes/seabed_*.toml`` (sand, silt, silt over sand, silt over
-stiff clay: buried -20 dB points at 0.35-1.6 m and the seed's aluminium cylinder under an
+stiff clay, sand sloping 3 deg along and 5 deg across: buried -20 dB points at 0.35-1.6 m and the seed's aluminium cylinder under an
 11 m line, interface and volume scattering, the sea surface's multipath) is simulated
 once into ``--cache`` as a raw run (as ``svss simulate`` records it), then:
 
-* the sediment speed is estimated from the run's echoes with the shipped
+* the sediment speed (and the interface's slope) is estimated from the run's echoes
+  and navigation with the shipped
   ``config/processing.toml`` (:func:`svss_proc.seabed.stage.seabed_stage`, what
   ``svss process`` does);
 * every target is imaged three ways, exactly as the tiles image it: (a) with the shipped
   configuration as it stands (1500 m/s, one half-space), (b) with the estimate, (c) with
-  the scene's true layers and speeds;
+  the scene's true layers, speeds and slope;
 * per target: the depth of its peak (a point: against its depth; the cylinder: against
   its top) and its peak level against (c); per scene the estimated speeds against the
   truth.
@@ -55,7 +56,8 @@ from svss_proc.seabed.stage import RunPings, seabed_stage  # noqa: E402
 
 log = logging.getLogger("bench_seabed")
 
-SCENES = ("seabed_sand", "seabed_silt", "seabed_silt_over_sand", "seabed_silt_over_clay")
+SCENES = ("seabed_sand", "seabed_silt", "seabed_silt_over_sand", "seabed_silt_over_clay",
+          "seabed_sand_sloping")
 
 
 def recorded(scene: str, cache: Path) -> Path:
@@ -78,9 +80,10 @@ def true_processing(proc: ProcessingConfig, src: EnvironmentSource) -> Processin
     layers = tuple(SedimentLayerConfig(thickness_m=float(layer.thickness_m),
                                        sound_speed_m_s=c)
                    for layer, c in zip(src.scene.seabed.layers[:-1], speeds[:-1]))
+    slope = src.scene.seabed.slope_deg or (0.0, 0.0)
     return dataclasses.replace(proc, imaging=dataclasses.replace(
         proc.imaging, sediment_sound_speed_m_s=speeds[-1], sediment_layers=layers,
-        delays="table"))
+        delays="table", interface_slope_deg=tuple(float(v) for v in slope)))
 
 
 def targets_of(scene) -> list[dict]:
@@ -130,7 +133,8 @@ def measure_scene(scene_name: str, cache: Path) -> dict:
         out["estimate"] = est.summary()
         truth = true_processing(shipped.value, src)
         out["truth"] = {"speeds_m_s": [float(c) for c in np.real(src.media.c[1:])],
-                        "thicknesses_m": [lay.thickness_m for lay in scene.seabed.layers[:-1]]}
+                        "thicknesses_m": [lay.thickness_m for lay in scene.seabed.layers[:-1]],
+                        "interface_slope_deg": list(scene.seabed.slope_deg or (0.0, 0.0))}
         variants = {"shipped": shipped.value, "estimate": used.value, "truth": truth}
         pings = list(RunPings([reader]))
         imager = TileImager(hw, shipped.value)
@@ -163,7 +167,10 @@ def measure_scene(scene_name: str, cache: Path) -> dict:
         "depth_ok": all(abs(r["estimate"]["depth_error_m"]) <= t for r, t in zip(pts, tol)),
         "mean_loss_db": float(np.mean([-r["estimate"]["level_db"] for r in rows])),
         "worst_loss_db": float(np.max([-r["estimate"]["level_db"] for r in rows])),
-        "speed_error_pct": 100 * (est.speed_m_s / out["truth"]["speeds_m_s"][-1] - 1)}
+        "speed_error_pct": 100 * (est.speed_m_s / out["truth"]["speeds_m_s"][-1] - 1),
+        "slope_error_deg": [None if e is None else e - t for e, t in zip(
+            out["estimate"].get("interface_slope_deg", [None, None]),
+            out["truth"]["interface_slope_deg"])]}
     return out
 
 
@@ -178,6 +185,11 @@ def table(results: list[dict]) -> str:
         lines.append(f"{r['scene']}: estimated {lay}{e['sediment_sound_speed_m_s']} +/- "
                      f"{e['sigma_m_s']} m/s ({e['status']}; truth {true_lay}"
                      f"{tr['speeds_m_s'][-1]:.0f} m/s) in {r['estimate_s']} s")
+        if e.get("interface_slope_deg") is not None:
+            sl, sg = e["interface_slope_deg"], e["interface_slope_sigma_deg"]
+            lines.append("  interface slope along {} across {} deg (truth {:+.1f}, {:+.1f})"
+                         .format(*(f"{a:+.2f}" + (f" +/- {b:.2f}" if b is not None else "")
+                                   for a, b in zip(sl, sg)), *tr["interface_slope_deg"]))
         lines.append("  target      depth   err shipped  err estimate  err truth  "
                      "level shipped  level estimate")
         for t in r["targets"]:

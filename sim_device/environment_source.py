@@ -218,7 +218,8 @@ class EnvironmentSource:
         return PingGeometry(b.to_bed(placed.tx), b.to_bed(placed.rx),
                             b.vector_to_bed(placed.bore), placed.projector, nav)
 
-    def _images(self, pos: np.ndarray, origin_xy: tuple[float, float]) -> np.ndarray:
+    def _images(self, pos: np.ndarray,
+                origin_xy: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
         """Element-image rows (..., m_max + 1, 6) for element positions (..., 3) of the
         ping's frame, x and y made relative to ``origin_xy``."""
         depth = self.water_depth if self.water_depth is not None else 0.0

@@ -471,6 +471,11 @@ class SeabedConfig:
     disagree_sigmas: float = spec("a configured speed this many of the estimate's "
                                   "standard deviations away is reported as disagreeing",
                                   lo=0.0, hi=100.0)
+    slope: str | None = spec("the interface's slope the tiles are imaged over: 'estimate' "
+                             "(along the track from the navigation's bed depths, across it "
+                             "from the interface's own echo) or 'configured' "
+                             "(imaging.interface_slope_deg); omitted: configured",
+                             choices=("estimate", "configured"), default="configured")
 
 
 @dataclass(frozen=True)

@@ -49,7 +49,7 @@ from .delays import _cpu as refraction_cpu
 from .kernel_args import (EXACT, GATE_BAND, LINEAR, NEAREST, SHIFT, STRAIGHT, TABLE, TAPS,
                           ConeGate, DelayModel, ImageSlice, KernelArgs, KernelData,
                           PingArray, TapPlanes, TravelTimes, VoxelGeometry, check_call,
-                          kernel_args)
+                          curved, kernel_args)
 from .kernel_math import build, cast_like, kernel_one
 from .window_gather import LANES, window_gather_1, window_gather_2, window_gather_4
 
@@ -107,21 +107,26 @@ def _table_row(dx, dy, h, inv_drho, n_rho, h_ref, one):
 
 
 @nb.njit(inline="always", cache=True)
-def _table_time(tz, ez, ir, a, dh, iz, one):
-    """One-way time from the table interpolated at the voxel depths (``tz``, ``ez``:
-    (n_rho, depths)): linear in offset between rows ir and ir + 1, first-order in the
-    element height."""
+def _table_time(tz, ez, kz, curved, ir, a, dh, iz, one):
+    """One-way time from the table interpolated at the voxel depths (``tz``, ``ez``,
+    ``kz``: (n_rho, depths)): linear in offset between rows ir and ir + 1, first-order
+    in the element height, second-order ``curved`` (a compile-time constant: over a
+    sloping interface)."""
+    if curved:
+        hh = cast_like(one, 0.5) * dh
+        return ((one - a) * (tz[ir, iz] + dh * (ez[ir, iz] + hh * kz[ir, iz]))
+                + a * (tz[ir + 1, iz] + dh * (ez[ir + 1, iz] + hh * kz[ir + 1, iz])))
     return ((one - a) * (tz[ir, iz] + dh * ez[ir, iz])
             + a * (tz[ir + 1, iz] + dh * ez[ir + 1, iz]))
 
 
 @nb.njit(inline="always", cache=True)
-def _receive_u(mode, u1, r2, k_straight, tz, ez, ir, a, dh, iz, inv_dt, one):
+def _receive_u(mode, u1, r2, k_straight, tz, ez, kz, curved, ir, a, dh, iz, inv_dt, one):
     """Fractional sample index of a receive leg: the projector leg ``u1`` (samples) plus
     the receive leg, straight (``r2`` m at ``k_straight`` samples/m) or from the table."""
     if mode == STRAIGHT:
         return u1 + r2 * k_straight
-    return u1 + _table_time(tz, ez, ir, a, dh, iz, one) * inv_dt
+    return u1 + _table_time(tz, ez, kz, curved, ir, a, dh, iz, one) * inv_dt
 
 
 @nb.njit(inline="always", cache=True)
@@ -170,9 +175,9 @@ def _make_voxel_kernel(interp: int, mode: int, gating: bool, halvings: int,
         ax, cy, dz, h_tx, rx_dx, rx_dy, rx_h, apod, bore, cos_tx, cos_rx, surf = (
             g.ax, g.cy, g.dz, g.h_tx, g.rx_dx, g.rx_dy, g.rx_h, g.apod, g.bore, g.cos_tx,
             g.cos_rx, g.surf)
-        inv_cw, cw, cs, ttab, etab, inv_drho, z0, inv_dz, h_ref, tzd, ezd = (
+        inv_cw, cw, cs, ttab, etab, inv_drho, z0, inv_dz, h_ref, tzd, ezd, ktab, kzd = (
             d.inv_cw, d.cw, d.cs, d.time, d.eta, d.inv_drho, d.z0, d.inv_dz, d.h_ref, d.tz,
-            d.ez)
+            d.ez, d.kappa, d.kz)
         c = args.gate
         gx, gy, gz, gh, gdx, gdy, gdh, gb, gct, gcr, gs = (
             c.ax, c.cy, c.dz, c.h_tx, c.rx_dx, c.rx_dy, c.rx_h, c.bore, c.cos_tx, c.cos_rx,
@@ -188,7 +193,7 @@ def _make_voxel_kernel(interp: int, mode: int, gating: bool, halvings: int,
                            VoxelGeometry(ax, cy, dz, h_tx, rx_dx, rx_dy, rx_h, apod, bore,
                                          cos_tx, cos_rx, surf),
                            TravelTimes(inv_cw, cw, cs, ttab, etab, inv_drho, z0, inv_dz,
-                                       h_ref, tzd, ezd),
+                                       h_ref, tzd, ezd, ktab, kzd),
                            ConeGate(gx, gy, gz, gh, gdx, gdy, gdh, gb, gct, gcr, gs))
             ia = ia0 + k
             n_upd = 0
@@ -206,9 +211,10 @@ def _make_voxel_kernel(interp: int, mode: int, gating: bool, halvings: int,
 
 
 def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
-                 spread: bool = True, block: int = COLUMN_BLOCK):
+                 spread: bool = True, block: int = COLUMN_BLOCK, curved: bool = False):
     """Column-order kernel for straight rays (mode 0) and the refraction table (mode 1),
-    specialised at compile time on interpolation, delay mode and gating (constant
+    specialised at compile time on interpolation, delay mode, gating and ``curved`` (a
+    sloping interface: the table's second-order height correction) (constant
     branches fold away, so that the depth loop vectorises). Keep the prange body free of
     array views: numba then marks the arrays noalias, which the depth loop needs to
     vectorise (gathers next to accumulator stores)."""
@@ -245,6 +251,7 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
         ttab = args.delays.time
         etab = args.delays.eta
         inv_drho = args.delays.inv_drho
+        ktab = args.delays.kappa
         tz0 = args.delays.z0
         inv_dz = args.delays.inv_dz
         h_ref = args.delays.h_ref
@@ -269,6 +276,7 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
         if mode == TABLE:
             tz = np.empty((n_rho, npad), dtype=ft)
             ez_tab = np.empty((n_rho, npad), dtype=ft)
+            kz = np.empty((n_rho, npad) if curved else (1, 1), dtype=ft)
             n_z = ttab.shape[1]
             for iz in range(npad):
                 v = min(max((dzp[iz] - tz0) * inv_dz, 0.0), n_z - 1.001)
@@ -277,9 +285,12 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
                 for i in range(n_rho):
                     tz[i, iz] = (1 - b) * ttab[i, j] + b * ttab[i, j + 1]
                     ez_tab[i, iz] = (1 - b) * etab[i, j] + b * etab[i, j + 1]
+                    if curved:
+                        kz[i, iz] = (1 - b) * ktab[i, j] + b * ktab[i, j + 1]
         else:
             tz = np.empty((1, 1), dtype=ft)
             ez_tab = np.empty((1, 1), dtype=ft)
+            kz = np.empty((1, 1), dtype=ft)
         # per along-track slice work rows (allocated here, outside the parallel loop, so
         # that they reach it as distinct arrays). Per column of the slice's current block
         # of `nb_col` cross-track columns: projector delay and cone mask (zero beyond the
@@ -330,7 +341,7 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
                         if mode == STRAIGHT:
                             t1 = r1 * inv_c
                         else:
-                            t1 = _table_time(tz, ez_tab, ir1, a1, dh1, iz, one)
+                            t1 = _table_time(tz, ez_tab, kz, curved, ir1, a1, dh1, iz, one)
                         u1_w[bc + iz] = (t1 - t0) * inv_dt
                     if gating and n_edge > zero:         # rare: decide those in float64
                         for iz in range(nd):
@@ -393,7 +404,7 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
                                 n_edge += one if abs(m2) <= band * r2 else zero
                                 g = g if m2 >= zero else zero
                             u = _receive_u(mode, u1_w[bc + iz], r2, k_straight, tz, ez_tab,
-                                           ir, a, dh, iz, inv_dt, one)
+                                           kz, curved, ir, a, dh, iz, inv_dt, one)
                             i0, w, valid = _position(u, interp, nt, one)
                             idx_w[bs + iz] = i0
                             frac_w[bs + iz] = w
@@ -404,7 +415,8 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
                                 r2 = math.sqrt(e2 + ez * ez)
                                 if abs(eb + ez * b2 - r2 * cos_rx) <= band * r2:
                                     u = _receive_u(mode, u1_w[bc + iz], r2, k_straight, tz,
-                                                   ez_tab, ir, a, dh, iz, inv_dt, one)
+                                                   ez_tab, kz, curved, ir, a, dh, iz,
+                                                   inv_dt, one)
                                     valid = _position(u, interp, nt, one)[2]
                                     inside = _rx_inside64(gate, ia, ic, iz, ch)
                                     wt_w[bs + iz] = (g0 * txm_w[bc + iz] * valid if inside
@@ -454,14 +466,15 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int,
 _KERNELS: dict[tuple[int, int, bool, int], object] = {}
 
 
-def kernel_for(interp: int, mode: int, gating: bool, halvings: int):
+def kernel_for(interp: int, mode: int, gating: bool, halvings: int,
+               curved: bool = False):
     """The compiled kernel ``kernel(img_re, img_im, args: KernelArgs, ia0, ia1)`` for an
-    (interpolation, delay mode, gating, halvings) combination: adds one ping into the
-    image planes (along x cross x depth) for along-track indices ia0 <= ia < ia1 and
-    returns the voxel-channel updates."""
-    key = (interp, mode, bool(gating), int(halvings))
+    (interpolation, delay mode, gating, halvings, sloping interface) combination: adds
+    one ping into the image planes (along x cross x depth) for along-track indices
+    ia0 <= ia < ia1 and returns the voxel-channel updates."""
+    key = (interp, mode, bool(gating), int(halvings), bool(curved and mode == TABLE))
     if key not in _KERNELS:
-        _KERNELS[key] = _make_kernel(*key)
+        _KERNELS[key] = _make_kernel(*key[:4], curved=key[4])
     return _KERNELS[key]
 
 
@@ -476,5 +489,5 @@ def run_ping(out: ImageSlice, kd: KernelData, array: PingArray, delays: DelayMod
         raise ValueError(f"kernel data is {kd.dtype}, the image planes are {out.re.dtype}")
     check_call(out)
     args = kernel_args(kd, array, out.axes, delays)
-    kernel = kernel_for(kd.interp, delays.code, gating, kd.halvings)
+    kernel = kernel_for(kd.interp, delays.code, gating, kd.halvings, curved(out.axes))
     return int(kernel(out.re, out.im, args, out.ia0, out.ia1))

@@ -79,6 +79,26 @@ def build_refraction(jit):
         return math.sqrt(x * x + h * h) / cw + math.sqrt((rho - x) ** 2 + z * z) / cs
 
     @jit
+    def height_curvature(h, rho, z, cw, cs):
+        """d^2T/dh^2 (s/m^2): how the vertical slowness changes with the element's
+        height, p^2 cw^2 / (cos^2(theta_w) dX/dp) with X(p) = sum_j e_j c_j p / cos_j the
+        ray's horizontal reach (sin^2(theta) / (c r) for a straight ray)."""
+        if z <= 0.0:
+            dz = h + z
+            r = math.sqrt(rho * rho + dz * dz)
+            return rho * rho / (cw * r * r * r) if r > 0.0 else 0.0
+        x = fermat_crossing(h, rho, z, cw, cs)
+        rw = math.sqrt(x * x + h * h)
+        p = x / (cw * rw)
+        cos_w = h / rw
+        q = 1.0 - (cs * p) * (cs * p)
+        if q <= 1e-24:                       # at the critical angle: dX/dp unbounded
+            return 0.0
+        cos_s = math.sqrt(q)
+        dxdp = h * cw / (cos_w * cos_w * cos_w) + z * cs / (cos_s * cos_s * cos_s)
+        return p * p * cw * cw / (cos_w * cos_w * dxdp)
+
+    @jit
     def vertical_slowness(h, rho, z, cw, cs):
         """dT/dh (s/m): the water-side vertical slowness of the ray, sqrt(1/cw^2 - p^2)
         with p = cos(theta_w) / cw the ray parameter."""
@@ -90,18 +110,21 @@ def build_refraction(jit):
         return h / (cw * math.sqrt(x * x + h * h))
 
     return SimpleNamespace(fermat_crossing=fermat_crossing, one_way_time=one_way_time,
-                           vertical_slowness=vertical_slowness)
+                           vertical_slowness=vertical_slowness,
+                           height_curvature=height_curvature)
 
 
 _cpu = build_refraction(nb.njit(cache=True))
 fermat_crossing = _cpu.fermat_crossing
 one_way_time = _cpu.one_way_time
 vertical_slowness = _cpu.vertical_slowness
+height_curvature = _cpu.height_curvature
 
 
 @nb.njit(cache=True)
 def layered_ray(h, rho, z, cw, tops, speeds):
-    """(one-way time s, water-side vertical slowness s/m) from an element at height h
+    """(one-way time s, water-side vertical slowness dT/dh s/m, its derivative
+    d^2T/dh^2 s/m^2) from an element at height h
     above the interface to a point at horizontal offset rho and depth z below it,
     through horizontal sediment layers: layer k from depth ``tops[k]`` (``tops[0]`` = 0)
     down to ``tops[k + 1]`` (the last: a half-space) at ``speeds[k]`` m/s.
@@ -117,11 +140,14 @@ def layered_ray(h, rho, z, cw, tops, speeds):
     X(t) = rho lies in [rho / sum e_j r_j, rho / E_m] (E_m the extent of the fastest
     media: X(t) >= E_m t) and is found by Newton steps kept inside that shrinking bracket.
     The time uses the tau-p form T = p rho + sum_j e_j cos_j / c_j, stationary in p,
-    so the root's residual enters only to second order."""
+    so the root's residual enters only to second order. With the water's cosine cos_0
+    and dX/dp = sum_j e_j c_j / cos_j^3, d^2T/dh^2 = p^2 cw^2 / (cos_0^2 dX/dp)."""
     if z <= 0.0:
         dz = h + z
         r = math.sqrt(rho * rho + dz * dz)
-        return r / cw, (dz / (cw * r) if r > 0.0 else 1.0 / cw)
+        if r <= 0.0:
+            return 0.0, 1.0 / cw, 0.0
+        return r / cw, dz / (cw * r), rho * rho / (cw * r * r * r)
     n = tops.size
     k = 0
     while k + 1 < n and z > tops[k + 1]:
@@ -170,13 +196,24 @@ def layered_ray(h, rho, z, cw, tops, speeds):
     p = math.sqrt(s2) / cm
     time = p * rho
     eta0 = 0.0
+    cos0 = 1.0
+    dxdp = 0.0
+    grazing = False
     for j in range(m):
         r = spd[j] / cm
         cosj = math.sqrt(max(1.0 - r * r * s2, 0.0))
         time += ext[j] * cosj / spd[j]
         if j == 0:
             eta0 = cosj / spd[j]
-    return time, eta0
+            cos0 = cosj
+        if cosj <= 1e-12:
+            grazing = True
+        else:
+            dxdp += ext[j] * spd[j] / (cosj * cosj * cosj)
+    kappa = 0.0
+    if not grazing and dxdp > 0.0 and cos0 > 0.0:
+        kappa = p * p * cw * cw / (cos0 * cos0 * dxdp)
+    return time, eta0, kappa
 
 
 @dataclass(frozen=True)
@@ -207,14 +244,19 @@ class SpeedProfile:
 class TravelTimeTable:
     """One-way travel times from an element at height ``h_ref`` above the interface,
     on a regular grid of horizontal offset rho (from 0, step ``drho``) and depth z (from
-    ``z0``, step ``dz``), with the vertical slowness for a first-order correction to
-    other element heights: T(h, rho, z) ~ T(h_ref, rho, z) + (h - h_ref) * eta."""
+    ``z0``, step ``dz``), with the vertical slowness and its derivative for a
+    second-order correction to other element heights:
+    T(h, rho, z) ~ T(h_ref, rho, z) + dh eta + dh^2 kappa / 2, dh = h - h_ref (the
+    kernels use the first order alone on a level interface, where the table's height is
+    the ping's own to 5 mm, and the second over a sloping one, where the interface's
+    depth at each column shifts the heights by decimetres)."""
     h_ref: float
     drho: float
     z0: float
     dz: float
     time: np.ndarray    # (n_rho, n_z) s
     eta: np.ndarray     # (n_rho, n_z) s/m
+    kappa: np.ndarray   # (n_rho, n_z) s/m^2
 
     @property
     def rho_max(self) -> float:
@@ -224,16 +266,17 @@ class TravelTimeTable:
 
 
 @nb.njit(parallel=True, cache=True)
-def _fill_layered(h, drho, z0, dz, cw, tops, speeds, time, eta):
+def _fill_layered(h, drho, z0, dz, cw, tops, speeds, time, eta, kappa):
     n_rho, n_z = time.shape
     for i in nb.prange(n_rho):
         rho = i * drho
         for j in range(n_z):
-            time[i, j], eta[i, j] = layered_ray(h, rho, z0 + j * dz, cw, tops, speeds)
+            time[i, j], eta[i, j], kappa[i, j] = layered_ray(h, rho, z0 + j * dz, cw,
+                                                             tops, speeds)
 
 
 @nb.njit(parallel=True, cache=True)
-def _fill_table(h, drho, z0, dz, cw, cs, time, eta):
+def _fill_table(h, drho, z0, dz, cw, cs, time, eta, kappa):
     n_rho, n_z = time.shape
     for i in nb.prange(n_rho):
         rho = i * drho
@@ -241,6 +284,7 @@ def _fill_table(h, drho, z0, dz, cw, cs, time, eta):
             z = z0 + j * dz
             time[i, j] = one_way_time(h, rho, z, cw, cs)
             eta[i, j] = vertical_slowness(h, rho, z, cw, cs)
+            kappa[i, j] = height_curvature(h, rho, z, cw, cs)
 
 
 def build_table(h_ref: float, rho_max: float, z_min: float, z_max: float, step: float,
@@ -256,11 +300,12 @@ def build_table(h_ref: float, rho_max: float, z_min: float, z_max: float, step: 
     n_z = int(math.ceil((z_max - z_min) / step)) + 2
     time = np.empty((n_rho, n_z))
     eta = np.empty((n_rho, n_z))
+    kappa = np.empty((n_rho, n_z))
     if profile is not None and profile.layered:
         _fill_layered(h_ref, step, z_min, step, water_sound_speed,
                       np.asarray(profile.tops, dtype=np.float64),
-                      np.asarray(profile.speeds, dtype=np.float64), time, eta)
+                      np.asarray(profile.speeds, dtype=np.float64), time, eta, kappa)
     else:
         cs = profile.speeds[0] if profile is not None else sediment_sound_speed
-        _fill_table(h_ref, step, z_min, step, water_sound_speed, cs, time, eta)
-    return TravelTimeTable(h_ref, step, z_min, step, time, eta)
+        _fill_table(h_ref, step, z_min, step, water_sound_speed, cs, time, eta, kappa)
+    return TravelTimeTable(h_ref, step, z_min, step, time, eta, kappa)

@@ -120,7 +120,8 @@ def _delays_to_device(d: TravelTimes) -> TravelTimes:
     """The travel-time model with its tables on the device (each uploaded once)."""
     return TravelTimes(d.inv_cw, d.cw, d.cs, _BUFFERS.table(d.time),
                        _BUFFERS.table(d.eta), d.inv_drho, d.z0, d.inv_dz, d.h_ref,
-                       _BUFFERS.table(d.tz), _BUFFERS.table(d.ez))
+                       _BUFFERS.table(d.tz), _BUFFERS.table(d.ez), _BUFFERS.table(d.kappa),
+                       _BUFFERS.table(d.kz))
 
 
 def _to_device(args: KernelArgs) -> KernelArgs:

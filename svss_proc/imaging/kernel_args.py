@@ -99,6 +99,11 @@ class TravelTimes(NamedTuple):
     #: precision, reading neighbouring depths from neighbouring addresses
     tz: np.ndarray = _EMPTY_TABLE
     ez: np.ndarray = _EMPTY_TABLE
+    #: the table's d^2T/dh^2 (n_rho, n_z), and at the voxel depths (n_rho, n_depth): the
+    #: second-order height correction, used over a sloping interface
+    #: (:class:`~svss_proc.imaging.delays.TravelTimeTable`)
+    kappa: np.ndarray = _EMPTY_TABLE
+    kz: np.ndarray = _EMPTY_TABLE
 
 
 class ConeGate(NamedTuple):
@@ -319,13 +324,37 @@ def kernel_args(kd: KernelData, array: PingArray, axes, delays: DelayModel) -> K
         cast(gate.bore), ft(cos_tx), ft(cos_rx), _cast_surface(surf, ft))
     t = delays.table
     if delays.code == TABLE:
+        tz, ez, kz = depth_table(t, geo.dz)
+        if not curved(axes):            # level: the first order alone (heights to 5 mm)
+            kz = _zeros_like(kz)
         tables = (t.time, t.eta, 1.0 / t.drho, float(t.z0), 1.0 / t.dz, float(t.h_ref),
-                  *depth_table(t, geo.dz))
+                  tz, ez, t.kappa, kz)
     else:
         empty = _EMPTY_DEPTH_TABLE[np.dtype(ft).str]   # one object: the GPU uploads it once
-        tables = (_EMPTY_TABLE, _EMPTY_TABLE, 1.0, 0.0, 1.0, 0.0, empty, empty)
+        tables = (_EMPTY_TABLE, _EMPTY_TABLE, 1.0, 0.0, 1.0, 0.0, empty, empty,
+                  _EMPTY_TABLE, empty)
     cw, cs = float(delays.water_sound_speed), float(delays.sediment_sound_speed)
     return KernelArgs(kd.planes, geo, TravelTimes(ft(1.0 / cw), cw, cs, *tables), gate)
+
+
+_ZEROS: dict = {}
+
+
+def _zeros_like(a: np.ndarray) -> np.ndarray:
+    """Zeros of ``a``'s shape and type, one cached array per shape (uploaded once)."""
+    key = (a.shape, a.dtype.str)
+    z = _ZEROS.get(key)
+    if z is None:
+        if len(_ZEROS) >= 32:
+            _ZEROS.clear()
+        z = _ZEROS[key] = np.zeros_like(a)
+    return z
+
+
+def curved(axes) -> bool:
+    """The voxel axes lie over a sloping interface (a surface: the kernels refract at
+    each column's depth and correct the table's heights to second order)."""
+    return getattr(axes, "surface", None) is not None
 
 
 _SURFACES: dict = {}
@@ -349,9 +378,11 @@ def _cast_surface(surf: np.ndarray, ft) -> np.ndarray:
 _DEPTH_TABLES: dict = {}
 
 
-def depth_table(table: TravelTimeTable, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The refraction table's times and slownesses linearly interpolated in depth at
-    ``depth`` (the voxel depths in the kernel precision), (n_rho, n_depth) each in that
+def depth_table(table: TravelTimeTable, depth: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The refraction table's times, slownesses and their height derivatives linearly
+    interpolated in depth at ``depth`` (the voxel depths in the kernel precision),
+    (n_rho, n_depth) each in that
     precision: the arithmetic of the CPU column kernel's own per-call interpolation
     (float64 weights from the kernel-precision depth, rounded once). Kept per table and
     depth axis (the same arrays from ping to ping, so that the GPU uploads them once)."""
@@ -359,7 +390,7 @@ def depth_table(table: TravelTimeTable, depth: np.ndarray) -> tuple[np.ndarray, 
     key = (id(table), depth.dtype.str, depth.tobytes())
     hit = _DEPTH_TABLES.get(key)
     if hit is not None and hit[0] is table:
-        return hit[1], hit[2]
+        return hit[1], hit[2], hit[3]
     n_z = table.time.shape[1]
     v = np.clip((depth.astype(np.float64) - table.z0) * (1.0 / table.dz), 0.0, n_z - 1.001)
     j = v.astype(np.int64)
@@ -370,7 +401,9 @@ def depth_table(table: TravelTimeTable, depth: np.ndarray) -> tuple[np.ndarray, 
                               dtype=depth.dtype)
     ez = np.ascontiguousarray((1 - b) * table.eta[:, j] + b * table.eta[:, j + 1],
                               dtype=depth.dtype)
+    kz = np.ascontiguousarray((1 - b) * table.kappa[:, j] + b * table.kappa[:, j + 1],
+                              dtype=depth.dtype)
     if len(_DEPTH_TABLES) >= 32:
         _DEPTH_TABLES.clear()
-    _DEPTH_TABLES[key] = (table, tz, ez)
-    return tz, ez
+    _DEPTH_TABLES[key] = (table, tz, ez, kz)
+    return tz, ez, kz

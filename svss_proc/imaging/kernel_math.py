@@ -153,24 +153,32 @@ def build(jit, refr):
                  + a * ((1 - b) * ttab[i + 1, j] + b * ttab[i + 1, j + 1]))
             e = ((1 - a) * ((1 - b) * etab[i, j] + b * etab[i, j + 1])
                  + a * ((1 - b) * etab[i + 1, j] + b * etab[i + 1, j + 1]))
-            return cast_like(one, t + (h - tt.h_ref) * e)
+            dh = h - tt.h_ref
+            ktab = tt.kappa
+            if ktab.shape[0] == n_rho and ktab.shape[1] == n_z:
+                e += 0.5 * dh * ((1 - a) * ((1 - b) * ktab[i, j] + b * ktab[i, j + 1])
+                                 + a * ((1 - b) * ktab[i + 1, j] + b * ktab[i + 1, j + 1]))
+            return cast_like(one, t + dh * e)
         return cast_like(one, one_way_time(np.float64(h), rho, np.float64(z), tt.cw, tt.cs))
 
     @jit
     def depth_table_time(dx, dy, iz, h, tt, one):
         """One-way time from the refraction table interpolated at the voxel depth index
-        ``iz`` (``tt.tz``, ``tt.ez``): the offset's row and weight in float64 (as the
-        CPU column kernel's ``_table_row``), then linear in offset and first-order in
-        the element height ``h`` in the kernel precision."""
+        ``iz`` (``tt.tz``, ``tt.ez``, ``tt.kz``): the offset's row and weight in float64
+        (as the CPU column kernel's ``_table_row``), then linear in offset and to second
+        order in the element height ``h`` (``kz`` zeros over a level interface: the
+        first order) in the kernel precision."""
         tz = tt.tz
         ez = tt.ez
+        kz = tt.kz
         rho = math.sqrt(np.float64(dx) * dx + np.float64(dy) * dy)
         ur = min(max(rho * tt.inv_drho, 0.0), tz.shape[0] - 1.001)
         ir = int(ur)
         a = cast_like(one, ur - ir)
         dh = cast_like(one, h - tt.h_ref)
-        return ((one - a) * (tz[ir, iz] + dh * ez[ir, iz])
-                + a * (tz[ir + 1, iz] + dh * ez[ir + 1, iz]))
+        hh = cast_like(one, 0.5) * dh
+        return ((one - a) * (tz[ir, iz] + dh * (ez[ir, iz] + hh * kz[ir, iz]))
+                + a * (tz[ir + 1, iz] + dh * (ez[ir + 1, iz] + hh * kz[ir + 1, iz])))
 
     @jit
     def tx_inside64(c, ia, ic, iz):

@@ -40,6 +40,7 @@ from svss_daq.ping_gate import PingRejected
 from ..imaging.delays import SpeedProfile
 from ..imaging.imager import PingAccumulator, TileImager
 from ..imaging.sampler import PointSampler
+from .slope import with_slope
 from .focus import (combine, curve_peak, depth_at_time, focus_measure, point_sigma,
                     vertical_time)
 
@@ -70,6 +71,9 @@ class SpeedEstimate:
     #: estimated layers above the half-space of ``speed_m_s``, top first: thickness,
     #: speed and its standard deviation, the boundary's level over its surroundings (dB)
     layers: tuple = ()
+    #: the interface's slope the run was scanned and is imaged over
+    #: (:meth:`.slope.SlopeEstimate.summary`; None: the configured slope)
+    slope: dict | None = None
 
     def apply(self, processing: ProcessingConfig) -> ProcessingConfig:
         """``processing`` imaging with this estimate (its layers over its half-space, as
@@ -88,6 +92,14 @@ class SpeedEstimate:
     @property
     def description(self) -> str:
         """For the logs and the tiles' provenance."""
+        text = self._speed_description
+        if self.slope is not None:
+            a, c = self.slope["interface_slope_deg"]
+            text += f"; interface slope {a:+.2f} deg along, {c:+.2f} deg across"
+        return text
+
+    @property
+    def _speed_description(self) -> str:
         if self.status == "estimated":
             text = (f"sediment speed {self.speed_m_s:.0f} +/- {self.sigma_m_s:.0f} m/s from "
                     f"{len(self.responses)} buried response(s)")
@@ -116,13 +128,20 @@ class SpeedEstimate:
                      "sigma_m_s": r(p["sigma"], 1), "contrast_db": r(p["contrast_db"], 1),
                      "layer": p.get("layer")}
                     for p in self.responses],
-                "layers": [{k: r(v, 3) for k, v in l_.items()} for l_ in self.layers]}
+                "layers": [{k: r(v, 3) for k, v in l_.items()} for l_ in self.layers],
+                **(self.slope or {})}
 
 
 def applied(processing: ProcessingConfig, summary: dict | None) -> ProcessingConfig:
-    """``processing`` imaging with the sediment of a :meth:`SpeedEstimate.summary`
-    (unchanged where it was not estimated, or None)."""
-    if not summary or summary.get("status") != "estimated":
+    """``processing`` imaging with the seabed of a :meth:`SpeedEstimate.summary`: its
+    interface slope where it has one, its sediment where that was estimated (unchanged
+    for None)."""
+    if not summary:
+        return processing
+    slope = summary.get("interface_slope_deg")
+    if slope is not None and None not in slope:
+        processing = with_slope(processing, slope)
+    if summary.get("status") != "estimated":
         return processing
     out = with_speed(processing, summary["sediment_sound_speed_m_s"])
     if summary.get("layers"):               # only the table refracts through layers

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from svss_proc.imaging.delays import (SpeedProfile, build_table, layered_ray, one_way_time,
-                                      vertical_slowness)
+from svss_proc.imaging.delays import (SpeedProfile, build_table, height_curvature,
+                                      layered_ray, one_way_time, vertical_slowness)
 
 CW = 1500.0
 
@@ -63,14 +63,18 @@ THREE = (np.array([0.0, 0.02, 0.6]), np.array([1476.0, 1900.0, 1650.0]))
 ])
 def test_layered_times_match_direct_fermat_minimisation(profile, h, rho, z):
     tops, speeds = profile
-    t, eta = layered_ray(h, rho, z, CW, tops, speeds)
+    t, eta, kappa = layered_ray(h, rho, z, CW, tops, speeds)
     ref = fermat_time(h, rho, z, tops, speeds)
     assert abs(t - ref) <= 1e-13 + 2e-11 * ref, (t, ref)
     # eta is dT/dh: a central difference of the independent minimum
     d = 1e-4
-    num = (fermat_time(h + d, rho, z, tops, speeds)
-           - fermat_time(h - d, rho, z, tops, speeds)) / (2 * d)
-    assert abs(eta - num) < 1e-8 / CW
+    up, down = (fermat_time(h + s, rho, z, tops, speeds) for s in (d, -d))
+    assert abs(eta - (up - down) / (2 * d)) < 1e-8 / CW
+    # kappa is d^2T/dh^2: a second difference of it over 2 cm
+    d2 = 1e-2
+    up, down = (fermat_time(h + s, rho, z, tops, speeds) for s in (d2, -d2))
+    num = (up - 2 * ref + down) / d2 ** 2
+    assert abs(kappa - num) <= 1e-3 * abs(num) + 1e-9 / CW, (kappa, num)
 
 
 def test_one_layer_is_the_half_space_solver():
@@ -78,10 +82,12 @@ def test_one_layer_is_the_half_space_solver():
     rng = np.random.default_rng(46)
     for _ in range(300):
         h, rho, z = rng.uniform(0.3, 4), rng.uniform(0, 20), rng.uniform(-0.5, 3)
-        t, eta = layered_ray(h, rho, z, CW, tops, speeds)
+        t, eta, kappa = layered_ray(h, rho, z, CW, tops, speeds)
         assert abs(t - one_way_time(h, rho, z, CW, 1767.0)) < 1e-15 + 1e-12 * t
         # the half-space solver stops at 1e-10 m of its crossing: eta to first order
         assert abs(eta - vertical_slowness(h, rho, z, CW, 1767.0)) < 1e-9 / CW
+        assert abs(kappa - height_curvature(h, rho, z, CW, 1767.0)) <= (
+            1e-6 * abs(kappa) + 1e-12 / CW)
 
 
 def test_layer_of_the_half_space_speed_changes_nothing():
@@ -100,10 +106,12 @@ def test_table_through_layers_holds_the_layered_times():
     tab = build_table(2.0, 4.0, -0.02, 2.02, 0.01, CW, 1767.0, prof)
     tops, speeds = np.array(prof.tops), np.array(prof.speeds)
     for i, j in [(0, 0), (0, 100), (37, 51), (150, 52), (399, 203), (250, 2)]:
-        t, e = layered_ray(2.0, i * 0.01, -0.02 + j * 0.01, CW, tops, speeds)
+        t, e, k = layered_ray(2.0, i * 0.01, -0.02 + j * 0.01, CW, tops, speeds)
         assert tab.time[i, j] == pytest.approx(t, rel=1e-14)
         assert tab.eta[i, j] == pytest.approx(e, rel=1e-12)
+        assert tab.kappa[i, j] == pytest.approx(k, rel=1e-12, abs=1e-18)
     half = build_table(2.0, 4.0, -0.02, 2.02, 0.01, CW, 1767.0)
     same = build_table(2.0, 4.0, -0.02, 2.02, 0.01, CW, 1500.0,
                        SpeedProfile((0.0,), (1767.0,)))
     assert np.array_equal(half.time, same.time) and np.array_equal(half.eta, same.eta)
+    assert np.allclose(half.kappa, same.kappa, rtol=1e-6, atol=1e-15)

@@ -32,7 +32,7 @@ def empty_scene(order=0, layers=None):
                               noise=dataclasses.replace(sc.noise, electronic_rms_counts=0.0,
                                                         sea_state=None))
     if layers is not None:
-        out = dataclasses.replace(out, seabed=SeabedConfig(layers=tuple(layers)))
+        out = dataclasses.replace(out, seabed=SeabedConfig(layers=tuple(layers), slope_deg=None))
     return out
 
 
@@ -201,7 +201,7 @@ def test_extremes_zero_roughness_and_very_high_attenuation(hardware):
     sc = dataclasses.replace(sc, scattering=dataclasses.replace(
         sc.scattering, interface=False, specular=False, volume_max_depth_m=0.5))
     lossy = dataclasses.replace(sc, seabed=SeabedConfig(layers=(
-        layer("medium_sand", loss_parameter=1.0),)))
+        layer("medium_sand", loss_parameter=1.0),), slope_deg=None))
     p_nominal = EnvironmentSource(hardware, sc).pressure(5)
     p_lossy = EnvironmentSource(hardware, lossy).pressure(5)
     assert np.all(np.isfinite(p_lossy)) and np.any(p_lossy)

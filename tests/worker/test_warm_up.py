@@ -50,7 +50,7 @@ def test_depth_table_is_the_table_at_the_voxel_depths_depth_fastest():
     from svss_proc.imaging.kernel_args import depth_table
     table = build_table(2.0, 3.0, -0.05, 1.05, 0.01, 1500.0, 1767.0)
     depth = np.linspace(0.0, 1.0, 51).astype(np.float32)
-    tz, ez = depth_table(table, depth)
+    tz, ez, _ = depth_table(table, depth)
     assert tz.shape == (table.time.shape[0], depth.size) and tz.dtype == np.float32
     assert tz.flags.c_contiguous and ez.flags.c_contiguous
     z = table.z0 + table.dz * np.arange(table.time.shape[1])
