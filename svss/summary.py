@@ -250,7 +250,19 @@ def _format_tile(s: dict) -> str:
 
 
 def seabed_line(sb: dict) -> str:
-    """One line for the sediment speed a tile or run was imaged with (its ``seabed``)."""
+    """One line for the sediment speed (and the interface's slope, where it was
+    estimated) a tile or run was imaged with (its ``seabed``)."""
+    text = _speed_line(sb)
+    slope = sb.get("interface_slope_deg")
+    if slope is not None and None not in slope:
+        sig = sb.get("interface_slope_sigma_deg") or [None, None]
+        text += "; interface sloping " + ", ".join(
+            f"{_f(v, '+.2f')}" + (f" +/- {_f(e, '.2f')}" if e is not None else "")
+            + f" deg {name}" for v, e, name in zip(slope, sig, ("along", "across")))
+    return text
+
+
+def _speed_line(sb: dict) -> str:
     c = sb.get("sediment_sound_speed_m_s")
     if sb.get("status") == "estimated":
         text = (f"{_f(c, '.0f')} +/- {_f(sb.get('sigma_m_s'), '.0f')} m/s estimated from "

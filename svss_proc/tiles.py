@@ -257,6 +257,12 @@ def _write(f: h5py.File, tile: Tile, hardware: Loaded[HardwareConfig],
         ds = keep(f.create_dataset(name, data=values))
         ds.attrs.update({"units": "m", "long_name": long_name})
         ds.make_scale(name)
+    if g.surface is not None:           # a sloping interface: depths are below it
+        ds = keep(f.create_dataset("interface_depth", data=np.asarray(g.surface)))
+        ds.attrs.update({"units": "m", "long_name": "the interface's depth below "
+                         "interface_down_m at each voxel column (the level under the "
+                         "first ping; each voxel's depth is below its column's)"})
+        _attach(ds, f, ("along", "cross"))
     pings = keep(f.create_dataset("ping_sequence",
                                   data=np.asarray(tile.pings, dtype=np.int64)))
     pings.attrs.update({"long_name": "sequence numbers of the pings that went into the tile",

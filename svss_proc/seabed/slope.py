@@ -13,9 +13,13 @@ same plane give its two slopes:
 * **across the track**, from the interface's own echo: the run imaged in a thin slab
   about the interface (``±SLAB_HALF_M``, on the picking image's grid) with the
   along-track slope, the echo's peak depth in each cross-track column (the power summed
-  along-track where the slab is fully covered, the peak refined by a parabola; a column
-  whose peak stands less than ``ECHO_CONTRAST_DB`` over its median, or lies at the
-  slab's edge, has no echo), and a straight line through them weighted by their power. The navigation cannot see this
+  along-track where the slab is fully covered; the echo is where the level first rises
+  half-way in dB from the water's to the column's brightest, from above, then up to its
+  peak, refined by
+  a parabola: a silt's volume just below can be as bright as its interface, a buried
+  response brighter; a column whose brightest stands less than ``ECHO_CONTRAST_DB``
+  over the water above, or whose echo lies at the slab's edge, has none), and a
+  straight line through them weighted by their power. The navigation cannot see this
   one: the track is one line.
 
 Each slope comes with its standard deviation from the fit's residuals. Too short a run
@@ -51,9 +55,10 @@ SLAB_HALF_M = 0.4
 MIN_SPAN_M = 1.0
 #: columns whose echo is this far below the brightest column's are left out, dB
 COLUMN_FLOOR_DB = 10.0
-#: a column's echo stands at least this far over the median of its slab, dB (power
-#: summed along-track)
+#: a column's echo stands at least this far over the median of the water above it, dB
+#: (power summed along-track), the water being the slab's depths above -WATER_CLEARANCE_M
 ECHO_CONTRAST_DB = 10.0
+WATER_CLEARANCE_M = 0.15
 
 
 @dataclass(frozen=True)
@@ -155,13 +160,22 @@ def _across(tiles) -> tuple[float, float | None, str]:
         prof = np.where(rows[:, :, None], pw, 0.0).sum(axis=0)    # (cross, depth)
         z = np.asarray(t.grid.depth)
         dz = z[1] - z[0]
+        water = z < -WATER_CLEARANCE_M
         for ic in range(prof.shape[0]):
             col = prof[ic]
-            k = int(np.argmax(col))
-            # an echo, not the slab's brightest speckle or a buried response's sidelobe:
-            # inside the slab, and standing out of the column's median
-            if (col[k] <= 0.0 or k == 0 or k == col.size - 1
-                    or col[k] < np.median(col) * 10 ** (ECHO_CONTRAST_DB / 10)):
+            top = col.max()
+            floor = np.median(col[water]) if np.count_nonzero(water) >= 3 else 0.0
+            # an echo: standing out of the water above it
+            if top <= 0.0 or floor <= 0.0 or top < floor * 10 ** (ECHO_CONTRAST_DB / 10):
+                continue
+            # the interface is where the level first rises half-way (in dB) from the
+            # water's to the column's brightest (a silt's volume below it can be as
+            # bright, a buried response brighter): the first such depth from above,
+            # then up to its peak
+            k = int(np.argmax(col >= math.sqrt(floor * top)))
+            while k + 1 < col.size and col[k + 1] > col[k]:
+                k += 1
+            if k == 0 or k == col.size - 1:
                 continue
             lo, mid, hi = np.log(col[k - 1:k + 2])
             den = lo - 2 * mid + hi

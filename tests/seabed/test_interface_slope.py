@@ -92,8 +92,7 @@ def proc():
 def test_slope_along_from_the_navigation_and_across_from_the_echo(hw, sloping, proc):
     est = estimate_slope(sloping, hw, proc)
     assert est.slope_deg[0] == pytest.approx(SLOPE[0], abs=0.05)     # true navigation
-    # the interface echo's peak: 0.2 deg low on the bench's 5 deg (docs/seabed.md)
-    assert est.slope_deg[1] == pytest.approx(SLOPE[1], abs=0.4)
+    assert est.slope_deg[1] == pytest.approx(SLOPE[1], abs=0.25)     # the echo's
     assert all(s is not None and 0 < s < 0.3 for s in est.sigma_deg)
     assert est.source[0].startswith("navigation") and est.source[1].startswith("interface")
     summary = est.summary()

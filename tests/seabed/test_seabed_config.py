@@ -42,6 +42,11 @@ def test_a_configured_layer_loads(tmp_path):
     (SHIPPED.replace("speed_range_m_s = [1400.0, 2100.0]", "speed_range_m_s = [2100.0, 1400.0]"),
      "seabed.speed_range_m_s", "the first below the second"),
     (SHIPPED.replace('speed = "estimate"', 'speed = "guess"'), "seabed.speed", "'guess'"),
+    (SHIPPED.replace("\n[ping_gate]", "\ninterface_slope_deg = [3.0, 60.0]\n[ping_gate]", 1),
+     "imaging.interface_slope_deg[1]", "above the maximum"),
+    (SHIPPED.replace("\n[ping_gate]", "\ninterface_slope_deg = [3.0]\n[ping_gate]", 1),
+     "imaging.interface_slope_deg", "got 1 entries"),
+    (SHIPPED.replace('slope = "estimate"', 'slope = "tilted"'), "seabed.slope", "'tilted'"),
 ])
 def test_bad_sediment_settings_name_the_key(tmp_path, text, key, says):
     with pytest.raises(ConfigError) as err:
@@ -69,3 +74,21 @@ def test_an_estimate_with_layers_images_through_the_table():
     # a half-space estimate keeps exact delays
     half = applied(exact, {**summary, "layers": []})
     assert half.imaging.delays == "exact" and not half.imaging.sediment_layers
+
+
+def test_a_configured_slope_loads_and_is_level_when_omitted(tmp_path):
+    p = _load(tmp_path, SHIPPED.replace("\n[ping_gate]",
+                                        "\ninterface_slope_deg = [3.0, -5.0]\n[ping_gate]", 1))
+    assert p.imaging.interface_slope_deg == (3.0, -5.0)
+    assert load(ProcessingConfig, config_path("processing.toml")).imaging.interface_slope_deg \
+        == (0.0, 0.0)
+
+
+def test_the_inspect_line_says_the_slope():
+    from svss.summary import seabed_line
+    line = seabed_line({"status": "estimated", "sediment_sound_speed_m_s": 1753.0,
+                        "sigma_m_s": 34.3, "responses": [{}, {}],
+                        "interface_slope_deg": [3.0, 4.81],
+                        "interface_slope_sigma_deg": [0.004, 0.03]})
+    assert line.startswith("1753 +/- 34 m/s estimated from 2 buried response(s)")
+    assert "interface sloping +3.00 +/- 0.00 deg along, +4.81 +/- 0.03 deg across" in line
