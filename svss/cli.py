@@ -12,7 +12,7 @@
                [--autofocus | --no-autofocus] [--sediment-speed estimate|configured]
     svss worker --connect ENDPOINT --out DIR [--service E] [--runs N]
     svss replay RUN.h5 [RUN2.h5 ...] [--endpoint E] [--service E] [--realtime]
-    svss inspect FILE [--json]
+    svss inspect FILE [--json | --verify]
     svss products TILES_DIR [--out DIR] [--origin LAT LON [HEIGHT]]
     svss score TILES_DIR --scene FILE [--radius M] [--out REPORT.json]
     svss sim-device --scene FILE [--time-scale S] [--faults FILE] [--from-run RUN.h5]
@@ -299,8 +299,13 @@ def cmd_demo(args) -> int:
 def cmd_inspect(args) -> int:
     import json
 
-    from svss.summary import format_summary, summarise
+    from svss.summary import format_summary, summarise, verify
 
+    if args.verify:
+        ok, lines = verify(args.file)
+        for line in lines:
+            print(line)
+        return 0 if ok else (1 if ok is False else 3)
     summary = summarise(args.file)
     print(json.dumps(summary, indent=2) if args.json else format_summary(summary))
     return 0
@@ -624,6 +629,10 @@ def build_parser() -> argparse.ArgumentParser:
     sp = sub.add_parser("inspect", help="summarise a tile file or a raw-run file")
     sp.add_argument("file", help="tile or raw-run HDF5 file")
     sp.add_argument("--json", action="store_true", help="print the summary as JSON")
+    sp.add_argument("--verify", action="store_true",
+                    help="read the whole file against its checksums: exit 0 sound, 1 "
+                         "damaged (each damaged ping or dataset named), 3 written without "
+                         "checksums")
     sp.set_defaults(func=cmd_inspect)
 
     sp = sub.add_parser("products", help="(re)write a run's products from its tiles: "

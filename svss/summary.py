@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import math
 from pathlib import Path
 
@@ -14,8 +15,11 @@ import numpy as np
 
 from svss_daq import rawfile
 from svss_daq.decibels import amplitude_to_db
+from svss_daq.progress import Progress
 from svss_daq.nav.renavigate import records_problem
 from svss_proc import tiles
+
+log = logging.getLogger(__name__)
 
 
 def file_kind(path: str | Path) -> str:
@@ -36,6 +40,32 @@ def summarise(path: str | Path) -> dict:
         raise tiles.TileFileError(f"{path}: a temporary file of a tile being written (or "
                                   "left by a failed write); not read")
     return summarise_tile(path) if file_kind(path) == "tile" else summarise_raw(path)
+
+
+def verify(path: str | Path) -> tuple[bool | None, list[str]]:
+    """Read a tile or raw-run file whole against its checksums: (True: sound, False:
+    damaged, None: written without checksums, cannot be verified; lines saying so, one
+    per damaged ping or dataset)."""
+    path = Path(path)
+    if file_kind(path) == "tile":
+        try:
+            damaged = tiles.verify_tile(path)
+        except tiles.TileFileError as exc:
+            if "without checksums" in str(exc):
+                return None, [str(exc)]
+            raise
+        what = "tile"
+    else:
+        with rawfile.RawRunReader(path) as r:
+            if not r.verifiable:
+                return None, [f"{path}: recorded without checksums (before they were "
+                              "written): it cannot be verified"]
+            progress = Progress(f"verifying {path.name}", len(r), log)
+            damaged = r.verify(lambda n: progress.update(n - progress.done))
+            what = f"{len(r)} pings"
+    if damaged:
+        return False, damaged
+    return True, [f"{path}: {what} verified against their checksums: no damage"]
 
 
 def _plain(v):
@@ -137,6 +167,7 @@ def summarise_raw(path: str | Path) -> dict:
         channels, samples = run.shape
         out = {
             "kind": "raw", "file": str(path), "clean": run.clean,
+            "checksums": run.verifiable,
             "format_version": _plain(run.attrs.get("svss_format_version")),
             "run_attrs": {k: _plain(v) for k, v in run.attrs.items()
                           if k not in rawfile.WRITER_ATTRS},
@@ -284,6 +315,9 @@ def _format_raw(s: dict) -> str:
     hw, pg, t, nav = s["hardware"], s["pings"], s["time"], s["navigation"]
     lines = [f"{s['file']}: SVSS raw run (format version {s['format_version']})"
              + ("" if s["clean"] else " -- NOT closed by its writer, read to last flush"),
+             "  checksums  " + ("Fletcher-32 on every ping's samples (svss inspect --verify "
+                               "reads them all)" if s.get("checksums") else
+                               "none: recorded before checksums, cannot be verified"),
              "  run        " + (", ".join(f"{k} = {v}" for k, v in s["run_attrs"].items())
                                  or "-"),
              f"  hardware   {hw['name']} (config {hw['config_id']}): {hw['channels']} "

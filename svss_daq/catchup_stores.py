@@ -149,7 +149,11 @@ class RawRunStore:
             for s in self._of(run_id):
                 i = s.index.get(sequence)
                 if i is not None:
-                    return s.reader.ping(i)
+                    p = s.reader.ping(i)
+                    if p.damage:            # not served, as a ping never recorded is not
+                        log.error("catch-up: not served: %s", p.damage)
+                        return None
+                    return p
         return None
 
     def close(self) -> None:

@@ -125,6 +125,10 @@ class Ping:
     samples: np.ndarray
     nav: NavSnapshot
     config_id: str = ""
+    #: what is wrong with a ping read back damaged (its samples failed their checksum:
+    #: zeros in their place); None for a sound ping. Every gate refuses a damaged ping
+    #: (:func:`svss_daq.ping_gate.ping_problem`)
+    damage: str | None = None
 
     def __post_init__(self):
         if self.samples.ndim != 2:

@@ -72,7 +72,11 @@ def ping_problem(ping: Ping, hardware: Loaded[HardwareConfig]) -> str | None:
     """Why ``ping`` cannot have come from the instrument ``hardware`` describes (None
     when it can). Checks the types, the sample array's shape, dtype and ADC range, the
     projector index, the sample rate, the window start, the configuration id and the
-    navigation (:func:`nav_problem`)."""
+    navigation (:func:`nav_problem`); a ping read back damaged (``Ping.damage``: its
+    samples failed their checksum) is refused first."""
+    damage = getattr(ping, "damage", None)
+    if damage:
+        return f"damaged on disk ({damage})"
     hw = hardware.value
     dig = hw.digitiser
     for name in ("sequence", "projector", "transmit_time_ns", "window_start_ns"):

@@ -265,10 +265,12 @@ class RawRunWriter:
         sample.attrs.update({"long_name": ("sample number in the receive window (time "
                                            "after transmit: window_start_ns + sample / "
                                            "sample_rate_hz)"), "units": "1"})
+        # one chunk per ping, each with HDF5's Fletcher-32 checksum: a ping damaged on
+        # disk is found (and named) on reading, not imaged
         self._samples = beam.create_dataset(
             "backscatter_r", shape=(0, self.n_channels, self.n_samples),
             maxshape=(None, self.n_channels, self.n_samples), dtype="<i4",
-            chunks=(1, self.n_channels, self.n_samples))
+            chunks=(1, self.n_channels, self.n_samples), fletcher32=True)
         self._samples.attrs.update({"long_name": "raw ADC codes (24-bit carried in int32)",
                                     "units": "1"})
         _dims(self._samples, ping_time, channel, sample)
@@ -972,20 +974,61 @@ class RawRunReader:
             raise RawFileError(f"{self.path}: navigation of ping {i} in '/Platform' is "
                                f"invalid ({cause(exc)})") from None
 
+    @property
+    def verifiable(self) -> bool:
+        """The pings' samples carry checksums (HDF5 Fletcher-32 per ping); runs recorded
+        before they were written read as before, unverified."""
+        return bool(self._samples.fletcher32)
+
+    def _damage(self, i: int) -> str:
+        return (f"{self.path}: ping {i} (sequence {int(self._meta['ping_sequence'][i])}), "
+                f"dataset '/{BEAM}/backscatter_r': its samples fail their Fletcher-32 "
+                "checksum (changed on disk since they were recorded)")
+
     def ping(self, i: int) -> Ping:
+        """Ping ``i``. A ping whose samples fail their checksum comes back with
+        ``damage`` saying so (file, ping, dataset) and zeros for samples: every gate
+        refuses it (:func:`svss_daq.ping_gate.ping_problem`), the rest of the run reads
+        on."""
         if not 0 <= i < self.n_pings:
             raise IndexError(f"{self.path}: ping {i} out of range 0..{self.n_pings - 1}")
+        damage = None
         try:
             samples = self._samples[i]
         except H5_ERRORS as exc:
-            raise RawFileError(f"{self.path}: cannot read ping {i} of "
-                               f"'/{BEAM}/backscatter_r' ({cause(exc)})") from None
+            if not (self.verifiable and "filter" in str(exc)):
+                raise RawFileError(f"{self.path}: cannot read ping {i} of "
+                                   f"'/{BEAM}/backscatter_r' ({cause(exc)})") from None
+            damage = self._damage(i)          # logged by whatever refuses the ping
+            samples = np.zeros(self._shape, dtype="<i4")
         return Ping(sequence=int(self._meta["ping_sequence"][i]),
                     projector=int(self._meta["transmit_projector"][i]),
                     transmit_time_ns=int(self._meta["ping_time"][i]),
                     sample_rate_hz=self.sample_rate_hz,
                     window_start_ns=int(self._meta["window_start_ns"][i]),
-                    samples=samples, nav=self.nav(i), config_id=self.hardware.id)
+                    samples=samples, nav=self.nav(i), config_id=self.hardware.id,
+                    damage=damage)
+
+    def verify(self, progress=None) -> list[str]:
+        """Read every ping's samples against their checksums: what is damaged (each
+        naming file, ping and dataset; empty: none). ``progress``: called with the pings
+        read so far. Raises :class:`RawFileError` for a run recorded without checksums."""
+        if not self.verifiable:
+            raise RawFileError(f"{self.path}: recorded without checksums (before they were "
+                               "written): it cannot be verified")
+        out = []
+        buf = np.empty(self._shape, dtype="<i4")
+        for i in range(self.n_pings):
+            try:
+                self._samples.read_direct(buf, np.s_[i])
+            except H5_ERRORS as exc:
+                if "filter" not in str(exc):
+                    raise RawFileError(f"{self.path}: cannot read ping {i} of "
+                                       f"'/{BEAM}/backscatter_r' ({cause(exc)})") from None
+                out.append(self._damage(i))
+            if progress is not None:
+                progress(i + 1)
+        return out
 
     def __iter__(self):
         for i in range(self.n_pings):

@@ -55,7 +55,9 @@ DRC_SCALE = np.float32(1.0 / 255.0)
 #: image, the background) and the 8-bit display volume are not: gzip level 1 took 3.1 of
 #: the 3.3 CPU s of a default tile's file to save 18 % of their bytes (issue 32,
 #: docs/formats.md), so they are stored plain, in chunks of whole along-track planes
-_GZIP = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
+#: compressed volumes; like the plain ones (:func:`_plain`) each chunk carries HDF5's
+#: Fletcher-32 checksum, so that a tile damaged on disk is refused, naming the dataset
+_GZIP = {"compression": "gzip", "compression_opts": 1, "shuffle": True, "fletcher32": True}
 #: bytes of a plain volume's chunk, at most (whole along-track planes, at least one)
 PLAIN_CHUNK_BYTES = 1 << 21
 #: marks a file being written: ``.NAME.partial-XXXX.SUFFIX``; readers ignore such names
@@ -180,7 +182,8 @@ def _plain(shape: tuple[int, ...], itemsize: int) -> dict:
     planes, such as the seams' neighbour, reads few chunks)."""
     plane = int(np.prod(shape[1:], dtype=np.int64)) * itemsize
     n = max(1, min(int(shape[0]), PLAIN_CHUNK_BYTES // max(plane, 1)))
-    return {"chunks": (n,) + tuple(int(v) for v in shape[1:])} if all(shape) else {}
+    return ({"chunks": (n,) + tuple(int(v) for v in shape[1:]), "fletcher32": True}
+            if all(shape) else {})
 
 
 def _attach(ds: h5py.Dataset, f: h5py.Group, dims: tuple[str, ...]) -> None:
@@ -445,6 +448,42 @@ def _volume(f: h5py.File, name: str, path: Path, shape: tuple[int, ...], kinds: 
     return ds
 
 
+def _data(ds: h5py.Dataset, path: Path) -> np.ndarray:
+    """All of ``ds``; a chunk failing its checksum is a :class:`TileFileError` naming
+    the file and the dataset."""
+    try:
+        return ds[()]
+    except H5_ERRORS as exc:
+        if "filter" in str(exc) and ds.fletcher32:
+            raise TileFileError(f"{path}: dataset '{ds.name}' fails its Fletcher-32 "
+                                "checksum (changed on disk since it was written)") from None
+        raise
+
+
+def verify_tile(path: str | Path) -> list[str]:
+    """Every checksummed dataset of the tile at ``path`` read against its checksums:
+    what is damaged (each naming file and dataset; empty: none). Raises
+    :class:`TileFileError` for a tile written without checksums."""
+    path = Path(path)
+
+    def body(f, path):
+        found, damaged = [], []
+
+        def visit(name, obj):
+            if isinstance(obj, h5py.Dataset) and obj.fletcher32:
+                found.append(obj.name)
+                try:
+                    _data(obj, path)
+                except TileFileError as exc:
+                    damaged.append(str(exc))
+        f.visititems(visit)
+        if not found:
+            raise TileFileError(f"{path}: written without checksums (before they were "
+                                "written): it cannot be verified")
+        return damaged
+    return _read(path, body)
+
+
 def _header(f: h5py.File, path: Path) -> dict:
     out = {k: dataset(f, k, path, 1, "f", TileFileError, what="voxel centres, m")[()]
            for k in DIMS}
@@ -522,31 +561,31 @@ def read_tile_header(path: str | Path) -> dict:
 def _full(f: h5py.File, path: Path) -> dict:
     out = _header(f, path)
     shape = tuple(out[d].size for d in DIMS)
-    out["image"] = _volume(f, "image", path, shape, "cfV")[()]
+    out["image"] = _data(_volume(f, "image", path, shape, "cfV"), path)
     if out["image"].dtype.kind == "V":      # an HDF5 compound (r, i) h5py did not map
         raise TileFileError(f"{path}: dataset '/image' has dtype {out['image'].dtype}; "
                             "expected complex64")
-    out["magnitude"] = (_volume(f, "magnitude", path, shape, "f")[()] if "magnitude" in f
-                        else np.abs(out["image"]))
+    out["magnitude"] = (_data(_volume(f, "magnitude", path, shape, "f"), path)
+                        if "magnitude" in f else np.abs(out["image"]))
     for k in ("coverage_pings", "coverage_channels"):
         if k in f:
-            out[k] = _volume(f, k, path, shape, "u")[()]
+            out[k] = _data(_volume(f, k, path, shape, "u"), path)
     if "background" in f:
-        out["background"] = _volume(f, "background", path, shape, "f")[()]
+        out["background"] = _data(_volume(f, "background", path, shape, "f"), path)
     if "depth_gain_db" in f:
         out["depth_gain_db"] = _volume(f, "depth_gain_db", path, shape[2:], "f",
                                        ("depth",))[()]
     for k, (axis, dims) in MIPS.items():
         if k in f:
-            out[k] = _volume(f, k, path, tuple(n for i, n in enumerate(shape) if i != axis),
-                             "f", dims)[()]
+            out[k] = _data(_volume(f, k, path, tuple(n for i, n in enumerate(shape)
+                                                     if i != axis), "f", dims), path)
     if "drc" in f:
         ds = _volume(f, "drc", path, shape, "u")
         scale = ds.attrs.get("scale_factor")
         if scale is None or np.ndim(scale) != 0:
             raise TileFileError(f"{path}: attribute '/drc' scale_factor is {shown(scale)}; "
                                 "expected a number")
-        out["drc"] = ds[()].astype(np.float32) * np.float32(scale)
+        out["drc"] = _data(ds, path).astype(np.float32) * np.float32(scale)
     return out
 
 
@@ -555,10 +594,11 @@ def _views(f: h5py.File, path: Path) -> dict:
     shape = tuple(out[d].size for d in DIMS)
     for k, (axis, dims) in MIPS.items():
         if k in f:
-            out[k] = _volume(f, k, path, tuple(n for i, n in enumerate(shape) if i != axis),
-                             "f", dims)[()]
+            out[k] = _data(_volume(f, k, path, tuple(n for i, n in enumerate(shape)
+                                                     if i != axis), "f", dims), path)
     if "coverage_pings" in f:
-        out["coverage_plan"] = _volume(f, "coverage_pings", path, shape, "u")[()].max(axis=2)
+        out["coverage_plan"] = _data(_volume(f, "coverage_pings", path, shape, "u"),
+                                     path).max(axis=2)
     return out
 
 

@@ -89,6 +89,8 @@ class PointSampler:
         # the schedule's slices take the voxels less than one voxel beyond the reach
         v = self.proc.tile.voxel_m
         for p in pings:
+            if p.damage:                        # damaged on disk: refused, not imaged
+                continue
             placed, reach = self.placed(p)
             ia = np.flatnonzero((along > placed.tx[0] - reach - v)
                                 & (along < placed.tx[0] + reach + v))

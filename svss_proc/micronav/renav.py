@@ -331,7 +331,8 @@ def echo_increments(pings: Iterable, poses: Sequence[NavSnapshot], hardware, pro
         cur = (ping, cond.ping(ping), poses[k])
         if prev is not None:
             (pa, ca, na), (pb, cb, nb) = prev, cur
-            if pb.sequence != pa.sequence + 1 or not math.isfinite(bottom[k - 1]):
+            if (pb.sequence != pa.sequence + 1 or not math.isfinite(bottom[k - 1])
+                    or pa.damage or pb.damage):     # damaged on disk: no echo pair
                 out.append(None)
             else:
                 nav_inc = pos[k] - pos[k - 1]
