@@ -138,6 +138,11 @@ class AlarmsSection:
     clear_after_s: float | None = spec(
         "an alarm clears once its condition has been absent this long (hysteresis), s",
         lo=0, hi=3600, default=3.0)
+    first_ping_s: float | None = spec(
+        "pings are due this long after the sequencer is started, at the latest (a "
+        "sequencer may hold its first ping for a start time, the simulator for its "
+        "lead): until the first ping, pings.stopped, pings.rate_low and sequencer.silent "
+        "count from then, s", lo=0, hi=3600, default=30.0)
 
 
 @dataclass(frozen=True)

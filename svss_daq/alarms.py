@@ -89,8 +89,10 @@ def _ago(age) -> str:
 
 
 def check_pings(s: dict, lim: AlarmLimits) -> list[Alarm]:
-    """While recording: no ping for ``no_ping_intervals`` ping intervals; the rate
-    below ``min_rate_fraction`` of the schedule (once a whole rate window was recorded);
+    """While recording: no ping for ``no_ping_intervals`` ping intervals (before the
+    first ping: counted from when pings are due, ``first_ping_s`` after the start); the
+    rate below ``min_rate_fraction`` of the schedule (once a whole rate window was
+    pinged);
     pings lost, or dropped on the stream, within ``recent_s``."""
     out = []
     if s.get("state") != "recording":
@@ -103,8 +105,10 @@ def check_pings(s: dict, lim: AlarmLimits) -> list[Alarm]:
             f"{interval:g} s; alarm after {lim.no_ping_intervals:g})")))
     else:
         rate, want = _num(s.get("ping_rate_hz")) or 0.0, 1.0 / interval
-        if (_num(s.get("recording_s")) or 0.0) >= lim.rate_window_s \
-                and rate < lim.min_rate_fraction * want:
+        # a whole rate window of pinging (a status without ``pinging_s``, from an older
+        # daemon: of recording)
+        pinging = _num(s.get("pinging_s")) if "pinging_s" in s else _num(s.get("recording_s"))
+        if (pinging or 0.0) >= lim.rate_window_s and rate < lim.min_rate_fraction * want:
             out.append(Alarm("pings.rate_low", WARNING, (
                 f"{rate:.2f} pings/s over the last {lim.rate_window_s:g} s, below "
                 f"{lim.min_rate_fraction:.0%} of the schedule's {want:.2f}/s")))

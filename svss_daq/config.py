@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
 import os
+import re
 import tomllib
 import types
 import typing
@@ -750,9 +752,62 @@ def _join(prefix: str, name: str) -> str:
     return f"{prefix}.{name}" if prefix else name
 
 
+#: the shipped file of each top-level schema (config/), whose values a "missing key"
+#: error quotes: a file written before a key existed is told what to add
+SHIPPED_FILES = {"ProcessingConfig": "processing.toml", "HardwareConfig": "hardware.toml",
+                 "DaqConfig": "daq.toml", "DevicesConfig": "devices.toml",
+                 "AcquireConfig": "acquire.toml"}
+
+
+def _toml_text(v: Any) -> str:
+    """``v`` written as TOML."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_text(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k} = {_toml_text(x)}" for k, x in v.items()) + "}"
+    return repr(v)
+
+
+def _shipped_hint(cls: type, key: str, source: str) -> str:
+    """What the shipped file of schema ``cls`` has for dotted ``key`` ('' when it has
+    none, or is the file being read)."""
+    name = SHIPPED_FILES.get(cls.__name__)
+    if name is None or "[" in key:
+        return ""
+    shipped = config_path(name)
+    try:
+        if Path(source).resolve() == shipped.resolve():
+            return ""
+        node = read_toml(shipped)
+    except (ConfigError, OSError):
+        return ""
+    *tables, leaf = key.split(".")
+    for t in tables:
+        node = node.get(t) if isinstance(node, dict) else None
+    if not isinstance(node, dict) or leaf not in node:
+        return ""
+    where = f" under [{'.'.join(tables)}]" if tables else ""
+    return (f"; a key newer than this file? the shipped {shipped} has "
+            f"{leaf} = {_toml_text(node[leaf])}{where}: add it (docs/config.md)")
+
+
 def from_dict(cls: type[T], data: dict, source: str = "<dict>") -> T:
-    """Build and validate schema ``cls`` from a parsed TOML mapping."""
-    return _build(cls, data, "", source)
+    """Build and validate schema ``cls`` from a parsed TOML mapping. A missing key is
+    an error naming it and, where the shipped file of the schema has it, what to add."""
+    try:
+        return _build(cls, data, "", source)
+    except ConfigError as exc:
+        m = re.search(r": missing key '([^']+)'", str(exc))
+        if m is None:
+            raise
+        hint = _shipped_hint(cls, m.group(1), source)
+        if not hint:
+            raise
+        raise ConfigError(str(exc) + hint) from None
 
 
 def read_toml(path: str | os.PathLike) -> dict:

@@ -285,6 +285,10 @@ class AcquisitionDaemon:
         self._recent = RecentChange(self.alarm_limits.recent_s)     # drops
         self._disk = RecentChange(acq.status.rate_window_s)         # free space
         self._recording_at: float | None = None     # monotonic: state became recording
+        #: monotonic: when the first ping is due at the latest ([alarms] first_ping_s
+        #: after recording began); the alarms on pings count from then until one comes
+        self._pings_due_at: float | None = None
+        self._first_ping_at: float | None = None    # monotonic: the first ping delivered
         self._last_ping_at: float | None = None     # monotonic: the last ping delivered
         self._last_recorded_seq: int | None = None
         self._last_pose: NavSnapshot | None = None   # the last ping's pose
@@ -356,6 +360,8 @@ class AcquisitionDaemon:
         self._open_devices()
         self.state = "recording"
         self._recording_at = time.monotonic()
+        self._pings_due_at = self._recording_at + alarms_section(
+            self.setup.acquire).first_ping_s
         self._publish_status(force=True)
         return self
 
@@ -549,6 +555,8 @@ class AcquisitionDaemon:
             return
         self.counters.delivered += 1
         self._last_ping_at = time.monotonic()
+        if self._first_ping_at is None:
+            self._first_ping_at = self._last_ping_at
         self._pending.append((time.monotonic(), item))
 
     def _assemble_due(self, final: bool) -> None:
@@ -855,7 +863,7 @@ class AcquisitionDaemon:
                                     "garbage_bytes":
                                         self.sequencer.parser.stats.bytes_discarded,
                                     "silent_s": self._silent("sequencer", self._transmits,
-                                                             now)}
+                                                             now, self._pings_due_at)}
         if self.digitiser is not None:
             d = self.digitiser
             devices["digitiser"] = {"connected": d.connected,
@@ -892,8 +900,13 @@ class AcquisitionDaemon:
                 log.debug("navigation quality: %s", exc)
         interval = self.hardware.value.sequencer.ping_interval_s
         recording_s = None if self._recording_at is None else now - self._recording_at
+        # before the first ping, its age counts from when pings are due (none before)
         last_ping = self._last_ping_at if self._last_ping_at is not None \
-            else self._recording_at
+            else self._pings_due_at
+        if last_ping is not None and now < last_ping:
+            last_ping = None
+        due_in = (None if self._first_ping_at is not None or self._pings_due_at is None
+                  else max(self._pings_due_at - now, 0.0))
         # recent drops (alarms pings.lost, stream.dropped)
         dig_dropped = self.digitiser.dropped if self.digitiser is not None else 0
         self._recent.add(now, {"never_delivered": c.never_delivered,
@@ -913,6 +926,11 @@ class AcquisitionDaemon:
             "run_id": self.run_id, "state": self.state,
             "uptime_s": round(now - self._t_start, 3),
             "recording_s": None if recording_s is None else round(recording_s, 3),
+            # since the first ping (the ping rate's window counts from it), and the
+            # seconds until pings are due at the latest before it
+            "pinging_s": None if self._first_ping_at is None
+            else round(now - self._first_ping_at, 3),
+            "first_ping_due_s": None if due_in is None else round(due_in, 3),
             "ping_rate_hz": round(self.ping_rate(), 3),
             "schedule_rate_hz": round(1.0 / interval, 3), "ping_interval_s": interval,
             "last_ping_age_s": None if last_ping is None else round(now - last_ping, 3),
@@ -938,15 +956,23 @@ class AcquisitionDaemon:
             "failure": self.failure,
         }
 
-    def _silent(self, name: str, records: int, now: float) -> float | None:
+    def _silent(self, name: str, records: int, now: float,
+                due: float | None = None) -> float | None:
         """Seconds since device ``name``'s count of records last changed (since
-        recording began when it never did); None before recording."""
+        recording began when it never did, or since ``due`` when it has nothing to say
+        before then: the sequencer before its first ping); None before recording or
+        before ``due``."""
         old = self._heard.get(name)
         if old is None or old[0] != records:
             self._heard[name] = (records, now)
         if self._recording_at is None:
             return None
-        return round(now - max(self._heard[name][1], self._recording_at), 3)
+        since = max(self._heard[name][1], self._recording_at)
+        if due is not None and records == 0:
+            if now < due:
+                return None
+            since = max(since, due)
+        return round(now - since, 3)
 
     def _disk_rate(self, now: float, free_mib: float) -> dict:
         """How fast the disk fills (over status.rate_window_s) and the time left at

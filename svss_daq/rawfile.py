@@ -295,6 +295,7 @@ class RawRunWriter:
                                                   doc="host receive time (UTC)"), "time")
         self._nmea_text = _appendable(nmea, "sentence", f"S{NMEA_LEN}", units="1",
                                       doc="raw NMEA 0183 sentence")
+        self._nmea_text.attrs["_Encoding"] = "ascii"      # text in netCDF readers
         _dims(self._nmea_text, self._nmea_time)
         pd0 = plat.create_group("PD0")
         pd0.attrs["long_name"] = ("Teledyne RDI PD0 ensembles as received from the DVL "
@@ -348,6 +349,7 @@ class RawRunWriter:
                                     units="1", doc="what happened"))
         for ds in self._events[1:]:
             _dims(ds, ev_time)
+            ds.attrs["_Encoding"] = "utf-8"   # netCDF/xarray read them as text, not bytes
         # created before SWMR mode, which forbids new objects
         self._flushed = beam.create_dataset("pings_flushed", data=np.zeros(1, "<i8"))
         self._flushed.attrs.update({"long_name": ("pings known to be on disk: written after "

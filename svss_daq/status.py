@@ -4,7 +4,8 @@ A message is two frames: the topic ``b"svss.status"`` and a UTF-8 JSON object wi
 ``schema`` ``"svss.status"``, ``version``, ``alarms`` (the active named alarms, critical
 first: name, severity, message, since_utc, age_s; :mod:`svss_daq.alarms`), ``time_utc``,
 ``run_id``, ``state`` (``starting``, ``recording``, ``stopping``, ``stopped``,
-``failed``), ``ping_rate_hz`` and ``schedule_rate_hz``, ``last_ping_age_s``,
+``failed``), ``ping_rate_hz`` and ``schedule_rate_hz``, ``last_ping_age_s`` (before
+the first ping: since pings were due, ``first_ping_due_s`` until then), ``pinging_s``,
 ``counters`` (pings delivered, recorded, published, dropped, ...), ``recent`` (pings
 lost and dropped on the stream lately), ``recorder`` (file, segment, pings on disk, free
 disk space, fill rate and time left), ``devices`` (one object per device: connected,
@@ -229,9 +230,17 @@ def format_status(s: dict) -> str:
     lines = format_alarms(s)
     lines.append(f"run {s.get('run_id')}  state {s.get('state')}  at {s.get('time_utc')}"
                  f"  up {_n(s.get('uptime_s'), '.0f', ' s')}")
+    age, due = s.get("last_ping_age_s"), s.get("first_ping_due_s")
+    if s.get("pinging_s") is not None or "pinging_s" not in s:     # (an older daemon)
+        last = _n(age, ".1f", " s ago", "none yet")
+    elif age is None:
+        last = "none yet" + ("" if due is None else f", due within {due:.1f} s")
+    else:
+        last = f"none yet, due {age:.1f} s ago"
+
     lines.append(f"pings: {_n(s.get('ping_rate_hz'), '.2f', '/s')} (schedule "
                  f"{_n(s.get('schedule_rate_hz'), '.2f', '/s')}), last "
-                 f"{_n(s.get('last_ping_age_s'), '.1f', ' s ago', 'none yet')}  delivered "
+                 f"{last}  delivered "
                  f"{c.get('delivered', 0)}  recorded {c.get('recorded', 0)}  published "
                  f"{c.get('published', 0)}  dropped (stream) {c.get('publish_dropped', 0)}"
                  f"  never delivered {c.get('never_delivered', 0)}  incomplete "

@@ -93,3 +93,19 @@ def test_config_id_follows_text(tmp_path):
     b = load_with_text(HardwareConfig, path)
     assert a.id != b.id and len(a.id) == 16
     assert load_with_text(HardwareConfig, CONFIG / "hardware.toml").id == a.id
+
+
+def test_a_file_older_than_a_key_is_told_what_to_add(tmp_path):
+    """A processing file written before a key existed (here [ping_gate] held): the error
+    names the key and quotes the shipped file's line, with its table."""
+    from svss_daq.config import ConfigError, ProcessingConfig, config_path, load
+    old = tmp_path / "processing.toml"
+    text = config_path("processing.toml").read_text()
+    assert 'held = "refuse"' in text
+    old.write_text(text.replace('held = "refuse"', "", 1))
+    with pytest.raises(ConfigError) as err:
+        load(ProcessingConfig, old)
+    msg = str(err.value)
+    assert msg.startswith(f"{old}: missing key 'ping_gate.held'")
+    assert 'held = "refuse" under [ping_gate]: add it' in msg
+    assert str(config_path("processing.toml")) in msg

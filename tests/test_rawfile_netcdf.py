@@ -86,6 +86,12 @@ def test_raw_run_opens_in_xarray_with_times_dimensions_and_units(run, hardware):
             assert v.dtype == np.dtype("datetime64[ns]"), (group, name)
             assert int(v.values.astype(np.int64)[0]) == ns, (group, name)
         assert tree["Platform/PD0"].to_dataset()["stream"].dims == ("stream_byte",)
+        # text reads as text, not bytes
+        ev = tree["Vendor_specific/events"].to_dataset()
+        assert ev["kind"].values.tolist() == ["digitiser.reconnect"]
+        assert ev["detail"].values.tolist() == ["link back"]
+        assert tree["Platform/NMEA"].to_dataset()["sentence"].values.tolist() == \
+            ["$GPHDT,12.5,T*03"]
     finally:
         tree.close()
 
