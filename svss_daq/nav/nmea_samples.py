@@ -39,6 +39,13 @@ _DAY_NS = 86_400 * 10**9
 _SIGMAS_KEPT = 256
 #: HDT records kept while waiting for the first timed GPS record (their clock reference)
 _HDT_WAITING_KEPT = 16
+#: an RMC course is a heading only where the receiver has moved: over at least this
+#: baseline (s) to the fix it is judged against, its displacement at the course speed
+#: threshold's pace or more and its bearing within COURSE_MAX_DEVIATION_DEG of the course
+COURSE_BASELINE_S = 5.0
+COURSE_MAX_DEVIATION_DEG = 30.0
+_COURSE_KEPT_S = 10.0
+_EARTH_RADIUS_M = 6_371_000.0
 
 
 def _tod_after(a: int, b: int) -> bool:
@@ -81,7 +88,8 @@ class NmeaSampler:
     receiver that sends GST after the next epoch's sentences), the fix is retracted
     and given out again with its sigma, or rejected.
 
-    Headings: HDT; RMC course above ``course_min_speed_m_s`` (flagged ``from_course``).
+    Headings: HDT; RMC course above ``course_min_speed_m_s`` where the receiver has
+    moved along it (:meth:`_course_ok`; flagged ``from_course``).
     HDT has no time of its own: fed as a ``(receive_ns, record)`` pair it takes the
     time of the receiver's latest timed record plus the receive time elapsed since that
     record arrived (so it is on the receiver's clock); where the timed records came
@@ -116,6 +124,8 @@ class NmeaSampler:
         self._gst_missing_run = False
         self._timed: Optional[tuple] = None         # (time_ns, receive_ns or None)
         self._hdt_waiting: collections.deque = collections.deque(maxlen=_HDT_WAITING_KEPT)
+        #: (time ns, latitude, longitude) of recent RMC fixes, for the course gate
+        self._course_fixes: collections.deque = collections.deque()
         self._out_fixes: list = []
         self._out_heads: list = []
         self._retracted: list = []
@@ -237,7 +247,7 @@ class NmeaSampler:
             self._reject("no_fix", f"RMC status {'A' if rec.valid else 'V'} mode "
                          f"{rec.mode or '-'} at {_tod_text(rec.time_of_day_ns)}")
             return
-        if rec.course_rad is not None and (rec.speed_mps or 0.0) > self.course_min_speed_m_s:
+        if self._course_ok(rec):
             self._out_heads.append(HeadingSample(int(rec.time_ns), float(rec.course_rad),
                                                  from_course=True))
         if rec.latitude_deg is None or rec.longitude_deg is None or rec.time_of_day_ns is None:
@@ -245,6 +255,40 @@ class NmeaSampler:
         ep = self._epoch(rec)
         if ep.rmc is None:
             ep.rmc = rec
+
+    def _course_ok(self, rec) -> bool:
+        """The RMC course is the platform's heading: its speed above
+        ``course_min_speed_m_s`` and the receiver displaced, over at least
+        :data:`COURSE_BASELINE_S` to an earlier RMC fix, at that pace or more and along
+        the course (within :data:`COURSE_MAX_DEVIATION_DEG`). A receiver standing still
+        reports speed noise (0.16-0.39 m/s) with a course that turns at random: its
+        displacement stays within its position noise and points anywhere."""
+        lat, lon = rec.latitude_deg, rec.longitude_deg
+        t = getattr(rec, "time_ns", None)
+        if lat is None or lon is None or t is None:
+            return False
+        hist = self._course_fixes
+        while hist and (t - hist[0][0] > _COURSE_KEPT_S * 1e9 or t < hist[0][0]):
+            hist.popleft()
+        hist.append((int(t), float(lat), float(lon)))
+        if rec.course_rad is None or not (rec.speed_mps or 0.0) > self.course_min_speed_m_s:
+            return False
+        base = None
+        for t0, lat0, lon0 in reversed(hist):
+            if t - t0 >= COURSE_BASELINE_S * 1e9:
+                base = (t0, lat0, lon0)
+                break
+        if base is None:
+            return False
+        t0, lat0, lon0 = base
+        north = math.radians(lat - lat0) * _EARTH_RADIUS_M
+        east = math.radians(lon - lon0) * _EARTH_RADIUS_M * math.cos(math.radians(lat))
+        dist = math.hypot(north, east)
+        if dist < self.course_min_speed_m_s * (t - t0) * 1e-9:
+            return False
+        dev = (math.atan2(east, north) - float(rec.course_rad) + math.pi) % (2 * math.pi) \
+            - math.pi
+        return abs(dev) <= math.radians(COURSE_MAX_DEVIATION_DEG)
 
     # -- decisions ---------------------------------------------------------------------
 

@@ -286,9 +286,10 @@ def test_compass_comes_before_the_course_over_ground():
         assert not q.quality & (NAV_HEADING_FROM_COMPASS | NAV_HEADING_FROM_COURSE)
     assert n.quality(int(times[-1]))["heading_source"] == "hdt"
 
-    n = _course_and_compass_navigator(cfg, hdt=False)
+    # the course is a heading once the receiver has moved along it for 5 s
+    n = _course_and_compass_navigator(cfg, hdt=False, seconds=12)
     n.dvl = [dataclasses.replace(d, heading_rad=math.nan) for d in n.dvl]  # no compass
-    for q in n.poses(times):
+    for q in n.poses(T0 + np.arange(7, 11) * 10**9):
         assert _deg(q.heading_rad) == pytest.approx(113.0, abs=0.02)
         assert q.quality & NAV_HEADING_FROM_COURSE
 
