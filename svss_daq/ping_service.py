@@ -62,6 +62,10 @@ MAX_CLIENTS = 8
 CLIENT_QUEUE = 16
 #: a reply that could send nothing to its client for this long is abandoned, s
 STALL_S = 10.0
+#: with every reply slot taken, a reply that could send nothing for this long (or
+#: stall_s, if shorter) gives its slot to a client that asks: a client that does not
+#: read locks no one out for stall_s, s
+PREEMPT_S = 1.0
 #: a client's first pause before asking a busy service again (doubling to 1 s), s
 POLL_BUSY_S = 0.05
 #: workers whose progress (svss.progress) the service keeps at most
@@ -192,8 +196,10 @@ class PingService:
     (docs/worker.md, "Catch-up service limits"): every send is non-blocking; ZeroMQ
     queues at most ``client_queue`` messages to each client (each way); a fetch reply
     is sent as the client's queue takes it, at most ``max_clients`` replies at once
-    (beyond: ``svss.error`` with ``"busy": true``, counted in :attr:`busy`); a reply
-    that could send nothing for ``stall_s`` is abandoned (:attr:`stalled`) and that
+    (beyond: ``svss.error`` with ``"busy": true``, counted in :attr:`busy`, unless the
+    reply that has sent nothing longest has done so for ``preempt_s``
+    (:data:`PREEMPT_S`, or ``stall_s`` if shorter): it gives its slot up); a reply that could send nothing for ``stall_s`` is abandoned
+    (:attr:`stalled`) and that
     client's later requests are refused unanswered (:attr:`refused`, the last
     ``max_clients`` such clients remembered); :attr:`replies` counts replies sent
     whole (what keeps a daemon lingering)."""
@@ -203,7 +209,7 @@ class PingService:
                  max_clients: int = MAX_CLIENTS, client_queue: int = CLIENT_QUEUE,
                  stall_s: float = STALL_S, max_workers: int = MAX_WORKERS,
                  worker_silence_s: float = WORKER_SILENCE_S,
-                 ctx: zmq.Context | None = None):
+                 preempt_s: float = PREEMPT_S, ctx: zmq.Context | None = None):
         check_endpoint(endpoint, bind=True)
         if type(max_workers) is not int or max_workers < 1 or not worker_silence_s > 0:
             raise ValueError(f"max_workers {max_workers!r}, worker_silence_s "
@@ -219,8 +225,10 @@ class PingService:
                         ("max_clients", max_clients), ("client_queue", client_queue)):
             if type(v) is not int or v < 1:
                 raise ValueError(f"{name}: expected an integer >= 1, got {v!r}")
-        if not stall_s > 0:
-            raise ValueError(f"stall_s: expected seconds > 0, got {stall_s!r}")
+        if not stall_s > 0 or not preempt_s > 0:
+            raise ValueError(f"stall_s {stall_s!r}, preempt_s {preempt_s!r}: expected "
+                             "seconds > 0")
+        self.preempt_s = min(float(preempt_s), float(stall_s))
         self.store = store
         self.max_pings = max_pings_per_reply
         self.max_clients = max_clients
@@ -490,6 +498,12 @@ class PingService:
             cap = min(cap, _int_field(req, "max_pings"))
             if cap < 1:
                 raise RequestError("field 'max_pings' expected an integer >= 1, got 0")
+        if len(self._replies) >= self.max_clients:
+            now = time.monotonic()
+            idle, rep = min(self._replies.items(), key=lambda kv: kv[1].since)
+            if now - rep.since > self.preempt_s:
+                self._abandon(idle, f"nothing could be sent to it for {now - rep.since:.1f}"
+                              " s while another client asked (it does not read)")
         if len(self._replies) >= self.max_clients:
             self.busy += 1
             _log_count(self.busy, logging.WARNING, "catch-up service: busy, %d clients "

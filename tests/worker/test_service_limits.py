@@ -174,11 +174,12 @@ def test_clients_that_never_read_cost_their_queue_and_block_nothing(replay):
 
 def test_a_busy_service_is_asked_again(raw_run):
     """max_clients replies being sent: a further fetch is answered busy, counted and
-    logged, and the client asks again until one is free (here: the stuck client's reply
-    abandoned after stall_s)."""
+    logged, and the client asks again until one is free: here the stuck client's reply,
+    which has sent nothing for PREEMPT_S, gives its slot up to the asking client (a
+    client that does not read locks no one out for stall_s, 60 s here)."""
     with RawRunStore([raw_run]) as store, \
             PingService("tcp://127.0.0.1:*", store, max_clients=1, client_queue=4,
-                        stall_s=STALL_S) as svc, zmq.Context() as ctx:
+                        stall_s=STALL_S, preempt_s=60.0) as svc, zmq.Context() as ctx:
         s = _stuck_client(ctx, svc.endpoint, 1)
         _wait_for(lambda: svc.clients == 1, 30, "the stuck client served")
         with PingFetcher(svc.endpoint, timeout_s=30) as f:
@@ -191,15 +192,28 @@ def test_a_busy_service_is_asked_again(raw_run):
         s.close(linger=0)
         assert svc.pings_served >= 10
     # busy for longer than the client waits: a service that keeps a stuck client's reply
-    # for a minute (with STALL_S it could let it go before the fetch on a loaded machine,
-    # and the fetch was then answered: seen once in a fresh-venv suite)
+    # for a minute and gives its slot up to no one
     with RawRunStore([raw_run]) as store, \
             PingService("tcp://127.0.0.1:*", store, max_clients=1, client_queue=4,
-                        stall_s=60.0) as svc, zmq.Context() as ctx:
+                        stall_s=60.0, preempt_s=60.0) as svc, zmq.Context() as ctx:
         stuck = _stuck_client(ctx, svc.endpoint, 1)
         _wait_for(lambda: svc.clients == 1, 30, "the stuck client served")
         with PingFetcher(svc.endpoint, timeout_s=0.3) as f:
             with pytest.raises(ServiceError, match="still busy"):
                 f.fetch_once("line1", 0, 9)
         assert svc.busy >= 1
+        stuck.close(linger=0)
+    # the stuck client's reply kept for a minute, its slot given up after the default
+    # PREEMPT_S of nothing sent: the asking client is served within seconds
+    with RawRunStore([raw_run]) as store, \
+            PingService("tcp://127.0.0.1:*", store, max_clients=1, client_queue=4,
+                        stall_s=60.0) as svc, zmq.Context() as ctx:
+        stuck = _stuck_client(ctx, svc.endpoint, 1)
+        _wait_for(lambda: svc.clients == 1, 30, "the stuck client served")
+        with PingFetcher(svc.endpoint, timeout_s=30) as f:
+            t = time.perf_counter()
+            pings, missing = f.fetch("line1", 0, 9)
+            dt = time.perf_counter() - t
+        assert [p.sequence for p in pings] == list(range(10)) and missing == []
+        assert dt < 10.0 and svc.stalled == 1           # not the minute of stall_s
         stuck.close(linger=0)
