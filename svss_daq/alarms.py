@@ -28,7 +28,7 @@ NAMES = ("pings.stopped", "pings.rate_low", "pings.lost", "stream.dropped", "dis
          "navigation.no_position", "navigation.no_gps_fix", "navigation.dead_reckoning",
          "navigation.no_heading", "navigation.no_bottom_lock", "navigation.clock_offset",
          "navigation.sigma_high", "sequencer.silent", "digitiser.silent", "dvl.silent",
-         "gps.silent", "worker.behind", "worker.memory_bound")
+         "gps.silent", "worker.behind", "worker.silent", "worker.memory_bound")
 
 
 @dataclass(frozen=True)
@@ -227,11 +227,17 @@ def check_devices(s: dict, lim: AlarmLimits) -> list[Alarm]:
 
 
 def check_workers(s: dict, lim: AlarmLimits) -> list[Alarm]:
-    """The tile workers that tell the catch-up service their progress: one more than
-    ``worker_max_backlog_s`` behind the recording; one that reached its memory bound
-    within ``recent_s``."""
-    behind, bound = [], []
+    """The tile workers that tell the catch-up service their progress: one silent (not
+    heard for the service's ``worker_silence_s``; critical while it lacks pings of the
+    run); one more than ``worker_max_backlog_s`` behind the recording; one that reached
+    its memory bound within ``recent_s``."""
+    behind, bound, silent, stuck = [], [], [], []
     for w in s.get("workers") or []:
+        if w.get("silent"):
+            what = (f"{w.get('client')} on run {w.get('run_id')} at ping {w.get('next')}, "
+                    f"silent for {_num(w.get('heard_s')) or 0:.0f} s")
+            lacks = not w.get("done") and (w.get("backlog_pings") or 0) > 0
+            (stuck if lacks else silent).append(what)
         lag = _num(w.get("backlog_s"))
         if lag is not None and lag > lim.worker_max_backlog_s:
             behind.append(f"{w.get('client')} {w.get('backlog_pings')} ping(s) "
@@ -242,6 +248,13 @@ def check_workers(s: dict, lim: AlarmLimits) -> list[Alarm]:
                          f"{w.get('max_open_tiles')} tiles open, bound reached "
                          f"{age:.1f} s ago)")
     out = []
+    if stuck or silent:
+        parts = (["lacking pings of this run (the daemon keeps serving them after it, "
+                  "up to catch_up.max_linger_s): " + "; ".join(stuck)] if stuck else [])
+        parts += silent
+        out.append(Alarm("worker.silent", CRITICAL if stuck else WARNING,
+                         "worker(s) silent (stopped or hung: no progress for "
+                         "service.worker_silence_s): " + "; ".join(parts)))
     if behind:
         out.append(Alarm("worker.behind", WARNING, "worker(s) behind the recording "
                          f"(alarm beyond {lim.worker_max_backlog_s:g} s): "

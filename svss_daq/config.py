@@ -603,7 +603,9 @@ class ServiceConfig:
                             "first ping each still lacks) the service keeps; a worker "
                             "beyond them is refused, counted and logged", lo=1, hi=1000)
     worker_silence_s: float = spec("a worker whose progress has not come for this long is "
-                                   "forgotten (a killed worker keeps no daemon up), s",
+                                   "silent: kept, with the alarm worker.silent raised (a "
+                                   "silent worker that lacks pings keeps the daemon up "
+                                   "after the run, at most catch_up.max_linger_s), s",
                                    lo=0.1, hi=3600)
     progress_interval_s: float = spec("a tile worker tells the service its progress this "
                                       "often (well within worker_silence_s), s", lo=0.01,

@@ -422,9 +422,11 @@ class PingService:
     def _progress(self, req: dict) -> None:
         """A worker says where it is in a run (never answered): ``client`` (its id),
         ``run_id``, ``next`` (the first sequence it still lacks) and ``done`` (it needs
-        nothing more of that run). Kept for at most ``max_workers`` workers, each
-        forgotten after ``worker_silence_s`` without one; a new worker beyond them, or a
-        malformed message, is refused (counted, logged at every power of 10)."""
+        nothing more of that run). Kept for at most ``max_workers`` workers; one not
+        heard from for ``worker_silence_s`` is silent (still kept: :meth:`workers`), and
+        the longest-silent one makes room for a new worker; a new worker beyond them
+        with none silent, or a malformed message, is refused (counted, logged at every
+        power of 10)."""
         client, run_id, done = req.get("client"), req.get("run_id"), req.get("done")
         try:
             nxt = _int_field(req, "next")
@@ -447,9 +449,12 @@ class PingService:
         with self._workers_lock:
             known = client in self._workers
             if not known:
-                for k in [k for k, w in self._workers.items()
-                          if now - w.at > self.worker_silence_s]:
-                    del self._workers[k]
+                # room for a new worker: the longest-silent one goes (a silent worker is
+                # otherwise kept, and said to be silent, until the service closes)
+                silent = [k for k, w in self._workers.items()
+                          if now - w.at > self.worker_silence_s]
+                if len(self._workers) >= self.max_workers and silent:
+                    del self._workers[min(silent, key=lambda k: self._workers[k].at)]
                 if len(self._workers) >= self.max_workers:
                     self.progress_refused += 1
                     _log_count(self.progress_refused, logging.WARNING, "catch-up "
@@ -464,25 +469,29 @@ class PingService:
                      run_id, nxt)
 
     def waiting(self, run_id: str) -> dict[str, str]:
-        """The workers heard from within ``worker_silence_s`` that have not said they
-        are done with run ``run_id``: those that still lack pings of it, and those still
-        on an earlier run (they come to this one next): {worker id: "RUN at ping N"}."""
+        """The workers that have not said they are done with run ``run_id``: those that
+        still lack pings of it, and those still on an earlier run (they come to this one
+        next), silent ones too (stopped, or hung: they may come back; the daemon's
+        ``catch_up.max_linger_s`` bounds the wait): {worker id: "RUN at ping N"
+        (", silent for S s")}."""
         now = time.monotonic()
         with self._workers_lock:
-            return {k: f"{w.run_id} at ping {w.next}" for k, w in self._workers.items()
-                    if not (w.run_id == run_id and w.done)
-                    and now - w.at <= self.worker_silence_s}
+            return {k: f"{w.run_id} at ping {w.next}" + (
+                f", silent for {now - w.at:.0f} s" if now - w.at > self.worker_silence_s
+                else "") for k, w in self._workers.items()
+                if not (w.run_id == run_id and w.done)}
 
     def workers(self) -> list[dict]:
-        """The workers heard from within ``worker_silence_s``: ``client``, ``run_id``,
-        ``next`` (the first sequence it lacks), ``done``, ``heard_s`` (since its latest
-        progress message) and what else it said (:data:`PROGRESS_EXTRAS`)."""
+        """The workers that told their progress: ``client``, ``run_id``, ``next`` (the
+        first sequence it lacks), ``done``, ``heard_s`` (since its latest progress
+        message), ``silent`` (not heard for ``worker_silence_s``: kept, so that the
+        alarm stays raised) and what else it said (:data:`PROGRESS_EXTRAS`)."""
         now = time.monotonic()
         with self._workers_lock:
             return [{"client": k, "run_id": w.run_id, "next": w.next, "done": w.done,
-                     "heard_s": round(now - w.at, 3), **w.extras}
-                    for k, w in self._workers.items()
-                    if now - w.at <= self.worker_silence_s]
+                     "heard_s": round(now - w.at, 3),
+                     "silent": now - w.at > self.worker_silence_s, **w.extras}
+                    for k, w in self._workers.items()]
 
     def _fetch(self, ident: bytes, req: dict) -> None:
         run_id = req.get("run_id")

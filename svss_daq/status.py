@@ -296,7 +296,9 @@ def format_status(s: dict) -> str:
                                            f", {w['backlog_pings']} ping(s) "
                                            f"({_n(w.get('backlog_s'), '.1f', ' s')}) behind")
                      + (f", {w.get('open_tiles')} of {w.get('max_open_tiles')} tiles open"
-                        if w.get("open_tiles") is not None else ""))
+                        if w.get("open_tiles") is not None else "")
+                     + (f", SILENT for {_n(w.get('heard_s'), '.0f', ' s')}"
+                        if w.get("silent") else ""))
     for e in s.get("events", [])[-5:]:
         if isinstance(e, dict):
             lines.append(f"  event {e.get('time_utc')}: {e.get('kind')}: {e.get('detail')}")

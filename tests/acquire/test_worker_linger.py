@@ -107,13 +107,14 @@ class StoppedWorker:
     waits to send its end marker)."""
 
     def __init__(self, rig, tmp: Path, service: str | None = None, n_pings: int = 80,
-                 request_timeout_s: float = 2.0):
+                 request_timeout_s: float = 2.0, silence_s: float = 120.0):
         self.cfg_dir = config_dir(tmp, {
             "send_hwm = 500": "send_hwm = 2",                 # a stopped worker loses pings
             "request_timeout_s = 10.0": f"request_timeout_s = {request_timeout_s}"},
             # stopped for the run and the daemon's 10 s wait to send its end marker (and
-            # more on a loaded machine): not forgotten meanwhile
-            {"worker_silence_s = 30.0": "worker_silence_s = 120.0"})
+            # more on a loaded machine): not silent meanwhile (``silence_s``: the
+            # service's worker_silence_s)
+            {"worker_silence_s = 30.0": f"worker_silence_s = {silence_s}"})
         cfg = acquire_toml(tmp, run={"daq": str(self.cfg_dir / "daq.toml")},
                            catch_up={"linger_s": 1.0, "max_linger_s": 600.0})
         dev = rig.device("--time-scale", "2")
@@ -189,6 +190,22 @@ def test_daemon_stays_up_while_a_worker_lacks_pings(rig, tmp_path):
     for tile in (run.out / "run1").glob("tile_*.h5"):
         imaged |= set(read_tile(tile)["ping_sequence"].tolist())
     assert imaged == set(recorded)
+
+
+def test_a_silent_worker_keeps_the_service_up_and_raises_its_alarm(rig, tmp_path):
+    """The worker stopped (SIGSTOP) far longer than the service's worker_silence_s
+    (1 s): it is silent, not forgotten: the alarm worker.silent is raised, critical (it
+    lacks pings of the run), and stays raised; the daemon keeps its service up after
+    the run for it; let go on, the worker fetches what it lacks and completes."""
+    run = StoppedWorker(rig, tmp_path, silence_s=1.0)
+    logs = run.acq.logs()
+    assert "stays up while 1 worker(s)" in logs and "silent for" in logs
+    raised = [ln for ln in logs.splitlines() if "alarm.raised" in ln and "worker.silent" in ln]
+    assert raised and "lacking pings of this run" in raised[0], logs[-3000:]   # critical
+    manifest = run.resume()
+    assert run.acq.wait(DEADLINE_S) == 0, run.acq.logs()[-3000:]
+    recorded, _ = recording(run.acq)
+    assert manifest["complete"] and manifest["pings"] == len(recorded), manifest
 
 
 def test_a_worker_that_cannot_fetch_says_so_in_its_manifest(rig, tmp_path):

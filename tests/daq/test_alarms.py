@@ -87,6 +87,14 @@ def test_a_healthy_snapshot_raises_nothing():
      "worker.behind", WARNING, "w1 150 ping(s) (30.0 s) behind"),
     ({"workers": [{**GOOD["workers"][0], "memory_bound_age_s": 2.0,
                    "open_tiles": 12}]}, "worker.memory_bound", WARNING, "12 of 12 tiles"),
+    ({"workers": [{**GOOD["workers"][0], "silent": True, "heard_s": 45.0}]},
+     "worker.silent", CRITICAL, "lacking pings of this run (the daemon keeps serving"),
+    ({"workers": [{**GOOD["workers"][0], "silent": True, "heard_s": 45.0,
+                   "done": True, "backlog_pings": 0, "backlog_s": 0.0}]},
+     "worker.silent", WARNING, "w1 on run r at ping 100, silent for 45 s"),
+    # a lead before the first ping: the rate window counts from the first ping
+    ({"ping_rate_hz": 3.0, "recording_s": 60.0, "pinging_s": 12.0}, "pings.rate_low",
+     WARNING, "3.00 pings/s"),
 ])
 def test_each_condition_raises_its_named_alarm_and_only_that(changes, name, severity,
                                                               says):
@@ -109,6 +117,9 @@ def test_each_condition_raises_its_named_alarm_and_only_that(changes, name, seve
     {"devices.gps.silent_s": 3.0},
     {"workers": [{**GOOD["workers"][0], "backlog_s": 20.0}]},
     {"workers": [{**GOOD["workers"][0], "memory_bound_age_s": 10.5}]},   # long ago
+    {"ping_rate_hz": 0.0, "recording_s": 60.0, "pinging_s": None,       # the lead: no
+     "last_ping_age_s": None},                                           # ping due yet
+    {"ping_rate_hz": 1.0, "recording_s": 60.0, "pinging_s": 9.0},       # window not full
 ])
 def test_thresholds_are_exclusive_bounds(changes):
     assert evaluate(snap(**changes), LIM) == {}
