@@ -39,6 +39,9 @@ _DAY_NS = 86_400 * 10**9
 _SIGMAS_KEPT = 256
 #: HDT records kept while waiting for the first timed GPS record (their clock reference)
 _HDT_WAITING_KEPT = 16
+#: a receiver that has sent GST counts as still sending it until none has come for this
+#: long (s): its fixes wait for their own GST (at most fix_max_age_s) meanwhile
+GST_STOPPED_S = 5.0
 #: an RMC course is a heading only where the receiver has moved: over at least this
 #: baseline (s) to the fix it is judged against, its displacement at the course speed
 #: threshold's pace or more and its bearing within COURSE_MAX_DEVIATION_DEG of the course
@@ -148,6 +151,10 @@ class NmeaSampler:
                 continue
             t = getattr(rec, "time_ns", None)
             if t is None:
+                # a GST before any dated record (GST first in its epoch, at the start):
+                # its sigma still pairs with its epoch by time of day
+                if isinstance(rec, nmea.GstStatistics):
+                    self._gst(rec)
                 continue
             self._timed_record(t, rx)
             if isinstance(rec, nmea.GstStatistics):
@@ -202,7 +209,8 @@ class NmeaSampler:
         if math.isfinite(sigma):
             self._last_sigma = sigma
         self._sends_gst = True
-        self._last_gst_ns = rec.time_ns
+        if rec.time_ns is not None:
+            self._last_gst_ns = rec.time_ns
         if self._last_gst_tod is None or _tod_after(tod, self._last_gst_tod):
             self._last_gst_tod = tod
         ep = self._epochs.get(tod)
@@ -293,8 +301,14 @@ class NmeaSampler:
     # -- decisions ---------------------------------------------------------------------
 
     def _gst_flowing(self, ep: _Epoch) -> bool:
-        return (self._last_gst_ns is not None
-                and abs(ep.time_ns - self._last_gst_ns) <= self.max_age_ns)
+        """The receiver still sends GST: one within :data:`GST_STOPPED_S` (or the fix
+        age, if longer) of the epoch. A receiver losing every other GST (2 s apart at
+        1 Hz) still sends them: its fixes wait for their own GST, each lost one counted
+        once, none decided with another epoch's sigma and then retracted by its own."""
+        if self._last_gst_ns is None:        # GSTs seen before any dated record only
+            return bool(self._sends_gst)
+        return (abs(ep.time_ns - self._last_gst_ns)
+                <= max(self.max_age_ns, int(GST_STOPPED_S * 1e9)))
 
     def _settle(self, final: bool) -> None:
         now = self.gps_now_ns
