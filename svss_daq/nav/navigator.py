@@ -352,7 +352,8 @@ class Navigator:
         ``dvl_max_gap_s`` and a survey origin, else "none"), ``gps_fix_age_s``,
         ``dvl_age_s`` (s, null: never), ``heading_source`` ("hdt", "dvl_compass",
         "course" or "none": the first within ``heading_max_age_s``), ``bottom_lock``,
-        ``gps_sigma_m`` (GST sigma of the last fix, null: not sent), ``gps_gate``
+        ``gps_sigma_m`` (GST sigma of the last fix; while rejecting by sigma, the
+        receiver's latest; null: not sent), ``gps_gate``
         ("accepting", "sigma": rejecting fixes by GST sigma, "no_fix": rejecting
         non-fixes), ``clock_offset_s`` (per instrument measured: its clock minus the
         ping clock, s), ``clock_retimed`` (instruments re-timed onto the ping clock) and
@@ -386,6 +387,11 @@ class Navigator:
         sigma = None
         if self._last_fix is not None and math.isfinite(self._last_fix.sigma_m):
             sigma = float(self._last_fix.sigma_m)
+        if self._nmea.gate == "sigma" or sigma is None:
+            # rejecting by sigma (or nothing accepted yet): the sigma the receiver says,
+            # not that of the last fix accepted
+            sigma = self._nmea.latest_sigma_m if self._nmea.latest_sigma_m is not None \
+                else sigma
         clocks = {n: -c.offset_ns * 1e-9 for n, c in self.clocks.items()
                   if c.offset_ns is not None}
         return {"mode": mode, "gps_fix_age_s": fix_age, "dvl_age_s": dvl_age,

@@ -133,6 +133,12 @@ class NmeaSampler:
         self._out_heads: list = []
         self._retracted: list = []
 
+    @property
+    def latest_sigma_m(self) -> float | None:
+        """The receiver's latest GST sigma (DRMS, m), whether its fix was accepted or
+        not; None before any."""
+        return self._last_sigma
+
     # -- input -------------------------------------------------------------------------
 
     def feed(self, records: Iterable) -> tuple[list[GpsFix], list[HeadingSample], list[GpsFix]]:

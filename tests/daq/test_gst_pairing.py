@@ -81,3 +81,32 @@ def test_no_fix_is_given_out_and_then_withdrawn():
         k = int(round((fx.time_ns // 10**9) % 60))
         if k in own:
             assert fx.sigma_m < 4.2
+
+
+def test_every_fix_rejected_by_sigma_says_the_receivers_sigma():
+    """Every fix rejected for its GST sigma (4.19 m against a 2 m gate): the navigation
+    state and the alarm give the receiver's 4.19 m, not "unknown" (no fix was
+    accepted to take a sigma from)."""
+    import dataclasses
+
+    from svss_daq import navigation as nav
+    from svss_daq.alarms import AlarmLimits, check_navigation
+    from svss_daq.config import DevicesConfig, LeverArms, config_path, load
+    cfg = dataclasses.replace(load(DevicesConfig, config_path("devices.toml")).navigation,
+                              gps_max_sigma_m=2.0, origin_latitude_deg=50.2,
+                              origin_longitude_deg=-8.1, origin_height_m=0.0)
+    n = nav.Navigator(cfg, LeverArms(array_m=(0, 0, 0), gps_antenna_m=(0, 0, 0),
+                                     dvl_m=(0, 0, 0)))
+    recs = _records([4.19] * N, gst_first=False)
+    n.add_nmea(recs)
+    q = n.quality(recs[-1][1].time_ns)
+    assert q["gps_gate"] == "sigma" and q["gps_sigma_m"] == pytest.approx(4.19, abs=0.01)
+    assert q["gps_fixes"] == 0 and q["gps_rejected_sigma"] >= N - 1
+    lim = AlarmLimits(ping_interval_s=0.1, no_ping_intervals=5, min_rate_fraction=0.8,
+                      rate_window_s=10, disk_min_free_mib=0, disk_min_time_left_s=0,
+                      gps_fix_max_age_s=2.0, gps_max_sigma_m=2.0, dead_reckoning_max_s=60,
+                      device_silent_s=3.0, worker_max_backlog_s=20, recent_s=10)
+    alarms = {a.name: a for a in check_navigation(
+        {"state": "recording", "navigation": {"solution": q},
+         "devices": {"gps": {"connected": True}}}, lim)}
+    assert "GPS sigma 4.19 m above" in alarms["navigation.sigma_high"].message
