@@ -43,7 +43,7 @@ from .headings import _headings, _nearest_age, _rotations
 from .kalman import filter_smooth
 from .records import DvlSample, GpsFix, HeadingSample
 
-__all__ = ["compute_poses", "survey_origin", "prior_at"]
+__all__ = ["attitude_poses", "compute_poses", "survey_origin", "prior_at"]
 
 #: prior variance of a position the first measurement fixes, m^2 (100 m: any GPS wins)
 _UNKNOWN_VAR_M2 = 1e4
@@ -123,6 +123,45 @@ def _partial(t_m, td, v_use):
     return k, tau, disp
 
 
+def _attitude_of(dvl: Sequence[DvlSample], headings: Sequence[HeadingSample], cfg,
+                 t0: int):
+    """``attitude(t)`` for times ``t`` (s after ``t0`` ns): (roll, pitch, heading,
+    heading flag) arrays; roll and pitch from the DVL's sensors (0 without a DVL),
+    heading from the heading sources (HDT, the DVL compass, the course)."""
+    td = (np.array([d.time_ns for d in dvl], dtype=np.int64) - t0).astype(np.float64) * 1e-9
+    roll_d = np.array([d.roll_rad for d in dvl], dtype=np.float64)
+    pitch_d = np.array([d.pitch_rad for d in dvl], dtype=np.float64)
+    compass = [d for d in dvl if math.isfinite(d.heading_rad)]
+
+    def attitude(tt):
+        if td.size:
+            r, p = np.interp(tt, td, roll_d), np.interp(tt, td, pitch_d)
+        else:
+            r = p = np.zeros_like(tt)
+        h, hflag = _headings(tt, headings, cfg.heading_max_age_s, t0, compass)
+        return r, p, h, hflag
+    return attitude
+
+
+def attitude_poses(times_ns, headings: Sequence[HeadingSample], dvl: Sequence[DvlSample],
+                   cfg, flags: int = 0) -> list[NavSnapshot]:
+    """Poses without a position (no survey origin, no GPS fix to take one from): NaN
+    position, velocity and altitude, the attitude and heading the instruments give, and
+    their heading flag (so a pose says its heading came from the compass, or that there
+    is none)."""
+    t_ns = np.asarray(times_ns, dtype=np.int64).reshape(-1)
+    if t_ns.size == 0:
+        return []
+    dvl = sorted(dvl, key=lambda d: d.time_ns)
+    t0 = int(t_ns.min())
+    r, p, h, hflag = _attitude_of(dvl, headings, cfg, t0)(
+        (t_ns - t0).astype(np.float64) * 1e-9)
+    nan = math.nan
+    return [NavSnapshot(int(t), nan, nan, nan, nan, nan, nan, float(ri), float(pi),
+                        float(hi), nan, quality=_HEADING_FLAG[int(f)] | flags)
+            for t, ri, pi, hi, f in zip(t_ns, r, p, h, hflag)]
+
+
 def compute_poses(times_ns, fixes: Sequence[GpsFix], headings: Sequence[HeadingSample],
                   dvl: Sequence[DvlSample], cfg, lever_arms,
                   origin: Optional[tuple[float, float, float]] = None, *,
@@ -163,17 +202,7 @@ def compute_poses(times_ns, fixes: Sequence[GpsFix], headings: Sequence[HeadingS
 
     # attitude: roll and pitch from the DVL's sensors, heading from the heading sources
     td = sec([d.time_ns for d in dvl]) if dvl else np.zeros(0)
-    roll_d = np.array([d.roll_rad for d in dvl], dtype=np.float64)
-    pitch_d = np.array([d.pitch_rad for d in dvl], dtype=np.float64)
-    compass = [d for d in dvl if math.isfinite(d.heading_rad)]
-
-    def attitude(tt):
-        if td.size:
-            r, p = np.interp(tt, td, roll_d), np.interp(tt, td, pitch_d)
-        else:
-            r = p = np.zeros_like(tt)
-        h, hflag = _headings(tt, headings, cfg.heading_max_age_s, t0, compass)
-        return r, p, h, hflag
+    attitude = _attitude_of(dvl, headings, cfg, t0)
 
     # GPS: antenna positions at the fixes, their noise
     tf = sec([f.time_ns for f in fixes]) if fixes else np.zeros(0)

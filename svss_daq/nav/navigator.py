@@ -13,7 +13,7 @@ import numpy as np
 from svss_daq.ping import NAV_CLOCK_RETIMED, NAV_SMOOTHED, NavSnapshot
 
 from .clocks import InstrumentClock, PingClock, describe_offset
-from .fusion import compute_poses, prior_at
+from .fusion import attitude_poses, compute_poses, prior_at
 from .geodesy import ned_to_geodetic
 from .live import follow
 from .nmea_samples import NmeaSampler
@@ -314,6 +314,10 @@ class Navigator:
         if smooth:
             return compute_poses(times, self.fixes, self.headings, self.dvl, self.cfg,
                                  self.lever_arms, origin, flags=flags)
+        if origin is None:
+            # no survey origin configured and no GPS fix accepted to take it from: no
+            # position, but the attitude and heading the instruments give, flagged
+            return attitude_poses(times, self.headings, self.dvl, self.cfg, flags)
         prev = self._live_last
         chain = prev is not None and times.size and int(times.min()) > prev.time_ns
         query = np.concatenate([[prev.time_ns], times]) if chain else times

@@ -110,3 +110,32 @@ def test_every_fix_rejected_by_sigma_says_the_receivers_sigma():
         {"state": "recording", "navigation": {"solution": q},
          "devices": {"gps": {"connected": True}}}, lim)}
     assert "GPS sigma 4.19 m above" in alarms["navigation.sigma_high"].message
+
+
+def test_no_origin_and_every_fix_rejected_still_gives_the_compass_attitude():
+    """No survey origin configured and every fix rejected (no fix to take one from),
+    the DVL's compass streaming: live poses have no position, but the attitude and
+    heading the instruments give, flagged as the compass's (not NaN and no flag)."""
+    import dataclasses
+
+    from svss_daq import navigation as nav
+    from svss_daq.config import DevicesConfig, LeverArms, config_path, load
+    from svss_daq.nav.records import DvlSample
+    from svss_daq.ping import NAV_DEAD_RECKONED, NAV_GPS_FIX, NAV_HEADING_FROM_COMPASS
+    cfg = dataclasses.replace(load(DevicesConfig, config_path("devices.toml")).navigation,
+                              gps_max_sigma_m=2.0, origin_latitude_deg=None,
+                              origin_longitude_deg=None)
+    n = nav.Navigator(cfg, LeverArms(array_m=(0, 0, 0), gps_antenna_m=(0, 0, 0),
+                                     dvl_m=(0, 0, 0)))
+    recs = _records([4.19] * N, gst_first=False)
+    n.add_nmea(recs)
+    t_end = recs[-1][1].time_ns
+    n.dvl = [DvlSample(t_end - 10**9 + k * 250_000_000, (0.5, 0.0, 0.0), (5.0,) * 4,
+                       heading_rad=math.radians(40.0), roll_rad=0.02, pitch_rad=-0.01)
+             for k in range(8)]
+    (p,) = n.poses([t_end])
+    assert math.isnan(p.north_m) and math.isnan(p.latitude_deg)
+    assert not p.quality & (NAV_GPS_FIX | NAV_DEAD_RECKONED)
+    assert p.quality & NAV_HEADING_FROM_COMPASS
+    assert math.degrees(p.heading_rad) == pytest.approx(40.0, abs=0.5)
+    assert p.roll_rad == pytest.approx(0.02) and p.pitch_rad == pytest.approx(-0.01)
