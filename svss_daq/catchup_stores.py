@@ -131,7 +131,8 @@ class RawRunStore:
             ended = all(s.clean or _summarised(s) for s in segs) \
                 and (not flags or any(flags))
             return RunInfo(run_id, min(seqs) if seqs else 0, max(seqs) if seqs else -1,
-                           len(seqs), ended)
+                           len(seqs), ended,
+                           tuple(str(s.path.resolve()) for s in segs))
 
     def runs(self) -> list[RunInfo]:
         return [self.info(r) for r in self.run_ids()]
@@ -199,7 +200,7 @@ class ReplayStore:
         out = []
         for r in begun:
             i = self.store.info(r)
-            out.append(RunInfo(i.run_id, i.first, i.last, i.n_pings, r in ended))
+            out.append(RunInfo(i.run_id, i.first, i.last, i.n_pings, r in ended, i.files))
         return out
 
     def sequences(self, run_id: str, first: int, last: int) -> list[int]:
@@ -231,7 +232,8 @@ class RecordingStore:
 
     def runs(self) -> list[RunInfo]:
         out = list(self.earlier.runs()) if self.earlier else []
-        out.append(RunInfo(**self.recorder.info()))
+        out.append(RunInfo(**self.recorder.info(), files=tuple(
+            str(Path(p).resolve()) for p in self.recorder.segments)))
         return out
 
     def sequences(self, run_id: str, first: int, last: int) -> list[int]:

@@ -77,6 +77,7 @@ PROGRESS_INTERVAL_S = 1.0
 _CLIENT_ID = re.compile(r"[A-Za-z0-9._:-]{1,64}")
 # protocol limits (docs/worker.md)
 _MAX_REQUEST_BYTES = 4096
+_MAX_RUN_FILES = 10000           # a run's raw-run files in a runs reply, at most
 _MAX_FRAME_BYTES = 65536     # a client's larger frame: ZeroMQ drops its connection
 _MAX_SPAN = 10**9            # sequences one fetch may ask about
 _INT = (0, 2**63 - 1)
@@ -92,15 +93,20 @@ def _log_count(n: int, level: int, msg: str, *args) -> None:
 @dataclass(frozen=True)
 class RunInfo:
     """A recorded run: its id, the first and last sequence numbers recorded so far, how
-    many pings, and whether the run has ended (no more pings will be recorded)."""
+    many pings, whether the run has ended (no more pings will be recorded) and its
+    raw-run files as the service's machine names them (a worker on that machine falls
+    back to them when the service is gone; empty where not said)."""
     run_id: str
     first: int
     last: int
     n_pings: int
     ended: bool
+    files: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        d = asdict(self)
+        d["files"] = list(self.files)
+        return d
 
     @classmethod
     def from_dict(cls, d: dict) -> RunInfo:
@@ -113,7 +119,12 @@ class RunInfo:
         if not (isinstance(info.run_id, str) and isinstance(info.ended, bool)
                 and all(type(v) is int for v in (info.first, info.last, info.n_pings))):
             raise ValueError(f"run: mistyped fields in {str(d)[:200]}")
-        return info
+        files = d.get("files", [])
+        if not (isinstance(files, list) and len(files) <= _MAX_RUN_FILES
+                and all(isinstance(f, str) and 0 < len(f) <= 4096 for f in files)):
+            raise ValueError(f"run: field 'files' expected a list of at most "
+                             f"{_MAX_RUN_FILES} paths, got {str(files)[:200]}")
+        return dataclasses.replace(info, files=tuple(files))
 
 
 class PingStore(Protocol):

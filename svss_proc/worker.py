@@ -130,6 +130,10 @@ class StreamWorker:
         self.client_id = re.sub(r"[^A-Za-z0-9._:-]", "_", (
             f"{socket.gethostname()[:32]}-{os.getpid()}-{secrets.token_hex(4)}"))[:64]
         self.ends_refused = 0            # end markers the catch-up service contradicted
+        #: run id -> its raw-run files as the catch-up service names them; the reason
+        #: this worker fell back to reading them (None: it did not)
+        self._run_files: dict[str, tuple[str, ...]] = {}
+        self.fell_back: str | None = None
         #: pings naming a run the catch-up service does not announce (refused: they
         #: never open a run, never interrupt one), by run id
         self.foreign_refused: dict[str, int] = {}
@@ -189,11 +193,41 @@ class StreamWorker:
 
     def _runs(self) -> list[RunInfo] | None:
         try:
-            return self.fetcher.runs()
+            runs = self.fetcher.runs()
         except (TimeoutError, ServiceError, OSError) as exc:
             self.fetch_errors += 1
             log.error("%s", exc)
+            if self._fall_back(exc):
+                return self._runs()
             return None
+        for info in runs:
+            if info.files:
+                self._run_files[info.run_id] = info.files
+        return runs
+
+    def _fall_back(self, exc: Exception) -> bool:
+        """The catch-up service did not answer: where this machine holds the runs'
+        raw-run files the service named, catch up from them from now on
+        (:class:`~svss_daq.recording_fetcher.RecordingFetcher`), saying so once.
+        Whether it fell back."""
+        from svss_daq.recording_fetcher import RecordingFetcher
+        if isinstance(self.fetcher, RecordingFetcher) or isinstance(exc, ServiceError) \
+                and "busy" in str(exc):
+            return False
+        folders = {Path(f).parent for files in self._run_files.values() for f in files
+                   if Path(f).is_file()}
+        if not folders:
+            return False
+        gone = self.fetcher
+        self.fetcher = RecordingFetcher(folders, timeout_s=min(gone.timeout_s, 1.0))
+        self.fell_back = str(exc)
+        log.error("catch-up service %s gone (%s): catching up from %s from now on",
+                  gone.endpoint, exc, self.fetcher.endpoint)
+        try:
+            gone.close()
+        except Exception:                    # a socket already gone: nothing to close
+            pass
+        return True
 
     def _attribute(self, seq: int) -> _Run:
         """The run a stream ping with sequence ``seq`` belongs to, when none is open."""
@@ -539,9 +573,12 @@ class StreamWorker:
                     break
         except (TimeoutError, ServiceError, OSError) as exc:
             self.fetch_errors += 1
-            r.service_failed = True
-            r.retry_at = time.monotonic() + self.fetcher.timeout_s
             log.error("run %s: catch-up of %d..%d failed: %s", r.run_id, first, last, exc)
+            if self._fall_back(exc):             # asked again at once, of the recording
+                r.retry_at = 0.0
+            else:
+                r.service_failed = True
+                r.retry_at = time.monotonic() + self.fetcher.timeout_s
         finally:
             self.fetched += n
             self.fetch_time_s += time.perf_counter() - t0

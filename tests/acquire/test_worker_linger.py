@@ -107,7 +107,8 @@ class StoppedWorker:
     waits to send its end marker)."""
 
     def __init__(self, rig, tmp: Path, service: str | None = None, n_pings: int = 80,
-                 request_timeout_s: float = 2.0, silence_s: float = 120.0):
+                 request_timeout_s: float = 2.0, silence_s: float = 120.0,
+                 max_linger_s: float = 600.0):
         self.cfg_dir = config_dir(tmp, {
             "send_hwm = 500": "send_hwm = 2",                 # a stopped worker loses pings
             "request_timeout_s = 10.0": f"request_timeout_s = {request_timeout_s}"},
@@ -116,7 +117,7 @@ class StoppedWorker:
             # service's worker_silence_s)
             {"worker_silence_s = 30.0": f"worker_silence_s = {silence_s}"})
         cfg = acquire_toml(tmp, run={"daq": str(self.cfg_dir / "daq.toml")},
-                           catch_up={"linger_s": 1.0, "max_linger_s": 600.0})
+                           catch_up={"linger_s": 1.0, "max_linger_s": max_linger_s})
         dev = rig.device("--time-scale", "2")
         self.acq = rig.acquire(dev, "--pings", str(n_pings), "--wait-subscribers", "1",
                                config=cfg)
@@ -206,6 +207,25 @@ def test_a_silent_worker_keeps_the_service_up_and_raises_its_alarm(rig, tmp_path
     assert run.acq.wait(DEADLINE_S) == 0, run.acq.logs()[-3000:]
     recorded, _ = recording(run.acq)
     assert manifest["complete"] and manifest["pings"] == len(recorded), manifest
+
+
+def test_a_worker_whose_service_is_gone_falls_back_to_the_recording(rig, tmp_path):
+    """The daemon waits for the stopped worker no longer than catch_up.max_linger_s
+    (1 s here) and exits, its service gone with it. Let go on, the worker says the
+    service is gone and catches up from the raw-run file the service named (on this
+    machine): every recorded ping imaged, the run complete, the worker exits 0."""
+    run = StoppedWorker(rig, tmp_path, max_linger_s=1.0)
+    assert run.acq.wait(DEADLINE_S) == 0, run.acq.logs()[-3000:]     # gone, cleanly
+    manifest = run.resume()
+    recorded, _ = recording(run.acq)
+    log = run.log.read_text()
+    assert "gone" in log and "catching up from the recording in" in log, log[-3000:]
+    assert manifest["complete"] and manifest["skipped_pings"] == 0, (manifest, log[-3000:])
+    assert manifest["pings"] == len(recorded) and manifest["fetched_pings"] > 0
+    imaged = set()
+    for tile in (run.out / "run1").glob("tile_*.h5"):
+        imaged |= set(read_tile(tile)["ping_sequence"].tolist())
+    assert imaged == set(recorded)
 
 
 def test_a_worker_that_cannot_fetch_says_so_in_its_manifest(rig, tmp_path):
