@@ -17,7 +17,7 @@ import logging
 from pathlib import Path
 
 from .catchup_stores import RawRunStore
-from .ping_service import MAX_PINGS_PER_REPLY, Fetched, RunInfo, _absent
+from .ping_service import MAX_PINGS_PER_REPLY, Fetched, RunInfo, ServiceError, _absent
 
 log = logging.getLogger(__name__)
 
@@ -34,26 +34,48 @@ class RecordingFetcher:
         self.max_pings = int(max_pings)
         self.endpoint = "the recording in " + ", ".join(str(f) for f in self.folders)
         self._store: RawRunStore | None = None
+        self._paths: list[Path] = []
+        self._refused: set[Path] = set()
 
     def _files(self) -> list[Path]:
         return sorted(p for d in self.folders for p in d.glob("*.h5")
                       if not p.name.startswith("."))
 
     def store(self) -> RawRunStore:
+        """The raw-run files of the folders (new ones taken in as they appear; a file
+        that does not open as a raw run is left out, logged once)."""
         files = self._files()
         if self._store is None or set(files) - set(self._paths):
             if self._store is not None:
                 self._store.close()
-            self._store = RawRunStore(files)
+            good = []
+            for f in files:
+                try:
+                    RawRunStore([f]).close()
+                    good.append(f)
+                except Exception as exc:            # not a raw run, or damaged
+                    if f not in self._refused:
+                        self._refused.add(f)
+                        log.warning("catch-up from the recording: %s left out (%s)", f, exc)
+            self._store = RawRunStore(good)
             self._paths = files
         return self._store
 
     def runs(self) -> list[RunInfo]:
-        return self.store().runs()
+        try:
+            return self.store().runs()
+        except Exception as exc:
+            raise ServiceError(f"{self.endpoint}: {exc}") from None
 
     def fetch_once(self, run_id: str, first: int, last: int) -> Fetched:
         """What the recording holds of [first, last] of ``run_id`` (at most
         ``max_pings`` pings; ``next``: where to go on), as the service answers it."""
+        try:
+            return self._fetch(run_id, first, last)
+        except Exception as exc:
+            raise ServiceError(f"{self.endpoint}: {exc}") from None
+
+    def _fetch(self, run_id: str, first: int, last: int) -> Fetched:
         st = self.store()
         present = st.sequences(run_id, first, last)
         nxt = None
