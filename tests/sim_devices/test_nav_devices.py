@@ -326,8 +326,11 @@ def test_outputs_are_stamped_with_their_measurement_time_however_late_the_thread
                               reconnect_initial_s=0.02, reconnect_max_s=0.1)
             link.start(wait_connected_s=WAIT_S)
             links.append(link)
-        deadline = time.monotonic() + 30.0
-        while (len([r for r in got_nmea if isinstance(r, nmea.GgaFix)]) < 50
+        # waits for what is asserted below: GGAs with a time (the first ones may come
+        # before the stream's first date and have none)
+        deadline = time.monotonic() + 60.0
+        while (len([r for r in got_nmea if isinstance(r, nmea.GgaFix)
+                    and r.time_ns is not None]) < 50
                or len(got_pd0) < 50) and time.monotonic() < deadline:
             time.sleep(0.01)
     finally:
