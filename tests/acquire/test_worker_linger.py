@@ -137,6 +137,12 @@ class StoppedWorker:
             # service then; the run goes on for seconds)
             wait_for(lambda: "imaging into" in self.log.read_text(),
                      "the worker's first ping")
+            if service is None:
+                # ... and once the daemon's service has its progress (a message still in
+                # the stopped worker's socket would never leave it: on a loaded machine
+                # the daemon then knew no worker and left at the run's end)
+                wait_for(lambda: "is imaging run run1" in self.acq.logs(),
+                         "the worker's progress at the daemon")
             self.worker.send_signal(signal.SIGSTOP)
             # the run ends while the worker is stopped ...
             wait_for(lambda: self.acq.proc.poll() is not None
