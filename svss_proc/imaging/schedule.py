@@ -80,8 +80,12 @@ def gated_reach(tx_tile: np.ndarray, bore: np.ndarray, half_angle: float,
 def line_from_ping(ping: Ping, proc: ProcessingConfig) -> TrackLine:
     """The tile frame, from the processing configuration and (if so configured) the
     first ping's pose."""
+    return line_from_pose(ping.nav, proc)
+
+
+def line_from_pose(nav, proc: ProcessingConfig) -> TrackLine:
+    """:func:`line_from_ping` from the first ping's pose ``nav`` alone."""
     im = proc.imaging
-    nav = ping.nav
     if im.track_line == "fixed":
         origin, heading = tuple(im.line_origin_ne_m), math.radians(im.line_heading_deg)
     else:

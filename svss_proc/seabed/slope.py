@@ -42,7 +42,7 @@ from svss_daq.ping import Ping
 from svss_daq.ping_gate import PingRejected
 
 from ..imaging.imager import TileImager
-from ..imaging.schedule import line_from_ping
+from ..imaging.schedule import line_from_pose
 
 log = logging.getLogger(__name__)
 
@@ -111,15 +111,17 @@ def _line_fit(x: np.ndarray, y: np.ndarray, w: np.ndarray | None = None
 def _along(pings: Sequence[Ping], processing: ProcessingConfig
            ) -> tuple[float, float | None, str]:
     """The along-track gradient of the navigation's bed depths, its deviation, source."""
+    # the poses alone: a run read from its files (RunPings.nav) is not read whole here
+    pose = getattr(pings, "nav", None) or (lambda k: pings[k].nav)
     line = None
     a, b = [], []
     for i in range(len(pings)):
-        nav = pings[i].nav
+        nav = pose(i)
         bed = nav.down_m + nav.altitude_m
         if not math.isfinite(bed):
             continue
         if line is None:
-            line = line_from_ping(pings[i], processing)
+            line = line_from_pose(nav, processing)
         a.append(float(line.ned_to_tile(np.array([nav.north_m, nav.east_m, 0.0]))[0]))
         b.append(bed)
     a, b = np.asarray(a), np.asarray(b)

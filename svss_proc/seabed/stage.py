@@ -33,6 +33,13 @@ class RunPings(Sequence):
     def __len__(self) -> int:
         return len(self._where)
 
+    def nav(self, k: int) -> NavSnapshot:
+        """Ping ``k``'s pose, without reading its samples."""
+        if self._poses is not None:
+            return self._poses[k]
+        r, i = self._where[k]
+        return r.nav(i)
+
     def __getitem__(self, k: int) -> Ping:
         r, i = self._where[k]
         p = r.ping(i)

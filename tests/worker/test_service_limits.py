@@ -8,6 +8,7 @@ real loopback sockets."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shutil
 import subprocess
@@ -172,48 +173,49 @@ def test_clients_that_never_read_cost_their_queue_and_block_nothing(replay):
     assert "request refused unanswered: a reply to its client is still being sent" in text
 
 
+@contextlib.contextmanager
+def _one_slot_held(raw_run, **options):
+    """A service of one reply slot (``max_clients`` 1) held by a client that never reads
+    its reply: (the service, the stuck client's socket)."""
+    with RawRunStore([raw_run]) as store, \
+            PingService("tcp://127.0.0.1:*", store, max_clients=1, client_queue=4,
+                        **options) as svc, zmq.Context() as ctx:
+        stuck = _stuck_client(ctx, svc.endpoint, 1)
+        _wait_for(lambda: svc.clients == 1, 30, "the stuck client served")
+        try:
+            yield svc, stuck
+        finally:
+            stuck.close(linger=0)
+
+
+def _timed_fetch(endpoint):
+    with PingFetcher(endpoint, timeout_s=30) as f:
+        t = time.perf_counter()
+        pings, missing = f.fetch("line1", 0, 9)
+        return f, pings, missing, time.perf_counter() - t
+
+
 def test_a_busy_service_is_asked_again(raw_run):
     """max_clients replies being sent: a further fetch is answered busy, counted and
     logged, and the client asks again until one is free: here the stuck client's reply,
     which has sent nothing for PREEMPT_S, gives its slot up to the asking client (a
     client that does not read locks no one out for stall_s, 60 s here)."""
-    with RawRunStore([raw_run]) as store, \
-            PingService("tcp://127.0.0.1:*", store, max_clients=1, client_queue=4,
-                        stall_s=STALL_S, preempt_s=60.0) as svc, zmq.Context() as ctx:
-        s = _stuck_client(ctx, svc.endpoint, 1)
-        _wait_for(lambda: svc.clients == 1, 30, "the stuck client served")
-        with PingFetcher(svc.endpoint, timeout_s=30) as f:
-            t = time.perf_counter()
-            pings, missing = f.fetch("line1", 0, 9)
-            dt = time.perf_counter() - t
-            assert [p.sequence for p in pings] == list(range(10)) and missing == []
-            assert f.busy >= 1 and svc.busy >= 1 and svc.stalled == 1
-            assert STALL_S * 0.9 < dt < 20
-        s.close(linger=0)
-        assert svc.pings_served >= 10
+    with _one_slot_held(raw_run, stall_s=STALL_S, preempt_s=60.0) as (svc, _):
+        f, pings, missing, dt = _timed_fetch(svc.endpoint)
+        assert [p.sequence for p in pings] == list(range(10)) and missing == []
+        assert f.busy >= 1 and svc.busy >= 1 and svc.stalled == 1
+        assert STALL_S * 0.9 < dt < 20
+    assert svc.pings_served >= 10
     # busy for longer than the client waits: a service that keeps a stuck client's reply
     # for a minute and gives its slot up to no one
-    with RawRunStore([raw_run]) as store, \
-            PingService("tcp://127.0.0.1:*", store, max_clients=1, client_queue=4,
-                        stall_s=60.0, preempt_s=60.0) as svc, zmq.Context() as ctx:
-        stuck = _stuck_client(ctx, svc.endpoint, 1)
-        _wait_for(lambda: svc.clients == 1, 30, "the stuck client served")
+    with _one_slot_held(raw_run, stall_s=60.0, preempt_s=60.0) as (svc, _):
         with PingFetcher(svc.endpoint, timeout_s=0.3) as f:
             with pytest.raises(ServiceError, match="still busy"):
                 f.fetch_once("line1", 0, 9)
         assert svc.busy >= 1
-        stuck.close(linger=0)
     # the stuck client's reply kept for a minute, its slot given up after the default
     # PREEMPT_S of nothing sent: the asking client is served within seconds
-    with RawRunStore([raw_run]) as store, \
-            PingService("tcp://127.0.0.1:*", store, max_clients=1, client_queue=4,
-                        stall_s=60.0) as svc, zmq.Context() as ctx:
-        stuck = _stuck_client(ctx, svc.endpoint, 1)
-        _wait_for(lambda: svc.clients == 1, 30, "the stuck client served")
-        with PingFetcher(svc.endpoint, timeout_s=30) as f:
-            t = time.perf_counter()
-            pings, missing = f.fetch("line1", 0, 9)
-            dt = time.perf_counter() - t
+    with _one_slot_held(raw_run, stall_s=60.0) as (svc, _):
+        _, pings, missing, dt = _timed_fetch(svc.endpoint)
         assert [p.sequence for p in pings] == list(range(10)) and missing == []
         assert dt < 10.0 and svc.stalled == 1           # not the minute of stall_s
-        stuck.close(linger=0)
