@@ -1001,8 +1001,16 @@ class NavigationConfig:
                               "(1 sigma)", lo=1e-3, hi=1e3)
     gps_height_sigma_m: float = spec("GPS height noise, m (1 sigma)", lo=1e-3, hi=1e3)
     bottom_depth_rate_sigma_m_s: float = spec("how fast the bottom's depth under the DVL may "
-                                              "change, m/s (random-walk intensity)",
-                                              lo=1e-6, hi=10.0)
+                                              "change beyond its slope, m/s (random-walk "
+                                              "intensity)", lo=1e-6, hi=10.0)
+    bottom_slope_sigma_per_m: float = spec("how fast the bed's gradient under the DVL may "
+                                           "change along the track, per metre travelled "
+                                           "(random-walk intensity, 1/sqrt(m))",
+                                           lo=0.0, hi=10.0)
+    bottom_max_slope_deg: float = spec("the steepest bed one DVL sample's beam footprints "
+                                       "may show; a sample showing a steeper one has its "
+                                       "ranges left out (a beam off the bed), deg",
+                                       lo=1.0, hi=80.0)
     dvl_gap_velocity_sigma_m_s: float = spec("velocity uncertainty while the DVL has no "
                                              "bottom lock (last velocity held), m/s",
                                              lo=1e-3, hi=100.0)

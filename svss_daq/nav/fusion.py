@@ -37,10 +37,10 @@ from svss_daq.ping import (NAV_BOTTOM_LOCK, NAV_DEAD_RECKONED, NAV_DVL_VELOCITY,
                            NAV_HEADING_FROM_COMPASS, NAV_HEADING_FROM_COURSE, NAV_HELD,
                            NAV_NO_HEADING, NavSnapshot)
 
-from .dvl_geometry import _sample_altitude
+from .dvl_geometry import _sample_altitude, body_beam_vectors
 from .geodesy import geodetic_to_ned, ned_to_geodetic
 from .headings import _headings, _nearest_age, _rotations
-from .kalman import filter_smooth
+from .kalman import filter_smooth, filter_smooth_n
 from .records import DvlSample, GpsFix, HeadingSample
 
 __all__ = ["attitude_poses", "compute_poses", "survey_origin", "prior_at"]
@@ -49,6 +49,11 @@ __all__ = ["attitude_poses", "compute_poses", "survey_origin", "prior_at"]
 _UNKNOWN_VAR_M2 = 1e4
 #: prior variance of the body's depth without GPS heights (body at the origin's height), m^2
 _NO_HEIGHT_VAR_M2 = 1.0
+#: prior variance of the bed's gradient (per axis; 0.3: a slope of 17 deg), 1
+_GRADIENT_VAR = 0.09
+#: how far off the plane of the other beams' footprints one of four may lie, as a
+#: fraction of the mean range (RDI's river recording: 1.2 % at the 99th percentile)
+_OFF_PLANE_FRACTION = 0.05
 #: the lever arm's rate of turn is taken over +-0.5 s of attitude
 ATTITUDE_RATE_HALF_WINDOW_S = 0.5
 #: heading flags of _headings without a true heading: 1 course over ground, 2 none
@@ -270,6 +275,84 @@ def compute_poses(times_ns, fixes: Sequence[GpsFix], headings: Sequence[HeadingS
     return out
 
 
+def _plausible_bed(foot: np.ndarray, max_slope_deg: float, range_sigma_m: float) -> bool:
+    """Whether the footprints (n >= 3, 3) about the head lie on one bed no steeper than
+    ``max_slope_deg``: the plane through them (least squares in depth) is the bed one
+    sample sees, and with four beams each footprint lies on it to within
+    ``_OFF_PLANE_FRACTION`` of the mean range plus three range sigmas. Otherwise a beam
+    is not on the bed the DVL tracks (a head tilted toward the surface or a bank, a
+    fish, a wall): the sample's ranges are left out."""
+    a = np.stack([np.ones(len(foot)), foot[:, 0], foot[:, 1]], -1)
+    coef, *_ = np.linalg.lstsq(a, foot[:, 2], rcond=None)
+    if math.hypot(coef[1], coef[2]) > math.tan(math.radians(max_slope_deg)):
+        return False
+    if len(foot) < 4:
+        return True
+    off = float(np.max(np.abs(a @ coef - foot[:, 2])))
+    return off <= _OFF_PLANE_FRACTION * float(np.mean(np.linalg.norm(foot, axis=1))) \
+        + 3.0 * range_sigma_m
+
+
+def _down_states(dvl, rot_d, ranges, head_h, disp, var, dt, m_gps, z_gps, r_gps_var,
+                 prior, beam, cfg, causal, state_out):
+    """The down axis's states (K, 4): head depth, bed depth under the head, the bed's
+    gradient north and east (module docstring), smoothed or (``causal``) filtered."""
+    k_n = len(dvl)
+    steps, rows, zs, rs = [m_gps], [np.tile([1.0, 0.0, 0.0, 0.0], (m_gps.size, 1))], \
+        [z_gps], [r_gps_var]
+    r_beam = cfg.dvl_range_sigma_m ** 2
+    ok = np.isfinite(ranges) & (ranges > 0)
+    seen = np.zeros(k_n, dtype=bool)          # samples whose ranges measured the bed
+    for k, d in enumerate(dvl):
+        n_ok = int(ok[k, :4].sum()) if ranges.shape[1] >= 4 else 0
+        angle = d.beam_angle_rad if math.isfinite(d.beam_angle_rad) else beam
+        if n_ok >= cfg.dvl_min_beams and math.isfinite(angle):
+            u = body_beam_vectors(angle, d.beam_alignment_rad, d.beams_convex) @ rot_d[k].T
+            sel = np.flatnonzero(ok[k, :4])
+            foot = ranges[k, sel, None] * u[sel]          # footprints about the head, NED
+            if not _plausible_bed(foot, cfg.bottom_max_slope_deg, cfg.dvl_range_sigma_m):
+                continue
+            steps.append(np.full(sel.size, k))
+            rows.append(np.stack([-np.ones(sel.size), np.ones(sel.size), foot[:, 0],
+                                  foot[:, 1]], -1))
+            zs.append(foot[:, 2])
+            rs.append(np.full(sel.size, r_beam))
+            seen[k] = True
+        elif math.isfinite(head_h[k]):                    # the vertical beam, under the head
+            seen[k] = True
+            steps.append(np.array([k]))
+            rows.append(np.array([[-1.0, 1.0, 0.0, 0.0]]))
+            zs.append(np.array([head_h[k]]))
+            rs.append(np.array([r_beam]))
+    f = np.tile(np.eye(4), (k_n - 1, 1, 1))
+    f[:, 1, 2], f[:, 1, 3] = disp[:, 0], disp[:, 1]
+    q = np.zeros((k_n - 1, 4, 4))
+    q[:, 0, 0] = var
+    travelled = np.hypot(disp[:, 0], disp[:, 1])
+    q[:, 1, 1] = cfg.bottom_depth_rate_sigma_m_s ** 2 * dt
+    q[:, 2, 2] = q[:, 3, 3] = cfg.bottom_slope_sigma_per_m ** 2 * travelled
+    # ranges again after more than a gap without: the bed under the boat is a new bed,
+    # its depth and gradient free (a stale bed held the head's depth against the GPS
+    # heights: 4 m off after RDI's recording lost the bottom for 8 minutes)
+    td = np.cumsum(np.concatenate([[0.0], dt]))
+    last = np.maximum.accumulate(np.where(seen, np.arange(k_n), -1))
+    before = np.concatenate([[-1], last[:-1]])
+    stale = seen[1:] & ((before[1:] < 0)
+                        | (td[1:] - td[np.maximum(before[1:], 0)] > cfg.dvl_max_gap_s))
+    q[stale, 1, 1] = _UNKNOWN_VAR_M2
+    q[stale, 2, 2] = q[stale, 3, 3] = _GRADIENT_VAR
+    u = np.zeros((k_n - 1, 4))
+    u[:, 0] = disp[:, 2]
+    xs, _, xf, pf = filter_smooth_n(prior[0], prior[1], u, f, q,
+                                    (np.concatenate(steps).astype(np.int64),
+                                     np.concatenate(rows), np.concatenate(zs),
+                                     np.concatenate(rs)),
+                                    smooth=not causal, predicted=True)
+    if state_out is not None:
+        state_out["d"] = (xf, pf)
+    return xs
+
+
 def _fused(t, td, dvl, attitude, tf, ant, rot_f, sig, has_h, rot_t, r_gps, r_dvl, beam, cfg,
            configured: bool, causal: bool, prior: Optional[dict], state_out: Optional[dict]):
     """Positions, velocities, altitudes and the dead-reckoned and held masks at times t
@@ -316,7 +399,8 @@ def _fused(t, td, dvl, attitude, tf, ant, rot_f, sig, has_h, rot_t, r_gps, r_dvl
     z_b0 = x_d + (head_h[good_h[0]] if good_h.size else 0.0)
     priors = {"n": (np.array([x_ne[0], 0.0]), np.diag([p_ne, cfg.dvl_velocity_bias_sigma_m_s ** 2])),
               "e": (np.array([x_ne[1], 0.0]), np.diag([p_ne, cfg.dvl_velocity_bias_sigma_m_s ** 2])),
-              "d": (np.array([x_d, z_b0]), np.diag([p_d, _UNKNOWN_VAR_M2]))}
+              "d": (np.array([x_d, z_b0, 0.0, 0.0]),
+                    np.diag([p_d, _UNKNOWN_VAR_M2, _GRADIENT_VAR, _GRADIENT_VAR]))}
     td_ns = np.array([d.time_ns for d in dvl], dtype=np.int64)
     if prior is not None and int(prior["time_ns"]) == int(td_ns[0]):
         # what a window dropped: the state before its first sample's measurements, from
@@ -339,25 +423,17 @@ def _fused(t, td, dvl, attitude, tf, ant, rot_f, sig, has_h, rot_t, r_gps, r_dvl
         states.append(xs)
         if state_out is not None:
             state_out[name] = (xf, pf)
-    # down: (head depth, bottom depth)
+    # down: (head depth, bed depth under the head, bed gradient north, east)
     alt_ok = np.isfinite(head_h)
-    m_step = np.concatenate([kf[use_h], np.flatnonzero(alt_ok)])
-    m_h0 = np.concatenate([np.ones(use_h.sum()), -np.ones(alt_ok.sum())])
-    m_h1 = np.concatenate([np.zeros(use_h.sum()), np.ones(alt_ok.sum())])
-    m_z = np.concatenate([z_f[use_h, 2], head_h[alt_ok]])
-    m_r = np.concatenate([np.full(use_h.sum(), cfg.gps_height_sigma_m ** 2) + r_extra[use_h],
-                          cfg.dvl_range_sigma_m ** 2 / n_beams[alt_ok]])
-    xs_d, _, xf, pf = filter_smooth(*priors["d"], disp[:, 2], np.zeros(k_n - 1),
-                                    np.ones(k_n - 1), var,
-                                    cfg.bottom_depth_rate_sigma_m_s ** 2 * dt,
-                                    (m_step, m_h0, m_h1, m_z, m_r), smooth=not causal,
-                                    predicted=True)
+    xs_d = _down_states(dvl, rot_d, ranges, head_h, disp, var, dt, kf[use_h],
+                        z_f[use_h, 2], cfg.gps_height_sigma_m ** 2 + r_extra[use_h],
+                        priors["d"], beam, cfg, causal, state_out)
     if state_out is not None:
-        state_out["d"] = (xf, pf)
         state_out["time_ns"] = td_ns
     head = np.stack([states[0][:, 0], states[1][:, 0], xs_d[:, 0]], -1)
     bias = np.stack([states[0][:, 1], states[1][:, 1], np.zeros(k_n)], -1)
     bottom = xs_d[:, 1]
+    grad = xs_d[:, 2:4]
 
     # the head at each time t: the grid states and the DVL's displacement between them
     k, tau, part = _partial(t, td, v_use)
@@ -376,7 +452,11 @@ def _fused(t, td, dvl, attitude, tf, ant, rot_f, sig, has_h, rot_t, r_gps, r_dvl
     rate = (np.einsum("kij,j->ki", _rotations(*attitude(t + eps)[:3]), r_dvl)
             - np.einsum("kij,j->ki", _rotations(*attitude(t - eps)[:3]), r_dvl)) / (2 * eps)
     vel = v_use[k] + bias[k] - rate
+    # the bed under the body origin: the plane about the head, at the body's offset
     b_t = np.interp(t, td, bottom)
+    to_body = -np.einsum("kij,j->ki", rot_t, r_dvl)[:, :2]
+    b_t = b_t + np.interp(t, td, grad[:, 0]) * to_body[:, 0] \
+        + np.interp(t, td, grad[:, 1]) * to_body[:, 1]
     near_alt = _nearest_age(td[alt_ok], t) <= cfg.dvl_max_gap_s
     alt = np.where(near_alt, b_t - pos[:, 2], np.nan)
     near_lock = _nearest_age(td[ok], t) <= cfg.dvl_max_gap_s

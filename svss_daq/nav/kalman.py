@@ -1,4 +1,4 @@
-"""A two-state linear Kalman filter with a Rauch-Tung-Striebel smoother, for the
+"""Linear Kalman filters (two states, and n) with a Rauch-Tung-Striebel smoother, for the
 navigation's fusion (``docs/navigation.md``, "Fusion").
 
 Each axis of the navigation is one such filter on the grid of DVL sample times: the
@@ -14,6 +14,10 @@ point k to k + 1 the model is
 Scalar measurements z = h0 x0 + h1 x1 + noise (variance r) are applied at their grid
 point, in the given order (Joseph form: the covariance stays symmetric and positive).
 
+:func:`filter_smooth_n` is the same for n states with a full transition matrix per step
+(the down axis: head depth, the bed's depth and its gradient north and east, the
+gradient entering the bed's depth through the head's horizontal displacement).
+
 The filter is causal; the smoother uses the whole record. Both are pure functions of
 their arrays, compiled with numba (on-disk cache): a minute of a 5 Hz DVL is 300 steps,
 a few microseconds.
@@ -24,7 +28,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-__all__ = ["filter_smooth", "warm_up"]
+__all__ = ["filter_smooth", "filter_smooth_n", "warm_up"]
 
 
 @nb.njit(cache=True)
@@ -143,6 +147,73 @@ def filter_smooth(x0, p0, u, f01, f11, qp, qc, measurements, smooth: bool = True
     return out if predicted else out[:2]
 
 
+@nb.njit(cache=True)
+def _run_n(x0, p0, u, f, q, m_step, m_h, m_z, m_r, smooth):
+    """:func:`_run` for n states with a full transition ``f`` (K-1, n, n), input ``u``
+    (K-1, n), process noise ``q`` (K-1, n, n) and measurement rows ``m_h`` (M, n)."""
+    k_n = u.shape[0] + 1
+    n = x0.shape[0]
+    eye = np.eye(n)
+    xf = np.empty((k_n, n))
+    pf = np.empty((k_n, n, n))
+    xp = np.empty((k_n, n))
+    pp = np.empty((k_n, n, n))
+    x = x0.copy()
+    p = p0.copy()
+    xp[0] = x
+    pp[0] = p
+    j = 0
+    n_m = m_step.shape[0]
+    for k in range(k_n):
+        while j < n_m and m_step[j] == k:
+            h = m_h[j]
+            ph = p @ h
+            s = h @ ph + m_r[j]
+            if s > 0.0:
+                g = ph / s
+                x = x + g * (m_z[j] - h @ x)
+                a = eye - np.outer(g, h)
+                p = a @ p @ a.T + np.outer(g, g) * m_r[j]
+                p = 0.5 * (p + p.T)
+            j += 1
+        xf[k] = x
+        pf[k] = p
+        if k == k_n - 1:
+            break
+        x = f[k] @ x + u[k]
+        p = f[k] @ p @ f[k].T + q[k]
+        xp[k + 1] = x
+        pp[k + 1] = p
+    if not smooth:
+        return xf, pf, xp, pp
+    xs = xf.copy()
+    ps = pf.copy()
+    for k in range(k_n - 2, -1, -1):
+        # C = Pf[k] F^T Pp[k+1]^-1 (a pseudo-inverse: a state without uncertainty)
+        c = pf[k] @ f[k].T @ np.linalg.pinv(pp[k + 1])
+        xs[k] = xf[k] + c @ (xs[k + 1] - xp[k + 1])
+        ps[k] = pf[k] + c @ (ps[k + 1] - pp[k + 1]) @ c.T
+        ps[k] = 0.5 * (ps[k] + ps[k].T)
+    return xs, ps, xp, pp
+
+
+def filter_smooth_n(x0, p0, u, f, q, measurements, smooth: bool = True,
+                    predicted: bool = False):
+    """:func:`filter_smooth` for n states: the model from each grid point to the next is
+    x[k+1] = f[k] x[k] + u[k] with noise q[k] (``f``, ``q``: (K-1, n, n); ``u``:
+    (K-1, n)); ``measurements``: (step, h, z, r) with ``h`` (M, n) the rows, z = h x +
+    noise of variance r."""
+    m_step, m_h, m_z, m_r = (np.asarray(a) for a in measurements)
+    order = np.argsort(m_step, kind="stable")
+    g = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    n = np.asarray(x0).size
+    out = _run_n(g(x0), g(p0), g(u).reshape(-1, n), g(f).reshape(-1, n, n),
+                 g(q).reshape(-1, n, n),
+                 np.ascontiguousarray(m_step[order], dtype=np.int64),
+                 g(m_h).reshape(-1, n)[order], g(m_z[order]), g(m_r[order]), bool(smooth))
+    return out if predicted else out[:2]
+
+
 def warm_up() -> None:
     """Compile (or load from numba's cache) the filter before it is needed: the daemon
     calls this before it starts the sonar, so that a first run's compile (seconds) never
@@ -151,3 +222,5 @@ def warm_up() -> None:
     z = np.zeros(1)
     filter_smooth(np.zeros(2), np.eye(2), z, z, np.ones(1), z, z,
                   (np.array([1]), np.ones(1), z, z, np.ones(1)), smooth=True)
+    filter_smooth_n(np.zeros(4), np.eye(4), np.zeros((1, 4)), np.eye(4)[None],
+                    np.eye(4)[None], (np.array([1]), np.ones((1, 4)), z, np.ones(1)))
