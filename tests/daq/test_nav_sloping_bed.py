@@ -120,9 +120,9 @@ def test_a_real_river_bank_is_followed_by_its_slope(hardware):
     """RDI's Workhorse recording: beam 2 (starboard) reads 2-3 m more than beam 1 all
     along (a bed falling away to starboard by some 24 deg). Put on the water surface by
     GPS heights along its own dead-reckoned track, the body's depth stays near the
-    antenna's lever arm below it (2.5 m) far better with the bed's slope as a state,
-    and the bed taken afresh when the bottom comes back after minutes without it, than
-    with a flat bed held across the gap; the gradient is the one the beams show."""
+    antenna's lever arm below it (2.5 m): the bed is taken afresh when the bottom comes
+    back after 8 minutes without it (held across the gap, the bed pulled the head 4 m
+    off); the gradient is the one the beams show."""
     if not DVL.exists():
         pytest.skip(f"real recordings not found: {DVL.parent}")
     samples = [s for s in (dvl_sample_from_pd0(e)
