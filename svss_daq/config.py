@@ -289,6 +289,10 @@ class DetectionConfig:
     min_coverage_fraction: float | None = spec(
         "voxels imaged by fewer pings than this fraction of the full coverage at their "
         "depth never detect (omitted: 0.5)", lo=0.0, hi=1.0, default=0.5)
+    layer_false_alarms_per_m3: float | None = spec(
+        "a threshold per depth layer from the layer's own clutter: the level its fitted "
+        "tail reaches this many false alarms per m^3 at, where above threshold_db "
+        "(omitted: threshold_db everywhere)", lo=1e-12, hi=1e3)
     max_per_tile: int = spec("most contacts kept per tile (strongest first)", lo=1,
                              hi=10**6)
     match_radius_m: float = spec("scoring: a detection within this distance of a true "

@@ -22,6 +22,7 @@ from svss_daq.config import (HardwareConfig, ImagingConfig, Loaded, ProcessingCo
 from . import drc as drc_mod
 from .background import kernel_voxels, median_background
 from .detect import Footprint, detect
+from .layer_cfar import guarded_along, layer_tails
 from ..imaging.coverage import aperture_fraction, full_fraction
 from .quicklook import mip_png, products_png
 from .tile_products import Products
@@ -167,7 +168,21 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
         pings_x, fraction_x = pad(pings, 0), pad(fraction, -1.0)
         detectable_x = pad(detectable if detectable is not None
                            else np.ones(mag.shape, dtype=bool), True)
-    table = detect(level_x, mag_x, bg_x, axes_x, dc.threshold_db, dc.min_voxels,
+    tails = None
+    threshold = dc.threshold_db
+    if dc.layer_false_alarms_per_m3 is not None:
+        # each depth layer's threshold from its own clutter (this tile's voxels that
+        # may detect): a constant false-alarm rate per volume
+        # (strong responses' sidelobes are not clutter: the stretch a projector
+        # footprint reaches about them is left out of the fits)
+        depth_max = float(np.max(axes[2])) if axes[2].size else 0.0
+        reach = (footprint.reach_m(depth_max, depth_max) if footprint is not None
+                 else dc.sidelobe_m)
+        guard = guarded_along(level, detectable, dc.threshold_db, reach, float(voxel_m))
+        tails = layer_tails(level, detectable, dc.layer_false_alarms_per_m3
+                            * float(voxel_m) ** 3, dc.threshold_db, float(voxel_m), guard)
+        threshold = tails.threshold_db
+    table = detect(level_x, mag_x, bg_x, axes_x, threshold, dc.min_voxels,
                    dc.merge_m, 1 << 30, dc.sidelobe_db, dc.sidelobe_m,
                    detectable=detectable_x,
                    context=None if before is None or not before.positions.size
@@ -175,7 +190,7 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
                    coverage_pings=pings_x, coverage_fraction=fraction_x,
                    footprint=footprint if use_footprint else None,
                    point_threshold_db=dc.point_threshold_db,
-                   extended_min_m3=dc.extended_min_m3)
+                   extended_min_m3=dc.extended_min_m3, tails=tails)
     if nb or na:        # contacts peaking in a neighbour's planes are that tile's
         half = 0.5 * float(voxel_m)
         table = table[(table["along_m"] >= axes[0][0] - half)
@@ -192,6 +207,11 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
                    "ceiling_db": d.ceiling_db, "depth_gain_db_per_m": g.db_per_m,
                    "depth_gain_start_m": g.start_m},
         detection_attrs={"threshold_db": dc.threshold_db, "min_voxels": dc.min_voxels,
+                         "layer_false_alarms_per_m3": (np.nan if dc.layer_false_alarms_per_m3
+                                                       is None
+                                                       else dc.layer_false_alarms_per_m3),
+                         "layer_threshold_db": (np.full(0, np.nan) if tails is None
+                                                else tails.threshold_db),
                          "merge_m": np.asarray(dc.merge_m),
                          "sidelobe_db": dc.sidelobe_db, "sidelobe_m": dc.sidelobe_m,
                          "max_per_tile": dc.max_per_tile,

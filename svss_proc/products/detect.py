@@ -55,10 +55,17 @@ FIELDS = (
     ("coverage_pings", "i4", "1", "pings that imaged the peak voxel (0: not known)"),
     ("coverage_fraction", "f4", "1", ("coverage_pings as a fraction of the full coverage "
                                       "at that depth (-1: not known)")),
+    ("threshold_db", "f4", "dB", ("the threshold at the peak's depth: the configured one, "
+                                  "or its layer's where that layer's clutter is heavier "
+                                  "(-1: not known)")),
+    ("false_alarms", "f4", "1", ("voxels of the peak's depth layer in the tile expected "
+                                 "at or above its level from the layer's own clutter "
+                                 "(-1: not known)")),
 )
 DTYPE = np.dtype([(name, dt) for name, dt, _, _ in FIELDS])
 #: columns a tile written before they existed may lack, and their fill values
-OPTIONAL_FIELDS = {"coverage_pings": 0, "coverage_fraction": -1.0}
+OPTIONAL_FIELDS = {"coverage_pings": 0, "coverage_fraction": -1.0,
+                   "threshold_db": -1.0, "false_alarms": -1.0}
 
 
 @dataclass(frozen=True)
@@ -196,7 +203,7 @@ def _regions(labels: np.ndarray, level: np.ndarray) -> Regions:
 
 
 def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
-           axes: tuple[np.ndarray, np.ndarray, np.ndarray], threshold_db: float,
+           axes: tuple[np.ndarray, np.ndarray, np.ndarray], threshold_db,
            min_voxels: int, merge_m: tuple[float, float, float],
            max_detections: int, sidelobe_db: float = np.inf,
            sidelobe_m: float = 0.0, *, detectable: np.ndarray | None = None,
@@ -204,11 +211,15 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
            coverage_fraction: np.ndarray | None = None,
            footprint: Footprint | None = None, point_threshold_db: float | None = None,
            extended_min_m3: float | None = None,
-           context: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+           context: tuple[np.ndarray, np.ndarray] | None = None,
+           tails=None) -> np.ndarray:
     """Contacts of a tile.
 
     ``level``: normalised level, dB re background (along x cross x depth; NaN never
-    detects); ``mag`` and ``background``: magnitude and background (uPa, same shape);
+    detects); ``threshold_db``: a number, or one per depth (the layers' thresholds,
+    :mod:`.layer_cfar`); ``tails``: the layers' fits (a
+    :class:`~.layer_cfar.LayerTails`) that give each contact its expected false
+    alarms (None: NaN); ``mag`` and ``background``: magnitude and background (uPa, same shape);
     ``axes``: voxel-centre coordinates (m) of the three axes; ``detectable``: voxels
     allowed to detect (None: all); ``coverage_pings``, ``coverage_fraction``: the
     coverage volumes, reported at each contact's peak; ``footprint``: sidelobe geometry
@@ -223,7 +234,9 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
     if level.shape != mag.shape or level.shape != background.shape:
         raise ValueError(f"shapes differ: level {level.shape}, magnitude {mag.shape}, "
                          f"background {background.shape}")
-    mask = np.asarray(level >= threshold_db)  # NaN compares False
+    thr = np.broadcast_to(np.asarray(threshold_db, dtype=np.float64), level.shape[2:])
+    mask = np.asarray(level >= thr[None, None, :])  # NaN compares False
+    floor_db = float(thr.min()) if thr.size else float("inf")
     if detectable is not None:
         mask &= detectable
     if not mask.any():
@@ -235,7 +248,7 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
     if keep.size == 0:
         return empty()
     voxel = [float(ax[1] - ax[0]) if ax.size > 1 else 0.0 for ax in axes]
-    if point_threshold_db is not None and point_threshold_db > threshold_db:
+    if point_threshold_db is not None and point_threshold_db > floor_db:
         # a region is a contact when its peak reaches the point threshold, or when it
         # is an extended object: at least extended_min_m3 above the region threshold
         top = regions.peak_value[keep - 1]
@@ -305,7 +318,10 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
         row["coverage_pings"] = 0 if coverage_pings is None else int(coverage_pings[p])
         row["coverage_fraction"] = (-1.0 if coverage_fraction is None
                                     else float(coverage_fraction[p]))
+        row["threshold_db"] = float(thr[p[2]])
+        expected = float("nan") if tails is None else tails.expected(p[2], float(level[p]))
+        row["false_alarms"] = expected if math.isfinite(expected) else -1.0
     log.debug("%d regions above %.1f dB, %d of at least %d voxels, %d peaking on a depth "
-              "face, %d sidelobes, %d contacts", n, threshold_db, n_regions, min_voxels,
+              "face, %d sidelobes, %d contacts", n, floor_db, n_regions, min_voxels,
               n_faces, n_sidelobes, out.size)
     return out
