@@ -127,6 +127,31 @@ def is_sidelobe(weak_pos, weak_peak_db: float, strong_pos, strong_peak_db: float
     return bool(float(np.hypot(*(w[:2] - s[:2]))) <= footprint.reach_m(w[2], s[2]))
 
 
+def sidelobe_zone(mag_db: np.ndarray, axes, sources_pos: np.ndarray,
+                  sources_peak_db: np.ndarray, sidelobe_db: float, sidelobe_m: float,
+                  footprint: Footprint | None = None) -> np.ndarray:
+    """The voxels (a mask, the shape of ``mag_db``: |image| in dB re 1 uPa, along x
+    cross x depth, on ``axes``) that :func:`is_sidelobe` would call an imaging sidelobe
+    of one of the ``sources`` (positions (n, 3) in the same frame, peak magnitudes (n,)
+    dB): at least ``sidelobe_db`` weaker than it, and within ``sidelobe_m`` of it or
+    within one ping's footprint of it at a range some ping shares."""
+    zone = np.zeros(mag_db.shape, dtype=bool)
+    a, c, z = (np.asarray(ax, dtype=np.float64) for ax in axes)
+    for pos, peak in zip(np.asarray(sources_pos, dtype=np.float64).reshape(-1, 3),
+                         np.asarray(sources_peak_db, dtype=np.float64)):
+        horiz = np.hypot(a[:, None] - pos[0], c[None, :] - pos[1])
+        near = np.sqrt(horiz[:, :, None] ** 2 + (z[None, None, :] - pos[2]) ** 2) \
+            <= sidelobe_m
+        if footprint is not None:
+            reach = np.array([footprint.reach_m(float(zz), float(pos[2])) for zz in z])
+            share = np.array([footprint.may_share_range(float(zz), float(pos[2]))
+                              for zz in z])
+            near = (near | (horiz[:, :, None] <= reach[None, None, :])) \
+                & share[None, None, :]
+        zone |= near & (mag_db <= peak - sidelobe_db)
+    return zone
+
+
 def empty() -> np.ndarray:
     """A detection table with no rows."""
     return np.zeros(0, dtype=DTYPE)
