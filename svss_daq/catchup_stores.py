@@ -58,13 +58,19 @@ class RawRunStore:
     when all its segment files were closed by their writer (and, when any segment carries
     the root attribute ``run_ended``, one of them says true). A file still being written
     is read again, when asked about sequences past what was read, once it has changed on
-    disk. An unreadable file raises :class:`~svss_daq.rawfile.RawFileError` here."""
+    disk. An unreadable file raises :class:`~svss_daq.rawfile.RawFileError` here, or
+    with ``skip_unreadable`` is left out (logged) and the others served."""
 
-    def __init__(self, paths: Iterable[str | Path]):
+    def __init__(self, paths: Iterable[str | Path], skip_unreadable: bool = False):
         self._lock = threading.RLock()
         self._segments: list[_Segment] = []
         for p in paths:
-            self._segments.append(self._open(Path(p)))
+            try:
+                self._segments.append(self._open(Path(p)))
+            except RawFileError as exc:
+                if not skip_unreadable:
+                    raise
+                log.warning("catch-up: not served: %s", exc)
         if not self._segments:
             raise ValueError("RawRunStore: no raw-run files given")
         order = {}
@@ -224,9 +230,9 @@ class RecordingStore:
                              recorder.run_id + "_"))
         self.earlier = None
         if earlier:
-            try:
-                self.earlier = RawRunStore(earlier)
-            except Exception as exc:          # a damaged old file must not stop a run
+            try:                              # a damaged old file is left out
+                self.earlier = RawRunStore(earlier, skip_unreadable=True)
+            except Exception as exc:          # and must not stop a run
                 log.warning("catch-up: earlier runs in %s not served (%s)",
                             recorder.out_dir, exc)
 

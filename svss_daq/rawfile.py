@@ -46,7 +46,9 @@ into a :class:`RawFileError` naming the file and the path (with the pieces of
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import json
 import logging
 import os
 import time
@@ -904,6 +906,14 @@ class RawRunReader:
         self.attrs = dict(f.attrs)
         self._provenance = dict(f["Provenance"].attrs) if "Provenance" in f else {}
 
+    def _closed_as_interrupted(self, path: Path) -> bool:
+        """Whether the file's ``acquisition_summary`` (the root attribute) says another
+        daemon closed it as interrupted (:func:`close_interrupted`)."""
+        with contextlib.suppress(Exception):
+            summary = json.loads(text(self._f.attrs.get("acquisition_summary")) or "{}")
+            return bool(summary.get("interrupted"))
+        return False
+
     def _ping_count(self, lengths: dict[str, int]) -> int:
         """The number of pings the per-ping datasets (``lengths``: path -> entries) hold
         together. Every one holds every ping of a closed file, and at least the pings
@@ -929,9 +939,17 @@ class RawRunReader:
                     f"datasets have {others or [n_min]}")
             if self.clean and n_max != n:
                 long = max(lengths, key=lengths.get)
-                raise RawFileError(
-                    f"{path}: damaged: dataset '{long}' has {n_max} entries, the run "
-                    f"was closed with {n} pings ('/{FLUSHED}')")
+                if not self._closed_as_interrupted(path):
+                    raise RawFileError(
+                        f"{path}: damaged: dataset '{long}' has {n_max} entries, the run "
+                        f"was closed with {n} pings ('/{FLUSHED}')")
+                # its writer was killed with a ping half-written (its datasets grown,
+                # the count not yet): another daemon closed it at the count
+                self._notes.append(
+                    f"{path}: closed as interrupted with {n} pings flushed; dataset "
+                    f"'{long}' has {n_max} entries: reading {n} pings, "
+                    f"{n_max - n} left out")
+                self.truncated = n_max - n
             return n
         if n_max != n_min:
             if self.clean:

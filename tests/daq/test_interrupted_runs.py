@@ -128,3 +128,30 @@ def test_a_recorded_run_id_is_refused_and_a_free_one_found(tmp_path, hardware):
     assert not lock_path(out, "ok").exists()
     assert close_interrupted_runs(out, "y") == {}
 
+
+
+def test_a_ping_half_written_when_killed_is_left_out_of_the_closed_run(tmp_path):
+    """Killed between growing its datasets for a ping and counting it flushed (seen
+    under load: 21 entries, 20 flushed), the writer leaves a longer dataset than its
+    count; closed as interrupted, the run reads its flushed pings (it was refused as
+    damaged, and the restarted daemon served none of the earlier runs)."""
+    import h5py
+    out = tmp_path / "runs"
+    proc = recorder_process(out, "lineA", 10)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(10)
+    seg = out / "lineA_000.h5"
+    close_interrupted_runs(out, "lineB")
+    with h5py.File(seg, "a") as f:          # the half-written ping's entries
+        for name in ("Sonar/Beam_group1/backscatter_r", "Platform/time1"):
+            f[name].resize(f[name].shape[0] + 1, axis=0)
+    with RawRunReader(seg) as run:
+        assert run.clean and run.summary["interrupted"] is True
+        assert len(run) == 8 and run.truncated == 1
+        assert [run.ping(i).sequence for i in range(8)] == list(range(8))
+    # a file closed by its own writer with such a mismatch is still damaged
+    with h5py.File(seg, "a") as f:
+        f.attrs["acquisition_summary"] = '{"interrupted": false}'
+    from svss_daq.rawfile import RawFileError
+    with pytest.raises(RawFileError, match="damaged"):
+        RawRunReader(seg)

@@ -60,6 +60,18 @@ def test_fetch_found_missing_and_capped(holed):
         assert svc.errors == 0 and svc.pings_served == 4 + 9
 
 
+def test_a_damaged_file_is_left_out_and_the_others_served(holed, segmented, tmp_path):
+    """(What a restarted daemon's catch-up service does with the runs recorded before it:
+    one unreadable file among them cost it all of them.)"""
+    bad = tmp_path / "bad_000.h5"
+    bad.write_bytes(b"\x89HDF\r\n\x1a\n" + b"\0" * 4000)
+    from svss_daq.rawfile import RawFileError
+    with pytest.raises(RawFileError, match="bad_000"):
+        RawRunStore([holed, bad])
+    with RawRunStore([holed, bad, *segmented], skip_unreadable=True) as store:
+        assert [r.run_id for r in store.runs()] == ["holed", "line-7"]
+
+
 def test_a_run_spanning_segment_files(segmented):
     with RawRunStore(segmented) as store, \
             PingService("tcp://127.0.0.1:*", store) as svc, \
