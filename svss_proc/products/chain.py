@@ -24,7 +24,7 @@ from svss_daq.decibels import amplitude_to_db
 from . import drc as drc_mod
 from .background import kernel_voxels, median_background
 from .detect import Footprint, detect, sidelobe_zone
-from .layer_cfar import guarded_along, layer_tails
+from .layer_cfar import guarded_along, guarded_regions, layer_tails
 from ..imaging.coverage import aperture_fraction, full_fraction
 from .quicklook import mip_png, products_png
 from .tile_products import Products
@@ -87,14 +87,28 @@ class Before:
 
 
 def _shown(level: np.ndarray, mag: np.ndarray, axes, sources: np.ndarray,
-           before: "Before | None", dc, footprint: Footprint | None) -> np.ndarray:
-    """The level the display products show: a voxel that the detection would call an
-    imaging sidelobe of a contact (this tile's, its neighbours' planes', the previous
-    tile's: :func:`~.detect.sidelobe_zone`) is shown at most at the detection
-    threshold. A strong target's sidelobes end sharply where no ping's footprint holds
+           before: "Before | None", dc, footprint: Footprint | None,
+           layer_threshold_db: np.ndarray | None = None,
+           detectable: np.ndarray | None = None) -> np.ndarray:
+    """The level the display products show. A layer whose threshold was raised over
+    ``threshold_db`` by its own clutter (``layer_threshold_db``, :mod:`.layer_cfar`) is
+    shown lowered by as much: a voxel is shown over the threshold exactly where it
+    could detect, and a bright layer's clutter (the seed's sand line: 28 dB in the MIPs,
+    8 dB over its cylinder) no brighter than the threshold. A voxel that the detection
+    would call an imaging sidelobe of a contact (this tile's, its neighbours' planes',
+    the previous tile's: :func:`~.detect.sidelobe_zone`) is shown at most at the
+    threshold: a strong target's sidelobes end sharply where no ping's footprint holds
     both it and them; there the median background falls to the noise and the edge stood
     up to 70 dB over it in the demo, brighter than any target, though the detection
-    drops it."""
+    drops it. A voxel that may not detect (``detectable`` false: imaged by too few
+    pings, or its aperture cut by the run's end) is shown as partial: at most at the
+    threshold too (the seed's sand line past its last ping: 28 dB)."""
+    if detectable is not None and not detectable.all():
+        level = np.where(detectable, level, np.minimum(level, dc.threshold_db))
+    if layer_threshold_db is not None:
+        raised = np.maximum(np.asarray(layer_threshold_db) - dc.threshold_db, 0.0)
+        if np.any(raised):
+            level = level - raised[None, None, :].astype(level.dtype)
     pos = np.stack([sources["along_m"], sources["cross_m"], sources["depth_m"]], -1)
     peak = np.asarray(sources["peak_db"], dtype=np.float64)
     if before is not None and before.positions.size:
@@ -195,7 +209,9 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
                  else dc.sidelobe_m)
         guard = guarded_along(level, detectable, dc.threshold_db, reach, float(voxel_m))
         tails = layer_tails(level, detectable, dc.layer_false_alarms_per_m3
-                            * float(voxel_m) ** 3, dc.threshold_db, float(voxel_m), guard)
+                            * float(voxel_m) ** 3, dc.threshold_db, float(voxel_m), guard,
+                            guarded_regions(level, detectable, dc.threshold_db,
+                                            float(voxel_m)))
         threshold = tails.threshold_db
     table = detect(level_x, mag_x, bg_x, axes_x, threshold, dc.min_voxels,
                    dc.merge_m, 1 << 30, dc.sidelobe_db, dc.sidelobe_m,
@@ -217,7 +233,8 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
     g = cfg.depth_gain
     gain = drc_mod.depth_gain_db(axes[2], g.db_per_m, g.start_m).astype(np.float32)
     display = _shown(level, mag, axes, sources, before, dc,
-                     footprint if use_footprint else None)
+                     footprint if use_footprint else None,
+                     None if tails is None else tails.threshold_db, detectable)
     display = display + gain[None, None, :] if np.any(gain) else display
     d = cfg.drc
     comp = drc_mod.compress(display, d.floor_db, d.knee_db, d.ceiling_db) if keep_volumes \

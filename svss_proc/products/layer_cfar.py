@@ -38,6 +38,12 @@ raised their own layers' thresholds to 40-90 dB, above them). So:
 - each layer is fitted in along-track blocks of ``BLOCK_M`` and its threshold is the
   median of the blocks': what the guard misses moves one or two blocks, clutter all.
 
+- the ``GUARD_REGIONS`` strongest regions over the configured threshold (the objects a
+  dense field holds: one every 2 m in the Sayers-like field, each spreading over more
+  than 1 % of its block's top layer) are left out with ``GUARD_MARGIN_M`` about them:
+  clutter crosses the threshold in many more regions than that and still shows in the
+  fit (the seed's sand line: 104).
+
 A layer with no block left keeps the configured threshold. Clutter that itself reaches
 ``GUARD_DB`` over the threshold guards itself out of the fit: this handles tails up to
 that level (the seed's sand: 25.8 dB at most, 8.8 dB over the 17 dB threshold).
@@ -59,6 +65,10 @@ BLOCK_M = 3.0
 #: a voxel this far over the configured threshold is a strong response: the stretch
 #: its sidelobes may reach is left out of the fits, dB
 GUARD_DB = 10.0
+#: the strongest regions over the threshold left out of the fits, per tile
+GUARD_REGIONS = 10
+#: and how far about each region's voxels, m
+GUARD_MARGIN_M = 0.3
 
 
 @dataclass(frozen=True)
@@ -107,13 +117,36 @@ def guarded_along(level_db: np.ndarray, detectable: np.ndarray | None, floor_db:
     return maximum_filter1d(rows.astype(np.uint8), size=2 * half + 1, mode="constant") > 0
 
 
+def guarded_regions(level_db: np.ndarray, detectable: np.ndarray | None,
+                    floor_db: float, voxel_m: float) -> np.ndarray:
+    """A mask of the voxels within ``GUARD_MARGIN_M`` of the ``GUARD_REGIONS`` strongest
+    26-connected regions at or over ``floor_db`` (among the ``detectable`` voxels)."""
+    from scipy import ndimage
+    over = np.asarray(level_db >= floor_db)
+    if detectable is not None:
+        over &= detectable
+    out = np.zeros(level_db.shape, dtype=bool)
+    if not over.any():
+        return out
+    labels, n = ndimage.label(over, structure=np.ones((3, 3, 3), dtype=bool))
+    peaks = ndimage.maximum(np.where(over, level_db, -np.inf), labels,
+                            np.arange(1, n + 1))
+    strongest = np.arange(1, n + 1)[np.argsort(-np.asarray(peaks))[:GUARD_REGIONS]]
+    half = max(1, int(round(GUARD_MARGIN_M / voxel_m)))
+    for box, lab in zip(ndimage.find_objects(labels), range(1, n + 1)):
+        if lab in strongest and box is not None:
+            out[tuple(slice(max(0, b.start - half), b.stop + half) for b in box)] = True
+    return out
+
+
 def layer_tails(level_db: np.ndarray, detectable: np.ndarray | None, pfa: float,
-                floor_db: float, voxel_m: float, guard: np.ndarray | None = None
-                ) -> LayerTails:
+                floor_db: float, voxel_m: float, guard: np.ndarray | None = None,
+                exclude: np.ndarray | None = None) -> LayerTails:
     """The tails and thresholds of each depth plane (last axis) of ``level_db``
     (normalised level, dB re background, along x cross x depth; NaN never counts) over
     the ``detectable`` voxels (None: all) outside the ``guard``ed along-track indices
-    (:func:`guarded_along`; None: none), fitted per along-track block (``voxel_m``:
+    (:func:`guarded_along`; None: none) and the ``exclude``d voxels
+    (:func:`guarded_regions`; None: none), fitted per along-track block (``voxel_m``:
     the voxel's size, m) and the median block's taken; ``pfa``: false-alarm
     probability per voxel; ``floor_db``: the configured threshold, the least any layer
     gets."""
@@ -135,6 +168,8 @@ def layer_tails(level_db: np.ndarray, detectable: np.ndarray | None, pfa: float,
         n[iz] = int(ok.sum())
         if guard is not None:
             ok &= ~guard[:, None]
+        if exclude is not None:
+            ok &= ~exclude[..., iz]
         fits = []
         for a, b in zip(edges[:-1], edges[1:]):
             sel = ok[a:b]

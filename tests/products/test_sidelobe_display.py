@@ -68,3 +68,22 @@ def test_a_sidelobe_edge_is_not_shown_brighter_than_the_threshold(cfg):
     # with only the 1 m sidelobe radius (no footprint) the arc is no sidelobe: shown
     plain = compute_products(_image(), AXES, VOXEL, cfg)
     assert np.max(plain.mips["mip_depth"][ARC - 2:ARC + 3]) > 40.0
+
+
+def test_a_partly_imaged_edge_is_shown_as_partial(cfg):
+    """Voxels imaged by fewer than ``min_coverage_fraction`` of the full pings at their
+    depth (a run's end) may not detect; a bright response there is shown at most at the
+    threshold, and kept as it is in the level volume."""
+    img = _image()
+    img[:, :, :] = speckle(SHAPE, np.random.default_rng(3))
+    edge = (slice(270, 300), slice(None), slice(None))
+    plant(img, AXES, (AXES[0][285], AXES[1][20], AXES[2][12]),
+          rayleigh_median(1.0) * 10 ** (45 / 20))
+    pings = np.full(SHAPE, 20, dtype=np.uint16)
+    pings[edge] = 3                                # the last pings' reach
+    channels = pings * 80
+    p = compute_products(img, AXES, VOXEL, cfg, coverage=(pings, channels))
+    assert len(p.detections) == 0
+    assert np.max(p.level[edge]) > 35.0            # the level is as it was
+    assert np.max(p.mips["mip_depth"][270:300]) <= cfg.detection.threshold_db \
+        + np.max(p.gain_db) + 1e-4
