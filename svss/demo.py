@@ -195,6 +195,13 @@ def _run_chain(procs: dict[str, subprocess.Popen], scene_path: Path, hw_path: Pa
                lead_s: float) -> None:
     """Start the three processes (into ``procs``) and wait for the worker to finish the
     run; the caller stops them."""
+    # the daemon compiles the navigation filters before its sonar pings (seconds in a
+    # fresh environment: 13 s there once ate the whole lead and the first target); here,
+    # before the device's clock runs, into numba's cache that the daemon then loads
+    from svss_daq.nav.kalman import warm_up
+    t0 = time.monotonic()
+    warm_up()
+    log.info("navigation filters ready (%.1f s)", time.monotonic() - t0)
     with open(logs / "sim-device.log", "wb") as err:
         procs["sim-device"] = _start(
             _svss("sim-device", "--scene", str(scene_path), "--hardware", str(hw_path),

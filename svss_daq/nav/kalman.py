@@ -148,12 +148,78 @@ def filter_smooth(x0, p0, u, f01, f11, qp, qc, measurements, smooth: bool = True
 
 
 @nb.njit(cache=True)
+def _mm(a, b):
+    """a @ b for small matrices (loops: no BLAS to compile)."""
+    n, m, k = a.shape[0], b.shape[1], a.shape[1]
+    out = np.zeros((n, m))
+    for i in range(n):
+        for j in range(m):
+            acc = 0.0
+            for q in range(k):
+                acc += a[i, q] * b[q, j]
+            out[i, j] = acc
+    return out
+
+
+@nb.njit(cache=True)
+def _mv(a, x):
+    """a @ x."""
+    out = np.zeros(a.shape[0])
+    for i in range(a.shape[0]):
+        for q in range(a.shape[1]):
+            out[i] += a[i, q] * x[q]
+    return out
+
+
+@nb.njit(cache=True)
+def _inv_psd(a):
+    """The inverse of a small symmetric positive semi-definite matrix by Gauss-Jordan
+    elimination with pivoting on the diagonal; a direction without variance (a pivot
+    below 1e-12 of the largest diagonal) gets zero rows and columns, as a pseudo-inverse
+    gives a state that cannot move."""
+    n = a.shape[0]
+    m = a.copy()
+    inv = np.eye(n)
+    used = np.zeros(n, dtype=np.bool_)
+    scale = 0.0
+    for i in range(n):
+        scale = max(scale, abs(a[i, i]))
+    dead = np.zeros(n, dtype=np.bool_)
+    for _ in range(n):
+        piv, best = -1, 0.0
+        for i in range(n):
+            if not used[i] and abs(m[i, i]) > best:
+                piv, best = i, abs(m[i, i])
+        if piv < 0 or best <= 1e-12 * scale:
+            for i in range(n):
+                if not used[i]:
+                    dead[i] = True
+            break
+        used[piv] = True
+        d = m[piv, piv]
+        for j in range(n):
+            m[piv, j] /= d
+            inv[piv, j] /= d
+        for i in range(n):
+            if i != piv and m[i, piv] != 0.0:
+                f = m[i, piv]
+                for j in range(n):
+                    m[i, j] -= f * m[piv, j]
+                    inv[i, j] -= f * inv[piv, j]
+    for i in range(n):
+        if dead[i]:
+            for j in range(n):
+                inv[i, j] = 0.0
+                inv[j, i] = 0.0
+    return inv
+
+
+@nb.njit(cache=True)
 def _run_n(x0, p0, u, f, q, m_step, m_h, m_z, m_r, smooth):
     """:func:`_run` for n states with a full transition ``f`` (K-1, n, n), input ``u``
     (K-1, n), process noise ``q`` (K-1, n, n) and measurement rows ``m_h`` (M, n)."""
     k_n = u.shape[0] + 1
     n = x0.shape[0]
-    eye = np.eye(n)
     xf = np.empty((k_n, n))
     pf = np.empty((k_n, n, n))
     xp = np.empty((k_n, n))
@@ -167,21 +233,33 @@ def _run_n(x0, p0, u, f, q, m_step, m_h, m_z, m_r, smooth):
     for k in range(k_n):
         while j < n_m and m_step[j] == k:
             h = m_h[j]
-            ph = p @ h
-            s = h @ ph + m_r[j]
+            ph = _mv(p, h)
+            s = m_r[j]
+            for i in range(n):
+                s += h[i] * ph[i]
             if s > 0.0:
                 g = ph / s
-                x = x + g * (m_z[j] - h @ x)
-                a = eye - np.outer(g, h)
-                p = a @ p @ a.T + np.outer(g, g) * m_r[j]
+                innov = m_z[j]
+                for i in range(n):
+                    innov -= h[i] * x[i]
+                x = x + g * innov
+                # Joseph form: (I - g h) P (I - g h)^T + g r g^T
+                a = np.eye(n)
+                for r_ in range(n):
+                    for c_ in range(n):
+                        a[r_, c_] -= g[r_] * h[c_]
+                p = _mm(_mm(a, p), a.T)
+                for r_ in range(n):
+                    for c_ in range(n):
+                        p[r_, c_] += g[r_] * g[c_] * m_r[j]
                 p = 0.5 * (p + p.T)
             j += 1
         xf[k] = x
         pf[k] = p
         if k == k_n - 1:
             break
-        x = f[k] @ x + u[k]
-        p = f[k] @ p @ f[k].T + q[k]
+        x = _mv(f[k], x) + u[k]
+        p = _mm(_mm(f[k], p), f[k].T) + q[k]
         xp[k + 1] = x
         pp[k + 1] = p
     if not smooth:
@@ -189,10 +267,10 @@ def _run_n(x0, p0, u, f, q, m_step, m_h, m_z, m_r, smooth):
     xs = xf.copy()
     ps = pf.copy()
     for k in range(k_n - 2, -1, -1):
-        # C = Pf[k] F^T Pp[k+1]^-1 (a pseudo-inverse: a state without uncertainty)
-        c = pf[k] @ f[k].T @ np.linalg.pinv(pp[k + 1])
-        xs[k] = xf[k] + c @ (xs[k + 1] - xp[k + 1])
-        ps[k] = pf[k] + c @ (ps[k + 1] - pp[k + 1]) @ c.T
+        # C = Pf[k] F^T Pp[k+1]^-1 (a state without variance cannot move)
+        c = _mm(_mm(pf[k], f[k].T), _inv_psd(pp[k + 1]))
+        xs[k] = xf[k] + _mv(c, xs[k + 1] - xp[k + 1])
+        ps[k] = pf[k] + _mm(_mm(c, ps[k + 1] - pp[k + 1]), c.T)
         ps[k] = 0.5 * (ps[k] + ps[k].T)
     return xs, ps, xp, pp
 
