@@ -12,11 +12,18 @@ of DVL sample times, one per NED axis of the DVL head's position:
   ``dvl_bias_correlation_s``). GPS fixes are measurements of the antenna, moved to the
   head through the lever arms and to the grid point before them with the DVL's
   velocity; noise per axis GST sigma / sqrt(2), else ``gps_sigma_m``.
-* down: (head depth, bottom depth under the head); process: the DVL's vertical velocity
-  and a random walk of the bottom (``bottom_depth_rate_sigma_m_s``); measurements: the
-  head's height above the bottom from the beam ranges (bottom depth minus head depth,
-  noise ``dvl_range_sigma_m`` over the beams used) and the GPS height where a fix has one
-  (``gps_height_sigma_m``).
+* down: (head depth, the bed's depth under the head, the bed's gradient north and east):
+  the bed a plane about the head that the head moves over. Process: the DVL's vertical
+  velocity for the head; for the bed's depth, the gradient times the head's horizontal
+  displacement plus a random walk (``bottom_depth_rate_sigma_m_s``); for the gradient,
+  a random walk per metre travelled (``bottom_slope_sigma_per_m``); where ranges return
+  after more than ``dvl_max_gap_s`` without any, a new bed (depth and gradient free).
+  Measurements: each beam's footprint below the head, bed depth minus head depth plus
+  the gradient times the footprint's horizontal offset (noise ``dvl_range_sigma_m``;
+  a sample whose footprints lie on no plausible plane is left out:
+  :func:`~.dvl_geometry.plausible_bed`); with fewer than ``dvl_min_beams`` ranges the
+  vertical beam's height; the GPS height where a fix has one (``gps_height_sigma_m``).
+  The body's altitude is the bed's plane at the body, not at the head.
 
 Without bottom lock the last velocity is held with ``dvl_gap_velocity_sigma_m_s`` of
 uncertainty, so the GPS takes over. The RTS smoother gives each pose every record before
@@ -37,7 +44,7 @@ from svss_daq.ping import (NAV_BOTTOM_LOCK, NAV_DEAD_RECKONED, NAV_DVL_VELOCITY,
                            NAV_HEADING_FROM_COMPASS, NAV_HEADING_FROM_COURSE, NAV_HELD,
                            NAV_NO_HEADING, NavSnapshot)
 
-from .dvl_geometry import _sample_altitude, body_beam_vectors
+from .dvl_geometry import _sample_altitude, level_footprints
 from .geodesy import geodetic_to_ned, ned_to_geodetic
 from .headings import _headings, _nearest_age, _rotations
 from .kalman import filter_smooth, filter_smooth_n
@@ -51,9 +58,6 @@ _UNKNOWN_VAR_M2 = 1e4
 _NO_HEIGHT_VAR_M2 = 1.0
 #: prior variance of the bed's gradient (per axis; 0.3: a slope of 17 deg), 1
 _GRADIENT_VAR = 0.09
-#: how far off the plane of the other beams' footprints one of four may lie, as a
-#: fraction of the mean range (RDI's river recording: 1.2 % at the 99th percentile)
-_OFF_PLANE_FRACTION = 0.05
 #: the lever arm's rate of turn is taken over +-0.5 s of attitude
 ATTITUDE_RATE_HALF_WINDOW_S = 0.5
 #: heading flags of _headings without a true heading: 1 course over ground, 2 none
@@ -275,55 +279,38 @@ def compute_poses(times_ns, fixes: Sequence[GpsFix], headings: Sequence[HeadingS
     return out
 
 
-def _plausible_bed(foot: np.ndarray, max_slope_deg: float, range_sigma_m: float) -> bool:
-    """Whether the footprints (n >= 3, 3) about the head lie on one bed no steeper than
-    ``max_slope_deg``: the plane through them (least squares in depth) is the bed one
-    sample sees, and with four beams each footprint lies on it to within
-    ``_OFF_PLANE_FRACTION`` of the mean range plus three range sigmas. Otherwise a beam
-    is not on the bed the DVL tracks (a head tilted toward the surface or a bank, a
-    fish, a wall): the sample's ranges are left out."""
-    a = np.stack([np.ones(len(foot)), foot[:, 0], foot[:, 1]], -1)
-    coef, *_ = np.linalg.lstsq(a, foot[:, 2], rcond=None)
-    if math.hypot(coef[1], coef[2]) > math.tan(math.radians(max_slope_deg)):
-        return False
-    if len(foot) < 4:
-        return True
-    off = float(np.max(np.abs(a @ coef - foot[:, 2])))
-    return off <= _OFF_PLANE_FRACTION * float(np.mean(np.linalg.norm(foot, axis=1))) \
-        + 3.0 * range_sigma_m
-
-
-def _down_states(dvl, rot_d, ranges, head_h, disp, var, dt, m_gps, z_gps, r_gps_var,
-                 prior, beam, cfg, causal, state_out):
+def _down_states(dvl, heading_d, head_h, disp, var, td, m_gps, z_gps, r_gps_var, prior,
+                 beam, cfg, causal, state_out):
     """The down axis's states (K, 4): head depth, bed depth under the head, the bed's
-    gradient north and east (module docstring), smoothed or (``causal``) filtered."""
+    gradient north and east (module docstring), smoothed or (``causal``) filtered;
+    ``heading_d``: the heading at each sample (rad), ``td``: the samples' times (s)."""
     k_n = len(dvl)
     steps, rows, zs, rs = [m_gps], [np.tile([1.0, 0.0, 0.0, 0.0], (m_gps.size, 1))], \
         [z_gps], [r_gps_var]
     r_beam = cfg.dvl_range_sigma_m ** 2
-    ok = np.isfinite(ranges) & (ranges > 0)
     seen = np.zeros(k_n, dtype=bool)          # samples whose ranges measured the bed
     for k, d in enumerate(dvl):
-        n_ok = int(ok[k, :4].sum()) if ranges.shape[1] >= 4 else 0
-        angle = d.beam_angle_rad if math.isfinite(d.beam_angle_rad) else beam
-        if n_ok >= cfg.dvl_min_beams and math.isfinite(angle):
-            u = body_beam_vectors(angle, d.beam_alignment_rad, d.beams_convex) @ rot_d[k].T
-            sel = np.flatnonzero(ok[k, :4])
-            foot = ranges[k, sel, None] * u[sel]          # footprints about the head, NED
-            if not _plausible_bed(foot, cfg.bottom_max_slope_deg, cfg.dvl_range_sigma_m):
-                continue
-            steps.append(np.full(sel.size, k))
-            rows.append(np.stack([-np.ones(sel.size), np.ones(sel.size), foot[:, 0],
-                                  foot[:, 1]], -1))
-            zs.append(foot[:, 2])
-            rs.append(np.full(sel.size, r_beam))
-            seen[k] = True
-        elif math.isfinite(head_h[k]):                    # the vertical beam, under the head
-            seen[k] = True
-            steps.append(np.array([k]))
-            rows.append(np.array([[-1.0, 1.0, 0.0, 0.0]]))
-            zs.append(np.array([head_h[k]]))
-            rs.append(np.array([r_beam]))
+        level = level_footprints(d, beam, cfg.dvl_min_beams, cfg.bottom_max_slope_deg,
+                                 cfg.dvl_range_sigma_m)
+        if level is None:
+            if math.isfinite(head_h[k]):                  # the vertical beam, under the head
+                seen[k] = True
+                steps.append(np.array([k]))
+                rows.append(np.array([[-1.0, 1.0, 0.0, 0.0]]))
+                zs.append(np.array([head_h[k]]))
+                rs.append(np.array([r_beam]))
+            continue
+        if not len(level):                                # a beam off the bed: left out
+            continue
+        ch, sh = math.cos(heading_d[k]), math.sin(heading_d[k])
+        north = ch * level[:, 0] - sh * level[:, 1]       # footprints about the head, NED
+        east = sh * level[:, 0] + ch * level[:, 1]
+        steps.append(np.full(len(level), k))
+        rows.append(np.stack([-np.ones(len(level)), np.ones(len(level)), north, east], -1))
+        zs.append(level[:, 2])
+        rs.append(np.full(len(level), r_beam))
+        seen[k] = True
+    dt = np.diff(td)
     f = np.tile(np.eye(4), (k_n - 1, 1, 1))
     f[:, 1, 2], f[:, 1, 3] = disp[:, 0], disp[:, 1]
     q = np.zeros((k_n - 1, 4, 4))
@@ -334,7 +321,6 @@ def _down_states(dvl, rot_d, ranges, head_h, disp, var, dt, m_gps, z_gps, r_gps_
     # ranges again after more than a gap without: the bed under the boat is a new bed,
     # its depth and gradient free (a stale bed held the head's depth against the GPS
     # heights: 4 m off after RDI's recording lost the bottom for 8 minutes)
-    td = np.cumsum(np.concatenate([[0.0], dt]))
     last = np.maximum.accumulate(np.where(seen, np.arange(k_n), -1))
     before = np.concatenate([[-1], last[:-1]])
     stale = seen[1:] & ((before[1:] < 0)
@@ -365,9 +351,6 @@ def _fused(t, td, dvl, attitude, tf, ant, rot_f, sig, has_h, rot_t, r_gps, r_dvl
     # a velocity carries the track only with a true heading to turn it (HDT, compass)
     ok = np.all(np.isfinite(v_ned), axis=1) & ~np.isin(att_d[3], _NO_TRUE_HEADING)
     head_h = np.array([_sample_altitude(d, beam, (0.0, 0.0, 0.0), cfg.dvl_min_beams) for d in dvl])
-    ranges = np.array([d.ranges_m for d in dvl], dtype=np.float64).reshape(k_n, -1)
-    with np.errstate(invalid="ignore"):
-        n_beams = np.maximum(1, np.sum(np.isfinite(ranges) & (ranges > 0), axis=1))
     disp, var, carried, v_use = _grid_model(td, v_ned, ok, cfg)
     dt = np.diff(td)
     lever_d = np.einsum("kij,j->ki", rot_d, r_dvl)          # head - body origin at the grid
@@ -425,7 +408,7 @@ def _fused(t, td, dvl, attitude, tf, ant, rot_f, sig, has_h, rot_t, r_gps, r_dvl
             state_out[name] = (xf, pf)
     # down: (head depth, bed depth under the head, bed gradient north, east)
     alt_ok = np.isfinite(head_h)
-    xs_d = _down_states(dvl, rot_d, ranges, head_h, disp, var, dt, kf[use_h],
+    xs_d = _down_states(dvl, att_d[2], head_h, disp, var, td, kf[use_h],
                         z_f[use_h, 2], cfg.gps_height_sigma_m ** 2 + r_extra[use_h],
                         priors["d"], beam, cfg, causal, state_out)
     if state_out is not None:

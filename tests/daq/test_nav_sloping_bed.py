@@ -12,6 +12,7 @@ RDI's Workhorse bottom-track recording in ``../shared/data``."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
@@ -171,13 +172,16 @@ def test_a_beam_off_the_bed_is_left_out(run):
     three = list(hit)
     three[k] = dataclasses.replace(samples[k], ranges_m=tuple(np.where(np.arange(4) == 1,
                                                                        np.nan, r)))
-    for sel, off_plane, worst in ((hit, 0.05, 0.03), (hit, 10.0, None), (three, 0.05, 0.03)):
-        fusion._OFF_PLANE_FRACTION = off_plane
+    from svss_daq.nav.dvl_geometry import level_footprints
+    taken_in = functools.partial(level_footprints.__wrapped__, off_plane_fraction=10.0)
+    for sel, footprints, worst in ((hit, level_footprints, 0.03), (hit, taken_in, None),
+                                   (three, level_footprints, 0.03)):
+        fusion.level_footprints = footprints
         try:
             alt = np.array([p.altitude_m for p in compute_poses(
                 near, fixes, [], sel, cfg, hw.lever_arms, causal=True)])
         finally:
-            fusion._OFF_PLANE_FRACTION = 0.05
+            fusion.level_footprints = level_footprints
         err = np.max(np.abs(alt - truth))
         if worst is not None:
             assert err < worst, err
