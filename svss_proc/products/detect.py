@@ -139,16 +139,25 @@ def sidelobe_zone(mag_db: np.ndarray, axes, sources_pos: np.ndarray,
     a, c, z = (np.asarray(ax, dtype=np.float64) for ax in axes)
     for pos, peak in zip(np.asarray(sources_pos, dtype=np.float64).reshape(-1, 3),
                          np.asarray(sources_peak_db, dtype=np.float64)):
-        horiz = np.hypot(a[:, None] - pos[0], c[None, :] - pos[1])
-        near = np.sqrt(horiz[:, :, None] ** 2 + (z[None, None, :] - pos[2]) ** 2) \
-            <= sidelobe_m
+        reach = share = None
+        far = sidelobe_m
         if footprint is not None:
             reach = np.array([footprint.reach_m(float(zz), float(pos[2])) for zz in z])
             share = np.array([footprint.may_share_range(float(zz), float(pos[2]))
                               for zz in z])
+            far = max(far, float(reach.max(initial=0.0)))
+        # only the along-track planes the source's sidelobes can reach
+        lo = int(np.searchsorted(a, pos[0] - far, side="left"))
+        hi = int(np.searchsorted(a, pos[0] + far, side="right"))
+        if hi <= lo:
+            continue
+        horiz = np.hypot(a[lo:hi, None] - pos[0], c[None, :] - pos[1])
+        near = np.sqrt(horiz[:, :, None] ** 2 + (z[None, None, :] - pos[2]) ** 2) \
+            <= sidelobe_m
+        if footprint is not None:
             near = (near | (horiz[:, :, None] <= reach[None, None, :])) \
                 & share[None, None, :]
-        zone |= near & (mag_db <= peak - sidelobe_db)
+        zone[lo:hi] |= near & (mag_db[lo:hi] <= peak - sidelobe_db)
     return zone
 
 
