@@ -129,8 +129,7 @@ def guarded_regions(level_db: np.ndarray, detectable: np.ndarray | None,
     if not over.any():
         return out
     labels, n = ndimage.label(over, structure=np.ones((3, 3, 3), dtype=bool))
-    peaks = ndimage.maximum(np.where(over, level_db, -np.inf), labels,
-                            np.arange(1, n + 1))
+    peaks = ndimage.maximum(level_db[over], labels[over], np.arange(1, n + 1))
     strongest = np.arange(1, n + 1)[np.argsort(-np.asarray(peaks))[:GUARD_REGIONS]]
     half = max(1, int(round(GUARD_MARGIN_M / voxel_m)))
     for box, lab in zip(ndimage.find_objects(labels), range(1, n + 1)):
