@@ -57,7 +57,11 @@ from svss_proc.seabed.stage import RunPings, seabed_stage  # noqa: E402
 log = logging.getLogger("bench_seabed")
 
 SCENES = ("seabed_sand", "seabed_silt", "seabed_silt_over_sand", "seabed_silt_over_clay",
-          "seabed_sand_sloping")
+          "seabed_sand_sloping", "seabed_sand_undulating")
+
+#: the true relief's nodes for the truth's image (c), m: fine enough that bilinear
+#: interpolation between them is exact to a fraction of a millimetre
+TRUE_RELIEF_STEP_M = 0.05
 
 
 def recorded(scene: str, cache: Path) -> Path:
@@ -73,17 +77,52 @@ def recorded(scene: str, cache: Path) -> Path:
     return run
 
 
-def true_processing(proc: ProcessingConfig, src: EnvironmentSource) -> ProcessingConfig:
-    """``proc`` imaging through the scene's own layers and speeds."""
+def scene_relief(src: EnvironmentSource, line, along, cross) -> np.ndarray:
+    """The scene's undulation (m, below its plane) at the nodes ``along`` x ``cross`` of
+    the processing's tile frame ``line`` (a :class:`~svss_daq.frames.TrackLine`)."""
+    a, c = np.meshgrid(along, cross, indexing="ij")
+    ned = line.tile_to_ned(np.stack([a, c, np.zeros_like(a)], axis=-1))
+    scene = src.line.ned_to_tile(ned)
+    return src.undulation.height(scene[..., 0], scene[..., 1])
+
+
+def true_processing(proc: ProcessingConfig, src: EnvironmentSource,
+                    line=None) -> ProcessingConfig:
+    """``proc`` imaging through the scene's own layers, speeds, slope and relief (in the
+    processing's tile frame ``line``)."""
     import dataclasses
     speeds = [float(c) for c in np.real(src.media.c[1:])]
     layers = tuple(SedimentLayerConfig(thickness_m=float(layer.thickness_m),
                                        sound_speed_m_s=c)
                    for layer, c in zip(src.scene.seabed.layers[:-1], speeds[:-1]))
     slope = src.scene.seabed.slope_deg or (0.0, 0.0)
+    relief = {}
+    if src.undulation is not None:
+        along = np.arange(-3.0, src.scene.track.n_pings * 0.1 + 3.0, TRUE_RELIEF_STEP_M)
+        cross = np.arange(-4.0, 4.0 + 1e-9, TRUE_RELIEF_STEP_M)
+        nodes = scene_relief(src, line, along, cross)
+        relief = {"interface_relief_m": tuple(tuple(float(v) for v in row) for row in nodes),
+                  "interface_relief_origin_m": (float(along[0]), float(cross[0])),
+                  "interface_relief_step_m": (TRUE_RELIEF_STEP_M, TRUE_RELIEF_STEP_M)}
     return dataclasses.replace(proc, imaging=dataclasses.replace(
         proc.imaging, sediment_sound_speed_m_s=speeds[-1], sediment_layers=layers,
-        delays="table", interface_slope_deg=tuple(float(v) for v in slope)))
+        delays="table", interface_slope_deg=tuple(float(v) for v in slope), **relief))
+
+
+def relief_error(estimate: dict, src: EnvironmentSource, line) -> float | None:
+    """The estimated relief's rms error (m) against the scene's at its nodes, after their
+    means are removed (the relief is known up to one constant: module docs of
+    :mod:`svss_proc.seabed.relief`); None where none was estimated."""
+    nodes = estimate.get("interface_relief_m")
+    if not nodes or src.undulation is None:
+        return None
+    nodes = np.asarray(nodes)
+    a0, c0 = estimate["interface_relief_origin_m"]
+    da, dc = estimate["interface_relief_step_m"]
+    truth = scene_relief(src, line, a0 + da * np.arange(nodes.shape[0]),
+                         c0 + dc * np.arange(nodes.shape[1]))
+    err = (nodes - nodes.mean()) - (truth - truth.mean())
+    return float(np.sqrt(np.mean(err ** 2)))
 
 
 def targets_of(scene) -> list[dict]:
@@ -131,15 +170,19 @@ def measure_scene(scene_name: str, cache: Path) -> dict:
         used, est = seabed_stage([reader], None, shipped, "estimate")
         out["estimate_s"] = round(time.perf_counter() - t0, 1)
         out["estimate"] = est.summary()
-        truth = true_processing(shipped.value, src)
-        out["truth"] = {"speeds_m_s": [float(c) for c in np.real(src.media.c[1:])],
-                        "thicknesses_m": [lay.thickness_m for lay in scene.seabed.layers[:-1]],
-                        "interface_slope_deg": list(scene.seabed.slope_deg or (0.0, 0.0))}
-        variants = {"shipped": shipped.value, "estimate": used.value, "truth": truth}
         pings = list(RunPings([reader]))
         imager = TileImager(hw, shipped.value)
         imager.add(pings[0])
         line = imager.line
+        truth = true_processing(shipped.value, src, line)
+        und = src.undulation
+        out["truth"] = {"speeds_m_s": [float(c) for c in np.real(src.media.c[1:])],
+                        "thicknesses_m": [lay.thickness_m for lay in scene.seabed.layers[:-1]],
+                        "interface_slope_deg": list(scene.seabed.slope_deg or (0.0, 0.0)),
+                        "interface_relief_rms_m": None if und is None else float(np.std(
+                            np.asarray(truth.imaging.interface_relief_m)))}
+        out["relief_error_rms_m"] = relief_error(out["estimate"], src, line)
+        variants = {"shipped": shipped.value, "estimate": used.value, "truth": truth}
         prepared: dict = {}
         rows = []
         for t in targets_of(scene):
@@ -190,6 +233,14 @@ def table(results: list[dict]) -> str:
             lines.append("  interface slope along {} across {} deg (truth {:+.1f}, {:+.1f})"
                          .format(*(f"{a:+.2f}" + (f" +/- {b:.2f}" if b is not None else "")
                                    for a, b in zip(sl, sg)), *tr["interface_slope_deg"]))
+        if e.get("interface_relief") is not None:
+            truth_rms = tr.get("interface_relief_rms_m")
+            lines.append("  interface relief {}: rms {:.1f} cm (truth {}){}".format(
+                "kept" if e["interface_relief"] else "not kept",
+                100 * (e.get("interface_relief_rms_m") or 0.0),
+                "none" if truth_rms is None else f"{100 * truth_rms:.1f} cm",
+                "" if r.get("relief_error_rms_m") is None
+                else f", error {100 * r['relief_error_rms_m']:.1f} cm rms"))
         lines.append("  target      depth   err shipped  err estimate  err truth  "
                      "level shipped  level estimate")
         for t in r["targets"]:

@@ -209,6 +209,22 @@ class SimDevice:
         from sim_device.track import truth_line
         return ned_plane(BedPlane.from_slopes(*seabed.slope_deg), truth_line(self.scene.track))
 
+    def _bed_ranges(self):
+        """The DVL's beam ranges to an undulating bed
+        (:func:`sim_device.bed_surface.ned_beam_ranges`), or None."""
+        seabed = self.scene.seabed
+        if seabed is None or not seabed.undulation:
+            return None
+        from sim_device.bed_plane import BedPlane
+        from sim_device.bed_surface import BedSurface, ned_beam_ranges
+        from sim_device.bed_undulation import Undulation
+        from sim_device.track import truth_line
+        plane = (BedPlane.from_slopes(*seabed.slope_deg)
+                 if seabed.slope_deg is not None and any(seabed.slope_deg) else None)
+        und = Undulation.from_terms([(t.amplitude_m, t.wavelength_m, t.direction_deg,
+                                      t.phase_deg) for t in seabed.undulation])
+        return ned_beam_ranges(BedSurface(plane, und), truth_line(self.scene.track))
+
     def _pose_fn(self):
         from sim_device.track import pose_at
         track, seed, t0 = self.scene.track, self.scene.scene.seed, self.clock.start_ns
@@ -228,7 +244,8 @@ class SimDevice:
             from sim_device.devices.gps import GpsEmulator
             lever = self.hw.value.lever_arms
             self.dvl = DvlEmulator(self.cfg.dvl, lever, self.clock, self._pose_fn(),
-                                   self.run_dir, "dvl", bed=self._bed())
+                                   self.run_dir, "dvl", bed=self._bed(),
+                                   bed_ranges=self._bed_ranges())
             self.gps = GpsEmulator(self.cfg.gps, lever, self.clock, self._pose_fn(),
                                    self.run_dir, "gps")
         self.clock.start()

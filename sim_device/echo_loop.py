@@ -83,8 +83,9 @@ def build(jit, legs, cis, deposit):
         ex = img[ch, b, IMG_X]
         ey = img[ch, b, IMG_Y]
         hh = img[ch, b, IMG_H]
-        # the straight line at the fastest speed bounds the receive delay
-        dz = hh + (zk if zk > 0.0 else 0.0)
+        # the straight line at the fastest speed bounds the receive delay (zk: the
+        # scatterer's depth below the interface's plane, negative above it)
+        dz = abs(hh + zk)
         dmin = math.sqrt((xk - ex) * (xk - ex) + (yk - ey) * (yk - ey) + dz * dz)
         if tmin + dmin / cmax >= win.t_hi:
             return 0

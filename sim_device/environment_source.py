@@ -44,6 +44,8 @@ from svss_daq.waveform import make_waveform
 
 from .acoustics import Sediment
 from .bed_plane import BedPlane, leg_image_position
+from .bed_surface import BedSurface
+from .bed_undulation import Undulation
 from .beams import beam_table, interface_sigma_table, reflection_tables
 from .environment import Environment, build_environment
 from .fidelity import densities, resolution_cell, volume_depth_limits
@@ -57,6 +59,7 @@ from .specular import (PathSet, SpectralSynthesiser, boundary_paths, interface_p
                        merge, select)
 from .synthesis import (SERIAL_BELOW, PulseSynthesiser, accumulate, accumulate_fast,
                         accumulate_fast_serial, transmit_legs)
+from .synthesis_curved import curved_accumulate, curved_transmit_legs
 from .targets.echo import TargetEchoes, build_targets
 from .track import ping_pose, truth_line
 
@@ -90,6 +93,14 @@ class EnvironmentSource:
         #: a sloping bed (sim_device.bed_plane): geometry goes into its frame; None: level
         self.bed = (BedPlane.from_slopes(*slope)
                     if slope is not None and any(slope) else None)
+        terms = scene.seabed.undulation if scene.seabed is not None else ()
+        #: the interface undulating about its plane (sim_device.bed_undulation, bed
+        #: frame); None: the plane itself
+        self.undulation = (Undulation.from_terms(
+            [(t.amplitude_m, t.wavelength_m, t.direction_deg, t.phase_deg) for t in terms])
+            if terms else None)
+        #: where the bed is (altitudes)
+        self.surface = BedSurface(self.bed, self.undulation)
         self.env: Environment = build_environment(scene, sediments)
         self.fc = fc = self.waveform.center_hz
         self.media = media = self.env.media(fc)
@@ -136,7 +147,7 @@ class EnvironmentSource:
                                         self.env.has_surface)
         self.receiver_noise = ReceiverNoise(scene.noise, hw.waveform, dig)
         self.noise_power = self.receiver_noise.power
-        self.points = scene_points(scene, self.env, self.p0, self.bed)
+        self.points = scene_points(scene, self.env, self.p0, self.bed, self.undulation)
         self.synthesis = (sc.synthesis if sc is not None and sc.synthesis is not None
                           else "fast")
         #: pass 2 on the GPU ([scattering] device = "cuda", sim_device.synthesis_gpu)
@@ -174,6 +185,10 @@ class EnvironmentSource:
             for t in self.targets:
                 t.position = self.bed.buried(*t.position)
                 t.axis = self.bed.vector_to_bed(t.axis)
+        if self.undulation is not None:
+            for t in self.targets:
+                t.position = np.array(t.position, dtype=np.float64)
+                t.position[2] += float(self.undulation.height(*t.position[:2]))
         if self.targets:
             self.contributions.append(TargetEchoes(self, self.targets))
         self.last_stats: dict = {}
@@ -194,15 +209,16 @@ class EnvironmentSource:
         return self.scene.track.n_pings
 
     def pose(self, i: int) -> NavSnapshot:
-        """The true pose of ping ``i``; over a sloping bed its altitude is the body's
-        vertical height above the bed below it."""
+        """The true pose of ping ``i``; over a sloping or undulating bed its altitude is
+        the body's vertical height above the bed below it."""
         nav = ping_pose(self.scene.track, self.hw, i, self.seed)
-        if self.bed is None:
+        if self.bed is None and self.undulation is None:
             return nav
         body = self.line.ned_to_tile(np.array([nav.north_m, nav.east_m, nav.down_m]))
-        altitude = float(self.bed.vertical_height(body))
+        altitude = self.surface.vertical_height(body)
         if not altitude > 0.0:
-            raise ValueError(f"scene {self.scene.scene.name!r}: key 'seabed.slope_deg': "
+            key = "seabed.undulation" if self.undulation is not None else "seabed.slope_deg"
+            raise ValueError(f"scene {self.scene.scene.name!r}: key '{key}': "
                              f"the bed reaches the platform at ping {i} (altitude "
                              f"{altitude:.2f} m)")
         return dataclasses.replace(nav, altitude_m=altitude)
@@ -293,6 +309,9 @@ class EnvironmentSource:
         g = g if g is not None else self.frame(i)
         used = np.flatnonzero(self.allowed.any(axis=1))
         seabed = self.seabed.generate(g.tx, g.rx, g.bore, used, self.seed)
+        if self.undulation is not None and seabed.size:
+            # the interface and the volume below it follow the surface
+            seabed.z = seabed.z + self.undulation.height(seabed.x, seabed.y)
         parts = [p for p in (self.points, seabed) if p.size]
         return Scatterers.concat(parts)
 
@@ -311,8 +330,9 @@ class EnvironmentSource:
         ox, oy = float(g.tx[0]), float(g.tx[1])
         tx = g.tx - [ox, oy, 0.0]
         rx = g.rx - [ox, oy, 0.0]
-        f = np.float32 if self.precision == "float32" else np.float64
-        cf = np.complex64 if self.precision == "float32" else np.complex128
+        curved = self.undulation is not None
+        f = np.float32 if self.precision == "float32" and not curved else np.float64
+        cf = np.complex64 if self.precision == "float32" and not curved else np.complex128
         img_t = self._images(g.tx[None, :], (ox, oy))[0].astype(f)
         img_r = self._images(g.rx, (ox, oy)).astype(f)
         sx, sy, sz = (s.x - ox).astype(f), (s.y - oy).astype(f), s.z.astype(f)
@@ -325,9 +345,15 @@ class EnvironmentSource:
         t1 = time.perf_counter()
         tau_t = np.empty((s.size, img_t.shape[0]), dtype=f)
         amp_t = np.empty((s.size, img_t.shape[0]), dtype=cf)
-        transmit_legs(sx, sy, sz, s.med, amp, img_t, *args_env, bore, tb.front, tb.back,
-                      tb.lo_front, tb.lo_back, self.sig, tau_t, amp_t,
-                      self.synthesis != "reference")
+        if curved:
+            # the surface's rows in the ping-local frame, in the ray table's place
+            args_env = args_env[:5] + (self.undulation.shifted(ox, oy),) + args_env[6:]
+            curved_transmit_legs(sx, sy, sz, s.med, amp, img_t, *args_env, bore, tb.front,
+                                 tb.back, tb.lo_front, tb.lo_back, self.sig, tau_t, amp_t)
+        else:
+            transmit_legs(sx, sy, sz, s.med, amp, img_t, *args_env, bore, tb.front,
+                          tb.back, tb.lo_front, tb.lo_back, self.sig, tau_t, amp_t,
+                          self.synthesis != "reference")
         seen = np.any(amp_t != 0, axis=1)
         idx = np.flatnonzero(seen)
         t2 = time.perf_counter()
@@ -336,7 +362,11 @@ class EnvironmentSource:
                 self.allowed, *args_env, bore, rb.front, rb.back, rb.lo_front, rb.lo_back,
                 self.sig, self.fc, self.pulses.t_lo, self.pulses.t_hi, self.pulses.t_buf0,
                 self.fs)
-        if self.synthesis == "reference":
+        if curved:
+            buf = self.pulses.buffer(n_ch).astype(cf)
+            counts = curved_accumulate(*args, buf,
+                                       np.minimum(self.zmax, np.finfo(np.float64).max))
+        elif self.synthesis == "reference":
             buf = self.pulses.buffer(n_ch).astype(cf)
             counts = accumulate(*args, buf)
         else:

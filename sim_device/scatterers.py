@@ -51,10 +51,11 @@ def empty_scatterers() -> Scatterers:
 
 
 def scene_points(scene: SceneConfig, env: Environment, p0: float,
-                 bed=None) -> Scatterers:
+                 bed=None, undulation=None) -> Scatterers:
     """The scene's point scatterers, strength p0 * 10^(TS/20); over a sloping ``bed``
     (a :class:`~sim_device.bed_plane.BedPlane`) in its frame, each ``depth_m``
-    vertically below the interface above it."""
+    vertically below the interface above it; with an ``undulation``
+    (:class:`~sim_device.bed_undulation.Undulation`) below the undulating surface."""
     pts = scene.points
     if not pts:
         return empty_scatterers()
@@ -62,6 +63,8 @@ def scene_points(scene: SceneConfig, env: Environment, p0: float,
     if bed is not None:
         atd = bed.buried(atd[:, 0], atd[:, 1], atd[:, 2])
     med = np.array([env.medium_at(float(z)) for z in atd[:, 2]], dtype=np.int64)
+    if undulation is not None:
+        atd[:, 2] += undulation.height(atd[:, 0], atd[:, 1])
     amp = p0 * 10.0 ** (np.array([p.target_strength_db for p in pts]) / 20.0)
     return Scatterers(atd[:, 0].copy(), atd[:, 1].copy(), atd[:, 2].copy(), med,
                       amp.astype(complex))

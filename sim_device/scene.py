@@ -11,7 +11,7 @@ that involve several keys (e.g. the water depth against the track), naming file 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from svss_daq.config import ConfigError, load, spec
@@ -112,6 +112,18 @@ class SedimentLayer:
 
 
 @dataclass(frozen=True)
+class UndulationTerm:
+    """One sinusoid of an undulating interface (sim_device.bed_undulation)."""
+    amplitude_m: float = spec("amplitude about the interface's plane, m (positive: "
+                              "deeper at phase 0)", lo=-1, hi=1)
+    wavelength_m: float = spec("wavelength, m", lo=0.5, hi=1000)
+    direction_deg: float = spec("direction of the wave vector (normal to the crests) from "
+                                "the along-track axis towards starboard, deg",
+                                lo=-360, hi=360)
+    phase_deg: float = spec("phase at the tile frame's origin, deg", lo=-360, hi=360)
+
+
+@dataclass(frozen=True)
 class SeabedConfig:
     layers: tuple[SedimentLayer, ...] = spec("sediment layers, top first", min_length=1)
     slope_deg: tuple[float, float] | None = spec(
@@ -119,6 +131,10 @@ class SeabedConfig:
         "slope along the track and across it, deg, positive where it deepens ahead and to "
         "starboard (layers parallel to it; sim_device.bed_plane); absent: level",
         lo=-30, hi=30, length=2)
+    undulation: tuple[UndulationTerm, ...] = field(default=(), metadata=spec(
+        "the interface undulating about its plane as a sum of sinusoids "
+        "(sim_device.bed_undulation; over one sediment half-space); absent: a plane",
+        min_length=0).metadata)
 
 
 @dataclass(frozen=True)
@@ -269,6 +285,8 @@ def check_scene(sc: SceneConfig, source: str = "<scene>") -> SceneConfig:
             if not last and layer.thickness_m is None:
                 raise fail(f"seabed.layers[{k}].thickness_m", "missing (only the last "
                            "layer is a half-space)")
+        if sc.seabed.undulation:
+            check_undulation(sc, fail)
         if sc.scattering is None:
             raise fail("scattering", "a scene with a seabed needs a [scattering] table")
     if sc.scattering is not None:
@@ -303,6 +321,35 @@ def check_scene(sc: SceneConfig, source: str = "<scene>") -> SceneConfig:
             raise fail(f"targets[{k}].length_m", f"only cylinders have a length (this "
                        f"target is a {t.kind})")
     return sc
+
+
+#: the steepest undulating interface a scene may have (its gradient's bound, |grad u|):
+#: Fermat's crossings start from the level solution, exact for a seabed-like surface
+MAX_UNDULATION_SLOPE = 0.5
+
+
+def check_undulation(sc: SceneConfig, fail) -> None:
+    """An undulating interface: over one sediment half-space, gentle enough for the
+    crossing solver, with surface multipath of at most one reflection (a leg's seabed
+    bounce would need the curved surface's image, which is not modelled)."""
+    from .bed_undulation import Undulation
+    if len(sc.seabed.layers) != 1:
+        raise fail("seabed.undulation", "an undulating interface needs a single sediment "
+                   f"half-space below it ({len(sc.seabed.layers)} layers given)")
+    und = Undulation.from_terms([(t.amplitude_m, t.wavelength_m, t.direction_deg,
+                                  t.phase_deg) for t in sc.seabed.undulation])
+    if und.slope_bound > MAX_UNDULATION_SLOPE:
+        raise fail("seabed.undulation", f"the terms' slopes add up to {und.slope_bound:.2f} "
+                   f"(sum of 2 pi amplitude / wavelength), more than {MAX_UNDULATION_SLOPE}")
+    if sc.surface is not None and sc.surface.multipath_order > 1:
+        raise fail("surface.multipath_order", "over an undulating interface at most 1 (a "
+                   "leg reflected by the curved seabed is not modelled)")
+    if sc.scattering is not None and sc.scattering.device == "cuda":
+        raise fail("scattering.device", "an undulating interface is synthesised on the CPU "
+                   "(set it to 'cpu')")
+    if sc.track.altitude_m <= und.amplitude_bound:
+        raise fail("seabed.undulation", f"the crests ({und.amplitude_bound:.2f} m) reach the "
+                   f"platform ({sc.track.altitude_m} m above the plane)")
 
 
 def load_scene(path: str | Path) -> SceneConfig:

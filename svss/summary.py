@@ -290,6 +290,16 @@ def seabed_line(sb: dict) -> str:
         text += "; interface sloping " + ", ".join(
             f"{_f(v, '+.2f')}" + (f" +/- {_f(e, '.2f')}" if e is not None else "")
             + f" deg {name}" for v, e, name in zip(slope, sig, ("along", "across")))
+    if sb.get("interface_relief") is not None:
+        rms, sig = sb.get("interface_relief_rms_m"), sb.get("interface_relief_sigma_m")
+        if sb["interface_relief"]:
+            lo, hi = sb.get("interface_relief_range_m") or [None, None]
+            text += (f"; interface relief {_f(100 * rms if rms is not None else None, '.1f')}"
+                     f" cm rms ({_f(lo, '+.3f')} to {_f(hi, '+.3f')} m) on "
+                     f"{sb.get('interface_relief_nodes')} nodes")
+        else:
+            text += (f"; no interface relief beyond its uncertainty "
+                     f"({_f(100 * sig if sig is not None else None, '.2f')} cm a node)")
     return text
 
 

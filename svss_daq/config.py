@@ -214,6 +214,18 @@ class ImagingConfig:
         "positive where it deepens ahead and to starboard (voxel depths are then below "
         "the plane at each column; with [seabed] speed = 'estimate' it is estimated); "
         "omitted: level", lo=-45, hi=45, length=2, default=(0.0, 0.0))
+    interface_relief_m: tuple[tuple[float, ...], ...] | None = spec(
+        "the interface's relief about that plane: its depth below the plane, m, at the "
+        "nodes of a grid along the track line (rows) and across it (columns) from "
+        "interface_relief_origin_m in steps of interface_relief_step_m (bilinear between "
+        "nodes, the edge's value beyond them; with [seabed] relief = 'estimate' it is "
+        "estimated from the interface's echo); omitted: none", lo=-5, hi=5)
+    interface_relief_origin_m: tuple[float, float] | None = spec(
+        "along and across the track line of the relief's first node, m", length=2,
+        default=(0.0, 0.0))
+    interface_relief_step_m: tuple[float, float] | None = spec(
+        "the relief's node spacing along and across the track line, m", lo=0.01, hi=100,
+        length=2, default=(0.25, 0.25))
 
 
 @dataclass(frozen=True)
@@ -482,6 +494,11 @@ class SeabedConfig:
                              "from the interface's own echo) or 'configured' "
                              "(imaging.interface_slope_deg); omitted: configured",
                              choices=("estimate", "configured"), default="configured")
+    relief: str | None = spec("the interface's relief about its plane: 'estimate' (from "
+                              "the interface's echo, column by column, where it stands out "
+                              "of its own uncertainty) or 'configured' "
+                              "(imaging.interface_relief_m); omitted: configured",
+                              choices=("estimate", "configured"), default="configured")
 
 
 @dataclass(frozen=True)
@@ -508,6 +525,12 @@ class ProcessingConfig:
                         f"got {layer.thickness_m!r} m, thinner than a voxel "
                         f"(tile.voxel_m = {self.tile.voxel_m!r} m): a layer must span at "
                         f"least one voxel")
+        relief = self.imaging.interface_relief_m
+        if relief is not None:
+            widths = {len(row) for row in relief}
+            if not relief or len(widths) != 1 or min(widths) < 1:
+                return ("imaging.interface_relief_m", f"expected rows of equal length (one "
+                        f"row per node along the track), got lengths {sorted(widths)}")
         if self.imaging.sediment_layers and self.imaging.delays != "table":
             return ("imaging.sediment_layers", "layers need imaging.delays = 'table' (got "
                     f"{self.imaging.delays!r})")

@@ -62,12 +62,16 @@ _DIFF_S = 0.05  # half-window of the central difference for the head velocity, s
 class DvlEmulator(ScheduledSerialDevice):
     """The DVL at ``<directory>/<name>``. ``pose_fn(true_ns) -> NavSnapshot``: the true
     pose (its ``down_m + altitude_m`` is the bottom's depth, unless ``bed`` gives the
-    bottom as a plane, down = k0 + kn north + ke east: :func:`sim_device.bed_plane.ned_plane`);
+    bottom as a plane, down = k0 + kn north + ke east: :func:`sim_device.bed_plane.ned_plane`,
+    or ``bed_ranges(head_ned, beam_directions_ned)`` gives each beam's slant range to any
+    bed: :func:`sim_device.bed_surface.ned_beam_ranges`);
     ``lever_arms``: :class:`svss_daq.config.LeverArms`."""
 
     def __init__(self, cfg: DvlSimConfig, lever_arms, clock: SimClock,
                  pose_fn: Callable[[int], NavSnapshot], directory, name: str = "dvl",
-                 bed: tuple[float, float, float] | None = None) -> None:
+                 bed: tuple[float, float, float] | None = None,
+                 bed_ranges: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+                 ) -> None:
         super().__init__(directory, name, clock, {"ensemble": (1.0 / cfg.rate_hz, cfg.latency_s)})
         self.cfg = cfg
         self.setup = Pd0Setup(frequency_hz=cfg.frequency_khz * 1e3,
@@ -78,6 +82,7 @@ class DvlEmulator(ScheduledSerialDevice):
         self.lever_m = np.asarray(lever_arms.dvl_m, dtype=np.float64)
         self.pose_fn = pose_fn
         self.bed = bed
+        self.bed_ranges = bed_ranges
         self.beams = janus_beam_vectors(math.radians(cfg.beam_angle_deg))
         self._rng = np.random.default_rng(cfg.seed)
         self._lost_until_ns = -1
@@ -132,8 +137,10 @@ class DvlEmulator(ScheduledSerialDevice):
             height = k0 + kn * head[0] + ke * head[1] - head[2]
             d = self.beams @ rot.T
             vert = d[:, 2] - kn * d[:, 0] - ke * d[:, 1]
-            ranges = [height / v + c.range_sigma_m * rng.normal() if v > 0 else math.nan
-                      for v in vert]
+            slant = (self.bed_ranges(head, d) if self.bed_ranges is not None else
+                     [height / v if v > 0 else math.nan for v in vert])
+            ranges = [r + c.range_sigma_m * rng.normal() if math.isfinite(r) else math.nan
+                      for r in slant]
             cos_beam = math.cos(math.radians(c.beam_angle_deg))
             ranges = [r * cos_beam if 0 < r <= c.max_range_m else math.nan for r in ranges]
             err = float(rng.normal(0.0, c.velocity_sigma_m_s))

@@ -85,7 +85,10 @@ class TargetEchoes:
         leg sees the target."""
         media = source.media
         bore = np.asarray(g.bore, dtype=np.float64)
-        tx_legs = target_legs(g.tx[None, :], target.position, target.medium, media, False)
+        und = getattr(source, "undulation", None)
+        rows = und.rows if und is not None else None
+        tx_legs = target_legs(g.tx[None, :], target.position, target.medium, media, False,
+                              rows)
         dist = float(np.linalg.norm(target.position - g.tx))
         margin = math.asin(min(1.0, target.extent / max(dist, 1e-9)))
         seen = [leg for leg in tx_legs
@@ -93,7 +96,7 @@ class TargetEchoes:
                 <= source.tx_beam.edge]
         if not seen:
             return None
-        rx_legs = target_legs(g.rx, target.position, target.medium, media, True)
+        rx_legs = target_legs(g.rx, target.position, target.medium, media, True, rows)
         parts = []
         for a in seen:
             g_tx = float(source.tx_beam(np.array([a.look[0] @ bore]))[0])

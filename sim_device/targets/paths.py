@@ -18,6 +18,12 @@ interface) to the target centre:
   coherent loss exp(-2 k^2 h^2 sin^2 theta) = exp(-beta f^2). The echo has the four
   combinations direct/reflected x direct/reflected.
 
+Over an undulating interface (:mod:`sim_device.bed_undulation`, one sediment half-space)
+a buried target's leg crosses the curved surface at its Fermat point (exact travel time);
+spreading and transmission are those of the tangent plane there, the look and arrival
+directions the legs' own. A proud target's reflected leg is mirrored in the interface's
+plane (the curved surface's image is not modelled).
+
 Both legs also carry the element's beam gain (look direction along the leg's departure
 from the element) and water absorption at the centre frequency. Surface multipath of
 target echoes and reverberation inside the layers are not modelled. A target straddling
@@ -35,6 +41,8 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from ..bed_undulation import crossing
+from ..bed_undulation import surface as surface_slopes
 from ..layered_rays import leg_extents, ray_amplitude_terms, ray_tan, reflection
 
 #: leg kinds
@@ -97,20 +105,68 @@ def _refracted(elements, target, med, c, rho, delta, z_top, upward, time, spread
         arrive[e, 2] = math.sqrt(1.0 - sm * sm)
 
 
+@nb.njit(cache=True)
+def _refracted_curved(elements, target, c, rho, delta, upward, rows, time, spread, trans,
+                      gamma, water_len, look, arrive):
+    """Refracted legs from elements (n, 3) to a target in the half-space below the
+    undulating interface ``rows``: the Fermat crossing, the tangent plane's terms."""
+    c0 = c[0]
+    c1 = c[1]
+    px, py, pz = target[0], target[1], target[2]
+    h = np.empty(2)
+    zero = np.zeros(2)
+    cmax = max(c0, c1)
+    for e in range(elements.shape[0]):
+        ex, ey, ez = elements[e, 0], elements[e, 1], elements[e, 2]
+        sx, sy, sz, _ok = crossing(ex, ey, ez, px, py, pz, c0, c1, rows)
+        d0 = np.array([sx - ex, sy - ey, sz - ez])
+        d1 = np.array([px - sx, py - sy, pz - sz])
+        l0 = math.sqrt(d0 @ d0)
+        l1 = math.sqrt(d1 @ d1)
+        _u, gx, gy, _a, _b, _c = surface_slopes(sx, sy, rows)
+        nrm = np.array([-gx, -gy, 1.0]) / math.sqrt(1.0 + gx * gx + gy * gy)
+        cos0 = min(1.0, abs(d0 @ nrm) / l0)
+        cos1 = min(1.0, abs(d1 @ nrm) / l1)
+        sin0 = math.sqrt(max(0.0, 1.0 - cos0 * cos0))
+        sin1 = math.sqrt(max(0.0, 1.0 - cos1 * cos1))
+        p = sin0 / c0
+        s = min(p * cmax, 1.0 - 1e-15)
+        h[0] = l0 * cos0
+        h[1] = l1 * cos1
+        _p, _tau, sp, _cos, _att = ray_amplitude_terms(s / math.sqrt(1.0 - s * s),
+                                                       l0 * sin0 + l1 * sin1, h, c, zero,
+                                                       2, 1 if upward else 0)
+        time[e] = l0 / c0 + l1 / c1
+        spread[e] = sp
+        r = reflection(sin0, rho[1] / rho[0], c1 / c0, delta[1])
+        trans[e] = (1.0 - r) if upward else (1.0 + r)
+        gamma[e] = 2.0 * math.pi * delta[1] / c1 * l1
+        water_len[e] = l0
+        for j in range(3):
+            look[e, j] = d0[j] / l0
+            arrive[e, j] = d1[j] / l1
+
+
 def refracted_legs(elements: np.ndarray, target: np.ndarray, med: int, media,
-                   upward: bool) -> Legs:
+                   upward: bool, rows: np.ndarray | None = None) -> Legs:
     """Refracted legs from ``elements`` (n, 3) to a buried ``target`` (3,) in medium
     ``med`` of ``media`` (:class:`sim_device.environment.Media`); ``upward`` for
     receiver legs (the wave travels target -> element: spreading of a source in the
-    sediment, transmission 1 - R)."""
+    sediment, transmission 1 - R). ``rows``: an undulating interface's rows
+    (:class:`~sim_device.bed_undulation.Undulation`; None: level)."""
     elements = np.ascontiguousarray(elements, dtype=np.float64).reshape(-1, 3)
     n = elements.shape[0]
     time, spread, gamma, water_len = (np.empty(n) for _ in range(4))
     trans = np.empty(n, dtype=np.complex128)
     look, arrive = np.empty((n, 3)), np.empty((n, 3))
-    _refracted(elements, np.asarray(target, dtype=np.float64), int(med), media.c, media.rho,
-               media.delta, media.z_top, bool(upward), time, spread, trans, gamma,
-               water_len, look, arrive)
+    if rows is not None:
+        _refracted_curved(elements, np.asarray(target, dtype=np.float64), media.c,
+                          media.rho, media.delta, bool(upward), rows, time, spread, trans,
+                          gamma, water_len, look, arrive)
+    else:
+        _refracted(elements, np.asarray(target, dtype=np.float64), int(med), media.c,
+                   media.rho, media.delta, media.z_top, bool(upward), time, spread, trans,
+                   gamma, water_len, look, arrive)
     factor = spread * trans * np.exp(-media.alpha[0] * water_len)
     return Legs(REFRACTED, time, factor, np.zeros(n), gamma, look, arrive)
 
@@ -147,10 +203,11 @@ def water_legs(elements: np.ndarray, target: np.ndarray, media,
 
 
 def target_legs(elements: np.ndarray, target: np.ndarray, med: int, media,
-                upward: bool) -> list[Legs]:
+                upward: bool, rows: np.ndarray | None = None) -> list[Legs]:
     """Every leg kind between ``elements`` and a target in medium ``med``: the refracted
-    leg for a buried target, the direct and reflected legs for a proud one."""
+    leg for a buried target (``rows``: an undulating interface, None: level), the
+    direct and reflected legs for a proud one."""
     if med >= 1:
-        return [refracted_legs(elements, target, med, media, upward)]
+        return [refracted_legs(elements, target, med, media, upward, rows)]
     return [water_legs(elements, target, media, False),
             water_legs(elements, target, media, True)]

@@ -14,6 +14,11 @@ The shape is a plane through the tile frame's origin, ``[imaging] interface_slop
 
     s(a, c) = a tan(slope_along) + c tan(slope_across).
 
+With ``[imaging] interface_relief_m`` the surface undulates about that plane: the
+relief's depth below the plane at the nodes of a grid along and across the track line
+(``interface_relief_origin_m``, ``interface_relief_step_m``), bilinear between them and
+the edge's value beyond.
+
 A ping's frame puts its interface level where its own altitude says the bed is, under
 its body (:func:`level_offset`), so each ping's array is placed against the bed it
 measured and the shape supplies the rest of the tile.
@@ -23,27 +28,60 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
+
+
+@lru_cache(maxsize=8)
+def _relief_array(relief: tuple) -> np.ndarray:
+    return np.asarray(relief, dtype=np.float64)
+
+
+def bilinear(nodes: np.ndarray, origin, step, along, cross) -> np.ndarray:
+    """``nodes`` (n_along, n_cross), the first at ``origin`` (along, cross) and spaced
+    ``step``, interpolated bilinearly at (along, cross) (the edge's value beyond)."""
+    a = np.clip((np.asarray(along, dtype=np.float64) - origin[0]) / step[0], 0.0,
+                nodes.shape[0] - 1)
+    c = np.clip((np.asarray(cross, dtype=np.float64) - origin[1]) / step[1], 0.0,
+                nodes.shape[1] - 1)
+    i = np.minimum(a.astype(np.int64), max(nodes.shape[0] - 2, 0))
+    j = np.minimum(c.astype(np.int64), max(nodes.shape[1] - 2, 0))
+    fa = a - i if nodes.shape[0] > 1 else np.zeros_like(a)
+    fc = c - j if nodes.shape[1] > 1 else np.zeros_like(c)
+    i1 = np.minimum(i + 1, nodes.shape[0] - 1)
+    j1 = np.minimum(j + 1, nodes.shape[1] - 1)
+    return ((1 - fa) * ((1 - fc) * nodes[i, j] + fc * nodes[i, j1])
+            + fa * ((1 - fc) * nodes[i1, j] + fc * nodes[i1, j1]))
 
 
 @dataclass(frozen=True)
 class InterfaceShape:
     """The interface's depth below the tile frame's level, as a function of along-track
     ``a`` and cross-track ``c`` (tile frame, m): a plane of gradients ``grad_along``
-    and ``grad_across`` (m of depth per m; the tangents of the slopes)."""
+    and ``grad_across`` (m of depth per m; the tangents of the slopes), and the
+    ``relief`` below it (rows along, columns across; None: none) at nodes from
+    ``relief_origin`` spaced ``relief_step`` (along, cross; m)."""
     grad_along: float = 0.0
     grad_across: float = 0.0
+    relief: tuple | None = None
+    relief_origin: tuple[float, float] = (0.0, 0.0)
+    relief_step: tuple[float, float] = (0.25, 0.25)
 
     @classmethod
     def of(cls, imaging) -> "InterfaceShape":
         """From a processing configuration's ``[imaging]``."""
         slope = imaging.interface_slope_deg or (0.0, 0.0)
-        return cls(math.tan(math.radians(slope[0])), math.tan(math.radians(slope[1])))
+        relief = getattr(imaging, "interface_relief_m", None)
+        return cls(math.tan(math.radians(slope[0])), math.tan(math.radians(slope[1])),
+                   tuple(tuple(float(v) for v in row) for row in relief)
+                   if relief is not None else None,
+                   tuple(imaging.interface_relief_origin_m or (0.0, 0.0)),
+                   tuple(imaging.interface_relief_step_m or (0.25, 0.25)))
 
     @property
     def level(self) -> bool:
-        return self.grad_along == 0.0 and self.grad_across == 0.0
+        return self.grad_along == 0.0 and self.grad_across == 0.0 and self.relief is None
 
     @property
     def slope_deg(self) -> tuple[float, float]:
@@ -52,8 +90,12 @@ class InterfaceShape:
 
     def depth(self, along, cross):
         """The interface's depth (m) below the frame's level at (along, cross)."""
-        return (self.grad_along * np.asarray(along, dtype=np.float64)
-                + self.grad_across * np.asarray(cross, dtype=np.float64))
+        plane = (self.grad_along * np.asarray(along, dtype=np.float64)
+                 + self.grad_across * np.asarray(cross, dtype=np.float64))
+        if self.relief is None:
+            return plane
+        return plane + bilinear(_relief_array(self.relief), self.relief_origin,
+                                self.relief_step, along, cross)
 
     def grid(self, along: np.ndarray, cross: np.ndarray) -> np.ndarray | None:
         """The depth at every voxel column of axes ``along`` x ``cross`` (float64,

@@ -131,7 +131,7 @@ def _along(pings: Sequence[Ping], processing: ProcessingConfig
     return g, sig, f"navigation, {a.size} bed depths over {np.ptp(a):.1f} m"
 
 
-def _slab(pings: Sequence[Ping], hardware, processing: ProcessingConfig):
+def image_slab(pings: Sequence[Ping], hardware, processing: ProcessingConfig):
     """The run imaged in the slab about the interface on the picking image's grid."""
     sb = processing.seabed
     v = sb.search_voxel_m
@@ -149,6 +149,30 @@ def _slab(pings: Sequence[Ping], hardware, processing: ProcessingConfig):
     return tiles + imager.finish()
 
 
+def pick_echo(col: np.ndarray, z: np.ndarray, water: np.ndarray, contrast_db: float
+              ) -> tuple[float, float] | None:
+    """The interface echo's (depth m, power) in one column's power profile ``col`` over depths
+    ``z`` (``water``: the depths above the interface), or None where the column's
+    brightest stands less than ``contrast_db`` over the water's median, or its echo lies
+    at the profile's edge. The interface is where the level first rises half-way (in
+    dB) from the water's to the column's brightest (a silt's volume below it can be as
+    bright, a buried response brighter): the first such depth from above, then up to
+    its peak, refined by a parabola in log power."""
+    top = col.max()
+    floor = np.median(col[water])
+    if top <= 0.0 or floor <= 0.0 or top < floor * 10 ** (contrast_db / 10):
+        return None
+    k = int(np.argmax(col >= math.sqrt(floor * top)))
+    while k + 1 < col.size and col[k + 1] > col[k]:
+        k += 1
+    if k == 0 or k == col.size - 1:
+        return None
+    lo, mid, hi = np.log(col[k - 1:k + 2])
+    den = lo - 2 * mid + hi
+    frac = 0.5 * (lo - hi) / den if den < 0 else 0.0
+    return float(z[k] + frac * (z[1] - z[0])), float(col[k])
+
+
 def _across(tiles) -> tuple[float, float | None, str]:
     """The cross-track gradient of the interface echo's depth, its deviation, source."""
     cross, depth, power = [], [], []
@@ -161,30 +185,16 @@ def _across(tiles) -> tuple[float, float | None, str]:
         rows = full >= 0.5 * max(int(full.max()), 1)
         prof = np.where(rows[:, :, None], pw, 0.0).sum(axis=0)    # (cross, depth)
         z = np.asarray(t.grid.depth)
-        dz = z[1] - z[0]
         water = z < -WATER_CLEARANCE_M
+        if np.count_nonzero(water) < 3:
+            continue
         for ic in range(prof.shape[0]):
-            col = prof[ic]
-            top = col.max()
-            floor = np.median(col[water]) if np.count_nonzero(water) >= 3 else 0.0
-            # an echo: standing out of the water above it
-            if top <= 0.0 or floor <= 0.0 or top < floor * 10 ** (ECHO_CONTRAST_DB / 10):
+            echo = pick_echo(prof[ic], z, water, ECHO_CONTRAST_DB)
+            if echo is None:
                 continue
-            # the interface is where the level first rises half-way (in dB) from the
-            # water's to the column's brightest (a silt's volume below it can be as
-            # bright, a buried response brighter): the first such depth from above,
-            # then up to its peak
-            k = int(np.argmax(col >= math.sqrt(floor * top)))
-            while k + 1 < col.size and col[k + 1] > col[k]:
-                k += 1
-            if k == 0 or k == col.size - 1:
-                continue
-            lo, mid, hi = np.log(col[k - 1:k + 2])
-            den = lo - 2 * mid + hi
-            frac = 0.5 * (lo - hi) / den if den < 0 else 0.0
             cross.append(float(t.grid.cross[ic]))
-            depth.append(float(z[k] + frac * dz))
-            power.append(float(col[k]))
+            depth.append(echo[0])
+            power.append(echo[1])
     if not cross:
         return 0.0, None, "kept: no interface echo imaged"
     cross, depth, power = (np.asarray(x) for x in (cross, depth, power))
@@ -205,7 +215,7 @@ def estimate_slope(pings: Sequence[Ping], hardware, processing: ProcessingConfig
     g_a, s_a, src_a = _along(pings, processing)
     if s_a is None:
         g_a = math.tan(math.radians(configured[0]))
-    tiles = _slab(pings, hardware, with_slope(processing, (math.degrees(math.atan(g_a)),
+    tiles = image_slab(pings, hardware, with_slope(processing, (math.degrees(math.atan(g_a)),
                                                            0.0)))
     g_c, s_c, src_c = _across(tiles)
     if s_c is None:

@@ -40,6 +40,7 @@ from svss_daq.ping_gate import PingRejected
 from ..imaging.delays import SpeedProfile
 from ..imaging.imager import PingAccumulator, TileImager
 from ..imaging.sampler import PointSampler
+from .relief import with_relief
 from .slope import with_slope
 from .focus import (combine, curve_peak, depth_at_time, focus_measure, point_sigma,
                     vertical_time)
@@ -71,8 +72,9 @@ class SpeedEstimate:
     #: estimated layers above the half-space of ``speed_m_s``, top first: thickness,
     #: speed and its standard deviation, the boundary's level over its surroundings (dB)
     layers: tuple = ()
-    #: the interface's slope the run was scanned and is imaged over
-    #: (:meth:`.slope.SlopeEstimate.summary`; None: the configured slope)
+    #: the interface's slope and relief the run was scanned and is imaged over
+    #: (:meth:`.slope.SlopeEstimate.summary`, :meth:`.relief.ReliefEstimate.summary`;
+    #: None: as configured)
     slope: dict | None = None
 
     def apply(self, processing: ProcessingConfig) -> ProcessingConfig:
@@ -93,9 +95,12 @@ class SpeedEstimate:
     def description(self) -> str:
         """For the logs and the tiles' provenance."""
         text = self._speed_description
-        if self.slope is not None:
+        if self.slope is not None and "interface_slope_deg" in self.slope:
             a, c = self.slope["interface_slope_deg"]
             text += f"; interface slope {a:+.2f} deg along, {c:+.2f} deg across"
+        if self.slope is not None and self.slope.get("interface_relief"):
+            text += (f"; interface relief rms {100 * self.slope['interface_relief_rms_m']:.1f}"
+                     " cm")
         return text
 
     @property
@@ -141,6 +146,7 @@ def applied(processing: ProcessingConfig, summary: dict | None) -> ProcessingCon
     slope = summary.get("interface_slope_deg")
     if slope is not None and None not in slope:
         processing = with_slope(processing, slope)
+    processing = with_relief(processing, summary)
     if summary.get("status") != "estimated":
         return processing
     out = with_speed(processing, summary["sediment_sound_speed_m_s"])

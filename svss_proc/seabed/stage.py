@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from svss_daq.config import Loaded, ProcessingConfig
 from svss_daq.ping import NavSnapshot, Ping
 
+from .relief import estimate_relief, with_relief
 from .slope import estimate_slope, with_slope
 from .speed import SpeedEstimate, configured_speed, estimate_speed, speed_wanted
 
@@ -73,18 +74,23 @@ def seabed_stage(readers, poses: list[NavSnapshot] | None,
     if proc.seabed is None:                 # asked for by the command line: the
         proc = dataclasses.replace(proc, seabed=shipped_settings())   # shipped settings
     pings = RunPings(readers, poses)
-    slope = None
+    slope = relief = None
     if proc.seabed.slope == "estimate":
         slope = estimate_slope(pings, readers[0].hardware, proc)
         proc = with_slope(proc, slope.slope_deg)
+    if proc.seabed.relief == "estimate":
+        relief = estimate_relief(pings, readers[0].hardware, proc)
+        proc = with_relief(proc, relief.summary())
     est = estimate_speed(pings, readers[0].hardware, proc)
-    if slope is not None:
-        est = dataclasses.replace(est, slope=slope.summary())
+    interface = {**(slope.summary() if slope is not None else {}),
+                 **(relief.summary() if relief is not None else {})}
+    if interface:
+        est = dataclasses.replace(est, slope=interface)
     log.info("%s: %s", readers[0].path, est.description)
     if est.disagrees:
         log.warning("%s: the configured sediment speed %.0f m/s disagrees with the "
                     "echoes' %.0f +/- %.0f m/s; imaged with the estimate",
                     readers[0].path, configured, est.speed_m_s, est.sigma_m_s)
-    if est.status != "estimated" and slope is None:
+    if est.status != "estimated" and not interface:
         return processing, est
     return dataclasses.replace(processing, value=est.apply(processing.value)), est

@@ -1,0 +1,220 @@
+"""Point-scatterer synthesis over an undulating interface (:mod:`sim_device.bed_undulation`).
+
+The two passes of :mod:`sim_device.synthesis` (the reference kernels' structure: pass 1
+over scatterers, pass 2 over channels through :mod:`sim_device.echo_loop`'s loop), with
+the leg of a curved interface, :func:`curved_leg_body`, in place of the level one:
+
+* a scatterer in the water or on the interface (``MED_INTERFACE``, at z = u(x, y)): the
+  straight leg; an interface scatterer's strength is looked up at its grazing angle
+  about the surface's local normal;
+* a scatterer in the sediment (one half-space below an undulating interface): the
+  Fermat crossing (:func:`sim_device.bed_undulation.crossing`), so the travel time is
+  exact; spreading, transmission (1 + R down, 1 - R up at the local incidence angle) and
+  attenuation are those of the tangent plane at the crossing (the surface's focusing of
+  the ray tube is left out);
+* the element's beam gain along the leg's departure from the element.
+
+A leg carrying seabed bounces (n_b > 0, multipath order 2 and more) would need the
+curved surface's image; scenes with an undulating interface refuse that order
+(:func:`sim_device.scene.check_undulation`).
+
+The kernels take the bundles of :mod:`sim_device.synthesis_args` as the reference ones
+do; the medium bundle's ray-table slot (``Medium.tab``) carries the surface's rows
+(amplitude, kx, ky, phase; in the scatterers' ping-local frame: :meth:`Undulation.shifted`)
+instead, which these legs use in its place. Everything here runs in double precision on
+the CPU: a scene with an undulating interface pays for its crossings, a level one never
+does.
+"""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numba as nb
+import numpy as np
+
+from . import echo_loop
+from .bed_undulation import crossing, surface
+from .synthesis import _deposit, _interp, cis_cycles, gain, lagrange4, two_medium_terms
+from .synthesis_args import (IMG_DIR, IMG_H, IMG_NB, IMG_RS, IMG_X, IMG_Y, MED_INTERFACE,
+                             Beam, Medium, Points, TransmitLegs, bundles)
+
+
+@nb.njit(cache=True, inline="always")
+def curved_leg_body(ex, ey, height, direction, f_surf, n_b, x, y, z, med, up, c, rho_m,
+                    delta, alpha, z_top, rows, r_top, r_bot, bore, g_front, g_back,
+                    lo_front, lo_back, hbuf, cbuf):
+    """:func:`sim_device.synthesis.leg_body` over the undulating interface ``rows`` (in
+    the slot of the ray table; the scratch arrays are unused). Returns (delay s, complex
+    amplitude factor, cos of the grazing angle about the local normal: at the scatterer
+    for an interface scatterer, at the crossing for a buried one)."""
+    ez = -height
+    c0 = c[0]
+    trans = complex(1.0, 0.0)
+    if med <= 0:
+        dx = x - ex
+        dy = y - ey
+        dz = z - ez
+        r = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if r == 0.0:
+            return 0.0, complex(0.0, 0.0), 0.0
+        ux = dx / r
+        uy = dy / r
+        uz = dz / r
+        tau = r / c0
+        spread = 1.0 / r
+        att = alpha[0] * r
+        if med == MED_INTERFACE:
+            _u, gx, gy, _a, _b, _c = surface(x, y, rows)
+            cn = (uz - gx * ux - gy * uy) / math.sqrt(1.0 + gx * gx + gy * gy)
+            q = math.sqrt(max(0.0, 1.0 - cn * cn))
+        else:
+            q = math.sqrt(ux * ux + uy * uy)
+    else:
+        c1 = c[1]
+        sx, sy, sz, _ok = crossing(ex, ey, ez, x, y, z, c0, c1, rows)
+        d0x = sx - ex
+        d0y = sy - ey
+        d0z = sz - ez
+        d1x = x - sx
+        d1y = y - sy
+        d1z = z - sz
+        l0 = math.sqrt(d0x * d0x + d0y * d0y + d0z * d0z)
+        l1 = math.sqrt(d1x * d1x + d1y * d1y + d1z * d1z)
+        if l0 == 0.0 or l1 == 0.0:
+            return 0.0, complex(0.0, 0.0), 0.0
+        tau = l0 / c0 + l1 / c1
+        _u, gx, gy, _a, _b, _c = surface(sx, sy, rows)
+        nn = 1.0 / math.sqrt(1.0 + gx * gx + gy * gy)
+        cos0 = min(1.0, abs(d0z - gx * d0x - gy * d0y) * nn / l0)
+        cos1 = min(1.0, abs(d1z - gx * d1x - gy * d1y) * nn / l1)
+        sin0 = math.sqrt(max(0.0, 1.0 - cos0 * cos0))
+        sin1 = math.sqrt(max(0.0, 1.0 - cos1 * cos1))
+        # the tangent plane's two-medium ray with the crossing's ray parameter
+        p = sin0 / c0
+        cmax = c0 if c0 > c1 else c1  # noqa: FURB136
+        s = min(p * cmax, 1.0 - 1e-15)
+        t = s / math.sqrt(1.0 - s * s)
+        h0 = l0 * cos0
+        h1 = l1 * cos1
+        rho = l0 * sin0 + l1 * sin1
+        _p, _tau, spread, _cosp, _att = two_medium_terms(t, rho, h0, h1, c0, c1, alpha[0],
+                                                         alpha[1], 1 if up else 0)
+        att = alpha[0] * l0 + alpha[1] * l1
+        q = sin0
+        rk = _interp(r_top, q)
+        trans = (1.0 - rk) if up else (1.0 + rk)
+        ux = d0x / l0
+        uy = d0y / l0
+        uz = d0z / l0
+    cos_off = ux * bore[0] + uy * bore[1] + direction * uz * bore[2]
+    g = gain(cos_off, g_front, g_back, lo_front, lo_back)
+    if g == 0.0:
+        return tau, complex(0.0, 0.0), q
+    amp = (g * f_surf * spread * math.exp(-att)) * trans
+    if n_b > 0:
+        rb = _interp(r_bot, q)
+        for _ in range(n_b):
+            amp *= rb
+    return tau, amp, q
+
+
+_legs = SimpleNamespace(leg_body=curved_leg_body, _interp=_interp, lagrange4=lagrange4)
+_echo = echo_loop.build(nb.njit(cache=True, inline="always"), _legs, cis_cycles, _deposit)
+_fastest = _echo.fastest
+_receive_needed = _echo.receive_needed
+_image_echoes = _echo.image_echoes
+
+
+@nb.njit(parallel=True, cache=True)
+def curved_transmit_kernel(pts, samp, img, medium, beam, out):
+    """Pass 1 over an undulating interface (``medium.tab``: the surface's rows): every
+    scatterer's transmit legs, one per projector image, into ``out``."""
+    sx, sy, sz, smed = pts
+    c, rho_m, delta, alpha, z_top, rows, r_top, r_bot, sig = medium
+    bore, g_front, g_back, lo_front, lo_back = beam
+    tau_out, amp_out = out
+    ns = sx.size
+    nt = img.shape[0]
+    scratch = np.empty(1)
+    for k in nb.prange(ns):
+        for m in range(nt):
+            tau, a, cg = curved_leg_body(img[m, IMG_X], img[m, IMG_Y], img[m, IMG_H],
+                                         img[m, IMG_DIR], img[m, IMG_RS],
+                                         int(img[m, IMG_NB]), sx[k], sy[k], sz[k], smed[k],
+                                         False, c, rho_m, delta, alpha, z_top, rows, r_top,
+                                         r_bot, bore, g_front, g_back, lo_front, lo_back,
+                                         scratch, scratch)
+            if smed[k] == MED_INTERFACE and a != 0.0:
+                a *= _interp(sig, cg)
+            tau_out[k, m] = tau
+            amp_out[k, m] = a * samp[k]
+
+
+@nb.njit(parallel=True, cache=True)
+def curved_accumulate_kernel(pts, legs_t, paths, medium, beam, win, buf):
+    """Pass 2 over an undulating interface: per channel (in parallel) every scatterer's
+    receive legs combined with its transmit legs on the kept paths, into ``buf`` (complex
+    baseband) by :mod:`sim_device.echo_loop`'s loop. Returns the echoes added per
+    channel."""
+    sx, sy, sz, smed = pts
+    tau_t, amp_t = legs_t
+    img, allowed, zmax = paths
+    c, rho_m, delta, alpha, z_top, rows, r_top, r_bot, sig = medium
+    bore, g_front, g_back, lo_front, lo_back = beam
+    nch = img.shape[0]
+    nr = img.shape[1]
+    nt = tau_t.shape[1]
+    ns = sx.size
+    cmax = _fastest(c)
+    tmin = np.full(ns, math.inf)
+    need = np.zeros((ns, nr), dtype=np.bool_)
+    for k in range(ns):
+        for a in range(nt):
+            if amp_t[k, a] != 0.0:
+                tmin[k] = min(tmin[k], tau_t[k, a])
+        for b in range(nr):
+            need[k, b] = _receive_needed(amp_t, allowed, zmax, k, b, sz[k])
+    counts = np.zeros(nch, dtype=np.int64)
+    for ch in nb.prange(nch):
+        scratch = np.empty(1)
+        n_add = 0
+        for k in range(ns):
+            if tmin[k] == math.inf:
+                continue
+            for b in range(nr):
+                if need[k, b]:
+                    n_add += _image_echoes(k, ch, b, (sx[k], sy[k], sz[k], smed[k]),
+                                                tmin[k], img, tau_t, amp_t, allowed, zmax,
+                                                c, rho_m, delta, alpha, z_top, rows, r_top,
+                                                r_bot, sig, bore, g_front, g_back,
+                                                lo_front, lo_back, win, cmax, scratch,
+                                                scratch, buf)
+        counts[ch] = n_add
+    return counts
+
+
+def curved_transmit_legs(sx, sy, sz, smed, samp, img, c, rho_m, delta, alpha, z_top, rows,
+                         r_top, r_bot, bore, g_front, g_back, lo_front, lo_back, sig,
+                         tau_out, amp_out):
+    """:func:`curved_transmit_kernel` of the arrays in the order
+    :class:`~sim_device.environment_source.EnvironmentSource` forms them, ``rows`` (the
+    surface in the scatterers' frame) in the ray table's place."""
+    curved_transmit_kernel(Points(sx, sy, sz, smed), samp, img,
+                           Medium(c, rho_m, delta, alpha, z_top, rows, r_top, r_bot, sig),
+                           Beam(bore, g_front, g_back, float(lo_front), float(lo_back)),
+                           TransmitLegs(tau_out, amp_out))
+
+
+def curved_accumulate(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delta, alpha,
+                      z_top, rows, r_top, r_bot, bore, g_front, g_back, lo_front, lo_back,
+                      sig, fc, t_lo, t_hi, t_buf0, fs, buf, zmax=None):
+    """:func:`curved_accumulate_kernel` of the arrays in the order
+    :class:`~sim_device.environment_source.EnvironmentSource` forms them (``zmax``: the
+    deepest scatterer per path; None: any depth)."""
+    return curved_accumulate_kernel(*bundles(sx, sy, sz, smed, tau_t, amp_t, img, allowed,
+                                             c, rho_m, delta, alpha, z_top, rows, r_top,
+                                             r_bot, bore, g_front, g_back, lo_front,
+                                             lo_back, sig, fc, t_lo, t_hi, t_buf0, fs,
+                                             zmax), buf)
