@@ -10,14 +10,23 @@ interface's echo, column by column:
    (``imaging.interface = "navigation"``): a ping placed at its own altitude would carry
    the relief under its body into the whole of its aperture and blur the echo it is to
    measure;
-2. in each voxel column fully covered, the echo's depth is picked as the slope's
+2. the image's power is averaged over ``SMOOTH_M`` along and across (incoherently: the
+   interface's speckle, not its depth, varies from column to column); in each voxel
+   column covered by (nearly) its whole aperture (``FULL_APERTURE``), the echo's depth is picked as the slope's
    columns are (:func:`.slope.pick_echo`: the first rise half-way in dB from the water's
    level to the column's brightest, up to its peak, refined by a parabola), and a column
    whose echo stands less than ``ECHO_CONTRAST_DB`` over the water above it has none;
 3. the picks are gathered on the relief's nodes (``NODE_M`` apart along and across the
-   track line): each node's depth is the median of the picks within half a node of it,
-   its uncertainty 1.4826 median absolute deviation / sqrt(n); nodes with fewer than
-   ``MIN_PICKS`` take their nearest neighbour's depth;
+   track line): each node's depth is a robust local quadratic surface through the picks
+   within ``RADIUS_M`` of it, evaluated at the node (iteratively reweighted least squares
+   with Tukey's biweight, started from the picks' median: a pick drawn off by a bright
+   facet's or a buried response's sidelobe weighs nothing), its uncertainty the fit's
+   standard error there; nodes with fewer than ``MIN_PICKS`` picks, or whose picks lie
+   mostly to one side of them (their centroid more than a third of the radius away: the
+   quadratic would extrapolate), take their nearest neighbour's depth;
+   where the body passed and no echo reached (the array lies ahead of the body, and a
+   frame placed at a ping's own altitude needs the relief under its body), a node takes
+   the navigation's bed depths there (body depth plus altitude);
 4. the relief is kept where it stands out of its own uncertainty: the nodes' spread
    (standard deviation about their mean) more than ``MIN_RELIEF_SIGMAS`` times the
    median node uncertainty and more than ``MIN_RELIEF_M``. A level, rough bed's picks
@@ -38,10 +47,14 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+from scipy.ndimage import uniform_filter
+from scipy.spatial import cKDTree
 
 from svss_daq.config import ProcessingConfig
 from svss_daq.ping import Ping
 
+from ..imaging.schedule import line_from_pose
+from ..imaging.surface import InterfaceShape
 from .slope import ECHO_CONTRAST_DB, WATER_CLEARANCE_M, image_slab, pick_echo
 
 log = logging.getLogger(__name__)
@@ -50,8 +63,22 @@ __all__ = ["ReliefEstimate", "estimate_relief", "with_relief"]
 
 #: node spacing of the relief, along and across the track line, m
 NODE_M = 0.25
+#: a column is picked where its coverage through the slab is at least this share of the
+#: best covered column's: a column seen by a small part of its aperture (at a run's ends,
+#: the swath's edges) is blurred, and its echo's peak is not the surface's depth (at the
+#: swath's edges, half covered, the picks still lie 2-3 cm deep: docs/seabed.md)
+FULL_APERTURE = 0.5
+#: the image's power is averaged over this span along and across before picking, m
+SMOOTH_M = 0.2
 #: picks a node needs for a depth of its own
-MIN_PICKS = 5
+MIN_PICKS = 12
+#: the picks a node's surface is fitted to lie within this distance of it, m (a
+#: quadratic over it is exact to a millimetre for a 10 cm undulation 4 m long)
+RADIUS_M = 0.35
+#: Tukey's biweight constant, in robust standard deviations of the residuals
+BIWEIGHT_C = 4.685
+#: the residuals' robust standard deviation is taken as at least this, m
+MIN_SCALE_M = 0.004
 #: the relief is kept where the nodes' spread exceeds this many median uncertainties ...
 MIN_RELIEF_SIGMAS = 3.0
 #: ... and this depth, m
@@ -114,14 +141,15 @@ def _picks(tiles) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     for t in tiles:
         re = np.asarray(t.re, dtype=np.float64)
         im = np.asarray(t.im, dtype=np.float64)
-        pw = re * re + im * im
+        n = max(1, int(round(SMOOTH_M / t.grid.voxel_m)) // 2 * 2 + 1)
+        pw = uniform_filter(re * re + im * im, size=(n, n, 1), mode="nearest")
         cov = np.asarray(t.coverage.pings)
         full = cov.min(axis=2)
         z = np.asarray(t.grid.depth)
         water = z < -WATER_CLEARANCE_M
         if np.count_nonzero(water) < 3:
             continue
-        ok = full >= 0.5 * max(int(full.max()), 1)
+        ok = full >= FULL_APERTURE * max(int(full.max()), 1)
         for ia, ic in zip(*np.nonzero(ok)):
             echo = pick_echo(pw[ia, ic], z, water, ECHO_CONTRAST_DB)
             if echo is not None:
@@ -131,46 +159,112 @@ def _picks(tiles) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.asarray(along), np.asarray(cross), np.asarray(depth)
 
 
+def _local_surface(da: np.ndarray, dc: np.ndarray, z: np.ndarray
+                   ) -> tuple[float, float] | None:
+    """(depth at the origin, its standard error) of a quadratic surface through the picks
+    at offsets (da, dc) of depths z: Tukey-biweight IRLS from the median (module docs)."""
+    x = np.column_stack([np.ones_like(da), da, dc, da * da, da * dc, dc * dc])
+    r = z - np.median(z)
+    coef = None
+    for _ in range(8):
+        scale = max(1.4826 * float(np.median(np.abs(r))), MIN_SCALE_M)
+        u = r / (BIWEIGHT_C * scale)
+        w = np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
+        if np.count_nonzero(w) < x.shape[1] + 2:
+            return None
+        xw = x * w[:, None]
+        try:
+            new = np.linalg.solve(x.T @ xw, xw.T @ z)
+        except np.linalg.LinAlgError:
+            return None
+        r = z - x @ new
+        if coef is not None and abs(new[0] - coef[0]) < 1e-5:
+            coef = new
+            break
+        coef = new
+    w_sum = float(w.sum())
+    cov = np.linalg.inv(x.T @ (x * w[:, None]))
+    # the weighted residuals' variance, with the fit's degrees of freedom
+    var = float((w * r * r).sum()) / max(w_sum - x.shape[1], 1.0)
+    return float(coef[0]), float(math.sqrt(max(var * cov[0, 0] * w_sum / max(w_sum, 1.0), 0.0)))
+
+
+def _bed_under_body(pings: Sequence[Ping], processing: ProcessingConfig) -> np.ndarray:
+    """(along, cross, depth) of the bed under each ping's body as its navigation measured
+    it (body depth plus altitude), in the slab's frame (the first ping's level, the
+    plane of ``processing`` taken off): the relief where the body passes, which frames
+    placed at each ping's own altitude need, and where the sonar, ahead of or beside
+    the body, may not have looked."""
+    pose = getattr(pings, "nav", None) or (lambda k: pings[k].nav)
+    shape = InterfaceShape.of(processing.imaging)
+    line = None
+    out = []
+    for k in range(len(pings)):
+        nav = pose(k)
+        bed = nav.down_m + nav.altitude_m
+        if not math.isfinite(bed):
+            continue
+        if line is None:
+            line = line_from_pose(nav, processing)
+        a, c, _ = line.ned_to_tile(np.array([nav.north_m, nav.east_m, 0.0]))
+        out.append((a, c, bed - line.interface_down - float(shape.depth(a, c))))
+    return np.asarray(out, dtype=np.float64).reshape(-1, 3)
+
+
 def relief_nodes(along: np.ndarray, cross: np.ndarray, depth: np.ndarray,
-                 node_m: float = NODE_M) -> ReliefEstimate:
+                 node_m: float = NODE_M, bed: np.ndarray | None = None) -> ReliefEstimate:
     """The picks (along, cross, depth) gathered on nodes ``node_m`` apart (module docs,
-    steps 3 and 4)."""
+    steps 3 and 4); ``bed`` (n, 3): the navigation's bed under the body (along, cross,
+    depth), for the nodes no echo reaches."""
     if along.size < MIN_PICKS:
         return ReliefEstimate(None, (0.0, 0.0), (node_m, node_m), math.nan, math.nan, 0,
                               f"kept: {along.size} interface echoes picked")
-    a0 = math.floor(along.min() / node_m) * node_m
-    c0 = math.floor(cross.min() / node_m) * node_m
-    ia = np.rint((along - a0) / node_m).astype(np.int64)
-    ic = np.rint((cross - c0) / node_m).astype(np.int64)
-    na, nc = int(ia.max()) + 1, int(ic.max()) + 1
+    bed = np.zeros((0, 3)) if bed is None else np.asarray(bed, dtype=np.float64)
+    a_all = np.r_[along, bed[:, 0]]
+    c_all = np.r_[cross, bed[:, 1]]
+    a0 = math.floor(a_all.min() / node_m) * node_m
+    c0 = math.floor(c_all.min() / node_m) * node_m
+    na = int(round((a_all.max() - a0) / node_m)) + 1
+    nc = int(round((c_all.max() - c0) / node_m)) + 1
     nodes = np.full((na, nc), np.nan)
     sigma = np.full((na, nc), np.nan)
-    order = np.lexsort((ic, ia))
-    key = ia[order] * nc + ic[order]
-    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
-    ends = np.r_[starts[1:], key.size]
-    for s, e in zip(starts, ends):
-        if e - s < MIN_PICKS:
-            continue
-        d = depth[order[s:e]]
-        med = float(np.median(d))
-        k = int(key[s])
-        nodes[k // nc, k % nc] = med
-        sigma[k // nc, k % nc] = 1.4826 * float(np.median(np.abs(d - med))) / math.sqrt(e - s)
+    tree = cKDTree(np.column_stack([along, cross]))
+    for i in range(na):
+        for j in range(nc):
+            a, c = a0 + i * node_m, c0 + j * node_m
+            near = tree.query_ball_point((a, c), RADIUS_M)
+            if len(near) < MIN_PICKS:
+                continue
+            if math.hypot(float(np.mean(along[near])) - a,
+                          float(np.mean(cross[near])) - c) > RADIUS_M / 3:
+                continue
+            fit = _local_surface(along[near] - a, cross[near] - c, depth[near])
+            if fit is not None:
+                nodes[i, j], sigma[i, j] = fit
     picked = np.isfinite(nodes)
     n_picked = int(picked.sum())
     if n_picked < 4:
         return ReliefEstimate(None, (a0, c0), (node_m, node_m), math.nan, math.nan,
                               n_picked, f"kept: {n_picked} nodes with {MIN_PICKS} picks")
-    # nodes without picks of their own: their nearest picked neighbour's depth
+    # nodes without picks of their own: the navigation's bed where the body passed
+    # within a node of them (the median of its depths there), else their nearest
+    # picked neighbour's depth
     pa, pc = np.nonzero(picked)
+    bed_tree = cKDTree(bed[:, :2]) if bed.shape[0] else None
+    n_bed = 0
     for i, j in zip(*np.nonzero(~picked)):
+        if bed_tree is not None:
+            near = bed_tree.query_ball_point((a0 + i * node_m, c0 + j * node_m), node_m)
+            if near:
+                nodes[i, j] = float(np.median(bed[near, 2]))
+                n_bed += 1
+                continue
         k = int(np.argmin((pa - i) ** 2 + (pc - j) ** 2))
         nodes[i, j] = nodes[pa[k], pc[k]]
     spread = float(np.std(nodes[picked]))
     sig = float(np.median(sigma[picked]))
     src = (f"interface echo, {along.size} columns on {n_picked} nodes of "
-           f"{node_m:.2f} m")
+           f"{node_m:.2f} m" + (f"; the navigation's bed on {n_bed} more" if n_bed else ""))
     if spread <= max(MIN_RELIEF_SIGMAS * sig, MIN_RELIEF_M):
         return ReliefEstimate(None, (a0, c0), (node_m, node_m), spread, sig, n_picked,
                               src + ": within its uncertainty, a plane")
@@ -186,6 +280,6 @@ def estimate_relief(pings: Sequence[Ping], hardware, processing: ProcessingConfi
         im, interface="navigation" if im.interface == "altitude" else im.interface,
         interface_relief_m=None))
     along, cross, depth = _picks(image_slab(pings, hardware, steady))
-    est = relief_nodes(along, cross, depth)
+    est = relief_nodes(along, cross, depth, bed=_bed_under_body(pings, steady))
     log.info("%s", est.description)
     return est
