@@ -110,8 +110,9 @@ def true_processing(proc: ProcessingConfig, src: EnvironmentSource,
 
 
 def relief_error(estimate: dict, src: EnvironmentSource, line) -> float | None:
-    """The estimated relief's rms error (m) against the scene's at its nodes, after their
-    means are removed (the relief is known up to one constant: module docs of
+    """The estimated relief's rms error (m) against the scene's at its nodes about the
+    targets (within 1 m along of the first and last, 0.5 m across of the track), after
+    their means are removed (the relief is known up to one constant: module docs of
     :mod:`svss_proc.seabed.relief`); None where none was estimated."""
     nodes = estimate.get("interface_relief_m")
     if not nodes or src.undulation is None:
@@ -119,10 +120,14 @@ def relief_error(estimate: dict, src: EnvironmentSource, line) -> float | None:
     nodes = np.asarray(nodes)
     a0, c0 = estimate["interface_relief_origin_m"]
     da, dc = estimate["interface_relief_step_m"]
-    truth = scene_relief(src, line, a0 + da * np.arange(nodes.shape[0]),
-                         c0 + dc * np.arange(nodes.shape[1]))
-    err = (nodes - nodes.mean()) - (truth - truth.mean())
-    return float(np.sqrt(np.mean(err ** 2)))
+    ga = a0 + da * np.arange(nodes.shape[0])
+    gc = c0 + dc * np.arange(nodes.shape[1])
+    truth = scene_relief(src, line, ga, gc)
+    along = [t["along"] for t in targets_of(src.scene)]
+    near = (((ga >= min(along) - 1.0) & (ga <= max(along) + 1.0))[:, None]
+            & (np.abs(gc) <= 0.5)[None, :])
+    err = nodes[near] - truth[near]
+    return float(np.sqrt(np.mean((err - err.mean()) ** 2)))
 
 
 def targets_of(scene) -> list[dict]:

@@ -57,6 +57,7 @@ from .scatterers import Scatterers, SeabedScatterers, scene_points
 from .scene import SceneConfig
 from .specular import (PathSet, SpectralSynthesiser, boundary_paths, interface_paths,
                        merge, select)
+from .specular_curved import curved_interface_paths
 from .synthesis import (SERIAL_BELOW, PulseSynthesiser, accumulate, accumulate_fast,
                         accumulate_fast_serial, transmit_legs)
 from .synthesis_curved import curved_accumulate, curved_transmit_legs
@@ -393,9 +394,17 @@ class EnvironmentSource:
         m = self.media
         top = self.top_sediment
         rho, nu, d = top.ratios(self.env.water_density, self.env.water_sound_speed)
-        paths = interface_paths(g.tx, g.rx, g.bore, m, self.water_depth,
-                                self.env.surface_reflection, self.sequences, self.tx_beam,
-                                self.rx_beam, rho, nu, d)
+        if self.undulation is not None:
+            # every stationary point of the curved interface (bed-frame rows: g is in
+            # the bed frame, not ping-local)
+            paths = curved_interface_paths(g.tx, g.rx, g.bore, m, self.water_depth,
+                                           self.env.surface_reflection, self.sequences,
+                                           self.tx_beam, self.rx_beam, rho, nu, d,
+                                           self.undulation.rows, self.fc)
+        else:
+            paths = interface_paths(g.tx, g.rx, g.bore, m, self.water_depth,
+                                    self.env.surface_reflection, self.sequences,
+                                    self.tx_beam, self.rx_beam, rho, nu, d)
         if m.n > 2:
             pairs = [(a, b) for a, b in leg_pairs(self.order, self.m_max)]
             paths = merge(paths, boundary_paths(g.tx, g.rx, g.bore, m, self.water_depth,
