@@ -12,30 +12,39 @@ interface's echo, column by column:
    measure;
 2. the image's power is averaged over ``SMOOTH_M`` along and across (incoherently: the
    interface's speckle, not its depth, varies from column to column); in each voxel
-   column covered by (nearly) its whole aperture (``FULL_APERTURE``), the echo's depth is picked as the slope's
-   columns are (:func:`.slope.pick_echo`: the first rise half-way in dB from the water's
-   level to the column's brightest, up to its peak, refined by a parabola), and a column
-   whose echo stands less than ``ECHO_CONTRAST_DB`` over the water above it has none;
+   column seen by at least ``FULL_APERTURE`` of the best covered column's pings, the
+   echo is the brightest voxel below the water (the slab's top ``WATER_M``, above any
+   relief of up to ``SLAB_HALF_M - WATER_M`` about the first ping's level), standing
+   ``ECHO_CONTRAST_DB`` over the water's median, its depth refined by a parabola in log
+   power; a coarse surface is fitted through these picks (step 3, over twice the
+   radius: robust to a buried response's cluster of brighter picks), and each column is
+   picked again within ``PEAK_WINDOW_M`` of it;
 3. the picks are gathered on the relief's nodes (``NODE_M`` apart along and across the
    track line): each node's depth is a robust local quadratic surface through the picks
    within ``RADIUS_M`` of it, evaluated at the node (iteratively reweighted least squares
-   with Tukey's biweight, started from the picks' median: a pick drawn off by a bright
-   facet's or a buried response's sidelobe weighs nothing), its uncertainty the fit's
-   standard error there; nodes with fewer than ``MIN_PICKS`` picks, or whose picks lie
-   mostly to one side of them (their centroid more than a third of the radius away: the
-   quadratic would extrapolate), take their nearest neighbour's depth;
-   where the body passed and no echo reached (the array lies ahead of the body, and a
-   frame placed at a ping's own altitude needs the relief under its body), a node takes
-   the navigation's bed depths there (body depth plus altitude);
+   with Tukey's biweight, started from the ordinary least-squares surface: a pick drawn
+   off by a bright facet's or a buried response's sidelobe weighs nothing), its
+   uncertainty the fit's standard error there. A node with fewer than ``MIN_PICKS``
+   picks, or whose picks lie mostly to one side of it (their centroid more than a third
+   of the radius away: the quadratic would extrapolate), takes the navigation's bed
+   depths (body depth plus altitude) where the body passed within a node of it (the
+   array lies ahead of the body, and the frame is placed by the bed under the first
+   ping's body), else its nearest picked neighbour's depth;
 4. the relief is kept where it stands out of its own uncertainty: the nodes' spread
    (standard deviation about their mean) more than ``MIN_RELIEF_SIGMAS`` times the
    median node uncertainty and more than ``MIN_RELIEF_M``. A level, rough bed's picks
    scatter by speckle alone, and it stays a plane.
 
 The relief is what the picks say about the plane, up to one constant: the first ping's
-frame puts its level at the bed under its body, and the tiles' frames (each ping at its
-own altitude, :func:`~svss_proc.imaging.surface.level_offset`) subtract the relief
-under the body again, so that constant cancels.
+frame puts its level at the bed under its body. The tiles are then imaged in that same
+frame (``imaging.interface = "altitude"`` becomes ``"navigation"``: each ping at the
+navigation's depth, not at its own altitude). A ping placed at its own altitude would
+need the relief under its body to a millimetre: the echo's relief there, a few
+millimetres off from node to node, moved the pings' heights by ±6 mm on the bench's
+undulating sand and cost 1.2 dB of a shallow point's focus and 7 % of its speed. Placed
+by the navigation, the pings carry the navigation's vertical errors instead (on a real
+recording a few centimetres: docs/navigation.md), as the relief measured in that frame
+does.
 """
 
 from __future__ import annotations
@@ -54,13 +63,22 @@ from svss_daq.config import ProcessingConfig
 from svss_daq.ping import Ping
 
 from ..imaging.schedule import line_from_pose
-from ..imaging.surface import InterfaceShape
-from .slope import ECHO_CONTRAST_DB, WATER_CLEARANCE_M, image_slab, pick_echo
+from ..imaging.surface import InterfaceShape, bilinear
+from .slope import ECHO_CONTRAST_DB, image_slab
 
 log = logging.getLogger(__name__)
 
 __all__ = ["ReliefEstimate", "estimate_relief", "with_relief"]
 
+#: half-thickness of the slab imaged about the plane, m: the relief (and the first ping's
+#: level, the bed under its body) move the interface about the slab's middle, and each
+#: column needs water above its echo
+SLAB_HALF_M = 0.6
+#: the slab's top this thick is the water the echo must stand out of, m
+WATER_M = 0.15
+#: the second picking's window about the coarse surface, m: more than the coarse
+#: surface's error, less than the depth of a buried response under the interface
+PEAK_WINDOW_M = 0.1
 #: node spacing of the relief, along and across the track line, m
 NODE_M = 0.25
 #: a column is picked where its coverage through the slab is at least this share of the
@@ -123,48 +141,86 @@ class ReliefEstimate:
 
 def with_relief(processing: ProcessingConfig, summary: dict) -> ProcessingConfig:
     """``processing`` imaging over the relief of a :meth:`ReliefEstimate.summary` (as
-    configured where it kept none)."""
+    configured where it kept none), every ping in the frame the relief was measured in
+    (module docs: ``imaging.interface = "altitude"`` becomes ``"navigation"``)."""
     nodes = summary.get("interface_relief_m")
     if not nodes:
         return processing
+    im = processing.imaging
     return dataclasses.replace(processing, imaging=dataclasses.replace(
-        processing.imaging,
+        im, interface="navigation" if im.interface == "altitude" else im.interface,
         interface_relief_m=tuple(tuple(float(v) for v in row) for row in nodes),
         interface_relief_origin_m=tuple(float(v) for v in
                                         summary["interface_relief_origin_m"]),
         interface_relief_step_m=tuple(float(v) for v in summary["interface_relief_step_m"])))
 
 
-def _picks(tiles) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(along, cross, depth) of every fully covered column's interface echo."""
+def _brightest(col: np.ndarray, z: np.ndarray, window: np.ndarray, floor: float
+               ) -> float | None:
+    """The depth of a column's brightest voxel within ``window`` (bool over ``z``),
+    refined by a parabola in log power; None where it stands less than
+    ``ECHO_CONTRAST_DB`` over ``floor`` or lies at the window's edge."""
+    idx = np.flatnonzero(window)
+    if idx.size < 3:
+        return None
+    k = int(idx[np.argmax(col[idx])])
+    if (col[k] < floor * 10 ** (ECHO_CONTRAST_DB / 10) or k in (idx[0], idx[-1])
+            or col[k - 1] <= 0.0 or col[k + 1] <= 0.0):
+        return None
+    lo, mid, hi = np.log(col[k - 1:k + 2])
+    den = lo - 2 * mid + hi
+    return float(z[k] + (0.5 * (lo - hi) / den if den < 0 else 0.0) * (z[1] - z[0]))
+
+
+def _picks(tiles, guide: ReliefEstimate | None = None
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(along, cross, depth) of the interface echo in every column seen by enough of its
+    aperture: the brightest below the water (``guide`` None), or within
+    ``PEAK_WINDOW_M`` of the ``guide``'s surface."""
     along, cross, depth = [], [], []
     for t in tiles:
         re = np.asarray(t.re, dtype=np.float64)
         im = np.asarray(t.im, dtype=np.float64)
         n = max(1, int(round(SMOOTH_M / t.grid.voxel_m)) // 2 * 2 + 1)
         pw = uniform_filter(re * re + im * im, size=(n, n, 1), mode="nearest")
-        cov = np.asarray(t.coverage.pings)
-        full = cov.min(axis=2)
+        full = np.asarray(t.coverage.pings).min(axis=2)
         z = np.asarray(t.grid.depth)
-        water = z < -WATER_CLEARANCE_M
+        # the water: the slab's top WATER_M, above any relief the slab is made for
+        water = z < z[0] + WATER_M
         if np.count_nonzero(water) < 3:
             continue
         ok = full >= FULL_APERTURE * max(int(full.max()), 1)
-        for ia, ic in zip(*np.nonzero(ok)):
-            echo = pick_echo(pw[ia, ic], z, water, ECHO_CONTRAST_DB)
-            if echo is not None:
-                along.append(float(t.grid.along[ia]))
-                cross.append(float(t.grid.cross[ic]))
-                depth.append(echo[0])
+        ia_ok, ic_ok = np.nonzero(ok)
+        a_ok = np.asarray(t.grid.along)[ia_ok]
+        c_ok = np.asarray(t.grid.cross)[ic_ok]
+        centre = (None if guide is None else
+                  bilinear(guide.nodes, guide.origin, guide.step, a_ok, c_ok))
+        for k, (ia, ic) in enumerate(zip(ia_ok, ic_ok)):
+            col = pw[ia, ic]
+            floor = float(np.median(col[water]))
+            if floor <= 0.0:
+                continue
+            window = (~water if centre is None
+                      else np.abs(z - centre[k]) <= PEAK_WINDOW_M)
+            d = _brightest(col, z, window, floor)
+            if d is not None:
+                along.append(float(a_ok[k]))
+                cross.append(float(c_ok[k]))
+                depth.append(d)
     return np.asarray(along), np.asarray(cross), np.asarray(depth)
 
 
 def _local_surface(da: np.ndarray, dc: np.ndarray, z: np.ndarray
                    ) -> tuple[float, float] | None:
     """(depth at the origin, its standard error) of a quadratic surface through the picks
-    at offsets (da, dc) of depths z: Tukey-biweight IRLS from the median (module docs)."""
+    at offsets (da, dc) of depths z: Tukey-biweight IRLS from the least-squares surface
+    (module docs)."""
     x = np.column_stack([np.ones_like(da), da, dc, da * da, da * dc, dc * dc])
-    r = z - np.median(z)
+    try:                                # the start: every pick alike (a surface, not
+        start = np.linalg.lstsq(x, z, rcond=None)[0]       # the median: on a 10 degree
+    except np.linalg.LinAlgError:                          # flank that is 6 cm off at
+        return None                                        # the radius)
+    r = z - x @ start
     coef = None
     for _ in range(8):
         scale = max(1.4826 * float(np.median(np.abs(r))), MIN_SCALE_M)
@@ -212,7 +268,8 @@ def _bed_under_body(pings: Sequence[Ping], processing: ProcessingConfig) -> np.n
 
 
 def relief_nodes(along: np.ndarray, cross: np.ndarray, depth: np.ndarray,
-                 node_m: float = NODE_M, bed: np.ndarray | None = None) -> ReliefEstimate:
+                 node_m: float = NODE_M, bed: np.ndarray | None = None,
+                 radius_m: float = RADIUS_M, keep_all: bool = False) -> ReliefEstimate:
     """The picks (along, cross, depth) gathered on nodes ``node_m`` apart (module docs,
     steps 3 and 4); ``bed`` (n, 3): the navigation's bed under the body (along, cross,
     depth), for the nodes no echo reaches."""
@@ -232,11 +289,11 @@ def relief_nodes(along: np.ndarray, cross: np.ndarray, depth: np.ndarray,
     for i in range(na):
         for j in range(nc):
             a, c = a0 + i * node_m, c0 + j * node_m
-            near = tree.query_ball_point((a, c), RADIUS_M)
+            near = tree.query_ball_point((a, c), radius_m)
             if len(near) < MIN_PICKS:
                 continue
             if math.hypot(float(np.mean(along[near])) - a,
-                          float(np.mean(cross[near])) - c) > RADIUS_M / 3:
+                          float(np.mean(cross[near])) - c) > radius_m / 3:
                 continue
             fit = _local_surface(along[near] - a, cross[near] - c, depth[near])
             if fit is not None:
@@ -265,7 +322,7 @@ def relief_nodes(along: np.ndarray, cross: np.ndarray, depth: np.ndarray,
     sig = float(np.median(sigma[picked]))
     src = (f"interface echo, {along.size} columns on {n_picked} nodes of "
            f"{node_m:.2f} m" + (f"; the navigation's bed on {n_bed} more" if n_bed else ""))
-    if spread <= max(MIN_RELIEF_SIGMAS * sig, MIN_RELIEF_M):
+    if not keep_all and spread <= max(MIN_RELIEF_SIGMAS * sig, MIN_RELIEF_M):
         return ReliefEstimate(None, (a0, c0), (node_m, node_m), spread, sig, n_picked,
                               src + ": within its uncertainty, a plane")
     return ReliefEstimate(nodes, (a0, c0), (node_m, node_m), spread, sig, n_picked, src)
@@ -279,7 +336,14 @@ def estimate_relief(pings: Sequence[Ping], hardware, processing: ProcessingConfi
     steady = dataclasses.replace(processing, imaging=dataclasses.replace(
         im, interface="navigation" if im.interface == "altitude" else im.interface,
         interface_relief_m=None))
-    along, cross, depth = _picks(image_slab(pings, hardware, steady))
-    est = relief_nodes(along, cross, depth, bed=_bed_under_body(pings, steady))
+    tiles = image_slab(pings, hardware, steady, SLAB_HALF_M)
+    bed = _bed_under_body(pings, steady)
+    # a coarse surface through each column's brightest (robust to a buried response's
+    # cluster of picks over twice the radius), then each column's brightest near it
+    coarse = relief_nodes(*_picks(tiles), bed=bed, radius_m=2 * RADIUS_M, keep_all=True)
+    if coarse.nodes is None:
+        log.info("%s", coarse.description)
+        return coarse
+    est = relief_nodes(*_picks(tiles, coarse), bed=bed)
     log.info("%s", est.description)
     return est

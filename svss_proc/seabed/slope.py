@@ -131,14 +131,16 @@ def _along(pings: Sequence[Ping], processing: ProcessingConfig
     return g, sig, f"navigation, {a.size} bed depths over {np.ptp(a):.1f} m"
 
 
-def image_slab(pings: Sequence[Ping], hardware, processing: ProcessingConfig):
-    """The run imaged in the slab about the interface on the picking image's grid."""
+def image_slab(pings: Sequence[Ping], hardware, processing: ProcessingConfig,
+               half_m: float = SLAB_HALF_M):
+    """The run imaged in the slab ``half_m`` about the interface on the picking image's
+    grid."""
     sb = processing.seabed
     v = sb.search_voxel_m
     slab = dataclasses.replace(
         processing, products=None,
-        tile=dataclasses.replace(processing.tile, voxel_m=v, top_m=-SLAB_HALF_M,
-                                 depth_m=2 * SLAB_HALF_M))
+        tile=dataclasses.replace(processing.tile, voxel_m=v, top_m=-half_m,
+                                 depth_m=2 * half_m))
     imager = TileImager(hardware, slab)
     tiles = []
     for i in range(len(pings)):
