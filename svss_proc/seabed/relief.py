@@ -13,12 +13,15 @@ interface's echo, column by column:
 2. the image's power is averaged over ``SMOOTH_M`` along and across (incoherently: the
    interface's speckle, not its depth, varies from column to column); in each voxel
    column seen by at least ``FULL_APERTURE`` of the best covered column's pings, the
-   echo is the brightest voxel below the water (the slab's top ``WATER_M``, above any
-   relief of up to ``SLAB_HALF_M - WATER_M`` about the first ping's level), standing
-   ``ECHO_CONTRAST_DB`` over the water's median, its depth refined by a parabola in log
-   power; a coarse surface is fitted through these picks (step 3, over twice the
-   radius: robust to a buried response's cluster of brighter picks), and each column is
-   picked again within ``PEAK_WINDOW_M`` of it;
+   echo is the first voxel from above within ``RISE_DB`` of the column's brightest below
+   the water (the slab's top ``WATER_M``, above any relief of up to
+   ``SLAB_HALF_M - WATER_M`` about the first ping's level), up to its peak, refined by a
+   parabola in log power, where the brightest stands ``ECHO_CONTRAST_DB`` over the
+   water's median (:func:`_first_rise`); depths within ``GHOST_BAND_M`` of the
+   interface's echo by way of the sea surface are left out. First over
+   ``COARSE_SMOOTH_M`` for a coarse surface (step 3, over twice the radius: robust to a
+   buried response's cluster of picks), then each column again within
+   ``PEAK_WINDOW_M`` of it;
 3. the picks are gathered on the relief's nodes (``NODE_M`` apart along and across the
    track line): each node's depth is a robust local quadratic surface through the picks
    within ``RADIUS_M`` of it, evaluated at the node (iteratively reweighted least squares
@@ -79,6 +82,10 @@ WATER_M = 0.15
 #: the second picking's window about the coarse surface, m: more than the coarse
 #: surface's error, less than the depth of a buried response under the interface
 PEAK_WINDOW_M = 0.1
+#: the echo's first rise: the first voxel within this of the column's brightest, dB
+RISE_DB = 10.0
+#: depths this close to the interface's echo by way of the sea surface are not picked, m
+GHOST_BAND_M = 0.12
 #: node spacing of the relief, along and across the track line, m
 NODE_M = 0.25
 #: a column is picked where its coverage through the slab is at least this share of the
@@ -88,6 +95,9 @@ NODE_M = 0.25
 FULL_APERTURE = 0.5
 #: the image's power is averaged over this span along and across before picking, m
 SMOOTH_M = 0.2
+#: ... and over this span for the coarse surface (a silt's volume speckle averages down
+#: under it, the interface's sheet does not)
+COARSE_SMOOTH_M = 0.6
 #: picks a node needs for a depth of its own
 MIN_PICKS = 12
 #: the picks a node's surface is fitted to lie within this distance of it, m (a
@@ -99,8 +109,9 @@ BIWEIGHT_C = 4.685
 MIN_SCALE_M = 0.004
 #: the relief is kept where the nodes' spread exceeds this many median uncertainties ...
 MIN_RELIEF_SIGMAS = 3.0
-#: ... and this depth, m
-MIN_RELIEF_M = 0.01
+#: ... and this depth, m (the level silts' picks scatter by 0.8-0.9 cm rms, the sands'
+#: by 0.1-0.2 cm)
+MIN_RELIEF_M = 0.015
 
 
 @dataclass(frozen=True)
@@ -155,33 +166,45 @@ def with_relief(processing: ProcessingConfig, summary: dict) -> ProcessingConfig
         interface_relief_step_m=tuple(float(v) for v in summary["interface_relief_step_m"])))
 
 
-def _brightest(col: np.ndarray, z: np.ndarray, window: np.ndarray, floor: float
-               ) -> float | None:
-    """The depth of a column's brightest voxel within ``window`` (bool over ``z``),
-    refined by a parabola in log power; None where it stands less than
-    ``ECHO_CONTRAST_DB`` over ``floor`` or lies at the window's edge."""
+def _first_rise(col: np.ndarray, z: np.ndarray, window: np.ndarray, floor: float
+                ) -> float | None:
+    """The interface echo's depth in one column's power ``col`` within ``window`` (bool
+    over ``z``): the first voxel from above within ``RISE_DB`` of the window's brightest,
+    then up to its peak, refined by a parabola in log power. None where the brightest
+    stands less than ``ECHO_CONTRAST_DB`` over ``floor`` (the water's level) or the peak
+    lies at the window's edge. The first rise, not the brightest: a silt's volume below
+    the interface is as bright as it; and within ``RISE_DB`` of the brightest, not
+    half-way from the water: over deep, quiet water the sidelobes of a brighter facet
+    nearby stand 40 dB over it, 15 dB under the interface."""
     idx = np.flatnonzero(window)
     if idx.size < 3:
         return None
-    k = int(idx[np.argmax(col[idx])])
-    if (col[k] < floor * 10 ** (ECHO_CONTRAST_DB / 10) or k in (idx[0], idx[-1])
-            or col[k - 1] <= 0.0 or col[k + 1] <= 0.0):
+    w = col[idx]
+    top = float(w.max())
+    if top < floor * 10 ** (ECHO_CONTRAST_DB / 10):
         return None
+    j = int(np.argmax(w >= top * 10 ** (-RISE_DB / 10)))
+    while j + 1 < w.size and w[j + 1] > w[j]:
+        j += 1
+    if j == 0 or j == w.size - 1:
+        return None
+    k = int(idx[j])
     lo, mid, hi = np.log(col[k - 1:k + 2])
     den = lo - 2 * mid + hi
     return float(z[k] + (0.5 * (lo - hi) / den if den < 0 else 0.0) * (z[1] - z[0]))
 
 
-def _picks(tiles, guide: ReliefEstimate | None = None
+def _picks(tiles, guide: ReliefEstimate | None = None, ghost_m: float = math.nan
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(along, cross, depth) of the interface echo in every column seen by enough of its
-    aperture: the brightest below the water (``guide`` None), or within
+    aperture (:func:`_first_rise`): below the water (``guide`` None), or within
     ``PEAK_WINDOW_M`` of the ``guide``'s surface."""
     along, cross, depth = [], [], []
     for t in tiles:
         re = np.asarray(t.re, dtype=np.float64)
         im = np.asarray(t.im, dtype=np.float64)
-        n = max(1, int(round(SMOOTH_M / t.grid.voxel_m)) // 2 * 2 + 1)
+        smooth = COARSE_SMOOTH_M if guide is None else SMOOTH_M
+        n = max(1, int(round(smooth / t.grid.voxel_m)) // 2 * 2 + 1)
         pw = uniform_filter(re * re + im * im, size=(n, n, 1), mode="nearest")
         full = np.asarray(t.coverage.pings).min(axis=2)
         z = np.asarray(t.grid.depth)
@@ -189,6 +212,8 @@ def _picks(tiles, guide: ReliefEstimate | None = None
         water = z < z[0] + WATER_M
         if np.count_nonzero(water) < 3:
             continue
+        # the interface's echo by way of the sea surface: a bright sheet, not the bed
+        clear = ~(np.abs(z - ghost_m) <= GHOST_BAND_M)
         ok = full >= FULL_APERTURE * max(int(full.max()), 1)
         ia_ok, ic_ok = np.nonzero(ok)
         a_ok = np.asarray(t.grid.along)[ia_ok]
@@ -200,9 +225,9 @@ def _picks(tiles, guide: ReliefEstimate | None = None
             floor = float(np.median(col[water]))
             if floor <= 0.0:
                 continue
-            window = (~water if centre is None
-                      else np.abs(z - centre[k]) <= PEAK_WINDOW_M)
-            d = _brightest(col, z, window, floor)
+            window = clear & (~water if centre is None
+                              else np.abs(z - centre[k]) <= PEAK_WINDOW_M)
+            d = _first_rise(col, z, window, floor)
             if d is not None:
                 along.append(float(a_ok[k]))
                 cross.append(float(c_ok[k]))
@@ -243,6 +268,17 @@ def _local_surface(da: np.ndarray, dc: np.ndarray, z: np.ndarray
     # the weighted residuals' variance, with the fit's degrees of freedom
     var = float((w * r * r).sum()) / max(w_sum - x.shape[1], 1.0)
     return float(coef[0]), float(math.sqrt(max(var * cov[0, 0] * w_sum / max(w_sum, 1.0), 0.0)))
+
+
+def _surface_ghost_m(pings: Sequence[Ping], hardware) -> float:
+    """Where the interface's echo by way of the sea surface (one bounce) appears below
+    the interface in a water-speed image, m: the array's median depth below the surface
+    (the survey frame's down 0; NaN without poses)."""
+    pose = getattr(pings, "nav", None) or (lambda k: pings[k].nav)
+    lever = float(hardware.value.lever_arms.array_m[2])
+    downs = [pose(k).down_m for k in range(0, len(pings), max(1, len(pings) // 50))]
+    downs = [d for d in downs if math.isfinite(d)]
+    return float(np.median(downs)) + lever if downs else math.nan
 
 
 def _bed_under_body(pings: Sequence[Ping], processing: ProcessingConfig) -> np.ndarray:
@@ -340,10 +376,12 @@ def estimate_relief(pings: Sequence[Ping], hardware, processing: ProcessingConfi
     bed = _bed_under_body(pings, steady)
     # a coarse surface through each column's brightest (robust to a buried response's
     # cluster of picks over twice the radius), then each column's brightest near it
-    coarse = relief_nodes(*_picks(tiles), bed=bed, radius_m=2 * RADIUS_M, keep_all=True)
+    ghost = _surface_ghost_m(pings, hardware)
+    coarse = relief_nodes(*_picks(tiles, ghost_m=ghost), bed=bed, radius_m=2 * RADIUS_M,
+                          keep_all=True)
     if coarse.nodes is None:
         log.info("%s", coarse.description)
         return coarse
-    est = relief_nodes(*_picks(tiles, coarse), bed=bed)
+    est = relief_nodes(*_picks(tiles, coarse, ghost), bed=bed)
     log.info("%s", est.description)
     return est
