@@ -312,7 +312,8 @@ def _write(f: h5py.File, tile: Tile, hardware: Loaded[HardwareConfig],
 
 def _write_seabed(prov: h5py.Group, seabed: dict) -> None:
     """The sediment speed a tile was imaged with, its source and uncertainty
-    (``/provenance/seabed`` attributes; the responses as a JSON text)."""
+    (``/provenance/seabed`` attributes; the responses, the layers and the interface's
+    slope and relief as JSON texts)."""
     g = prov.create_group("seabed")
     for k in ("status", "reason"):
         g.attrs[k] = str(seabed.get(k) or "")
@@ -321,6 +322,14 @@ def _write_seabed(prov: h5py.Group, seabed: dict) -> None:
         g.attrs[k] = np.nan if v is None else float(v)
     g.attrs["disagrees"] = bool(seabed.get("disagrees", False))
     g.attrs["responses_json"] = json.dumps(seabed.get("responses", []))
+    g.attrs["layers_json"] = json.dumps(seabed.get("layers", []))
+    # the interface's slope and relief as estimated (the relief's nodes themselves are
+    # the manifest's; the tile holds its columns' depths, ``interface_depth``)
+    g.attrs["interface_json"] = json.dumps({k: v for k, v in seabed.items()
+                                            if k.startswith("interface_") and k not in (
+                                                "interface_relief_m",
+                                                "interface_relief_origin_m",
+                                                "interface_relief_step_m")})
 
 
 def _write_coverage(f: h5py.File, c: Coverage, keep) -> None:
@@ -541,10 +550,15 @@ def _read_seabed(prov) -> dict | None:
         v = float(g.attrs.get(k, np.nan))
         out[k] = None if not np.isfinite(v) else v
     out["disagrees"] = bool(g.attrs.get("disagrees", False))
+    for key, default in (("responses", "[]"), ("layers", "[]")):
+        try:
+            out[key] = json.loads(_text(g.attrs.get(f"{key}_json", default)))
+        except ValueError:
+            out[key] = json.loads(default)
     try:
-        out["responses"] = json.loads(_text(g.attrs.get("responses_json", "[]")))
+        out.update(json.loads(_text(g.attrs.get("interface_json", "{}"))))
     except ValueError:
-        out["responses"] = []
+        pass
     return out
 
 

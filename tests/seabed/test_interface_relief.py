@@ -207,3 +207,28 @@ def test_a_point_under_the_relief_at_its_depth_only_over_the_relief(hw, undulati
     level = _depth_of_peak(hw, sand, pings)
     assert over == pytest.approx(POINT[2], abs=0.015)
     assert abs(level - POINT[2]) > 0.03
+
+
+def test_a_tile_records_the_interface_it_was_imaged_over(tmp_path, proc):
+    import h5py
+
+    from svss.summary import seabed_line
+    from svss_proc.tiles import _read_seabed, _write_seabed
+    rng = np.random.default_rng(7)
+    a, c = rng.uniform(0, 6, 20000), rng.uniform(-1, 1, 20000)
+    relief = relief_nodes(a, c, true_height(a, c) + rng.normal(0, 0.01, a.size))
+    seabed = SpeedEstimate("unconstrained", 1500.0, 1500.0, "test",
+                           slope={"interface_slope_deg": [3.0, 5.0],
+                                  "interface_slope_sigma_deg": [0.01, 0.02],
+                                  "interface_slope_from": ["navigation", "echo"],
+                                  **relief.summary()}).summary()
+    with h5py.File(tmp_path / "t.h5", "w") as f:
+        _write_seabed(f.create_group("provenance"), seabed)
+    with h5py.File(tmp_path / "t.h5", "r") as f:
+        back = _read_seabed(f["provenance"])
+    assert back["interface_slope_deg"] == [3.0, 5.0]
+    assert back["interface_relief"] is True
+    assert back["interface_relief_rms_m"] == pytest.approx(relief.spread_m, abs=1e-4)
+    assert "interface_relief_m" not in back            # the nodes are the manifest's
+    line = seabed_line(back)
+    assert "interface sloping +3.00" in line and "interface relief" in line
