@@ -300,6 +300,12 @@ def seabed_line(sb: dict) -> str:
         else:
             text += (f"; no interface relief beyond its uncertainty "
                      f"({_f(100 * sig if sig is not None else None, '.2f')} cm a node)")
+    tiles = sb.get("tiles") or []
+    if len(tiles) > 1:
+        text += ("; per tile " + ", ".join(
+            f"{t['tile']}: {_f(t['speed_m_s'], '.0f')} +/- {_f(t['sigma_m_s'], '.0f')}"
+            for t in tiles) + (" (they disagree: two sediments?)"
+                               if sb.get("tiles_disagree") else ""))
     return text
 
 

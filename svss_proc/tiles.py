@@ -323,6 +323,8 @@ def _write_seabed(prov: h5py.Group, seabed: dict) -> None:
     g.attrs["disagrees"] = bool(seabed.get("disagrees", False))
     g.attrs["responses_json"] = json.dumps(seabed.get("responses", []))
     g.attrs["layers_json"] = json.dumps(seabed.get("layers", []))
+    g.attrs["tiles_json"] = json.dumps({"tiles": seabed.get("tiles", []),
+                                        "tiles_disagree": seabed.get("tiles_disagree")})
     # the interface's slope and relief as estimated (the relief's nodes themselves are
     # the manifest's; the tile holds its columns' depths, ``interface_depth``)
     g.attrs["interface_json"] = json.dumps({k: v for k, v in seabed.items()
@@ -555,10 +557,11 @@ def _read_seabed(prov) -> dict | None:
             out[key] = json.loads(_text(g.attrs.get(f"{key}_json", default)))
         except ValueError:
             out[key] = json.loads(default)
-    try:
-        out.update(json.loads(_text(g.attrs.get("interface_json", "{}"))))
-    except ValueError:
-        pass
+    for key in ("interface_json", "tiles_json"):
+        try:
+            out.update(json.loads(_text(g.attrs.get(key, "{}"))))
+        except ValueError:
+            pass
     return out
 
 

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from svss_daq.config import Loaded, ProcessingConfig
 from svss_daq.ping import NavSnapshot, Ping
 
+from .per_tile import tile_speeds
 from .relief import estimate_relief, with_relief
 from .slope import estimate_slope, with_slope
 from .speed import SpeedEstimate, configured_speed, estimate_speed, speed_wanted
@@ -84,9 +85,18 @@ def seabed_stage(readers, poses: list[NavSnapshot] | None,
     est = estimate_speed(pings, readers[0].hardware, proc)
     interface = {**(slope.summary() if slope is not None else {}),
                  **(relief.summary() if relief is not None else {})}
+    tiles, disagree = tile_speeds(est.summary(), proc.tile)
+    if tiles:
+        interface.update(tiles=tiles, tiles_disagree=disagree)
     if interface:
         est = dataclasses.replace(est, slope=interface)
     log.info("%s: %s", readers[0].path, est.description)
+    if disagree:
+        log.warning("%s: the tiles' own sediment speeds disagree (%s): the run may cross "
+                    "from one sediment into another; its tiles are imaged with %.0f m/s",
+                    readers[0].path, ", ".join(f"tile {t['tile']}: {t['speed_m_s']:.0f} +/- "
+                                               f"{t['sigma_m_s']:.0f}" for t in tiles),
+                    est.speed_m_s)
     if est.disagrees:
         log.warning("%s: the configured sediment speed %.0f m/s disagrees with the "
                     "echoes' %.0f +/- %.0f m/s; imaged with the estimate",

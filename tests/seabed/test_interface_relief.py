@@ -232,3 +232,35 @@ def test_a_tile_records_the_interface_it_was_imaged_over(tmp_path, proc):
     assert "interface_relief_m" not in back            # the nodes are the manifest's
     line = seabed_line(back)
     assert "interface sloping +3.00" in line and "interface relief" in line
+
+
+def test_tiles_own_speeds_and_a_run_crossing_sediments(proc):
+    from svss.summary import seabed_line
+    from svss_proc.seabed.per_tile import tile_speeds
+
+    def summary(speeds):
+        responses = [{"along_m": a, "cross_m": 0.0, "depth_m": 0.6, "speed_m_s": c,
+                      "sigma_m_s": 30.0, "contrast_db": 25.0, "layer": None}
+                     for a, c in speeds]
+        w = np.full(len(speeds), 1 / 30.0 ** 2)
+        mean = float((w * [c for _, c in speeds]).sum() / w.sum())
+        return {"status": "estimated", "sediment_sound_speed_m_s": mean, "layers": [],
+                "responses": responses}
+    length = proc.tile.length_m
+    one = summary([(3.0, 1760.0), (9.0, 1775.0), (length + 2.0, 1770.0),
+                   (length + 7.0, 1765.0)])
+    tiles, disagree = tile_speeds(one, proc.tile)
+    assert [t["tile"] for t in tiles] == [0, 1] and disagree is False
+    assert tiles[0]["speed_m_s"] == pytest.approx(1767.5) and tiles[0]["responses"] == 2
+    assert tiles[0]["sigma_m_s"] == pytest.approx(30.0 / math.sqrt(2), abs=0.05)
+    # sand then silt: each tile's own responses agree, the tiles do not
+    two = summary([(3.0, 1760.0), (9.0, 1775.0), (length + 2.0, 1480.0),
+                   (length + 7.0, 1470.0)])
+    tiles, disagree = tile_speeds(two, proc.tile)
+    assert disagree is True
+    assert tiles[1]["speed_m_s"] == pytest.approx(1475.0)
+    line = seabed_line({**two, "sigma_m_s": 15.0, "tiles": tiles, "tiles_disagree": True})
+    assert "per tile 0: 1768 +/- 21, 1: 1475 +/- 21 (they disagree" in line
+    # one tile, or a layered estimate: nothing to compare
+    assert tile_speeds(summary([(3.0, 1760.0)]), proc.tile)[1] is None
+    assert tile_speeds({**two, "layers": [{"thickness_m": 0.5}]}, proc.tile) == ([], None)
