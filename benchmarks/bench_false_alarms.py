@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from bench_isa import machine_isa  # noqa: E402
 from sim_device.scene import load_scene  # noqa: E402
 from sim_device.track import truth_line  # noqa: E402
-from svss.score import scene_truth, score_tiles  # noqa: E402
+from svss.score import half_extent, scene_truth, score_tiles  # noqa: E402
 
 log = logging.getLogger("bench_false_alarms")
 
@@ -70,9 +70,7 @@ def one_threshold(config: str, cache: Path) -> Path:
 def core_m(target: dict) -> float:
     """How far about a target's centre its own response reaches horizontally: 0.3 m
     beyond its largest half-extent (a cylinder's half length, a sphere's radius)."""
-    f = target["fields"]
-    half = max(0.5 * float(f.get("length_m") or 0.0), float(f.get("radius_m") or 0.0))
-    return 0.3 + half
+    return 0.3 + half_extent(target)
 
 
 def shown_levels(tiles_dir: Path, scene, detected: list[int]) -> tuple[float, float]:

@@ -61,13 +61,19 @@ class Score:
                                              if self.n_truth else None)}
 
 
-def score(detections_m: np.ndarray, truth_m: np.ndarray, radius_m: float) -> Score:
+def score(detections_m: np.ndarray, truth_m: np.ndarray, radius_m: float,
+          extents_m: np.ndarray | None = None) -> Score:
     """Match detections (n, 3) to true targets (m, 3), positions (along, cross, depth) in
-    one frame (m): a pair is closer than ``radius_m`` (Euclidean); pairs are taken
+    one frame (m): a pair is closer than ``radius_m`` (Euclidean) to the target's
+    extent, the sphere of radius ``extents_m`` (per target, m; None: points) about its
+    centre (a contact on a cylinder's top or end is that cylinder's); pairs are taken
     nearest first, each target and each detection at most once."""
     det = np.asarray(detections_m, dtype=np.float64).reshape(-1, 3)
     truth = np.asarray(truth_m, dtype=np.float64).reshape(-1, 3)
-    dist = np.linalg.norm(truth[:, None, :] - det[None, :, :], axis=2)
+    ext = (np.zeros(len(truth)) if extents_m is None
+           else np.asarray(extents_m, dtype=np.float64).reshape(-1))
+    dist = np.maximum(np.linalg.norm(truth[:, None, :] - det[None, :, :], axis=2)
+                      - ext[:, None], 0.0)
     ti, di = np.nonzero(dist <= radius_m)
     order = np.argsort(dist[ti, di], kind="stable")
     used_t, used_d, pairs = set(), set(), []
@@ -82,6 +88,13 @@ def score(detections_m: np.ndarray, truth_m: np.ndarray, radius_m: float) -> Sco
                  missed=[t for t in range(len(truth)) if t not in used_t],
                  false_alarms=[d for d in rest if not near[d]],
                  duplicates=[d for d in rest if near[d]])
+
+
+def half_extent(target: dict) -> float:
+    """A true target's largest half-size, m (a cylinder's half length or its radius, a
+    sphere's or a disc's radius; a point's 0), from :func:`scene_truth`'s ``fields``."""
+    f = target.get("fields") or {}
+    return max(0.5 * float(f.get("length_m") or 0.0), float(f.get("radius_m") or 0.0))
 
 
 def scene_truth(scene) -> list[dict]:
@@ -221,7 +234,8 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
                                  **{k: row[k].item() for k in detect.DTYPE.names}})
     det_ned = np.concatenate(det_ned) if det_ned else np.zeros((0, 3))
     scored = np.flatnonzero(covered)
-    result = score(det_ned, truth_ned[scored], radius_m)
+    result = score(det_ned, truth_ned[scored], radius_m,
+                   np.array([half_extent(truth[t]) for t in scored]))
     for t in truth:
         t["status"] = "outside"
     for t in scored:

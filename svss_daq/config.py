@@ -301,6 +301,10 @@ class DetectionConfig:
     min_coverage_fraction: float | None = spec(
         "voxels imaged by fewer pings than this fraction of the full coverage at their "
         "depth never detect (omitted: 0.5)", lo=0.0, hi=1.0, default=0.5)
+    later_echo_m: tuple[float, float, float] | None = spec(
+        "a weaker contact within this (along, cross) of a stronger one and up to this "
+        "depth below it is that object's later echo (its ringing, its internal paths) "
+        "and merges into it, m (omitted: none)", length=3, lo=0.0, hi=10.0)
     layer_false_alarms_per_m3: float | None = spec(
         "a threshold per depth layer from the layer's own clutter: the level its fitted "
         "tail reaches this many false alarms per m^3 at, where above threshold_db "

@@ -85,6 +85,7 @@ class DvlEmulator(ScheduledSerialDevice):
         self.bed_ranges = bed_ranges
         self.beams = janus_beam_vectors(math.radians(cfg.beam_angle_deg))
         self._rng = np.random.default_rng(cfg.seed)
+        self._lost_from_ns = -1
         self._lost_until_ns = -1
         self._llock = threading.Lock()
         self.ensemble_number = 0  #: number of the last ensemble built (first is 1)
@@ -105,7 +106,10 @@ class DvlEmulator(ScheduledSerialDevice):
             raise ValueError(f"{self.name}: lose_bottom_lock seconds: expected >= 0, found "
                              f"{seconds!r}")
         with self._llock:
-            self._lost_until_ns = self.clock.true_ns() + int(seconds * 1e9)
+            # from now: an ensemble of an earlier time, sent late by a loaded host, had
+            # its lock (it counted as lost when the window had no start)
+            self._lost_from_ns = self.clock.true_ns()
+            self._lost_until_ns = self._lost_from_ns + int(seconds * 1e9)
         self._fault("bottom lock lost", f"for {seconds:.3f} s (velocity -32768, range 0)")
 
     def _emit(self, stream: str, t_true_ns: int, t_clock_ns: int) -> bytes:
@@ -116,7 +120,7 @@ class DvlEmulator(ScheduledSerialDevice):
         pitch = pose.pitch_rad + math.radians(c.tilt_sigma_deg) * rng.normal()
         roll = pose.roll_rad + math.radians(c.tilt_sigma_deg) * rng.normal()
         with self._llock:
-            lost = (t_true_ns < self._lost_until_ns
+            lost = (self._lost_from_ns <= t_true_ns < self._lost_until_ns
                     or self._dropout_ns[0] <= t_true_ns < self._dropout_ns[1])
         if lost:
             self.ensembles_without_lock += 1

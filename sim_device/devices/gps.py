@@ -58,6 +58,7 @@ class GpsEmulator(ScheduledSerialDevice):
         self.pose_fn = pose_fn
         self.origin = (cfg.origin_latitude_deg, cfg.origin_longitude_deg, cfg.origin_height_m)
         self._rng = np.random.default_rng(cfg.seed)
+        self._outage_from_ns = -1
         self._outage_until_ns = -1
         self._olock = threading.Lock()
         self.epochs_without_fix = 0
@@ -68,12 +69,15 @@ class GpsEmulator(ScheduledSerialDevice):
         if not seconds >= 0:
             raise ValueError(f"{self.name}: outage seconds: expected >= 0, found {seconds!r}")
         with self._olock:
-            self._outage_until_ns = self.clock.true_ns() + int(seconds * 1e9)
+            # from now: an epoch of an earlier time, sent late by a loaded host, had its
+            # fix
+            self._outage_from_ns = self.clock.true_ns()
+            self._outage_until_ns = self._outage_from_ns + int(seconds * 1e9)
         self._fault("outage", f"no fix for {seconds:.3f} s (fix quality 0, RMC V, empty HDT)")
 
     def _in_outage(self, t_ns: int) -> bool:
         with self._olock:
-            return t_ns < self._outage_until_ns
+            return self._outage_from_ns <= t_ns < self._outage_until_ns
 
     def _emit(self, stream: str, t_true_ns: int, t_clock_ns: int) -> bytes:
         c = self.cfg

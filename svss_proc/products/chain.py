@@ -221,7 +221,8 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
                    coverage_pings=pings_x, coverage_fraction=fraction_x,
                    footprint=footprint if use_footprint else None,
                    point_threshold_db=dc.point_threshold_db,
-                   extended_min_m3=dc.extended_min_m3, tails=tails)
+                   extended_min_m3=dc.extended_min_m3, tails=tails,
+                   later_echo_m=dc.later_echo_m)
     sources = table             # with those peaking in the neighbours' planes
     if nb or na:        # contacts peaking in a neighbour's planes are that tile's
         half = 0.5 * float(voxel_m)

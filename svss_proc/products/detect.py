@@ -103,6 +103,27 @@ class Footprint:
         return a0 <= b1 + self.range_slack_m and b0 <= a1 + self.range_slack_m
 
 
+#: a contact claims later echoes only this far or more below the interface, m
+LATER_ECHO_MIN_DEPTH_M = 0.1
+
+
+def is_later_echo(weak_pos, strong_pos, later_echo_m) -> bool:
+    """A weaker contact at ``weak_pos`` is a later echo of a stronger one at
+    ``strong_pos`` (along, cross, depth; m): it lies under it, within
+    ``later_echo_m`` (along, cross, depth below; None: never), and the stronger one is
+    buried (``LATER_ECHO_MIN_DEPTH_M`` or more below the interface). An elastic object
+    rings and its internal paths arrive late: its response extends below it, imaged as
+    more objects deeper (the seed's "decaying return versus depth"); they are the same
+    object. The interface's own bright patches claim nothing: a buried object under one
+    would be lost in it (with one threshold on the seed's sand line, the buried cylinder
+    was)."""
+    if later_echo_m is None or float(strong_pos[2]) < LATER_ECHO_MIN_DEPTH_M:
+        return False
+    d = np.asarray(weak_pos, dtype=np.float64) - np.asarray(strong_pos, dtype=np.float64)
+    return bool(abs(d[0]) <= later_echo_m[0] and abs(d[1]) <= later_echo_m[1]
+                and 0.0 < d[2] <= later_echo_m[2])
+
+
 def is_sidelobe(weak_pos, weak_peak_db: float, strong_pos, strong_peak_db: float,
                 sidelobe_db: float, sidelobe_m: float,
                 footprint: Footprint | None = None) -> bool:
@@ -246,7 +267,8 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
            footprint: Footprint | None = None, point_threshold_db: float | None = None,
            extended_min_m3: float | None = None,
            context: tuple[np.ndarray, np.ndarray] | None = None,
-           tails=None) -> np.ndarray:
+           tails=None, later_echo_m: tuple[float, float, float] | None = None
+           ) -> np.ndarray:
     """Contacts of a tile.
 
     ``level``: normalised level, dB re background (along x cross x depth; NaN never
@@ -337,7 +359,19 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
                                     np.asarray(context[1], dtype=np.float64))):
                 not_sidelobe[i] = False
     n_sidelobes = int((~not_sidelobe).sum())
-    kept = sorted((c for c, k in zip(merged, not_sidelobe) if k), key=lambda c: -c["excess"])
+    # later echoes, after the sidelobes: every contact, merged or not, has served as a
+    # sidelobe source (an echo merged first would no longer explain its own sidelobes)
+    kept = []
+    for c in sorted((c for c, k in zip(merged, not_sidelobe) if k), key=lambda c: -c["peak_db"]):
+        for k in kept:
+            if is_later_echo(c["pos"], k["pos"], later_echo_m):
+                k["lo"] = np.minimum(k["lo"], c["lo"])
+                k["hi"] = np.maximum(k["hi"], c["hi"])
+                k["n"] += c["n"]
+                break
+        else:
+            kept.append(c)
+    kept.sort(key=lambda c: -c["excess"])
     kept = kept[:max_detections]
     out = np.zeros(len(kept), dtype=DTYPE)
     for row, c in zip(out, kept):

@@ -59,7 +59,7 @@ from svss_daq.navigation import geodetic_to_ned, ned_to_geodetic
 from ..tiles import (TileFileError, finished_tile_paths, read_tile_views,
                      temporary_path, tile_line)
 from .chain import coverage_settings, footprint_for
-from .detect import Footprint, sidelobe_filter
+from .detect import Footprint, is_later_echo, sidelobe_filter
 from .drc import compress
 from .georef import (CONTACTS_GPKG, MOSAIC_TIF, SurveyProjection, utm_grid,
                      write_contacts_gpkg, write_mosaic_geotiff)
@@ -168,7 +168,7 @@ def _depth_index(depth_axis: np.ndarray, z: float) -> int:
 
 def filter_contacts(rows: list[dict], full_pings: np.ndarray | None, depth_axis: np.ndarray,
                     min_fraction: float, merge_m, sidelobe_db: float, sidelobe_m: float,
-                    footprint: Footprint | None) -> list[dict]:
+                    footprint: Footprint | None, later_echo_m=None) -> list[dict]:
     """The run's contacts from the tiles' detections (``rows``: dicts with ``run_m``
     (along, cross, depth in the run frame), ``peak_db``, ``coverage_pings``, extents,
     ...): coverage against the run's full coverage per depth ``full_pings`` (None:
@@ -204,7 +204,15 @@ def filter_contacts(rows: list[dict], full_pings: np.ndarray | None, depth_axis:
     keep = sidelobe_filter(np.array([m["run_m"] for m in merged]),
                            np.array([m["peak_db"] for m in merged]), sidelobe_db,
                            sidelobe_m, footprint)
-    out = [m for m, k in zip(merged, keep) if k]
+    out: list[dict] = []
+    for r in (m for m, k in zip(merged, keep) if k):      # strongest peak first
+        for m in out:
+            if is_later_echo(r["run_m"], m["run_m"], later_echo_m):
+                m["lo"] = np.minimum(m["lo"], r["lo"])
+                m["hi"] = np.maximum(m["hi"], r["hi"])
+                break
+        else:
+            out.append(r)
     out.sort(key=lambda r: -r["excess_db"])
     return out
 
@@ -382,7 +390,7 @@ def run_contacts(views: list[TileView],
                          "coverage_pings": int(row["coverage_pings"])})
     n_tile_detections = len(rows)
     kept = filter_contacts(rows, full, depth_axis, min_fraction, dc.merge_m, dc.sidelobe_db,
-                           dc.sidelobe_m, footprint)
+                           dc.sidelobe_m, footprint, dc.later_echo_m)
     if origin is None:
         refs = [v.data["attrs"]["geodetic_ref"] for v in views
                 if "geodetic_ref" in v.data["attrs"]]

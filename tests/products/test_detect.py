@@ -118,6 +118,36 @@ def test_close_peaks_merge_into_the_stronger():
     assert len(det) == 2
 
 
+def test_later_echoes_under_a_contact_merge_into_it():
+    """An elastic object's response extends below it (ringing, internal paths): weaker
+    contacts under a stronger one, within later_echo_m, are that object; a weaker one
+    above it, or beside it beyond the horizontal reach, stays a contact."""
+    a, c, z = AXES[0][100], AXES[1][20], AXES[2][8]
+    blobs = [((a, c, z), 32.0),                       # the object
+             ((a + 0.02, c - 0.12, z + 0.5), 27.0),   # its later echoes below it
+             ((a - 0.04, c + 0.14, z + 0.5), 26.0),
+             ((a, c, z - 0.12), 25.0),                # its top, above: a contact
+             ((a + 1.0, c, z + 0.5), 26.0)]           # beside it: a contact
+    level, mag, bg = _blobs(blobs)
+    det = detect(level, mag, bg, AXES, 14.0, 2, (0.05,) * 3, 50,
+                 later_echo_m=(0.35, 0.35, 1.5))
+    got = sorted((round(float(r["along_m"]), 2), round(float(r["depth_m"]), 2)) for r in det)
+    want = sorted((round(float(p[0]), 2), round(float(p[2]), 2))
+                  for i, (p, _) in enumerate(blobs) if i in (0, 3, 4))
+    assert len(got) == len(want)
+    np.testing.assert_allclose(np.array(got), np.array(want), atol=VOXEL)
+    # the object's extent covers its later echoes
+    top = det[np.argmin(np.abs(det["along_m"] - a) + np.abs(det["depth_m"] - z))]
+    assert top["extent_depth_m"] >= 0.5
+    # without it every echo is a contact
+    assert len(detect(level, mag, bg, AXES, 14.0, 2, (0.05,) * 3, 50)) == 5
+    # a bright patch of the interface claims no buried object under it
+    shallow = [((a, c, AXES[2][2]), 34.0), ((a, c, AXES[2][2] + 0.5), 27.0)]
+    level, mag, bg = _blobs(shallow)
+    assert len(detect(level, mag, bg, AXES, 14.0, 2, (0.05,) * 3, 50,
+                      later_echo_m=(0.35, 0.35, 1.5))) == 2
+
+
 def test_weak_contacts_near_a_strong_one_are_its_sidelobes():
     a, c, z = AXES[0][60], AXES[1][20], AXES[2][20]
     level, mag, bg = _blobs([((a, c, z), 40.0), ((a + 0.5, c, z), 22.0),

@@ -33,6 +33,21 @@ def test_score_counts_hits_misses_false_alarms_and_duplicates():
     assert s.hits == 0 and s.summary()["probability_of_detection"] is None
 
 
+def test_a_contact_on_an_objects_extent_is_that_object():
+    """A cylinder 61 cm long, 31.5 cm across: its top and its end are that cylinder, not
+    false alarms; a point's radius stays the radius."""
+    truth = np.array([[10.0, 0.0, 1.0], [14.0, 0.0, 0.6]])
+    extents = np.array([0.305, 0.0])
+    dets = np.array([[10.0, -0.1, 0.71],    # the cylinder's top, 0.31 m from its centre
+                     [10.0, 0.33, 1.0],     # its end
+                     [14.0, 0.0, 1.0]])     # 0.4 m under the point
+    s = score(dets, truth, 0.3, extents)
+    assert [(t, d) for t, d, _ in s.pairs] == [(0, 0)] and s.duplicates == [1]
+    assert s.missed == [1] and s.false_alarms == [2]
+    s = score(dets, truth, 0.3)                       # as points: the top is too far
+    assert [(t, d) for t, d, _ in s.pairs] == [] and s.false_alarms == [0, 1, 2]
+
+
 def test_scoring_lives_with_the_truth_not_in_the_imager():
     """``svss_proc`` compares nothing with ground truth: no module of it defines a
     score (the ``svss`` tool, which reads the truth, does)."""
