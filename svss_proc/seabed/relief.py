@@ -36,7 +36,10 @@ interface's echo, column by column:
 4. the relief is kept where it stands out of its own uncertainty: the nodes' spread
    (standard deviation about their mean) more than ``MIN_RELIEF_SIGMAS`` times the
    median node uncertainty and more than ``MIN_RELIEF_M``. A level, rough bed's picks
-   scatter by speckle alone, and it stays a plane.
+   scatter by speckle alone, and it stays a plane. And where the echo's relief agrees
+   with the navigation's bed along the body's track (the two rms about their means
+   within ``NAV_AGREE_FRACTION`` of the relief's spread): the echo's picks over a field
+   of proud objects (the Sayers-like field: 9.4 cm rms) are the objects, not the bed.
 
 The relief is what the picks say about the plane, up to one constant: the first ping's
 frame puts its level at the bed under its body. The tiles are then imaged in that same
@@ -112,6 +115,11 @@ MIN_RELIEF_SIGMAS = 3.0
 #: ... and this depth, m (the level silts' picks scatter by 0.8-0.9 cm rms, the sands'
 #: by 0.1-0.2 cm)
 MIN_RELIEF_M = 0.015
+#: ... and where the echo's relief on the body's track is within this fraction of its
+#: own spread of the navigation's bed there (both rms about their means), with at
+#: least this many of the navigation's bed depths on picked nodes to tell
+NAV_AGREE_FRACTION = 0.5
+MIN_NAV_SAMPLES = 10
 
 
 @dataclass(frozen=True)
@@ -263,8 +271,14 @@ def _local_surface(da: np.ndarray, dc: np.ndarray, z: np.ndarray
             coef = new
             break
         coef = new
+    kept = w > 0.0
+    if not (z[kept].min() - MIN_SCALE_M <= coef[0] <= z[kept].max() + MIN_SCALE_M):
+        return None             # outside the picks it weighs: an ill-posed surface
     w_sum = float(w.sum())
-    cov = np.linalg.inv(x.T @ (x * w[:, None]))
+    normal = x.T @ (x * w[:, None])
+    if np.linalg.cond(normal) > 1e12:
+        return None
+    cov = np.linalg.inv(normal)
     # the weighted residuals' variance, with the fit's degrees of freedom
     var = float((w * r * r).sum()) / max(w_sum - x.shape[1], 1.0)
     return float(coef[0]), float(math.sqrt(max(var * cov[0, 0] * w_sum / max(w_sum, 1.0), 0.0)))
@@ -303,6 +317,23 @@ def _bed_under_body(pings: Sequence[Ping], processing: ProcessingConfig) -> np.n
     return np.asarray(out, dtype=np.float64).reshape(-1, 3)
 
 
+def _nav_disagreement(nodes: np.ndarray, a0: float, c0: float, node_m: float,
+                      bed: np.ndarray) -> float:
+    """The rms (m, about their mean) of the echo's nodes less the navigation's bed depths
+    ``bed`` (along, cross, depth) on the nodes nearest them that have picks of their own;
+    0 where fewer than ``MIN_NAV_SAMPLES`` lie on such nodes."""
+    if not bed.shape[0]:
+        return 0.0
+    i = np.rint((bed[:, 0] - a0) / node_m).astype(np.int64)
+    j = np.rint((bed[:, 1] - c0) / node_m).astype(np.int64)
+    ok = (i >= 0) & (i < nodes.shape[0]) & (j >= 0) & (j < nodes.shape[1])
+    d = nodes[i[ok], j[ok]] - bed[ok, 2]
+    d = d[np.isfinite(d)]
+    if d.size < MIN_NAV_SAMPLES:
+        return 0.0
+    return float(np.std(d))
+
+
 def relief_nodes(along: np.ndarray, cross: np.ndarray, depth: np.ndarray,
                  node_m: float = NODE_M, bed: np.ndarray | None = None,
                  radius_m: float = RADIUS_M, keep_all: bool = False) -> ReliefEstimate:
@@ -339,6 +370,9 @@ def relief_nodes(along: np.ndarray, cross: np.ndarray, depth: np.ndarray,
     if n_picked < 4:
         return ReliefEstimate(None, (a0, c0), (node_m, node_m), math.nan, math.nan,
                               n_picked, f"kept: {n_picked} nodes with {MIN_PICKS} picks")
+    # the echo's relief where the body passed against the navigation's bed there: two
+    # views of the same bed (a proud object's or a bright patch's picks are not the bed)
+    disagree = _nav_disagreement(nodes, a0, c0, node_m, bed)
     # nodes without picks of their own: the navigation's bed where the body passed
     # within a node of them (the median of its depths there), else their nearest
     # picked neighbour's depth
@@ -361,6 +395,10 @@ def relief_nodes(along: np.ndarray, cross: np.ndarray, depth: np.ndarray,
     if not keep_all and spread <= max(MIN_RELIEF_SIGMAS * sig, MIN_RELIEF_M):
         return ReliefEstimate(None, (a0, c0), (node_m, node_m), spread, sig, n_picked,
                               src + ": within its uncertainty, a plane")
+    if not keep_all and disagree > max(NAV_AGREE_FRACTION * spread, MIN_RELIEF_M):
+        return ReliefEstimate(None, (a0, c0), (node_m, node_m), spread, sig, n_picked,
+                              src + f": {100 * disagree:.1f} cm rms off the navigation's "
+                              "bed where the body passed: not the bed, a plane kept")
     return ReliefEstimate(nodes, (a0, c0), (node_m, node_m), spread, sig, n_picked, src)
 
 

@@ -264,3 +264,19 @@ def test_tiles_own_speeds_and_a_run_crossing_sediments(proc):
     # one tile, or a layered estimate: nothing to compare
     assert tile_speeds(summary([(3.0, 1760.0)]), proc.tile)[1] is None
     assert tile_speeds({**two, "layers": [{"thickness_m": 0.5}]}, proc.tile) == ([], None)
+
+
+def test_a_relief_the_navigation_does_not_see_is_not_kept():
+    """The echo's picks over a field of proud objects are the objects: where the body's
+    track crosses them, the navigation's bed stays level, and a plane is kept; a real
+    relief agrees with the navigation's bed along the track and is kept."""
+    rng = np.random.default_rng(8)
+    a, c = rng.uniform(0, 8, 30000), rng.uniform(-1, 1, 30000)
+    z = true_height(a, c) + rng.normal(0, 0.005, a.size)
+    track = np.linspace(0.5, 7.5, 70)
+    on_track = np.column_stack([track, np.zeros_like(track), true_height(track, 0 * track)])
+    kept = relief_nodes(a, c, z, bed=on_track)
+    assert kept.nodes is not None, kept.source
+    level = np.column_stack([track, np.zeros_like(track), np.zeros_like(track)])
+    refused = relief_nodes(a, c, z, bed=level)
+    assert refused.nodes is None and "navigation's bed" in refused.source
