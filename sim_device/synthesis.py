@@ -347,6 +347,23 @@ def transmit_legs(sx, sy, sz, smed, samp, img, c, rho_m, delta, alpha, z_top, ta
            TransmitLegs(tau_out, amp_out))
 
 
+@nb.njit(cache=True)
+def receive_plan(tau_t, amp_t, allowed, zmax, sz, nr):
+    """Per scatterer, once for all channels (the reference kernels' pass 2): its earliest
+    transmit delay (inf: no transmit leg) and the receive images (``nr`` of them) some
+    kept path needs."""
+    ns = sz.size
+    tmin = np.full(ns, math.inf)
+    need = np.zeros((ns, nr), dtype=np.bool_)
+    for k in range(ns):
+        for a in range(tau_t.shape[1]):
+            if amp_t[k, a] != 0.0:
+                tmin[k] = min(tmin[k], tau_t[k, a])
+        for b in range(nr):
+            need[k, b] = receive_needed(amp_t, allowed, zmax, k, b, sz[k])
+    return tmin, need
+
+
 @nb.njit(parallel=True, cache=True)
 def accumulate_kernel(pts, legs_t, paths, medium, beam, win, buf):
     """Pass 2: for each channel (in parallel), every scatterer's receive legs (rows
@@ -364,20 +381,10 @@ def accumulate_kernel(pts, legs_t, paths, medium, beam, win, buf):
     bore, g_front, g_back, lo_front, lo_back = beam
     nch = img.shape[0]
     nr = img.shape[1]
-    nt = tau_t.shape[1]
     ns = sx.size
     nmed = c.size
     cmax = _fastest(c)
-    # per scatterer, once for all channels: earliest transmit delay and the receive
-    # images some kept path needs
-    tmin = np.full(ns, math.inf)
-    need = np.zeros((ns, nr), dtype=np.bool_)
-    for k in range(ns):
-        for a in range(nt):
-            if amp_t[k, a] != 0.0:
-                tmin[k] = min(tmin[k], tau_t[k, a])
-        for b in range(nr):
-            need[k, b] = receive_needed(amp_t, allowed, zmax, k, b, sz[k])
+    tmin, need = receive_plan(tau_t, amp_t, allowed, zmax, sz, nr)
     counts = np.zeros(nch, dtype=np.int64)
     for ch in nb.prange(nch):
         hbuf = np.empty(nmed + 1)

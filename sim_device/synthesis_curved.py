@@ -36,7 +36,8 @@ import numpy as np
 
 from . import echo_loop
 from .bed_undulation import crossing, surface
-from .synthesis import _deposit, _interp, cis_cycles, gain, lagrange4, two_medium_terms
+from .synthesis import (_deposit, _interp, cis_cycles, gain, lagrange4, receive_plan,
+                        two_medium_terms)
 from .synthesis_args import (IMG_DIR, IMG_H, IMG_NB, IMG_RS, IMG_X, IMG_Y, MED_INTERFACE,
                              Beam, Medium, Points, TransmitLegs, bundles)
 
@@ -123,7 +124,6 @@ def curved_leg_body(ex, ey, height, direction, f_surf, n_b, x, y, z, med, up, c,
 _legs = SimpleNamespace(leg_body=curved_leg_body, _interp=_interp, lagrange4=lagrange4)
 _echo = echo_loop.build(nb.njit(cache=True, inline="always"), _legs, cis_cycles, _deposit)
 _fastest = _echo.fastest
-_receive_needed = _echo.receive_needed
 _image_echoes = _echo.image_echoes
 
 
@@ -165,17 +165,9 @@ def curved_accumulate_kernel(pts, legs_t, paths, medium, beam, win, buf):
     bore, g_front, g_back, lo_front, lo_back = beam
     nch = img.shape[0]
     nr = img.shape[1]
-    nt = tau_t.shape[1]
     ns = sx.size
     cmax = _fastest(c)
-    tmin = np.full(ns, math.inf)
-    need = np.zeros((ns, nr), dtype=np.bool_)
-    for k in range(ns):
-        for a in range(nt):
-            if amp_t[k, a] != 0.0:
-                tmin[k] = min(tmin[k], tau_t[k, a])
-        for b in range(nr):
-            need[k, b] = _receive_needed(amp_t, allowed, zmax, k, b, sz[k])
+    tmin, need = receive_plan(tau_t, amp_t, allowed, zmax, sz, nr)
     counts = np.zeros(nch, dtype=np.int64)
     for ch in nb.prange(nch):
         scratch = np.empty(1)

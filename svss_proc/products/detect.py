@@ -257,6 +257,13 @@ def _regions(labels: np.ndarray, level: np.ndarray) -> Regions:
                    coords[:, starts], lo, hi)
 
 
+def _absorb(into: dict, c: dict) -> None:
+    """Contact candidate ``c`` made part of ``into``: its extent and voxels added."""
+    into["lo"] = np.minimum(into["lo"], c["lo"])
+    into["hi"] = np.maximum(into["hi"], c["hi"])
+    into["n"] += c["n"]
+
+
 def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
            axes: tuple[np.ndarray, np.ndarray, np.ndarray], threshold_db,
            min_voxels: int, merge_m: tuple[float, float, float],
@@ -340,9 +347,7 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
     for c in cands:
         for k in merged:
             if np.all(np.abs(c["pos"] - k["pos"]) <= merge):
-                k["lo"] = np.minimum(k["lo"], c["lo"])
-                k["hi"] = np.maximum(k["hi"], c["hi"])
-                k["n"] += c["n"]
+                _absorb(k, c)
                 break
         else:
             merged.append(c)
@@ -365,9 +370,7 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
     for c in sorted((c for c, k in zip(merged, not_sidelobe) if k), key=lambda c: -c["peak_db"]):
         for k in kept:
             if is_later_echo(c["pos"], k["pos"], later_echo_m):
-                k["lo"] = np.minimum(k["lo"], c["lo"])
-                k["hi"] = np.maximum(k["hi"], c["hi"])
-                k["n"] += c["n"]
+                _absorb(k, c)
                 break
         else:
             kept.append(c)
