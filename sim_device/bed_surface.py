@@ -15,7 +15,6 @@ from .bed_plane import BedPlane
 from .bed_undulation import Undulation, ray_hit
 
 _LEVEL = BedPlane.from_slopes(0.0, 0.0)
-_NO_ROWS = np.zeros((0, 4))
 
 
 @dataclass(frozen=True)
