@@ -42,7 +42,7 @@ import numba as nb
 import numpy as np
 
 from ..bed_undulation import crossing
-from ..bed_undulation import surface as surface_slopes  # noqa: I001 (named for its use here)
+from ..bed_undulation import surface as surface_slopes
 from ..layered_rays import leg_extents, ray_amplitude_terms, ray_tan, reflection
 
 #: leg kinds
