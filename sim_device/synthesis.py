@@ -159,6 +159,23 @@ def build(jit_inline, rays, floor):
         return p, tau, spread, g0, att
 
     @jit_inline
+    def leg_amplitude(cos_off, f_surf, spread, att, trans, n_b, q, r_bot, g_front, g_back,
+                      lo_front, lo_back):
+        """A leg's complex amplitude factor from its terms: the element's beam gain at
+        the off-axis cosine ``cos_off`` (0: unseen), the surface factor, spreading,
+        attenuation (Np), transmission and ``n_b`` coherent seabed bounces at the cos of
+        the grazing angle ``q``."""
+        g = gain(cos_off, g_front, g_back, lo_front, lo_back)
+        if g == 0.0:
+            return complex(0.0, 0.0)
+        amp = (g * f_surf * spread * math.exp(-att)) * trans
+        if n_b > 0:
+            rb = _interp(r_bot, q)
+            for _ in range(n_b):
+                amp *= rb
+        return amp
+
+    @jit_inline
     def leg_body(ex, ey, height, direction, f_surf, n_b, x, y, z, med, up, c, rho_m, delta,
                  alpha, z_top, tab, r_top, r_bot, bore, g_front, g_back, lo_front, lo_back,
                  hbuf, cbuf):
@@ -207,15 +224,8 @@ def build(jit_inline, rays, floor):
             cos_off = (sinp * (dx * bore[0] + dy * bore[1]) / rho + d * cosp * bore[2])
         else:
             cos_off = d * cosp * bore[2]
-        g = gain(cos_off, g_front, g_back, lo_front, lo_back)
-        if g == 0.0:
-            return tau, complex(0.0, 0.0), sinp
-        amp = (g * f_surf * spread * math.exp(-att)) * trans
-        if n_b > 0:
-            rb = _interp(r_bot, sinp)
-            for _ in range(n_b):
-                amp *= rb
-        return tau, amp, sinp
+        return tau, leg_amplitude(cos_off, f_surf, spread, att, trans, n_b, sinp, r_bot,
+                                  g_front, g_back, lo_front, lo_back), sinp
 
     @jit_inline
     def leg(ex, ey, height, direction, f_surf, n_b, x, y, z, med, up, medium, beam, hbuf,
@@ -263,6 +273,7 @@ def build(jit_inline, rays, floor):
 
     return SimpleNamespace(_interp=_interp, cis_cycles=cis_cycles, gain=gain,
                            two_medium_terms=two_medium_terms, leg=leg, leg_body=leg_body,
+                           leg_amplitude=leg_amplitude,
                            cis_cycles32=cis_cycles32,
                            lagrange4=lagrange4)
 
@@ -281,6 +292,7 @@ gain = _cpu.gain
 two_medium_terms = _cpu.two_medium_terms
 leg = _cpu.leg
 leg_body = _cpu.leg_body
+leg_amplitude = _cpu.leg_amplitude
 cis_cycles32 = _cpu.cis_cycles32
 lagrange4 = _cpu.lagrange4
 

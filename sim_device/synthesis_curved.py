@@ -36,8 +36,8 @@ import numpy as np
 
 from . import echo_loop
 from .bed_undulation import crossing, surface
-from .synthesis import (_deposit, _interp, cis_cycles, gain, lagrange4, receive_plan,
-                        two_medium_terms)
+from .synthesis import (_deposit, _interp, cis_cycles, lagrange4, leg_amplitude,
+                        receive_plan, two_medium_terms)
 from .synthesis_args import (IMG_DIR, IMG_H, IMG_NB, IMG_RS, IMG_X, IMG_Y, MED_INTERFACE,
                              Beam, Medium, Points, TransmitLegs, bundles)
 
@@ -110,15 +110,8 @@ def curved_leg_body(ex, ey, height, direction, f_surf, n_b, x, y, z, med, up, c,
         uy = d0y / l0
         uz = d0z / l0
     cos_off = ux * bore[0] + uy * bore[1] + direction * uz * bore[2]
-    g = gain(cos_off, g_front, g_back, lo_front, lo_back)
-    if g == 0.0:
-        return tau, complex(0.0, 0.0), q
-    amp = (g * f_surf * spread * math.exp(-att)) * trans
-    if n_b > 0:
-        rb = _interp(r_bot, q)
-        for _ in range(n_b):
-            amp *= rb
-    return tau, amp, q
+    return tau, leg_amplitude(cos_off, f_surf, spread, att, trans, n_b, q, r_bot, g_front,
+                              g_back, lo_front, lo_back), q
 
 
 _legs = SimpleNamespace(leg_body=curved_leg_body, _interp=_interp, lagrange4=lagrange4)

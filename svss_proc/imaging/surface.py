@@ -28,14 +28,24 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 
 
-@lru_cache(maxsize=8)
+#: the relief grids as arrays, by the identity of the configuration's tuple (hashing a
+#: long line's thousands of nodes on every call would cost more than the look-up)
+_ARRAYS: dict[int, tuple[tuple, np.ndarray]] = {}
+
+
 def _relief_array(relief: tuple) -> np.ndarray:
-    return np.asarray(relief, dtype=np.float64)
+    hit = _ARRAYS.get(id(relief))
+    if hit is not None and hit[0] is relief:
+        return hit[1]
+    if len(_ARRAYS) >= 8:
+        _ARRAYS.pop(next(iter(_ARRAYS)))
+    arr = np.asarray(relief, dtype=np.float64)
+    _ARRAYS[id(relief)] = (relief, arr)
+    return arr
 
 
 def bilinear(nodes: np.ndarray, origin, step, along, cross) -> np.ndarray:
@@ -74,8 +84,7 @@ class InterfaceShape:
         slope = imaging.interface_slope_deg or (0.0, 0.0)
         relief = getattr(imaging, "interface_relief_m", None)
         return cls(math.tan(math.radians(slope[0])), math.tan(math.radians(slope[1])),
-                   tuple(tuple(float(v) for v in row) for row in relief)
-                   if relief is not None else None,
+                   relief,
                    tuple(imaging.interface_relief_origin_m or (0.0, 0.0)),
                    tuple(imaging.interface_relief_step_m or (0.25, 0.25)))
 
