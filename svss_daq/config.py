@@ -254,6 +254,12 @@ class BackgroundConfig:
         "a tile's edge is processed like its middle (the streaming worker, svss process "
         "and svss batch, whose products are made in tile order: docs/batch.md; omitted: "
         "true)", default=True)
+    below_edge_from_m: float | None = spec(
+        "below this depth under the interface, m, each voxel's background is the greater "
+        "of its window's median and the median of the window just beneath it (a "
+        "greatest-of estimate: the upper edge of a brighter layer below, a multiple or a "
+        "layer boundary, is judged against that layer, not normalised into a bright edge; "
+        "omitted: off)", lo=-10.0, hi=100.0, default=None)
 
 
 @dataclass(frozen=True)

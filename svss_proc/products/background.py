@@ -516,3 +516,27 @@ def _check(mag: np.ndarray, kernel) -> None:
 
 def _float(mag: np.ndarray) -> type:
     return np.float64 if mag.dtype == np.float64 else np.float32
+
+
+def greater_of_below(bg: np.ndarray, depth: np.ndarray, kernel_depth: int,
+                     from_m: float | None) -> np.ndarray:
+    """``bg`` (along x cross x depth) where each voxel at ``depth`` >= ``from_m`` takes
+    the greater of its own value and that of the window just beneath it: the median
+    window (``kernel_depth`` voxels deep) shifted down by ``kernel_depth // 2 + 1``
+    planes, so that it holds only voxels deeper than this one (the last plane's beyond
+    the tile's bottom). A greatest-of estimate against the upper edges of brighter
+    layers: where a layer brightens within the window's depth, the centred median lags
+    it and the voxels on its edge stand out; the window beneath sees the layer. A
+    compact object fills neither window, so its level is unchanged. ``from_m`` None:
+    ``bg`` as it is."""
+    if from_m is None or bg.shape[-1] < 2:
+        return bg
+    sel = np.asarray(depth) >= from_m
+    if not sel.any():
+        return bg
+    shift = int(kernel_depth) // 2 + 1
+    idx = np.minimum(np.arange(bg.shape[-1]) + shift, bg.shape[-1] - 1)[sel]
+    out = bg.copy()
+    out[..., sel] = np.maximum(bg[..., sel], bg[..., idx])
+    return out
+

@@ -22,7 +22,7 @@ from svss_daq.config import (HardwareConfig, ImagingConfig, Loaded, ProcessingCo
 from svss_daq.decibels import amplitude_to_db
 
 from . import drc as drc_mod
-from .background import kernel_voxels, median_background
+from .background import greater_of_below, kernel_voxels, median_background
 from .detect import Footprint, detect, sidelobe_zone
 from .layer_cfar import guarded_along, guarded_regions, layer_tails
 from ..imaging.coverage import aperture_fraction, full_fraction
@@ -161,7 +161,8 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
     if channels is not None and whiten:
         ch_x = np.concatenate([p[1] for p in (lo_planes, (mag, channels), hi_planes)
                                if p is not None]) if nb or na else channels
-    bg_x = whitened_background(mag_x, ch_x, kernel, bcfg)
+    bg_x = greater_of_below(whitened_background(mag_x, ch_x, kernel, bcfg), axes[2],
+                            kernel[2], bcfg.below_edge_from_m)
     core = slice(nb, nb + mag.shape[0])
     bg = bg_x[core]
     t1 = time.perf_counter()
