@@ -9,9 +9,9 @@ Each scene is simulated once into ``--cache`` (``svss simulate``), then processe
 ``config/processing-demo.toml``) and the same with ``layer_false_alarms_per_m3`` left
 out. The run's contacts are scored against the scene's truth (:func:`svss.score.score_tiles`,
 the run-level contacts an operator gets): targets detected and missed, false alarms in
-all and per 100 m of track, by depth band, and, as the tile MIPs show them, the
-brightest pixel outside every target's core (0.3 m beyond its half-extent) against the
-faintest detected target.
+all and per 100 m of track, by depth band, and, as the tile MIPs and the run's mosaic
+(its PNG and GeoTIFF) show them, the brightest pixel outside every target's core (0.3 m
+beyond its half-extent) against the faintest detected target.
 
     python benchmarks/bench_false_alarms.py --cache /tmp/bench_false_alarms --out benchmarks/results/bench_false_alarms.json
 """
@@ -43,7 +43,7 @@ log = logging.getLogger("bench_false_alarms")
 
 #: (scene, processing configuration)
 LINES = (("seed_cylinder_sand", "processing.toml"), ("seed_cylinder_silt", "processing.toml"),
-         ("sayers_field", "processing.toml"), ("demo", "processing-demo.toml"))
+         ("sayers_field", "processing.toml"), ("demo_seabed", "processing-demo.toml"))
 #: depth bands of the false alarms, m below the interface
 BANDS = ((-10.0, 0.1, "interface (< 0.1 m)"), (0.1, 1.5, "0.1-1.5 m"),
          (1.5, 10.0, "deeper (> 1.5 m)"))
@@ -101,6 +101,26 @@ def shown_levels(tiles_dir: Path, scene, detected: list[int]) -> tuple[float, fl
     return outside, faintest
 
 
+def mosaic_levels(tiles_dir: Path, scene, detected: list[int]) -> tuple[float, float]:
+    """As :func:`shown_levels`, on the run's mosaic (``mosaic.h5``'s plan-view MIP in the
+    survey frame, which the mosaic PNG and GeoTIFF show)."""
+    truth = scene_truth(scene)
+    ned = truth_line(scene.track).tile_to_ned(
+        np.array([t["scene_m"] for t in truth], dtype=np.float64).reshape(-1, 3))
+    with h5py.File(tiles_dir / "mosaic.h5", "r") as f:
+        mip, north, east = f["mip_db"][:], f["north"][:], f["east"][:]
+    n, e = np.meshgrid(north, east, indexing="ij")
+    far = np.isfinite(mip)
+    at = np.full(len(truth), -np.inf)
+    for k, p in enumerate(ned):
+        near = np.hypot(n - p[0], e - p[1]) <= core_m(truth[k])
+        far &= ~near
+        if (near & np.isfinite(mip)).any():
+            at[k] = float(np.nanmax(np.where(near, mip, np.nan)))
+    outside = float(np.max(mip[far])) if far.any() else -np.inf
+    return outside, min((at[k] for k in detected), default=float("nan"))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cache", type=Path, required=True)
@@ -133,8 +153,9 @@ def main() -> None:
             fa = [d for d in r["detections"] if d.get("status") == "false alarm"]
             bands = {label: sum(lo <= d["depth_m"] < hi for d in fa) for lo, hi, label in BANDS}
             hits = [t["excess_db"] for t in r["truth"] if t["status"] == "detected"]
-            outside, faintest = shown_levels(
-                out, scene, [k for k, t in enumerate(r["truth"]) if t["status"] == "detected"])
+            hit = [k for k, t in enumerate(r["truth"]) if t["status"] == "detected"]
+            outside, faintest = shown_levels(out, scene, hit)
+            m_outside, m_faintest = mosaic_levels(out, scene, hit)
             row = {"scene": name, "variant": variant, "track_m": track_m,
                    "targets": s["truth"], "detected": s["hits"], "missed": s["misses"],
                    "false_alarms": s["false_alarms"],
@@ -143,13 +164,16 @@ def main() -> None:
                    "weakest_detected_excess_db": min(hits) if hits else None,
                    "faintest_detected_shown_db": faintest,
                    "brightest_outside_targets_shown_db": outside,
+                   "mosaic_faintest_detected_db": m_faintest,
+                   "mosaic_brightest_outside_targets_db": m_outside,
                    "process_s": secs}
             rows.append(row)
             log.info("%-20s %-20s targets %d detected %d false alarms %d (%.1f per 100 m; "
                      "%s); shown: faintest detected target %.1f dB, brightest pixel "
-                     "outside targets %.1f dB (%.0f s)", name, variant, row["targets"],
-                     row["detected"], row["false_alarms"], row["false_alarms_per_100m"],
-                     bands, faintest, outside, secs)
+                     "outside targets %.1f dB (mosaic: %.1f, %.1f dB) (%.0f s)", name,
+                     variant, row["targets"], row["detected"], row["false_alarms"],
+                     row["false_alarms_per_100m"], bands, faintest, outside, m_faintest,
+                     m_outside, secs)
     if args.out:
         args.out.write_text(json.dumps({"machine": machine_isa(), "rows": rows}, indent=1))
 

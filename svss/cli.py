@@ -503,7 +503,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "separate processes: sim-device -> acquire -> ZeroMQ -> worker -> "
                         "tiles and PNGs")
     sp.add_argument("--out", required=True, help="output folder")
-    sp.add_argument("--scene", help="scene TOML (default: config/scenes/demo.toml)")
+    sp.add_argument("--scene", help="scene TOML (default: config/scenes/demo_seabed.toml)")
     sp.add_argument("--lead", type=float, default=None, metavar="S",
                     help="simulated seconds before the track's first ping, for the "
                     "acquisition to start (default 12; a shorter lead on a busy machine "

@@ -36,7 +36,7 @@ from svss_proc.tiles import finished_tile_paths
 
 log = logging.getLogger(__name__)
 
-DEMO_SCENE = "scenes/demo.toml"
+DEMO_SCENE = "scenes/demo_seabed.toml"
 DEMO_PROCESSING = "processing-demo.toml"
 DEMO_RUN = "demo"
 #: simulated seconds the device's clock runs before the track starts: the daemon and the

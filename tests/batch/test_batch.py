@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from svss_daq.config import ProcessingConfig, config_path, load
 from svss_daq.rawfile import RawFileError
 from svss_proc.batch.plan import plan_run
 from svss_proc.batch.run import STATE, run_batch
@@ -27,6 +28,8 @@ from tests.worker.conftest import assert_same_tiles
 pytest.importorskip("distributed")
 
 RUNS = ("lineA", "lineB")
+#: the delays the batch's processing (processing-demo.toml's) names
+DEMO_DELAYS = load(ProcessingConfig, config_path("processing-demo.toml")).imaging.delays
 
 
 class KillOnce:
@@ -133,7 +136,7 @@ def test_survey_index_lists_every_tile(batch, reference):
         assert row.line_heading_deg == pytest.approx(
             np.degrees(h["attrs"]["line_heading_rad"]))
         assert row.processing_config_id == h["attrs"]["processing_config_id"]
-        assert row.voxel_m == 0.05 and row.delays == "straight"
+        assert row.voxel_m == 0.05 and row.delays == DEMO_DELAYS
     assert df["n_detections"].sum() == batch["summary"]["detections"]
     # runs have their own tile frames (run B starts 8 pings later)
     assert df.groupby("run_id")["line_origin_north_m"].nunique().eq(1).all()
