@@ -9,8 +9,10 @@ sample-range scan of :func:`svss_daq.ping_gate.ping_problem` runs once per ping)
 
 A check is named by a hashable key that includes what it was made against (the
 hardware configuration's id, the ``[ping_gate]`` limits), so a ping checked against
-another configuration is checked afresh, and so is a copy (``dataclasses.replace``: a
-re-posed ping is another object). Only passes are remembered: a refused ping is refused
+another configuration is checked afresh, and so is a copy (``dataclasses.replace``),
+except for what :func:`carry` hands over: a re-posed ping
+(:func:`svss_daq.ping_gate.reposed`) keeps its record's marks, and only its new pose is
+checked. Only passes are remembered: a refused ping is refused
 again, with the same reason, by whichever stage sees it. Marks are held weakly, by the
 ping object's identity, and go with it. A ping is frozen; its samples are taken as they
 were when checked.
@@ -57,4 +59,17 @@ def once(ping, check: Hashable, problem: Callable[[], str | None]) -> str | None
     return reason
 
 
-__all__ = ["mark_passed", "once", "passed"]
+def carry(src, dst, keep: Callable[[Hashable], bool]) -> None:
+    """Mark ``dst`` with those of ``src``'s passed checks that ``keep`` accepts: a copy
+    that changed nothing those checks read (a ping re-posed: its samples and record
+    fields as they were) need not be checked for them again."""
+    try:
+        with _LOCK:
+            marks = frozenset(k for k in _PASSED.get(src, ()) if keep(k))
+            if marks:
+                _PASSED[dst] = _PASSED.get(dst, frozenset()) | marks
+    except TypeError:
+        pass
+
+
+__all__ = ["carry", "mark_passed", "once", "passed"]

@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from .checked import once
+from .checked import carry, once
 from .config import HardwareConfig, Loaded
 from .ping import NavSnapshot, Ping
 
@@ -70,10 +70,23 @@ def nav_problem(nav: NavSnapshot, transmit_time_ns: int) -> str | None:
 
 def ping_problem(ping: Ping, hardware: Loaded[HardwareConfig]) -> str | None:
     """Why ``ping`` cannot have come from the instrument ``hardware`` describes (None
-    when it can). Checks the types, the sample array's shape, dtype and ADC range, the
-    projector index, the sample rate, the window start, the configuration id and the
-    navigation (:func:`nav_problem`); a ping read back damaged (``Ping.damage``: its
-    samples failed their checksum) is refused first."""
+    when it can): its record (:func:`record_problem`), then its navigation
+    (:func:`nav_problem`)."""
+    return record_problem(ping, hardware) or _pose_problem(ping)
+
+
+def _pose_problem(ping: Ping) -> str | None:
+    if not isinstance(ping.nav, NavSnapshot):
+        return f"navigation of type {type(ping.nav).__name__}"
+    return nav_problem(ping.nav, ping.transmit_time_ns)
+
+
+def record_problem(ping: Ping, hardware: Loaded[HardwareConfig]) -> str | None:
+    """Why ``ping``'s record (all but its pose) cannot have come from the instrument
+    ``hardware`` describes (None when it can). Checks the types, the sample array's
+    shape, dtype and ADC range, the projector index, the sample rate, the window start
+    and the configuration id; a ping read back damaged (``Ping.damage``: its samples
+    failed their checksum) is refused first."""
     damage = getattr(ping, "damage", None)
     if damage:
         return f"damaged on disk ({damage})"
@@ -112,16 +125,30 @@ def ping_problem(ping: Ping, hardware: Loaded[HardwareConfig]) -> str | None:
                 "ns after transmit")
     if ping.transmit_time_ns <= 0:
         return f"transmit time {ping.transmit_time_ns} ns is not after the epoch"
-    if not isinstance(ping.nav, NavSnapshot):
-        return f"navigation of type {type(ping.nav).__name__}"
-    return nav_problem(ping.nav, ping.transmit_time_ns)
+    return None
+
+
+#: the :mod:`svss_daq.checked` key of :func:`record_problem` under a configuration
+_RECORD = "record_problem"
 
 
 def checked_ping_problem(ping: Ping, hardware: Loaded[HardwareConfig]) -> str | None:
-    """:func:`ping_problem`, made once per ping and hardware configuration
-    (:mod:`svss_daq.checked`): a ping that passed it at a gate is not checked (nor its
-    samples scanned) again by the imager; a refused one is refused again alike."""
-    return once(ping, ("ping_problem", hardware.id), lambda: ping_problem(ping, hardware))
+    """:func:`ping_problem`, its record's part made once per ping and hardware
+    configuration (:mod:`svss_daq.checked`): a ping that passed it at a gate is not
+    checked (nor its samples scanned) again by the imager, nor is a re-posed copy
+    (:func:`reposed`); a refused one is refused again alike. The pose's part (a few
+    comparisons) is made each time."""
+    return (once(ping, (_RECORD, hardware.id), lambda: record_problem(ping, hardware))
+            or _pose_problem(ping))
+
+
+def reposed(ping: Ping, nav: NavSnapshot) -> Ping:
+    """``ping`` with the pose ``nav``: a new ping object that keeps the record checks
+    ``ping`` passed (its samples are the same array), so that only its pose is checked
+    again (the live micronavigation's fused poses)."""
+    out = dataclasses.replace(ping, nav=nav)
+    carry(ping, out, lambda key: isinstance(key, tuple) and key[:1] == (_RECORD,))
+    return out
 
 
 @dataclasses.dataclass

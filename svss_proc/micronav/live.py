@@ -27,6 +27,7 @@ import numpy as np
 from svss_daq.frames import body_to_ned
 from svss_daq.geometry import array_geometry
 from svss_daq.ping import Ping
+from svss_daq.ping_gate import reposed
 
 from .forward_fusion import FusionState, fusion_start, fusion_step
 from .horizontal import TapCache, estimate_displacement
@@ -214,7 +215,7 @@ def fused(ping: Ping, correction_m: np.ndarray) -> Ping:
         return ping
     nav = ping.nav
     dn, de, dd = (float(v) for v in correction_m)
-    return dataclasses.replace(ping, nav=dataclasses.replace(
+    return reposed(ping, dataclasses.replace(
         nav, north_m=nav.north_m + dn, east_m=nav.east_m + de, down_m=nav.down_m + dd,
         altitude_m=nav.altitude_m - dd))
 

@@ -2,7 +2,8 @@
 scan) and the pose-flag check made at a gate are trusted by the imager for the same
 ping object, while a ping handed to the imager unchecked, a copy, or a ping checked
 against another configuration is checked afresh, and a refusal is repeated with its
-reason."""
+reason. A re-posed ping (the live micronavigation's) keeps its record's check: its
+samples are not scanned again, its new pose is checked."""
 
 from __future__ import annotations
 
@@ -32,16 +33,16 @@ def _ping(hardware, sequence=3):
 def counted(monkeypatch):
     """Calls of the instrument check and of the pose-flag check."""
     calls = {"ping_problem": 0, "pose_flags": 0}
-    real_ping, real_flags = ping_gate.ping_problem, pose_check.pose_flags_problem
+    real_ping, real_flags = ping_gate.record_problem, pose_check.pose_flags_problem
 
-    def ping_problem(*a, **kw):
+    def record_problem(*a, **kw):
         calls["ping_problem"] += 1
         return real_ping(*a, **kw)
 
     def pose_flags_problem(*a, **kw):
         calls["pose_flags"] += 1
         return real_flags(*a, **kw)
-    monkeypatch.setattr(ping_gate, "ping_problem", ping_problem)
+    monkeypatch.setattr(ping_gate, "record_problem", record_problem)
     monkeypatch.setattr(pose_check, "pose_flags_problem", pose_flags_problem)
     return calls
 
@@ -87,3 +88,23 @@ def test_objects_that_cannot_be_marked_are_checked_each_time():
     assert checked.once((1, 2), "k", problem) is None
     assert checked.once((1, 2), "k", problem) is None       # a tuple has no weak ref
     assert len(calls) == 2
+
+
+def test_a_reposed_ping_keeps_its_records_check_and_its_pose_is_checked(hardware, counted):
+    """The live micronavigation moves a gated ping (svss_proc.micronav.live.fused): the
+    copy is not scanned again (the imager trusts the gate's scan), but a pose out of
+    bounds is still refused."""
+    from svss_proc.micronav.live import fused
+    ping = _ping(hardware)
+    assert PingGate(hardware).admit(ping)
+    moved = fused(ping, np.array([0.01, -0.02, 0.005]))
+    assert moved is not ping and moved.nav.north_m == pytest.approx(0.01)
+    assert checked_ping_problem(moved, hardware) is None
+    assert counted["ping_problem"] == 1
+    wild = fused(ping, np.array([0.0, 0.0, 5.0]))      # the altitude goes negative
+    assert "altitude_m" in checked_ping_problem(wild, hardware)
+    assert counted["ping_problem"] == 1
+    # a copy that changed its record is checked afresh
+    assert checked_ping_problem(dataclasses.replace(moved, projector=99), hardware) \
+        is not None
+    assert counted["ping_problem"] == 2
