@@ -112,4 +112,12 @@ def cone_reach(height_m: float, bore_z: float, half_angle_rad: float) -> float:
     (the schedule, the coverage count, the GPU launch and the trade's workloads)."""
     tilt = math.acos(max(-1.0, min(1.0, float(bore_z))))
     cone = min(half_angle_rad + tilt, math.radians(89.0))
-    return max(0.0, float(height_m)) * math.tan(cone)
+    return cone_radius(height_m, math.tan(cone))
+
+
+def cone_radius(height_m, tan_half_angle):
+    """Radius of a vertical cone ``height_m`` below its apex (0 above it), m, given the
+    tangent of its half-angle: :func:`cone_reach`'s, for callers that hold the tangent
+    (the sidelobe footprint, the aperture fraction); arrays broadcast."""
+    return np.maximum(height_m, 0.0) * tan_half_angle if isinstance(height_m, np.ndarray) \
+        else max(0.0, float(height_m)) * float(tan_half_angle)

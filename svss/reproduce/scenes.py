@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from sim_device.environment_source import EnvironmentSource
 from sim_device.scene import SceneConfig, load_scene
 from svss_daq.config import HardwareConfig, Loaded, config_path, load_with_text
+from svss_daq.geometry import cone_reach
 
 #: the arrays: the paper-era 4 x 8 array with five projectors (the seed's simulation)
 #: and the 80-channel field array with six
@@ -132,4 +133,4 @@ def reach_m(src: EnvironmentSource, depth_m: float) -> float:
     height = -float(src.frame(0).tx[2])
     s = math.sin(half) * float(src.media.c[1]) / float(src.media.c[0])
     below = max(depth_m, 0.0) * s / math.sqrt(1 - s * s) if s < 1 else math.inf
-    return height * math.tan(half) + below
+    return cone_reach(height, 1.0, half) + below

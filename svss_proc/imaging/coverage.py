@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from svss_daq.geometry import cone_reach
+from svss_daq.geometry import cone_radius, cone_reach
 
 from .kernel_args import VoxelAxes, surface_of
 
@@ -298,8 +298,8 @@ def aperture_fraction(along: np.ndarray, depth: np.ndarray, tx_along_span_m: tup
     count against the tile's own maximum does not see it)."""
     lo, hi = tx_along_span_m
     a = np.asarray(along, dtype=np.float64)[:, None]
-    reach = np.maximum((float(height_m) + np.asarray(depth, dtype=np.float64)) *
-                       float(tan_half_angle), 1e-9)[None, :]
+    reach = np.maximum(cone_radius(float(height_m) + np.asarray(depth, dtype=np.float64),
+                                   float(tan_half_angle)), 1e-9)[None, :]
     if not (math.isfinite(lo) and math.isfinite(hi)) or hi < lo:
         return np.zeros((a.shape[0], reach.shape[1]), dtype=np.float32)
     overlap = np.clip(np.minimum(a + reach, hi) - np.maximum(a - reach, lo), 0.0, None)

@@ -33,6 +33,7 @@ import numpy as np
 from scipy import ndimage
 
 from svss_daq.decibels import amplitude_to_db
+from svss_daq.geometry import cone_radius
 
 log = logging.getLogger(__name__)
 
@@ -87,7 +88,8 @@ class Footprint:
     range_slack_m: float = 0.0
 
     def reach_m(self, z_a: float, z_b: float) -> float:
-        return (2.0 * self.height_m + max(z_a, 0.0) + max(z_b, 0.0)) * self.tan_half_angle
+        return cone_radius(2.0 * self.height_m + max(z_a, 0.0) + max(z_b, 0.0),
+                           self.tan_half_angle)
 
     def ranges_m(self, z: float) -> tuple[float, float]:
         """Nearest and furthest range (m, water-equivalent) at which one ping of this
