@@ -1,5 +1,5 @@
 """Micronavigation against the simulated truth, and fused with a modelled DVL
-(issue 29; docs/micronavigation.md "Measured").
+(issue 29; docs/phase_centres.md "Current figures").
 
 The seed's sand scene without its target (interface, volume, specular return, noise),
 with bench_focus's platform motion (heave 3 cm / 5 s, sway 5 cm / 7 s, roll 1 deg / 4 s,

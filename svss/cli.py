@@ -482,9 +482,8 @@ def build_parser() -> argparse.ArgumentParser:
         sp.add_argument("--autofocus", action=argparse.BooleanOptionalAction,
                         default=None, help="image each run, focus it on its isolated "
                         "responses and image it again with the corrected poses where the "
-                        "guard accepts them (docs/micronavigation.md, Autofocus as a "
-                        "stage); default: the processing configuration's [autofocus] "
-                        "enabled")
+                        "guard accepts them (docs/autofocus.md); default: the processing "
+                        "configuration's [autofocus] enabled")
         sp.add_argument("--sediment-speed", choices=("estimate", "configured"),
                         default=None, help="the sediment's sound speed the tiles are "
                         "imaged with: estimated from the echoes (the speed that focuses "

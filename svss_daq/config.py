@@ -413,7 +413,7 @@ class MicronavConfig:
 @dataclass(frozen=True)
 class AutofocusConfig:
     """Autofocus on isolated responses (svss_proc.micronav.autofocus,
-    docs/micronavigation.md "Autofocus"): which responses it may focus on and the guard
+    docs/autofocus.md): which responses it may focus on and the guard
     that keeps its corrections only where the image gets no worse."""
     enabled: bool = spec("a stage of svss process and svss batch: each run imaged with its "
                          "poses, focused on its isolated responses and imaged again with "

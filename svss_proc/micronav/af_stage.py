@@ -1,5 +1,5 @@
-"""The autofocus as a stage of ``svss process`` and ``svss batch`` (docs/micronavigation.md,
-"Autofocus as a stage").
+"""The autofocus as a stage of ``svss process`` and ``svss batch`` (docs/autofocus.md,
+"Turning it on").
 
 Per run: the run's pings, posed as the re-navigation (or the micronavigation's fusion,
 or the recording) posed them, are imaged in memory as the tiles image them; the

@@ -1,6 +1,6 @@
 """Autofocus on prominent points: smooth cross-track and vertical corrections of the
 array's track that bring the pings of strong, isolated responses back into phase
-(docs/micronavigation.md, "Autofocus").
+(docs/autofocus.md).
 
 A synthetic aperture focuses a point when every ping's contribution to its voxel,
 c_k = sum over channels of the weighted, remodulated echo at the voxel's delays, arrives
@@ -42,7 +42,7 @@ the interface's clearance whose peak stands ``min_contrast_db`` over the median 
 image around it and ``min_isolation_db`` over the brightest voxel of that box outside
 its own main lobe. On a seabed the brightest voxels are the interface and the volume's
 speckle, whose neighbours are as bright; focusing on them made the image worse
-(docs/micronavigation.md). Where no response qualifies, :func:`autofocus_image` refuses
+(docs/autofocus.md; benchmarks/RESULTS.md, 2026-11-27, "Autofocus"). Where no response qualifies, :func:`autofocus_image` refuses
 and says why. Settings: ``[autofocus]`` of the processing configuration
 (:class:`~svss_daq.config.AutofocusConfig`; config/processing.toml's where it has none).
 
@@ -347,7 +347,7 @@ def image_sharpness(image: np.ndarray) -> float:
     where it spreads. Not normalised by the image's energy squared: moving the pings
     changes that energy by a few per cent (the interface's tail, the sidelobes), and
     the normalised measure fell by 3 % on a correction that raised every point's peak
-    (docs/micronavigation.md)."""
+    (benchmarks/RESULTS.md, 2026-11-27, "Autofocus: on a seabed")."""
     p = np.abs(image[image != 0]).astype(np.float64) ** 2
     if p.size == 0:
         return 0.0

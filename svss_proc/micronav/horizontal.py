@@ -1,5 +1,5 @@
 """Ping-to-ping displacement (surge, sway and heave) from the two pings' common phase
-centres, focused on the seabed in several directions (docs/micronavigation.md,
+centres, focused on the seabed in several directions (docs/phase_centres.md,
 "Horizontal increments").
 
 Why focusing: with the configured projector order at 1 m/s no phase centre of one ping
@@ -68,7 +68,7 @@ __all__ = ["DisplacementEstimate", "Patch", "TapCache", "displacement_pass",
 
 #: the measured scatter of the estimates over their Cramer-Rao sigma (simulated sand, seed
 #: scene, configured order at 1 m/s, 50 ping pairs at pings 40-70 and 70-100 of
-#: development runs described in docs/micronavigation.md: rms(error / sigma) 1.4-1.9
+#: development runs described in docs/phase_centres.md ("The σ's calibration"): rms(error / sigma) 1.4-1.9
 #: horizontally, 1.0-1.5 vertically): the looks of a patch are not independent (the two
 #: sub-apertures share the speckle) and the offset bias is not in the bound. The
 #: covariance is multiplied by its square.
@@ -376,8 +376,8 @@ def displacement_pass(bb_a: np.ndarray, bb_b: np.ndarray, t0_s: float, dt_s: flo
     the seabed): a point echo below nadir coheres at 0.9-0.98 too.
     ``gradient``: "offset" corrects each patch's phase for the sub-apertures' offset by
     where its focused power comes from (:func:`phase_gradient`), "full" also moves the
-    patch's look direction there, "none" neither (the choice measured in
-    docs/micronavigation.md).
+    patch's look direction there, "none" neither (the choice measured: benchmarks/RESULTS.md,
+    2026-11-27, "Micronavigation: the estimator with platform motion").
     ``kernel``: "numba" focuses with :mod:`.patch_focus` (the same sums without a sine
     per channel and point; the nadir patch first, refusing before the others are
     focused); "numpy" with :func:`focus_points` (the reference; the gradient options

@@ -1,6 +1,6 @@
 """The micronavigation's focusing kernel: a sub-aperture of one ping focused on points of
 the seabed (numba, on-disk cache), the cost :mod:`.horizontal` spends nearly all its
-time in (docs/micronavigation.md, "Cost").
+time in (docs/phase_centres.md, "The kernel and its cost").
 
 It computes what :func:`.horizontal.focus_points` computes, summed over the channels,
 

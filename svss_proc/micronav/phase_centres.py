@@ -1,6 +1,6 @@
 """Redundant phase centres of the SVSS array: which transmit-receive pairs of two pings
 look at the seabed from (nearly) the same point, and the bistatic path they must be
-corrected by before their echoes are compared (docs/micronavigation.md).
+corrected by before their echoes are compared (docs/phase_centres.md).
 
 A projector at ``t`` and a receiver at ``r`` hear a scatterer at range ``R`` from their
 midpoint ``c = (t + r) / 2`` (the phase centre) after the path

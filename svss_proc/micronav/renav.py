@@ -46,7 +46,7 @@ re-navigation").
    Before, the echoes' mean error per axis is measured against the navigation's
    increments on the steps with bottom lock where both exist (at least
    ``bias_min_steps`` of them) and taken out of every echo increment: the estimator's
-   surge bias (-2 to -3.5 mm a step, docs/micronavigation.md) chained over a 10 s
+   surge bias (-2 to -3.5 mm a step, docs/phase_centres.md, "Limits") chained over a 10 s
    dropout is 4 % of the distance run.
 4. **Altitude through a dropout** (:func:`with_interpolated_bottom`): the navigation
    gives no altitude without bottom lock, and the ping gate refuses such pings. The

@@ -1,5 +1,5 @@
 """Vertical motion between two pings from their redundant phase centres
-(docs/micronavigation.md, "Vertical increments").
+(docs/phase_centres.md, "Vertical increments").
 
 Channel i of ping a and channel j of ping b whose phase centres coincide horizontally
 (:func:`~svss_proc.micronav.phase_centres.pair_phase_centres`) hear the seabed's first

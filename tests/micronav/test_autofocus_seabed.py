@@ -5,7 +5,7 @@ the sand (the sediment's speed, refraction tables), the navigation spoiled as th
 re-navigation's errors are (HDT noise turning the 0.8 m lever arm, 1-2 mm a ping) and as
 a noisy DVL's (a 12 mm cross-track step, a vertical random walk of 4 mm a ping). The
 brightest voxels of such an image are the interface's; focusing on them made the buried
-points 0.35-1.9 dB weaker in bench_focus (docs/micronavigation.md). The autofocus must
+points 0.35-1.9 dB weaker in bench_focus (benchmarks/RESULTS.md, 2026-11-27). The autofocus must
 pick only isolated responses, judge the image and not only its points, and so never
 lower the buried points' peaks against the navigation it started from: it helps, or it
 refuses and says why."""

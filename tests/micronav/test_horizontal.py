@@ -2,7 +2,7 @@
 seabed (svss_proc/micronav/horizontal.py), on pings the simulator synthesises from known
 poses: the seed's sand scene without its target (interface, volume, specular return,
 noise), the configured projector order 0..5 at 1 m/s (no phase centres within lambda/4:
-docs/micronavigation.md), and a sway step, a heave step and a ramp of all three injected
+docs/phase_centres.md), and a sway step, a heave step and a ramp of all three injected
 into the true poses. The estimator is given the straight track's poses (a navigation that
 saw none of the motion) and must find the injected increments; across the projector
 sequence's wrap (5 -> 0) it must refuse."""

@@ -6,7 +6,8 @@ ensembles fed to the project's navigator and smoothed as the re-navigation does,
 10 pings/s. The increments compared are the array's (what the imaging places and the
 fusion weighs): the HDT's noise turns the 0.8 m lever arm from the DVL head to the array
 from ping to ping, 1.6 mm across, against the DVL's 0.3 mm. Without that term the stated
-sigma was 5.5 times too small across and 1.9 times down (docs/micronavigation.md)."""
+sigma was 5.5 times too small across and 1.9 times down (docs/micronavigation.md, "The
+navigation's step sigma")."""
 
 from __future__ import annotations
 

@@ -88,7 +88,7 @@ def test_lag_two_pairs_at_the_matched_speed_lie_on_the_grid(geo, hw):
 
 
 def test_the_configured_sequence_at_one_metre_per_second_has_no_redundant_pair(geo, hw):
-    """The finding docs/micronavigation.md builds on: consecutive projectors shift the
+    """The finding docs/phase_centres.md builds on: consecutive projectors shift the
     phase centres by 11.45 cm, 2.5 grid spacings, and 1 m/s moves them 2.2 spacings per
     ping, so no pair of pings one to four apart shares a phase centre within lambda/4;
     the order 0, 2, 4, 5, 3, 1 gives 30 pairs for four of every six consecutive pings."""

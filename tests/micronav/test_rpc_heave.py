@@ -2,7 +2,7 @@
 seed's sand scene (interface scattering and its specular return, no volume, no target)
 with a heaving, rolling, pitching platform at 1 m/s, projector order 0, 2, 4, 5, 3, 1
 (consecutive pings share 30 phase centres at four of every six steps;
-docs/micronavigation.md), 80 channels with noise through the real conditioning. Each
+docs/phase_centres.md), 80 channels with noise through the real conditioning. Each
 estimate is compared with the vertical displacement of the paired phase centres computed
 from the true poses, fitted over the same pairs."""
 
