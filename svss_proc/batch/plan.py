@@ -37,6 +37,7 @@ from ..imaging.imager import seam_planes
 from ..imaging.pose_check import check_pose_flags
 from ..imaging.schedule import PingStep, TileSchedule
 from ..imaging.grid import tile_grid
+from ..imaging.handback import Handback
 from ..run_worker import LIVE_POSES, focus_poses, run_poses
 from ..seabed.stage import seabed_stage
 
@@ -132,79 +133,6 @@ def _ranges(refs: list[tuple[int, int]], paths: list[Path]) -> tuple:
         else:
             out.append([seg, i, i + 1])
     return tuple((str(paths[s]), a, b) for s, a, b in out)
-
-
-class Handback:
-    """The order in which the streaming imager hands a run's tiles back, and with which
-    of the next tile's first planes (products without seams): the bookkeeping of
-    :meth:`TileImager.add <svss_proc.imaging.imager.TileImager.add>`, ``_next_planes``
-    and ``finish`` on the schedule's steps alone. A complete tile is held until the
-    next tile's first ``planes`` along-track planes are complete (each reached, then
-    ``close_after`` consecutive pings clear of it) or ``close_after`` pings have
-    passed; a tile closed early (the memory bound) is handed back at once without
-    them. ``order``: (tile, (next tile, its pings imaged then) or None), in hand-back
-    order; ``touch``: per tile, the first plane each of its pings reached, in order."""
-
-    def __init__(self, planes: int, close_after: int, n_along: int):
-        self.planes, self.close_after, self.n_along = planes, close_after, n_along
-        self.active: dict[int, np.ndarray] = {}     # open tile -> last ping per plane
-        self.held: dict[int, int] = {}              # complete tile -> pings then
-        self.touch: dict[int, list[int]] = {}
-        self.order: list[tuple[int, tuple[int, int] | None]] = []
-
-    def _next(self, k: int, n_pings: int, final: bool):
-        n, nxt = self.planes, k + 1
-        if n < 1 or not (nxt in self.held or nxt in self.active) or self.n_along < n:
-            return None, False
-        if not final and nxt not in self.held:
-            last = self.active[nxt][:n]
-            if np.any(last == 0) or np.any(n_pings - last < self.close_after):
-                return None, True
-        return (nxt, len(self.touch.get(nxt, ()))), False
-
-    def _hand_back(self, k: int, after=None) -> None:
-        self.held.pop(k, None)
-        self.active.pop(k, None)
-        self.order.append((k, after))
-
-    def step(self, step: PingStep, n_pings: int) -> None:
-        for k in step.closed_early:
-            self._hand_back(k)
-        for k in step.reached:
-            if k not in self.active:
-                self.active[k] = np.zeros(self.n_along, dtype=np.int64)
-        for sl in step.slices:
-            self.active[sl.tile][sl.ia0:sl.ia1] = n_pings
-            self.touch.setdefault(sl.tile, []).append(sl.ia0)
-        for k in step.closed:
-            self.active.pop(k, None)
-            self.held[k] = n_pings
-        ready = []
-        for k in sorted(self.held):
-            after, wait = self._next(k, n_pings, final=False)
-            if not wait or n_pings - self.held[k] >= self.close_after:
-                ready.append((k, after))
-        for k, after in ready:
-            self._hand_back(k, after)
-
-    def finish(self, n_pings: int) -> None:
-        keys = sorted(set(self.active) | set(self.held))
-        after = {k: self._next(k, n_pings, final=True)[0] for k in keys}
-        for k in keys:
-            self._hand_back(k, after[k])
-
-    def seams(self) -> dict[int, tuple[int, bool, int | None, bool]]:
-        """Per tile: (hand-back order, before, after_pings, after_final) as
-        :class:`TilePlan` holds them."""
-        out = {}
-        prev = None
-        for i, (k, after) in enumerate(self.order):
-            final = after is None or all(a >= self.planes
-                                         for a in self.touch.get(after[0], ())[after[1]:])
-            out[k] = (i, prev == k - 1 and self.planes > 0,
-                      None if after is None else after[1], final)
-            prev = k
-        return out
 
 
 class TilePlanner:

@@ -31,6 +31,7 @@ from .coverage import Coverage
 from .cpu_kernel import run_ping
 from .delays import SpeedProfile, TravelTimeTable, build_table
 from .grid import tile_grid
+from .handback import Handback
 from .surface import InterfaceShape
 from .kernel_args import DelayModel, ImageSlice, PingArray, VoxelAxes, prepare
 from .pose_check import check_pose_flags
@@ -275,24 +276,21 @@ class TileImager:
         self.schedule = TileSchedule(hardware, processing, source=source)
         #: conditions pings and runs the kernels (``condition``, ``kernel``)
         self.accumulator = PingAccumulator(hardware, processing, channels=channels)
-        self._active: dict[int, Tile] = {}
-        #: tiles complete but held (with the ping count when they completed) until the
-        #: next tile's first planes are complete too (:meth:`_next_planes`)
-        self._held: dict[int, tuple[Tile, int]] = {}
-        #: per open tile, the number (1, 2, ...) of the last scheduled ping that reached
-        #: each along-track plane (0: none yet)
-        self._plane_last: dict[int, np.ndarray] = {}
+        #: the tiles being formed or held (complete, until the next tile's first planes
+        #: are: :mod:`.handback`), by index
+        self._tiles: dict[int, Tile] = {}
         #: planes of the next tile handed back with a tile (products without seams: half
         #: the background kernel along-track; 0 without products)
         self._seam_planes = seam_planes(processing)
+        self._handback = Handback(self._seam_planes, self.schedule.close_after,
+                                  tile_grid(processing.tile, 0).shape[0], record=False)
 
     # read-only views of the tiles, the schedule and the accumulator
     @property
     def active(self) -> Mapping[int, Tile]:
         """The tiles being formed, by index (read-only); with them the tiles complete but
         held until the next tile's first planes are (not written yet)."""
-        return MappingProxyType({**{k: t for k, (t, _) in self._held.items()},
-                                 **self._active})
+        return MappingProxyType(dict(self._tiles))
 
     @property
     def line(self) -> TrackLine | None:
@@ -302,7 +300,7 @@ class TileImager:
     @property
     def done(self) -> frozenset[int]:
         """The tiles closed and handed back (or marked written), never opened again."""
-        return self.schedule.done - frozenset(self._held)
+        return self.schedule.done - frozenset(self._handback.held)
 
     @property
     def n_pings(self) -> int:
@@ -328,7 +326,8 @@ class TileImager:
     def resume_sequence(self) -> int | None:
         """The first sequence of the earliest still-open tile (None: no tile open):
         imaging again from there rebuilds every open tile exactly."""
-        first = [t.pings[0] for t, _ in self._held.values() if t.pings]
+        first = [self._tiles[k].pings[0] for k in self._handback.held
+                 if self._tiles[k].pings]
         opened = self.schedule.resume_sequence()
         if opened is not None:
             first.append(opened)
@@ -352,43 +351,23 @@ class TileImager:
         if not self._proc.imaging.beam_gating:      # the reach is the echo window's
             cond = self.accumulator.condition(ping)
         step = self.schedule.step(ping, None if cond is None else cond.axis.end_s)
-        out = [self._hand_back(k) for k in step.closed_early]
+        out = [self._hand_back(k, after) for k, after in self._handback.close_early(step)]
         for k in step.reached:
-            if k not in self._active:
-                self._active[k] = self.accumulator.new_tile(k, self.schedule.line)
-                self._plane_last[k] = np.zeros(self._active[k].grid.shape[0], dtype=np.int64)
+            if k not in self._tiles:
+                self._tiles[k] = self.accumulator.new_tile(k, self.schedule.line)
         if step.slices:
             cond = cond or self.accumulator.condition(ping)
-            self.accumulator.image(ping, cond, step, self._active)
-            for s in step.slices:
-                self._plane_last[s.tile][s.ia0:s.ia1] = self.schedule.n_pings
-        for k in step.closed:
-            # held until the next tile's first planes are complete too (products
-            # without seams); at most close_after pings more
-            self._held[k] = (self._active.pop(k), self.schedule.n_pings)
-        ready = []
-        for k in sorted(self._held):
-            planes, wait = self._next_planes(k, final=False)
-            if not wait or self.schedule.n_pings - self._held[k][1] >= self.schedule.close_after:
-                ready.append((k, planes))
-        return out + [self._hand_back(k, planes) for k, planes in ready]
+            self.accumulator.image(ping, cond, step, self._tiles)
+        return out + [self._hand_back(k, after) for k, after
+                      in self._handback.step(step, self.schedule.n_pings, early=False)]
 
-    def _next_planes(self, k: int, final: bool):
-        """(planes, wait): the first :attr:`_seam_planes` along-track planes of tile
-        ``k + 1`` (magnitude, ping-channel pairs) when every one of them is complete (the
-        tile is complete, the run has ended (``final``), or each plane was reached and
-        then ``close_after`` consecutive pings stayed clear of it, the rule that completes
-        a tile), else None; ``wait``: they may still come (tile ``k + 1`` is open)."""
-        n = self._seam_planes
-        held = self._held.get(k + 1)
-        nxt = held[0] if held is not None else self._active.get(k + 1)
-        if n < 1 or nxt is None or nxt.grid.shape[0] < n:
-            return None, False
-        if not final and held is None:
-            last = self._plane_last[k + 1][:n]
-            if np.any(last == 0) or np.any(self.schedule.n_pings - last
-                                           < self.schedule.close_after):
-                return None, True
+    def _next_planes(self, after) -> tuple[np.ndarray, np.ndarray | None] | None:
+        """The first :attr:`_seam_planes` along-track planes (magnitude, ping-channel
+        pairs) of the next tile the hand-back names (``after``: (its index, pings), or
+        None: none go back)."""
+        if after is None:
+            return None
+        n, nxt = self._seam_planes, self._tiles[after[0]]
         self.accumulator.settle(nxt)
         re, im = nxt.re[:n], nxt.im[:n]
         if hasattr(re, "copy_to_host"):
@@ -397,19 +376,17 @@ class TileImager:
         z.real, z.imag = re, im                       # magnitude is bit for bit the
         mag = np.abs(z).astype(np.float32)            # products' own (compute_products)
         ch = None if nxt.coverage is None else nxt.coverage.channels[:n].copy()
-        return (mag, ch), False
+        return mag, ch
 
     def _hand_back(self, k: int, after=None) -> Tile:
-        held = self._held.pop(k, None)
-        tile = held[0] if held is not None else self._active.pop(k)
-        self._plane_last.pop(k, None)
+        planes = self._next_planes(after)
+        tile = self._tiles.pop(k)
         self.accumulator.settle(tile)
-        tile.after = after
+        tile.after = planes
         return tile.to_host()
 
     def finish(self) -> list[Tile]:
         """Return every tile still being formed."""
         self.schedule.finish()
-        keys = sorted(set(self._active) | set(self._held))
-        after = {k: self._next_planes(k, final=True)[0] for k in keys}
-        return [self._hand_back(k, after[k]) for k in keys]
+        return [self._hand_back(k, after)
+                for k, after in self._handback.finish(self.schedule.n_pings)]
