@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The GPU check of issue 33 in one run on a lent GPU machine (see ../shared/tools/gpu-wheels.sh
-# and docs/imaging.md "GPU figures"): the real-GPU tests, then bench_gpu.py (with a profile of
+# and docs/imaging.md, "The GPU path" and "Current figures"): the real-GPU tests, then bench_gpu.py (with a profile of
 # one pass), bench_gpu_synthesis.py and bench_threads.py, each bounded in time, results and
 # logs under $OUT (at most 8 files come back).
 #   device run, carry [".whl"]:  bash benchmarks/gpu_check.sh
