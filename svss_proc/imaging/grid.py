@@ -61,3 +61,20 @@ def tile_index(cfg: TileConfig, along_m: float) -> int:
     elif (k + 1) * length <= along_m:
         k += 1
     return int(k)
+
+
+def kernel_voxels(kernel_m: tuple[float, float, float], voxel_m: float
+                  ) -> tuple[int, int, int]:
+    """A window's extent (along, cross, depth), m, as odd voxel counts (the background's
+    median kernel; the seam planes a tile hands back): each extent is
+    rounded to whole voxels and an even count is raised by one (1.2 m, 0.2 m, 0.1 m at
+    2 cm voxels: 61 x 11 x 5)."""
+    if voxel_m <= 0:
+        raise ValueError(f"voxel size must be positive, got {voxel_m} m")
+    out = []
+    for ext in kernel_m:
+        if ext < 0:
+            raise ValueError(f"kernel extents must be non-negative, got {kernel_m} m")
+        n = max(1, int(math.floor(ext / voxel_m + 0.5)))
+        out.append(n if n % 2 else n + 1)
+    return tuple(out)

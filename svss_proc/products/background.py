@@ -59,6 +59,8 @@ import time
 import numba
 import numpy as np
 
+from ..imaging.grid import kernel_voxels  # noqa: F401  (the kernel's voxels: defined with the grid)
+
 log = logging.getLogger(__name__)
 
 METHODS = ("exact", "histogram")
@@ -66,22 +68,6 @@ BOUNDARIES = ("reflect", "mirror", "nearest", "truncate")
 _NP_PAD = {"reflect": "symmetric", "mirror": "reflect", "nearest": "edge"}
 _MID_SHIFT, _TOP_SHIFT = 6, 12   # count-table blocks: 64 and 4096 levels
 _MAX_HIST_LEVELS = 1 << 20
-
-
-def kernel_voxels(kernel_m: tuple[float, float, float], voxel_m: float
-                  ) -> tuple[int, int, int]:
-    """Kernel extent (along, cross, depth), m, as odd voxel counts: each extent is
-    rounded to whole voxels and an even count is raised by one (1.2 m, 0.2 m, 0.1 m at
-    2 cm voxels: 61 x 11 x 5)."""
-    if voxel_m <= 0:
-        raise ValueError(f"voxel size must be positive, got {voxel_m} m")
-    out = []
-    for ext in kernel_m:
-        if ext < 0:
-            raise ValueError(f"kernel extents must be non-negative, got {kernel_m} m")
-        n = max(1, int(math.floor(ext / voxel_m + 0.5)))
-        out.append(n if n % 2 else n + 1)
-    return tuple(out)
 
 
 @numba.njit(cache=True, inline="always")
