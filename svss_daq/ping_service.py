@@ -6,7 +6,7 @@ will ever exist is already recorded: the recording answers definitively whether 
 sequence exists. (A recording on disk answers for what is flushed; the service says so,
 ``pending``, for sequences past its last flushed ping of a run still being recorded.)
 
-Protocol (docs/worker.md): a ROUTER socket (:class:`PingService`) answers JSON requests,
+Protocol (docs/catchup.md): a ROUTER socket (:class:`PingService`) answers JSON requests,
 never pickle, from DEALER clients (:class:`PingFetcher`):
 
 - ``{"schema": "svss.fetch", "version": 1, "run_id": R, "first": a, "last": b}``
@@ -75,7 +75,7 @@ WORKER_SILENCE_S = 30.0
 #: how often a worker says where it is (a fraction of the silence above), s
 PROGRESS_INTERVAL_S = 1.0
 _CLIENT_ID = re.compile(r"[A-Za-z0-9._:-]{1,64}")
-# protocol limits (docs/worker.md)
+# protocol limits (docs/catchup.md)
 _MAX_REQUEST_BYTES = 4096
 _MAX_RUN_FILES = 10000           # a run's raw-run files in a runs reply, at most
 _MAX_FRAME_BYTES = 65536     # a client's larger frame: ZeroMQ drops its connection
@@ -204,7 +204,7 @@ class PingService:
     requests are answered with ``svss.error``, logged and counted (:attr:`errors`).
 
     Nothing a client does blocks the serving thread or grows the service without bound
-    (docs/worker.md, "Catch-up service limits"): every send is non-blocking; ZeroMQ
+    (docs/catchup.md, "Catch-up service limits"): every send is non-blocking; ZeroMQ
     queues at most ``client_queue`` messages to each client (each way); a fetch reply
     is sent as the client's queue takes it, at most ``max_clients`` replies at once
     (beyond: ``svss.error`` with ``"busy": true``, counted in :attr:`busy`, unless the

@@ -101,7 +101,7 @@ class Worker:
         #: ``run_label``, else ``run_id`` ("" unknown); no journal without ``run_id``
         self.run_label = run_label or run_id or ""
         self.imager = TileImager(hardware, processing.value, source=processing.source)
-        #: CPU and wall time per stage (manifest ``stage_times``; docs/worker.md)
+        #: CPU and wall time per stage (manifest ``stage_times``; docs/keeping_up.md)
         self.clock = StageClock()
         instrument(self.imager, self.clock)
         #: ``[micronav] live`` on the live poses: each ping imaged at its pose fused with

@@ -150,7 +150,7 @@ def test_bad_endpoints_are_refused_before_binding(holed):
 
 
 def test_fetch_rate_on_loopback(raw_run, capsys):
-    """The figure for docs/worker.md: pings per second one fetcher gets."""
+    """The figure for docs/catchup.md: pings per second one fetcher gets."""
     with RawRunStore([raw_run]) as store, \
             PingService("tcp://127.0.0.1:*", store) as svc, \
             PingFetcher(svc.endpoint, timeout_s=30) as f:

@@ -1,4 +1,4 @@
-"""The catch-up service's bounds (docs/worker.md, "Catch-up service limits"): a client
+"""The catch-up service's bounds (docs/catchup.md, "Catch-up service limits"): a client
 that never reads its replies costs the service at most its queue (``client_queue``
 messages) and blocks nothing; a reading client is served beside it at once; a reply
 that stalls is abandoned and that client's later requests refused, all counted and
