@@ -90,7 +90,8 @@ def test_process_images_buried_points_at_their_depth_with_the_estimated_speed(
     out = tmp_path / "tiles"
     files = process_raw(run, out, processing, sediment_speed="estimate")
     seabed = json.loads((out / "manifest.json").read_text())["seabed"]
-    assert seabed["status"] == "estimated" and seabed["configured_m_s"] == 1500.0
+    assert seabed["status"] == "estimated" and seabed["configured_m_s"] == \
+        processing.value.imaging.sediment_sound_speed_m_s
     assert abs(seabed["sediment_sound_speed_m_s"] / SAND - 1) < 0.02, seabed
     assert 0 < seabed["sigma_m_s"] < 0.05 * SAND and seabed["disagrees"]
     assert len(seabed["responses"]) >= 1 and not seabed["layers"]
