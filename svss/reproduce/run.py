@@ -12,7 +12,7 @@ target for its excess, and (for the figure cases) a wide box for the slices.
 
 ``quick``: one extra seed, fewer variants, the test field shortened to three of its
 objects, figure voxels of 4 cm, and 1 scatterer per
-resolution cell instead of the scene files' 2 (docs/simulator.md: the level, profile
+resolution cell instead of the scene files' 2 (docs/simulator_speed.md: the level, profile
 and background at the target stay within the statistical floor of another seabed).
 """
 

@@ -6,7 +6,7 @@ reaches the buried cylinder (its full synthetic aperture: 42 pings in sand, 38 i
 with the paper-era array (32 channels) and the cylinder's axis along the track: the
 configuration the report argues is the seed's (svss.reproduce.run.SEED_CONFIG). Both at
 1 scatterer per resolution cell (the command's --quick setting; the scene files have 2,
-docs/simulator.md: level, profile and background at the target within the statistical
+docs/simulator_speed.md: level, profile and background at the target within the statistical
 floor of another seabed) to keep the default run within its time budget. The sand case
 runs through the command's own ``measure_case``; the silt case images its target region
 only.
