@@ -2,7 +2,7 @@
 """Contacts against the truth on the seed's lines, the Sayers-like field and the demo,
 with the shipped processing: one detection threshold for every layer against a threshold
 per depth layer from its own clutter (``[products.detection] layer_false_alarms_per_m3``,
-docs/products.md "Layer thresholds"), side by side in one run.
+docs/detections.md "Layer thresholds"), side by side in one run.
 
 Each scene is simulated once into ``--cache`` (``svss simulate``), then processed with
 ``svss process`` twice: the shipped configuration (``config/processing.toml``; the demo's

@@ -1,6 +1,6 @@
 """Contacts in the background-normalised volume.
 
-Detection (docs/products.md): voxels whose normalised level (dB re background) reaches
+Detection (docs/detections.md): voxels whose normalised level (dB re background) reaches
 ``threshold_db`` and that enough pings imaged (``detectable``: the coverage rule) are
 grouped into 26-connected regions; regions of fewer than ``min_voxels`` voxels are
 dropped; each region's contact sits at its peak voxel, refined to sub-voxel precision by

@@ -1,5 +1,5 @@
 """A detection threshold per depth layer, from the layer's own statistics: a constant
-false-alarm rate per volume (docs/products.md, "Detections").
+false-alarm rate per volume (docs/detections.md, "Layer thresholds").
 
 One threshold for the whole tile assumes every layer's normalised level has the tail of
 fully developed speckle (Rayleigh magnitude: a voxel of normalised intensity

@@ -83,7 +83,7 @@ def test_speckle_false_alarms_follow_the_documented_rate(cfg):
     level = level_db(normalise(mag, bg, -60.0))
     data = level[20:]
     # a voxel of median-normalised Rayleigh speckle reaches T dB with probability
-    # 2 ** -(10 ** (T / 10)) (docs/products.md)
+    # 2 ** -(10 ** (T / 10)) (docs/detections.md)
     for t_db, tol in ((6.0, 0.1), (10.0, 0.25)):
         p = 2.0 ** -(10 ** (t_db / 10))
         assert np.mean(data >= t_db) == pytest.approx(p, rel=tol)
