@@ -18,6 +18,7 @@ from svss_daq.decibels import amplitude_to_db
 from svss_daq.progress import Progress
 from svss_daq.nav.renavigate import records_problem
 from svss_proc import tiles
+from svss_proc.products.circumstances import circumstances_text
 
 log = logging.getLogger(__name__)
 
@@ -120,6 +121,9 @@ def summarise_tile(path: str | Path) -> dict:
         "pings": {"n": int(pings.size),
                   "first": int(pings.min()) if pings.size else None,
                   "last": int(pings.max()) if pings.size else None},
+        # what happened among its pings (None: a tile written before it was kept)
+        "circumstances": {k: attrs.get(k) for k in ("pings_missing", "poses_dead_reckoned",
+                                                    "poses_held")},
         "voxel_channel_updates": attrs.get("voxel_channel_updates"),
         "image": {
             "imaged_fraction": float(nonzero.size / mag.size) if mag.size else 0.0,
@@ -227,6 +231,13 @@ def _f(v, fmt: str = ".2f", none: str = "-") -> str:
     return none if v is None else format(v, fmt)
 
 
+def _circumstances(counts: dict) -> str:
+    """"; gap 8 pings; dead-reckoned 22 poses" of a tile's pings ("" when none, or not
+    known)."""
+    said = circumstances_text({k: int(v) for k, v in counts.items() if v is not None})
+    return f"; {said}" if said else ""
+
+
 def _format_tile(s: dict) -> str:
     ax, ln, im = s["axes"], s["line"], s["image"]
     lines = [f"{s['file']}: SVSS tile {s['tile_index']} (format version "
@@ -242,7 +253,7 @@ def _format_tile(s: dict) -> str:
         f"{_f(ln['interface_down_m'])} m down",
         f"  pings      {s['pings']['n']} (sequence {s['pings']['first']} .. "
         f"{s['pings']['last']}), {_f(s['voxel_channel_updates'], '.3g')} voxel-channel "
-        "updates",
+        "updates" + _circumstances(s.get("circumstances") or {}),
         f"  image      peak {_f(im['peak_db_re_upa'], '.1f')} dB re 1 uPa at "
         f"{_fmt_pos(im['peak_at_m'])}, median {_f(im['median_db_re_upa'], '.1f')} dB, "
         f"{100 * im['imaged_fraction']:.1f} % of voxels imaged",

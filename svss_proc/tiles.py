@@ -27,6 +27,7 @@ import h5py
 import numpy as np
 
 from svss_daq import __version__
+from svss_daq import ping as _ping
 from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
 from svss_daq.frames import TrackLine
 from svss_daq.rawfile import TIME_UNITS
@@ -34,6 +35,7 @@ from svss_daq.untrusted_hdf5 import (H5_ERRORS, abandon, cause, dataset, format_
                                      group, hdf5_superblock, in_child, shown)
 
 from .products import detect
+from .products.circumstances import tile_counts
 from .imaging.grid import TileGrid
 
 if TYPE_CHECKING:
@@ -63,7 +65,12 @@ PLAIN_CHUNK_BYTES = 1 << 21
 #: marks a file being written: ``.NAME.partial-XXXX.SUFFIX``; readers ignore such names
 PARTIAL = ".partial-"
 #: per ping of the tile (absent in tiles written before they were kept): dtype kinds
-TRACK = {"ping_time": "i", "ping_north_m": "f", "ping_east_m": "f"}
+TRACK = {"ping_time": "i", "ping_north_m": "f", "ping_east_m": "f", "ping_nav_flags": "iu"}
+#: the navigation's NAV_* flags (:mod:`svss_daq.ping`) as CF ``flag_masks`` and
+#: ``flag_meanings`` of ``ping_nav_flags``
+NAV_FLAG_NAMES = ("gps_fix", "dead_reckoned", "bottom_lock", "simulated",
+                  "heading_from_course", "no_heading", "heading_from_compass", "held",
+                  "clock_retimed", "smoothed", "fused", "dvl_velocity")
 #: root attributes every tile has (and the scorer and the summary need)
 REQUIRED_ATTRS = ("tile_index", "line_origin_north_m", "line_origin_east_m",
                   "line_heading_rad", "interface_down_m", "voxel_m")
@@ -118,8 +125,10 @@ class Tile:
     #: the sediment speed it was imaged with and where it came from (provenance group
     #: ``seabed``'s attributes; :class:`svss_proc.seabed.speed.SpeedEstimate` summary)
     seabed: dict | None = None
-    #: per ping of :attr:`pings`: (transmit time ns UTC, body origin north m, east m)
-    track: list[tuple[int, float, float]] = field(default_factory=list)
+    #: per ping of :attr:`pings`: (transmit time ns UTC, body origin north m, east m,
+    #: the navigation's NAV_* flags ``nav.quality``); the flags may be left out (a
+    #: 3-tuple: not known, no ``ping_nav_flags`` written)
+    track: list[tuple] = field(default_factory=list)
     #: the next tile's first along-track planes, complete when this tile was: (magnitude,
     #: ping-channel pairs or None), for products without seams (None: not known)
     after: "tuple[np.ndarray, np.ndarray | None] | None" = None
@@ -273,10 +282,13 @@ def _write(f: h5py.File, tile: Tile, hardware: Loaded[HardwareConfig],
     pings.make_scale("ping_sequence")
     if tile.run_id:
         f.attrs["run_id"] = tile.run_id
+    flags = None
     if tile.track and len(tile.track) == len(tile.pings):
-        track = np.asarray(tile.track, dtype=np.float64)
+        track = np.asarray([row[:3] for row in tile.track], dtype=np.float64)
+        if all(len(row) > 3 for row in tile.track):
+            flags = np.asarray([int(row[3]) for row in tile.track], dtype=np.uint32)
         for name, data, units, long_name in (
-                ("ping_time", np.asarray([t for t, _, _ in tile.track], dtype=np.int64),
+                ("ping_time", np.asarray([row[0] for row in tile.track], dtype=np.int64),
                  TIME_UNITS, "transmit time of the ping (UTC)"),
                 ("ping_north_m", track[:, 1], "m", "body origin north at the ping (survey "
                                                    "frame)"),
@@ -287,6 +299,17 @@ def _write(f: h5py.File, tile: Tile, hardware: Loaded[HardwareConfig],
             if units == TIME_UNITS:
                 ds.attrs.update({"standard_name": "time", "calendar": "standard"})
             _attach(ds, f, ("ping_sequence",))
+        if flags is not None:
+            ds = keep(f.create_dataset("ping_nav_flags", data=flags))
+            ds.attrs.update({
+                "units": "1", "long_name": "the navigation's quality flags of the ping's "
+                "pose (NAV_* bits of svss_daq.ping)",
+                "flag_masks": np.array([getattr(_ping, f"NAV_{n.upper()}")
+                                        for n in NAV_FLAG_NAMES], dtype=np.uint32),
+                "flag_meanings": " ".join(NAV_FLAG_NAMES)})
+            _attach(ds, f, ("ping_sequence",))
+    # what happened among the tile's pings (docs/products.md, "Circumstances")
+    f.attrs.update(tile_counts(tile.pings, flags))
     # the magnitude is not stored: it is |image| (read_tile computes it), and was 30 MB
     # of a default tile written twice
     image = keep(f.create_dataset("image", data=tile.image,

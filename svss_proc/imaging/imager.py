@@ -219,7 +219,7 @@ class PingAccumulator:
             tile.coverage.add(tile.grid, s.ia0, s.ia1, placed, geo, window, im, ping.nav)
             tile.pings.append(ping.sequence)
             tile.track.append((int(ping.transmit_time_ns), float(ping.nav.north_m),
-                               float(ping.nav.east_m)))
+                               float(ping.nav.east_m), int(ping.nav.quality)))
             tile.updates += int(n)
             total += int(n)
         self._updates += total

@@ -23,6 +23,7 @@ from svss_daq.decibels import amplitude_to_db
 
 from . import drc as drc_mod
 from .background import greater_of_below, kernel_voxels, median_background
+from .circumstances import circumstances_text, tile_counts
 from .detect import Footprint, detect, sidelobe_zone
 from .layer_cfar import guarded_along, guarded_regions, layer_tails
 from ..imaging.coverage import aperture_fraction, full_fraction
@@ -283,11 +284,17 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
 
 
 def tile_title(name: str, tile: Tile) -> str:
-    """One line naming a tile: index, along-track span, pings."""
+    """One line naming a tile: index, along-track span, pings and what happened among
+    them (:func:`~svss_proc.products.circumstances.tile_counts`: missing pings,
+    dead-reckoned and held poses; nothing when none did)."""
     g = tile.grid
     pings = (f"pings {min(tile.pings)}-{max(tile.pings)} ({len(tile.pings)})"
              if tile.pings else "no pings")
-    return (f"SVSS {name}: along-track {g.along[0]:.2f}-{g.along[-1]:.2f} m, {pings}")
+    flags = ([row[3] for row in tile.track] if tile.track and len(tile.track)
+             == len(tile.pings) and all(len(row) > 3 for row in tile.track) else None)
+    said = circumstances_text(tile_counts(tile.pings, flags))
+    return (f"SVSS {name}: along-track {g.along[0]:.2f}-{g.along[-1]:.2f} m, {pings}"
+            + (f"; {said}" if said else ""))
 
 
 def footprint_for(height_m: float, hardware: HardwareConfig,

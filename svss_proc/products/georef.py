@@ -33,8 +33,9 @@ log = logging.getLogger(__name__)
 
 MOSAIC_TIF = "mosaic.tif"
 CONTACTS_GPKG = "contacts.gpkg"
-#: the contacts layer's name in the GeoPackage
+#: the contacts layer's name in the GeoPackage, and the stretches' (LineStrings)
 CONTACTS_LAYER = "contacts"
+STRETCHES_LAYER = "stretches"
 
 
 def utm_epsg(lat_deg: float, lon_deg: float) -> int:
@@ -125,16 +126,15 @@ def write_mosaic_geotiff(path: Path, m: dict, epsg: int, description: str) -> Pa
 
 
 #: GeoPackage field types of the contact columns that are not floats
-_INT_FIELDS = ("contact", "tile_row", "n_tiles")
-_TEXT_FIELDS = ("run_id", "tile", "time_utc")
+_INT_FIELDS = ("contact", "tile_row", "n_tiles", "pings_missing", "poses_dead_reckoned",
+               "poses_held")
+_TEXT_FIELDS = ("run_id", "tile", "time_utc", "circumstances")
 
 
 def write_contacts_gpkg(path: Path, contacts: list[dict], fields: list[str],
                         projection: SurveyProjection) -> Path:
     """The contacts as the point layer ``contacts`` (UTM, the mosaic's CRS) of a
     GeoPackage, every column of ``fields`` (NaN: null) as an attribute."""
-    import pyogrio.raw
-
     x, y = projection.ne_to_utm([c["north_m"] for c in contacts],
                                 [c["east_m"] for c in contacts])
     geometry = np.array([struct.pack("<BIdd", 1, 1, float(a), float(b))   # WKB Point
@@ -147,18 +147,48 @@ def write_contacts_gpkg(path: Path, contacts: list[dict], fields: list[str],
             data.append(np.array([str(c[k]) for c in contacts], dtype=object))
         else:
             data.append(np.array([c[k] for c in contacts], dtype=np.float64))
-    # pyogrio logs GDAL's "Created N records" at INFO: this module says what it wrote
+    _quiet_write(path, geometry, data, list(fields), layer=CONTACTS_LAYER,
+                 driver="GPKG", geometry_type="Point", crs=f"EPSG:{projection.epsg}")
+    return path
+
+
+def _quiet_write(path: Path, geometry, data, fields, **kw) -> None:
+    """``pyogrio.raw.write``, without GDAL's "Created N records" (logged at INFO by
+    pyogrio: this module says what it wrote)."""
+    import pyogrio.raw
+
     io_log = logging.getLogger("pyogrio._io")
     level = io_log.level
     io_log.setLevel(max(level, logging.WARNING))
     try:
-        pyogrio.raw.write(str(path), geometry, data, list(fields), layer=CONTACTS_LAYER,
-                          driver="GPKG", geometry_type="Point",
-                          crs=f"EPSG:{projection.epsg}")
+        pyogrio.raw.write(str(path), geometry, data, fields, **kw)
     finally:
         io_log.setLevel(level)
+
+
+def write_stretches_gpkg(path: Path, rows: list[dict], projection: SurveyProjection) -> Path:
+    """The run's stretches as the LineString layer ``stretches`` (UTM, the mosaic's CRS)
+    added to the GeoPackage at ``path``: ``rows`` of ``north_m``, ``east_m`` (the line's
+    positions, survey frame) and the attributes ``kind``, ``label``,
+    ``first_sequence``, ``last_sequence``, ``pings``, ``start_utc``, ``end_utc``.
+    Nothing is added without rows."""
+    if not rows:
+        return path
+    geometry = []
+    for r in rows:
+        x, y = projection.ne_to_utm(r["north_m"], r["east_m"])
+        x, y = np.atleast_1d(x), np.atleast_1d(y)
+        geometry.append(struct.pack("<BII", 1, 2, x.size)              # WKB LineString
+                        + np.column_stack([x, y]).astype("<f8").tobytes())
+    fields = ["kind", "label", "first_sequence", "last_sequence", "pings", "start_utc",
+              "end_utc"]
+    data = [np.array([r[k] for r in rows], dtype=np.int64 if k in (
+        "first_sequence", "last_sequence", "pings") else object) for k in fields]
+    _quiet_write(path, np.array(geometry, dtype=object), data, fields,
+                 layer=STRETCHES_LAYER, driver="GPKG", geometry_type="LineString",
+                 crs=f"EPSG:{projection.epsg}", append=True)
     return path
 
 
-__all__ = ["CONTACTS_GPKG", "MOSAIC_TIF", "SurveyProjection", "utm_epsg", "utm_grid",
-           "write_contacts_gpkg", "write_mosaic_geotiff"]
+__all__ = ["CONTACTS_GPKG", "MOSAIC_TIF", "STRETCHES_LAYER", "SurveyProjection", "utm_epsg",
+           "utm_grid", "write_contacts_gpkg", "write_mosaic_geotiff", "write_stretches_gpkg"]

@@ -21,6 +21,12 @@ and filtered across tiles, which a tile alone cannot do:
    within its sidelobe region (:func:`svss_proc.products.detect.is_sidelobe`), whichever
    tile each is in, is dropped.
 
+Circumstances (:mod:`.circumstances`): the run's pings (every tile's, with the
+navigation flags its tiles kept) placed where the array was, give the run's stretches of
+missing pings, dead-reckoned and held poses; each contact counts those among the pings
+that could see it (:func:`contact_circumstances`), the map draws them along the array's
+track, the GeoJSON carries them as LineStrings and ``mosaic.h5`` as a table.
+
 Latitude and longitude: survey NED to geodetic through
 :func:`svss_daq.navigation.ned_to_geodetic` about the survey origin: the one given, or
 else the one recovered from a ping's geodetic position recorded in a tile
@@ -34,6 +40,7 @@ kept apart from the file handling (:func:`write_run_products`).
 from __future__ import annotations
 
 import csv
+import functools
 import json
 import logging
 import math
@@ -44,6 +51,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 from matplotlib import colormaps
+from PIL import Image, ImageDraw
 
 from svss_daq.config import (
     ConfigError,
@@ -54,17 +62,22 @@ from svss_daq.config import (
     loads,
 )
 from svss_daq.frames import TrackLine
+from svss_daq.geometry import array_geometry, cone_radius
 from svss_daq.navigation import geodetic_to_ned, ned_to_geodetic
+from svss_daq.rawfile import TIME_UNITS
 
 from ..tiles import (TileFileError, finished_tile_paths, read_tile_views,
                      temporary_path, tile_line)
 from .chain import coverage_settings, footprint_for
+from .circumstances import (FALLBACK_REACH_M, KINDS, LABELS, PingTrack, Stretch,
+                            circumstances_text, counts_near, is_partial, ping_track,
+                            stretches)
 from .detect import Footprint, is_later_echo, sidelobe_filter
 from .drc import compress
 from .georef import (CONTACTS_GPKG, MOSAIC_TIF, SurveyProjection, utm_grid,
-                     write_contacts_gpkg, write_mosaic_geotiff)
-from .quicklook import CMAP, MARKER_RGB, PNG_COMPRESS_LEVEL, _palette, choose_labels
-from .raster import Canvas, rgb8
+                     write_contacts_gpkg, write_mosaic_geotiff, write_stretches_gpkg)
+from .quicklook import CMAP, MARKER_RGB, NO_DATA_RGBA, PNG_COMPRESS_LEVEL, choose_labels
+from .raster import Canvas, font, rgb8
 
 log = logging.getLogger(__name__)
 
@@ -105,6 +118,16 @@ CONTACT_FIELDS = (
                              "closest pass"), 3),
     ("coverage_fraction", "1", ("pings that imaged the peak over the run's full coverage "
                                 "at its depth"), 3),
+    ("pings_missing", "1", ("missing pings (sequence gaps) among the pings that could see "
+                            "the contact: placed on the track of their gap, within the "
+                            "projector cone's horizontal reach of it"), None),
+    ("poses_dead_reckoned", "1", ("dead-reckoned poses (no GPS fix: NAV_DEAD_RECKONED) "
+                                  "among the pings that could see it"), None),
+    ("poses_held", "1", "held poses (NAV_HELD) among the pings that could see it", None),
+    ("circumstances", "", ("what happened around the contact in words, empty when "
+                           "nothing did: e.g. 'gap 8 pings; dead-reckoned 30 poses; held "
+                           "2 poses; partial coverage' (coverage_fraction under 0.75)"),
+     None),
     ("tile_row", "1", "row of the tile's detection table", None),
     ("n_tiles", "1", "tiles whose detections were merged into the contact", None),
 )
@@ -348,6 +371,96 @@ def closest_pass(track: tuple[np.ndarray, np.ndarray, np.ndarray], ned: np.ndarr
     return utc_text(when), float(dist[k])
 
 
+def run_pings(views: list[TileView]) -> PingTrack:
+    """Every ping of the run's tiles once, in sequence order (:func:`.circumstances.
+    ping_track`): its time, body origin north and east and its navigation flags where
+    its tile kept them (``ping_nav_flags``); empty when no tile keeps its pings' track."""
+    seq, t, n, e, q = [], [], [], [], []
+    for v in views:
+        d = v.data
+        if all(k in d for k in ("ping_time", "ping_north_m", "ping_east_m")):
+            seq.append(d["ping_sequence"])
+            t.append(d["ping_time"])
+            n.append(d["ping_north_m"])
+            e.append(d["ping_east_m"])
+            f = d.get("ping_nav_flags")
+            q.append(np.array([None] * d["ping_sequence"].size if f is None
+                              else [int(x) for x in f], dtype=object))
+    if not seq:
+        return ping_track([], [], [], [])
+    return ping_track(*(np.concatenate(a) for a in (seq, t, n, e, q)))
+
+
+#: pings either side of a ping whose positions give the track's course there
+COURSE_PINGS = 5
+#: less travel than this (m) over those pings gives no course (the line's heading is
+#: taken)
+COURSE_MIN_M = 0.05
+
+
+def array_offset_m(hw: HardwareConfig | None) -> np.ndarray:
+    """The projectors' mean position forward and starboard of the body origin (body
+    frame, m; zero without a usable hardware configuration)."""
+    if hw is None:
+        return np.zeros(2)
+    try:
+        return np.asarray(array_geometry(hw).projectors[:, :2].mean(axis=0),
+                          dtype=np.float64)
+    except ValueError as exc:
+        log.warning("the array's place on the track not known (%s): the body origin's "
+                    "track is taken", exc)
+        return np.zeros(2)
+
+
+def array_track(pings: PingTrack, offset_m: np.ndarray, heading_rad: float) -> PingTrack:
+    """The pings placed where the array was: the body origin moved by ``offset_m``
+    (forward, starboard; :func:`array_offset_m`) turned to the track's course at each
+    ping (from the body origins of the :data:`COURSE_PINGS` pings either side;
+    ``heading_rad``, the run line's heading, where they moved less than
+    :data:`COURSE_MIN_M`). The tiles keep no heading: a crab angle is not followed."""
+    if not len(pings) or not np.any(offset_m):
+        return pings
+    k = np.arange(len(pings))
+    lo = np.maximum(k - COURSE_PINGS, 0)
+    hi = np.minimum(k + COURSE_PINGS, len(pings) - 1)
+    dn = pings.north_m[hi] - pings.north_m[lo]
+    de = pings.east_m[hi] - pings.east_m[lo]
+    course = np.where(np.hypot(dn, de) >= COURSE_MIN_M, np.arctan2(de, dn), heading_rad)
+    ch, sh = np.cos(course), np.sin(course)
+    return pings.moved(offset_m[0] * ch - offset_m[1] * sh,
+                       offset_m[0] * sh + offset_m[1] * ch)
+
+
+def run_circumstances(views: list[TileView], hw: HardwareConfig | None = None
+                      ) -> tuple[PingTrack, list[Stretch]]:
+    """The run's pings placed where the array was (:func:`run_pings`,
+    :func:`array_track`; ``hw``: the hardware configuration, default the first tile's)
+    and its stretches of missing pings, dead-reckoned and held poses
+    (:func:`.circumstances.stretches`)."""
+    if not views:
+        return ping_track([], [], [], []), []
+    if hw is None:
+        _, hw, _ = _configs(views[0])
+    track = array_track(run_pings(views), array_offset_m(hw), views[0].line.heading)
+    return track, stretches(track)
+
+
+def contact_circumstances(track: PingTrack, ned, depth_m: float, coverage_fraction: float,
+                          footprint: Footprint | None) -> dict:
+    """A contact's circumstance columns: what happened among the pings that could see
+    it (those placed on ``track`` within the projector cone's horizontal reach of the
+    peak at ``depth_m``: ``(h + z) tan(half-angle)`` of ``footprint``, else
+    :data:`.circumstances.FALLBACK_REACH_M`) and its ``circumstances`` text (with
+    "partial coverage" where ``coverage_fraction`` is under
+    :data:`.circumstances.PARTIAL_COVERAGE_BELOW`)."""
+    reach = (cone_radius(footprint.height_m + max(float(depth_m), 0.0),
+                         footprint.tan_half_angle)
+             if footprint is not None else FALLBACK_REACH_M)
+    counts = counts_near(track, float(ned[0]), float(ned[1]), reach)
+    return {**counts,
+            "circumstances": circumstances_text(counts, is_partial(coverage_fraction))}
+
+
 def run_contacts(views: list[TileView],
                  origin: tuple[float, float, float] | None = None) -> tuple[list[dict], dict]:
     """The run's contacts (dicts with the :data:`CONTACT_FIELDS`) from its tiles, and a
@@ -368,9 +481,10 @@ def run_contacts(views: list[TileView],
     full = np.max(fulls, axis=0) if fulls else None
     heights = [float(v.data["attrs"]["projector_height_m"]) for v in views
                if np.isfinite(float(v.data["attrs"].get("projector_height_m", np.nan)))]
-    footprint = None
-    if use_footprint and heights and hw is not None and imaging is not None:
-        footprint = footprint_for(float(np.mean(heights)), hw, imaging)
+    footprint = reach = None
+    if heights and hw is not None and imaging is not None:
+        reach = footprint_for(float(np.mean(heights)), hw, imaging)
+        footprint = reach if use_footprint else None
     rows = []
     for v in views:
         table = v.data["detections"]
@@ -397,6 +511,7 @@ def run_contacts(views: list[TileView],
         origin = survey_origin(refs[0]) if refs else None
     run_id = run_of_views(views)
     track = run_track(views)
+    pings, stretched = run_circumstances(views, hw)
     out = []
     for k, r in enumerate(kept):
         lat = lon = float("nan")
@@ -414,6 +529,8 @@ def run_contacts(views: list[TileView],
              "along_m": float(r["run_m"][0]), "cross_m": float(r["run_m"][1]),
              "closest_pass_m": dist,
              "coverage_fraction": float(r["coverage_fraction"]),
+             **contact_circumstances(pings, r["ned"], r["depth_m"],
+                                     float(r["coverage_fraction"]), reach),
              "tile_row": r["tile_row"], "n_tiles": r["n_tiles"]}
         out.append({name: _rounded(name, c[name]) for name, *_ in CONTACT_FIELDS})
     summary = {"tiles": len(views), "tile_detections": n_tile_detections,
@@ -423,7 +540,9 @@ def run_contacts(views: list[TileView],
                "run_full_coverage_pings": None if full is None else int(full.max()),
                "sidelobe_db": dc.sidelobe_db,
                "footprint": None if footprint is None else
-               {"height_m": footprint.height_m, "tan_half_angle": footprint.tan_half_angle}}
+               {"height_m": footprint.height_m, "tan_half_angle": footprint.tan_half_angle},
+               "stretches": {k: sum(1 for x in stretched if x.kind == k) for k in KINDS},
+               "array_track": pings, "stretch_list": stretched}
     return out, summary
 
 
@@ -444,15 +563,39 @@ def write_contacts_csv(path: Path, contacts: list[dict]) -> Path:
     return path
 
 
+def stretch_geojson(k: int, st: Stretch, origin) -> dict:
+    """A stretch as an RFC 7946 LineString feature along the array's track ([longitude,
+    latitude] about the survey ``origin``; null geometry without one), id
+    ``stretch-K``, properties ``kind`` (:data:`.circumstances.KINDS`), ``label``,
+    ``first_sequence``, ``last_sequence``, ``pings``, ``start_utc``, ``end_utc``."""
+    geometry = None
+    if origin is not None and np.all(np.isfinite(np.asarray(origin, dtype=float)[:2])):
+        ned = np.stack([st.north_m, st.east_m, np.zeros(st.north_m.size)], axis=1)
+        lat, lon, _ = ned_to_geodetic(ned, tuple(origin))
+        geometry = {"type": "LineString",
+                    "coordinates": [[_rounded("longitude_deg", float(b)),
+                                     _rounded("latitude_deg", float(a))]
+                                    for a, b in zip(np.atleast_1d(lat), np.atleast_1d(lon))]}
+    return {"type": "Feature", "id": f"stretch-{k}", "geometry": geometry,
+            "properties": {"kind": st.kind, "label": LABELS[st.kind],
+                           "first_sequence": st.first_sequence,
+                           "last_sequence": st.last_sequence, "pings": st.pings,
+                           "start_utc": utc_text(st.start_ns),
+                           "end_utc": utc_text(st.end_ns)}}
+
+
 def contacts_geojson(contacts: list[dict], summary: dict) -> dict:
     """RFC 7946 FeatureCollection: a Point [longitude, latitude] per contact (null
-    geometry without a geodetic origin), the other columns as properties."""
+    geometry without a geodetic origin), the other columns as properties and ``kind``
+    "contact"; after them the run's stretches (``summary["stretch_list"]``) as
+    LineStrings (:func:`stretch_geojson`)."""
     feats = []
     for c in contacts:
         ok = math.isfinite(c["latitude_deg"]) and math.isfinite(c["longitude_deg"])
-        props = {k: (None if isinstance(c[k], float) and not math.isfinite(c[k])
-                     else _rounded(k, c[k]))
-                 for k, *_ in CONTACT_FIELDS if k not in ("latitude_deg", "longitude_deg")}
+        props = {"kind": "contact",
+                 **{k: (None if isinstance(c[k], float) and not math.isfinite(c[k])
+                        else _rounded(k, c[k]))
+                    for k, *_ in CONTACT_FIELDS if k not in ("latitude_deg", "longitude_deg")}}
         feats.append({"type": "Feature", "id": c["contact"],
                       "geometry": ({"type": "Point",
                                     "coordinates": [_rounded("longitude_deg",
@@ -461,9 +604,11 @@ def contacts_geojson(contacts: list[dict], summary: dict) -> dict:
                                                              c["latitude_deg"])]}
                                    if ok else None),
                       "properties": props})
+    feats += [stretch_geojson(k, st, summary.get("origin"))
+              for k, st in enumerate(summary.get("stretch_list", ()))]
     return {"type": "FeatureCollection", "features": feats,
             "svss_run": {k: summary.get(k) for k in ("run_id", "tiles", "tile_detections",
-                                                     "contacts", "origin")}}
+                                                     "contacts", "origin", "stretches")}}
 
 
 # ----------------------------------------------------------------------- mosaic
@@ -502,6 +647,18 @@ def _composite(views: list[TileView], shape: tuple[int, int], box_of, ne_of) -> 
         imaged[box] |= ~np.isnan(placed)
     return {"mip_db": mip, "tile": which, "imaged": imaged,
             "tiles": [v.path.name for v in views]}
+
+
+def run_swath(views: list[TileView]) -> tuple[TrackLine, float, float]:
+    """The run's swath: the run line (the first tile's) and the tiles' cross-track
+    extent on it (from, to; m, outer voxel edges)."""
+    line = views[0].line
+    lo, hi = math.inf, -math.inf
+    for v in views:
+        c = line.ned_to_tile(np.asarray(
+            [[*ne, 0.0] for ne in tile_corners_ne(v)]))[:, 1]
+        lo, hi = min(lo, float(c.min())), max(hi, float(c.max()))
+    return line, lo, hi
 
 
 def run_mosaic(views: list[TileView]) -> dict:
@@ -570,10 +727,73 @@ def survey_grid_mapping(origin) -> dict:
     return cf
 
 
-def write_mosaic_h5(path: Path, m: dict, origin) -> Path:
+def _write_stretches_h5(f: h5py.File, track: PingTrack | None,
+                        found: list[Stretch]) -> None:
+    """The run's stretches as a table (group ``stretches``, dimension ``stretch``) and
+    the array's track they lie on (group ``track``, dimension ``ping``)."""
+    g = f.create_group("stretches")
+    g.attrs["long_name"] = ("the run's stretches of missing pings, dead-reckoned and "
+                            "held poses (docs/products.md, Circumstances)")
+    idx = g.create_dataset("stretch", data=np.arange(len(found), dtype=np.int64))
+    idx.attrs.update({"units": "1", "long_name": "stretch number"})
+    idx.make_scale("stretch")
+    text = h5py.string_dtype()
+    cols = (("kind", np.array([x.kind for x in found], dtype=object), text, "",
+             "missing, dead_reckoned or held"),
+            ("first_sequence", [x.first_sequence for x in found], np.int64, "1",
+             "first ping of the stretch (a gap's first missing ping)"),
+            ("last_sequence", [x.last_sequence for x in found], np.int64, "1",
+             "last ping of the stretch"),
+            ("pings", [x.pings for x in found], np.int64, "1", "pings in the stretch"),
+            ("start_time", [x.start_ns for x in found], np.int64, TIME_UNITS,
+             "time of the stretch's first ping (UTC; a gap's interpolated)"),
+            ("end_time", [x.end_ns for x in found], np.int64, TIME_UNITS,
+             "time of the stretch's last ping"),
+            ("start_north_m", [float(x.north_m[0]) for x in found], np.float64, "m",
+             "north where the stretch's line starts (the array's track, survey frame)"),
+            ("start_east_m", [float(x.east_m[0]) for x in found], np.float64, "m",
+             "east where the stretch's line starts"),
+            ("end_north_m", [float(x.north_m[-1]) for x in found], np.float64, "m",
+             "north where the stretch's line ends"),
+            ("end_east_m", [float(x.east_m[-1]) for x in found], np.float64, "m",
+             "east where the stretch's line ends"))
+    for name, data, dtype, units, long_name in cols:
+        ds = g.create_dataset(name, data=np.asarray(data, dtype=dtype) if dtype is not text
+                              else data, dtype=dtype, shape=(len(found),))
+        ds.attrs.update({"units": units, "long_name": long_name})
+        if units == TIME_UNITS:
+            ds.attrs.update({"standard_name": "time", "calendar": "standard"})
+        ds.dims[0].attach_scale(idx)
+    if track is None:
+        return
+    t = f.create_group("track")
+    t.attrs["long_name"] = ("the run's imaged pings where the array was (the projectors' "
+                            "mean position)")
+    seq = t.create_dataset("ping", data=track.sequence)
+    seq.attrs.update({"units": "1", "long_name": "ping sequence number"})
+    seq.make_scale("ping")
+    for name, data, units, long_name in (
+            ("time", track.time_ns, TIME_UNITS, "transmit time of the ping (UTC)"),
+            ("north_m", track.north_m, "m", "the array's north (survey frame)"),
+            ("east_m", track.east_m, "m", "the array's east (survey frame)"),
+            ("nav_flags", track.flags, "1", "the navigation's NAV_* flags of the pose "
+                                            "(0 where not known: see flags_known)"),
+            ("flags_known", track.known.astype(np.uint8), "1",
+             "the ping's tile kept its navigation flags")):
+        ds = t.create_dataset(name, data=data)
+        ds.attrs.update({"units": units, "long_name": long_name})
+        if units == TIME_UNITS:
+            ds.attrs.update({"standard_name": "time", "calendar": "standard"})
+        ds.dims[0].attach_scale(seq)
+
+
+def write_mosaic_h5(path: Path, m: dict, origin, track: PingTrack | None = None,
+                    found: list[Stretch] = ()) -> Path:
     """The run mosaic on the survey frame's north/east grid; with a survey ``origin``
     its CF grid mapping (variable ``crs``, :func:`survey_grid_mapping`), so that a GIS
-    or xarray places it (the GeoTIFF is the same mosaic on a UTM grid)."""
+    or xarray places it (the GeoTIFF is the same mosaic on a UTM grid); the run's
+    stretches ``found`` as a table and the array's ``track``
+    (:func:`_write_stretches_h5`)."""
     with h5py.File(path, "w") as f:
         f.attrs.update({"title": "SVSS run mosaic: plan-view MIP of the tiles",
                         "cell_m": m["cell_m"], "tiles": json.dumps(m["tiles"]),
@@ -603,6 +823,7 @@ def write_mosaic_h5(path: Path, m: dict, origin) -> Path:
                 ds.attrs["grid_mapping"] = mapping
             ds.dims[0].attach_scale(f["north"])
             ds.dims[1].attach_scale(f["east"])
+        _write_stretches_h5(f, track, list(found))
     return path
 
 
@@ -612,14 +833,108 @@ MOSAIC_LEFT_IN, MOSAIC_TOP_IN, MOSAIC_BOTTOM_IN = 0.95, 0.45, 0.6
 MOSAIC_BAR_GAP_IN, MOSAIC_BAR_W_IN, MOSAIC_BAR_LABELS_IN = 0.3, 0.2, 1.1
 #: the contacts' circles on the mosaic, points (diameter)
 MOSAIC_MARKER_PT = 8.0
+#: the map's colours (RGB) of the stretches and of the array's track, and their widths
+#: (points); the legend's row height and its items' line length (inches)
+STRETCH_RGB = {"missing": (0.1, 0.9, 0.1), "dead_reckoned": (0.25, 0.55, 1.0),
+               "held": (1.0, 0.55, 0.0)}
+TRACK_RGB = (0.9, 0.9, 0.9)
+STRETCH_PT, TRACK_PT = 3.0, 0.75
+LEGEND_ROW_IN, LEGEND_LINE_IN = 0.22, 0.3
+
+
+@functools.lru_cache(maxsize=1)
+def mosaic_palette() -> tuple[int, ...]:
+    """The map's 256 colours: the colour map at 220 levels, greys, white, black, the
+    marker cyan, the no-data colour and the few others the quicklooks use
+    (:func:`.quicklook._palette`), and the stretches' colours (:data:`STRETCH_RGB`)."""
+    cols = [tuple(c) for c in colormaps[CMAP](np.linspace(0.0, 1.0, 220))[:, :3]]
+    cols += [(g, g, g) for g in np.linspace(0.0, 1.0, 24)]
+    cols += [(0.0, 1.0, 1.0), (0.0, 0.75, 0.75), (0.5, 1.0, 1.0), NO_DATA_RGBA[:3],
+             (0.15, 0.15, 0.15), (0.6, 0.6, 0.6), (0.3, 0.3, 0.3), TRACK_RGB]
+    cols += [STRETCH_RGB[k] for k in KINDS]
+    return tuple(int(round(255 * v)) for c in cols[:256] for v in c)
+
+
+def _legend_items(found: list[Stretch]) -> list[tuple[tuple, str]]:
+    """(colour, text) of the map's legend: the array's track, then each kind of
+    stretch with the run's count of its pings."""
+    items = [(TRACK_RGB, "array track")]
+    for k in KINDS:
+        n = sum(x.pings for x in found if x.kind == k)
+        items.append((STRETCH_RGB[k], f"{LABELS[k]}: {n} ping{'' if n == 1 else 's'}"))
+    return items
+
+
+def _legend_rows(items, width_in: float, dpi: int, size_pt: float = 7.0) -> list[list]:
+    """The legend's items in rows that fit ``width_in`` (each item: its line, a gap,
+    its text, a gap)."""
+    f = font("sans", size_pt * dpi / 72.0)
+    rows: list[list] = [[]]
+    used = 0.0
+    for colour, text in items:
+        w = LEGEND_LINE_IN + 0.08 + f.getlength(text) / dpi + 0.25
+        if rows[-1] and used + w > width_in:
+            rows.append([])
+            used = 0.0
+        rows[-1].append((colour, text, w))
+        used += w
+    return rows
+
+
+def _on_edges(st: Stretch, swath, inset_m: float = 0.0
+              ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """A stretch's line moved onto both edges of the swath (``swath``: the run line and
+    the tiles' cross-track extent, m), ``inset_m`` inside them, so that it marks the
+    stretch of the image without covering it; as it is without a swath."""
+    if swath is None:
+        return [(st.north_m, st.east_m)]
+    line, lo, hi = swath
+    atd = line.ned_to_tile(np.stack([st.north_m, st.east_m, np.zeros(st.north_m.size)],
+                                    axis=1))
+    out = []
+    for c in (lo + inset_m, hi - inset_m):
+        atd[:, 1] = c
+        ne = line.tile_to_ned(atd)
+        out.append((ne[:, 0], ne[:, 1]))
+    return out
+
+
+def _draw_track(canvas: Canvas, v, track: PingTrack, found: list[Stretch], swath) -> None:
+    """The array's track and its stretches (on the swath's edges, :func:`_on_edges`) on
+    the view ``v`` (clipped to it)."""
+    layer = Image.new("RGBA", (v.w, v.h), (0, 0, 0, 0))
+    draw = ImageDraw.Draw(layer)
+
+    def line(north, east, colour, width_pt):
+        if len(north) < 2:
+            return
+        xy = v.to_px(east, north) - np.array([v.x0, v.y0])
+        draw.line([tuple(p) for p in xy.tolist()], fill=(*rgb8(colour), 255),
+                  width=max(1, int(round(canvas.px(width_pt)))), joint="curve")
+    # the track between successive imaged pings, not across a gap (the gap is drawn)
+    cut = np.flatnonzero(np.diff(track.sequence) > 1) + 1
+    for n, e in zip(np.split(track.north_m, cut), np.split(track.east_m, cut)):
+        line(n, e, TRACK_RGB, TRACK_PT)
+    # the stretches' lines just inside the swath's edges (half their width in metres)
+    inset = 0.5 * canvas.px(STRETCH_PT) * (v.xe[1] - v.xe[0]) / max(v.w, 1)
+    for st in found:
+        for n, e in _on_edges(st, swath, inset):
+            line(n, e, STRETCH_RGB[st.kind], STRETCH_PT)
+    canvas.image.paste(layer, (v.x0, v.y0), layer)
 
 
 def write_mosaic_png(path: Path, m: dict, contacts: list[dict], pcfg: ProductsConfig,
-                     title: str, max_labels: int) -> Path:
+                     title: str, max_labels: int, track: PingTrack | None = None,
+                     found: list[Stretch] = (), swath=None) -> Path:
     """The plan-view mosaic as a palette PNG, drawn as the tiles' quicklooks are
     (:mod:`svss_proc.products.raster`): north up, east right, at true scale (at most 9
     inches a side and 300 inches a metre), the numbered contacts circled, a colour
-    bar in dB re background."""
+    bar in dB re background; with the run's pings (``track``, where the array was) the
+    array's track, its stretches ``found`` in their colours (:data:`STRETCH_RGB`) along
+    both edges of the ``swath`` (the run line, the tiles' cross-track extent from and
+    to, m; None: on the track) and a legend under the map."""
+    found = list(found)
+    show_track = track is not None and len(track) > 0
     d = pcfg.drc
     img = compress(m["mip_db"], d.floor_db, d.knee_db, d.ceiling_db)
     img = np.where(np.isnan(m["mip_db"]), np.nan, img)
@@ -630,9 +945,12 @@ def write_mosaic_png(path: Path, m: dict, contacts: list[dict], pcfg: ProductsCo
     w, h = ee[1] - ee[0], ne[1] - ne[0]
     scale = min(9.0 / max(w, 1e-6), 9.0 / max(h, 1e-6), 300.0)
     view_w, view_h = w * scale, h * scale
-    canvas = Canvas(MOSAIC_LEFT_IN + max(view_w, 3.5) + MOSAIC_BAR_GAP_IN + MOSAIC_BAR_W_IN
-                    + MOSAIC_BAR_LABELS_IN,
-                    MOSAIC_TOP_IN + max(view_h, 2.0) + MOSAIC_BOTTOM_IN,
+    width_in = (MOSAIC_LEFT_IN + max(view_w, 3.5) + MOSAIC_BAR_GAP_IN + MOSAIC_BAR_W_IN
+                + MOSAIC_BAR_LABELS_IN)
+    rows = (_legend_rows(_legend_items(found), width_in - MOSAIC_LEFT_IN,
+                         pcfg.quicklook.dpi) if show_track else [])
+    canvas = Canvas(width_in, MOSAIC_TOP_IN + max(view_h, 2.0) + MOSAIC_BOTTOM_IN
+                    + len(rows) * LEGEND_ROW_IN + (0.1 if rows else 0.0),
                     pcfg.quicklook.dpi)
     rgba = colormaps[CMAP](np.nan_to_num(img, nan=0.0))
     rgba[np.isnan(img) & (m["tile"] >= 0)] = (0.6, 0.6, 0.6, 1.0)    # in a tile, no ping
@@ -642,6 +960,20 @@ def write_mosaic_png(path: Path, m: dict, contacts: list[dict], pcfg: ProductsCo
     canvas.x_axis(v, "east (m, survey frame)")
     canvas.y_axis(v, "north (m, survey frame)")
     canvas.text((v.x0 + v.w / 2, v.y0 - canvas.px(4)), title, 9, "md")
+    if show_track:
+        _draw_track(canvas, v, track, found, swath)
+        top = MOSAIC_TOP_IN + max(view_h, 2.0) + MOSAIC_BOTTOM_IN + 0.05
+        for r, row in enumerate(rows):
+            x = MOSAIC_LEFT_IN
+            y = (top + (r + 0.5) * LEGEND_ROW_IN) * canvas.dpi
+            for colour, text, item_w in row:
+                x0, x1 = x * canvas.dpi, (x + LEGEND_LINE_IN) * canvas.dpi
+                half = canvas.px(4.0)           # on a dark patch, as on the map
+                canvas.draw.rectangle((x0, y - half, x1, y + half), fill=(38, 38, 38))
+                canvas.draw.line((x0, y, x1, y), fill=rgb8(colour), width=max(1, int(round(
+                    canvas.px(TRACK_PT if colour == TRACK_RGB else STRETCH_PT)))))
+                canvas.text((x0 + (LEGEND_LINE_IN + 0.08) * canvas.dpi, y), text, 7, "lm")
+                x += item_w
     xy = v.to_px([c["east_m"] for c in contacts], [c["north_m"] for c in contacts])
     chosen = choose_labels(xy, max_labels)
     canvas.circles(xy[chosen], MOSAIC_MARKER_PT, MARKER_RGB, 1.0, v)
@@ -658,7 +990,7 @@ def write_mosaic_png(path: Path, m: dict, contacts: list[dict], pcfg: ProductsCo
                       compress(np.asarray(levels, dtype=np.float64), d.floor_db, d.knee_db,
                                d.ceiling_db), [f"{lv:g}" for lv in levels],
                       "plan-view MIP, dB re background\n(grey: no ping)")
-    canvas.save_palette_png(path, _palette(), PNG_COMPRESS_LEVEL)
+    canvas.save_palette_png(path, mosaic_palette(), PNG_COMPRESS_LEVEL)
     return path
 
 
@@ -686,6 +1018,7 @@ def write_run_products(tiles_dir: str | Path, out_dir: str | Path | None = None,
     out.mkdir(parents=True, exist_ok=True)
     contacts, summary = run_contacts(views, origin)
     origin = summary["origin"]
+    track, found = summary["array_track"], summary["stretch_list"]
     m = run_mosaic(views)
     title = (f"SVSS run mosaic: {len(views)} tile(s) from {tiles_dir.name}, "
              f"{len(contacts)} contact(s) (from {summary['tile_detections']} tile "
@@ -693,9 +1026,10 @@ def write_run_products(tiles_dir: str | Path, out_dir: str | Path | None = None,
     geojson = json.dumps(contacts_geojson(contacts, summary), indent=1)
     writers = {CONTACTS_CSV: lambda p: write_contacts_csv(p, contacts),
                CONTACTS_GEOJSON: lambda p: p.write_text(geojson),
-               MOSAIC_H5: lambda p: write_mosaic_h5(p, m, origin),
+               MOSAIC_H5: lambda p: write_mosaic_h5(p, m, origin, track, found),
                MOSAIC_PNG: lambda p: write_mosaic_png(p, m, contacts, pcfg, title,
-                                                      pcfg.quicklook.max_labels)}
+                                                      pcfg.quicklook.max_labels, track,
+                                                      found, run_swath(views))}
     projection = None
     if origin is not None:                 # the map products (docs/products.md)
         try:
@@ -707,8 +1041,10 @@ def write_run_products(tiles_dir: str | Path, out_dir: str | Path | None = None,
         what = (f"{title}; run {summary['run_id'] or 'unknown'}; plan-view MIP in dB re "
                 f"background, WGS 84 / UTM (EPSG:{projection.epsg})")
         writers[MOSAIC_TIF] = lambda p: write_mosaic_geotiff(p, um, projection.epsg, what)
-        writers[CONTACTS_GPKG] = lambda p: write_contacts_gpkg(
-            p, contacts, [k for k, *_ in CONTACT_FIELDS], projection)
+        writers[CONTACTS_GPKG] = lambda p: write_stretches_gpkg(write_contacts_gpkg(
+            p, contacts, [k for k, *_ in CONTACT_FIELDS], projection),
+            [{**stretch_geojson(0, st, None)["properties"], "north_m": st.north_m,
+              "east_m": st.east_m} for st in found], projection)
     elif origin is None:
         log.info("%s: no survey origin (no ping with a geodetic position, no --origin): "
                  "no %s or %s", tiles_dir, MOSAIC_TIF, CONTACTS_GPKG)
@@ -744,9 +1080,12 @@ __all__ = [
     "CONTACT_FIELDS",
     "MOSAIC_TIF",
     "closest_pass",
+    "contact_circumstances",
     "filter_contacts",
+    "run_circumstances",
     "run_contacts",
     "run_mosaic",
+    "run_pings",
     "run_products_at_end",
     "utm_mosaic",
     "survey_origin",
