@@ -120,7 +120,7 @@ def run_trial(rate_hz: float | None, n: int, tmp: Path, run_id: str) -> dict:
                 time.sleep(min(0.001, max(due - time.perf_counter(), 0)))
         t_tx = time.time_ns()
         data = CompletePing(i, t_tx, t_tx + ws, samples[i % 4])
-        daemon._handle(data, PingEvent(i, order[i % len(order)], t_tx))
+        daemon.pipeline.handle(data, PingEvent(i, order[i % len(order)], t_tx))
     elapsed = time.perf_counter() - t_start
     daemon.stop()
     got = here.recv()

@@ -162,8 +162,8 @@ def _writer_load(tmp: str, stop, ready) -> None:
         while time.perf_counter() < due:
             time.sleep(min(0.001, max(due - time.perf_counter(), 0)))
         t_tx = time.time_ns()
-        daemon._handle(CompletePing(i, t_tx, t_tx + ws, samples[i % 4]),
-                       PingEvent(i, order[i % len(order)], t_tx))
+        daemon.pipeline.handle(CompletePing(i, t_tx, t_tx + ws, samples[i % 4]),
+                               PingEvent(i, order[i % len(order)], t_tx))
         i += 1
     daemon.stop()
     here.recv()

@@ -176,6 +176,12 @@ DEFAULT_LIMITS = LimitsSection(pending_pings=200, transmit_records=1000,
                                duplicate_window=100000, records_waiting=10000)
 
 
+def limits_section(acq: "AcquireConfig") -> LimitsSection:
+    """The ``[limits]`` of ``acq``: its table, or :data:`DEFAULT_LIMITS` when it has
+    none (what the daemon and its parts bound their queues by)."""
+    return acq.limits or DEFAULT_LIMITS
+
+
 @dataclass(frozen=True)
 class AcquireConfig:
     run: RunSection = spec("what is run and where it is recorded")

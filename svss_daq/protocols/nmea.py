@@ -41,6 +41,8 @@ from typing import Optional, Union
 
 import pynmea2
 
+from .framing import ByteStream
+
 __all__ = [
     "ChecksumPolicy",
     "NmeaError",
@@ -589,7 +591,7 @@ class NmeaStreamParser:
         self.infer_dates = infer_dates
         self.warn_interval_s = warn_interval_s
         self.stats = NmeaStreamStats()
-        self._buf = bytearray()
+        self._stream = ByteStream("NMEA", logger, self.stats)  # the line not yet ended
         self._ref: Optional[tuple] = None  # (epoch ns, time of day ns) of the last dated sentence
         self._last_warn = -math.inf
         self._unwarned = 0
@@ -597,29 +599,17 @@ class NmeaStreamParser:
 
     @property
     def buffered(self) -> int:
-        return len(self._buf)
+        return len(self._stream)
 
     def feed(self, data) -> list:
         """Add bytes; return the records of the sentences they complete, in order."""
-        try:
-            view = memoryview(data).cast("B")
-        except TypeError:
-            logger.warning("NMEA stream: ignored a feed of non-bytes type %s", type(data).__name__)
+        if self._stream.feed(data) is None:
             return []
-        self.stats.bytes_fed += len(view)
-        self._buf += view
         out: list = []
-        buf = self._buf
-        start = 0
-        while True:
-            nl = buf.find(b"\n", start)
-            if nl < 0:
-                break
-            self._line(bytes(buf[start:nl]), out, self._cut)
+        for line in self._stream.lines():
+            self._line(line, out, self._cut)
             self._cut = False
-            start = nl + 1
-        if start:
-            del buf[:start]
+        buf = self._stream.buf
         if len(buf) > self.max_line_length:
             p = max(buf.rfind(b"$"), buf.rfind(b"!"))
             keep = len(buf) - p if p >= 0 and len(buf) - p <= self.max_line_length else 0
@@ -629,15 +619,15 @@ class NmeaStreamParser:
                 self.stats.rejected_overlong += 1
                 self._reject("over-long line", f"dropped {dropped} bytes without a line end")
             self._cut = True
-            del buf[:dropped]
+            self._stream.consume(dropped)
         return out
 
     def flush(self) -> list:
         """End of stream: parse a last line that lacks its line end."""
         out: list = []
-        if self._buf:
-            line = bytes(self._buf)
-            self._buf.clear()
+        if self._stream.buf:
+            line = bytes(self._stream.buf)
+            self._stream.clear()
             self._line(line, out, self._cut)
         self._cut = False
         return out

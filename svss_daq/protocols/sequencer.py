@@ -14,6 +14,8 @@ import re
 from dataclasses import dataclass, field
 from typing import Union
 
+from .framing import ByteStream
+
 __all__ = [
     "SequencerProtocolError", "SetSchedule", "SetWaveform", "SetInterval",
     "SetReceiveWindow", "Arm", "Start", "Stop", "StatusRequest", "Ack", "Nak", "Status",
@@ -398,8 +400,8 @@ class SequencerStreamParser:
     """
 
     def __init__(self) -> None:
-        self._buf = bytearray()
-        self._buf_offset = 0  # stream offset of _buf[0]
+        # the bytes not yet framed, and the stream offset of the first
+        self._stream = ByteStream("sequencer", logger)
         self.stats = SequencerStreamStats()
 
     def _reject(self, n: int, e: Exception | str) -> None:
@@ -413,13 +415,13 @@ class SequencerStreamParser:
         out: list[Message] = []
         self.stats.bytes_fed += len(data)
         for chunk_start in range(0, len(data), 4096):
-            self._buf += data[chunk_start:chunk_start + 4096]
+            self._stream.buf += data[chunk_start:chunk_start + 4096]
             out += self._scan()
         return out
 
     def _scan(self) -> list[Message]:
         out: list[Message] = []
-        buf = self._buf
+        buf = self._stream.buf
         while buf:
             d = buf.find(b"$")
             if d < 0:
@@ -435,12 +437,12 @@ class SequencerStreamParser:
             if nl < 0:
                 if len(buf) > MAX_SENTENCE:
                     self._drop(len(buf), SequencerProtocolError(
-                        self._buf_offset, "sentence", f"a line end within {MAX_SENTENCE} bytes",
+                        self._stream.base, "sentence", f"a line end within {MAX_SENTENCE} bytes",
                         f"{len(buf)} bytes without one"))
                 break
             line = bytes(buf[:nl + 1])
             try:
-                msg = decode_sentence(line, self._buf_offset)
+                msg = decode_sentence(line, self._stream.base)
             except (SequencerProtocolError, ValueError) as e:
                 self._drop(nl + 1, e)
                 continue
@@ -450,8 +452,7 @@ class SequencerStreamParser:
         return out
 
     def _advance(self, n: int) -> None:
-        del self._buf[:n]
-        self._buf_offset += n
+        self._stream.consume(n)
 
     def _drop(self, n: int, why: Exception | str | None) -> None:
         if why is not None:
@@ -461,4 +462,4 @@ class SequencerStreamParser:
         self._advance(n)
 
     def reset(self) -> None:
-        self._buf.clear()
+        self._stream.clear()

@@ -46,6 +46,37 @@ def acquire_toml(tmp: Path, **sections) -> Path:
     return path
 
 
+def local_setup(tmp: Path, *, links: bool = False, recorder: dict | None = None,
+                **sections):
+    """The acquisition setup of :func:`acquire_toml` (``sections`` as there) for a
+    daemon's parts run in the test's process: without the DVL and GPS links unless
+    ``links`` (the project's devices.toml otherwise), daq.toml's ``[recorder]`` keys
+    replaced by ``recorder``."""
+    from svss_daq.acquire_config import load_acquire
+    text = (CONFIG / "devices.toml").read_text()
+    if not links:
+        keep, skip = [], False
+        for line in text.splitlines():
+            if line.startswith("["):
+                skip = line.strip() in ("[dvl]", "[gps]")
+            if not skip:
+                keep.append(line)
+        text = "\n".join(keep) + "\n"
+    devices = tmp / "local-devices.toml"
+    devices.write_text(text)
+    daq = CONFIG / "daq.toml"
+    if recorder:
+        lines = daq.read_text().splitlines()
+        at = lines.index("[recorder]")
+        for k, v in recorder.items():
+            i = next(j for j in range(at, len(lines)) if lines[j].startswith(f"{k} ="))
+            lines[i] = f"{k} = {json.dumps(v)}"
+        daq = tmp / "local-daq.toml"
+        daq.write_text("\n".join(lines) + "\n")
+    sections.setdefault("run", {})["daq"] = str(daq)
+    return load_acquire(acquire_toml(tmp, **sections), devices=devices)
+
+
 class AcquireProcess:
     """``svss acquire`` as a subprocess against a simulated device; :attr:`endpoints` is
     what it bound (publisher, service, status) and its run id."""

@@ -182,7 +182,7 @@ def test_held_poses_are_counted_reported_and_evented(tmp_path):
     qs = [base] * 3 + ([NAV_HELD | NAV_BOTTOM_LOCK] * 2 + [base] * 3) * 2
     qs += [base] * (clear + 1) + [base | NAV_HELD] * 2
     for k, q in enumerate(qs):
-        daemon._tally_nav(pose(k, q))
+        daemon.nav.count(pose(k, q))
     kinds = [k for _, k, _ in daemon.events]
     assert kinds.count("navigation.held") == 2 and kinds.count("navigation.held_end") == 1
     assert kinds.index("navigation.held") < kinds.index("navigation.held_end")
@@ -191,7 +191,7 @@ def test_held_poses_are_counted_reported_and_evented(tmp_path):
     assert daemon.nav_tally.held == 6 and daemon.summary()["navigation"]["held"] == 6
     assert "holding" not in daemon.summary()["navigation"]
     assert "held 6" in format_status(daemon.status())
-    daemon._tally_nav(pose(20, NAV_HELD))
+    daemon.nav.count(pose(20, NAV_HELD))
     assert daemon.status()["navigation"]["mode"] == "held"
 
 
@@ -205,14 +205,14 @@ def test_bottom_lock_lost_names_the_reason(tmp_path, caplog):
     t0 = 1_800_000_000 * 10**9
     far = t0 - int(9.5 * YEAR_S * 1e9)
     daemon.navigator.add_dvl(DvlSample(far, (1.0, 0.0, 0.0), (5.0,) * 4))
-    daemon._tally_nav(NavSnapshot(t0, 1, 2, 3, 0, 0, 0, 0, 0, 0, float("nan"),
-                                  quality=NAV_GPS_FIX))
+    daemon.nav.count(NavSnapshot(t0, 1, 2, 3, 0, 0, 0, 0, 0, 0, float("nan"),
+                                 quality=NAV_GPS_FIX))
     [(_, kind, detail)] = [e for e in daemon.events if e[1] == "navigation.bottom_lock_lost"]
     assert "no DVL ensemble within" in detail and "-9.50 years" in detail
-    daemon._tally_nav(NavSnapshot(t0 + 10**8, 1, 2, 3, 0, 0, 0, 0, 0, 0, 5.0,
-                                  quality=NAV_GPS_FIX | NAV_BOTTOM_LOCK))
+    daemon.nav.count(NavSnapshot(t0 + 10**8, 1, 2, 3, 0, 0, 0, 0, 0, 0, 5.0,
+                                 quality=NAV_GPS_FIX | NAV_BOTTOM_LOCK))
     daemon.navigator.add_dvl(DvlSample(t0 + 2 * 10**8, (np.nan,) * 3, (np.nan,) * 4))
-    daemon._tally_nav(NavSnapshot(t0 + 2 * 10**8, 1, 2, 3, 0, 0, 0, 0, 0, 0, float("nan"),
-                                  quality=NAV_GPS_FIX))
+    daemon.nav.count(NavSnapshot(t0 + 2 * 10**8, 1, 2, 3, 0, 0, 0, 0, 0, 0, float("nan"),
+                                 quality=NAV_GPS_FIX))
     lost = [d for _, k, d in daemon.events if k == "navigation.bottom_lock_lost"]
     assert lost[-1].startswith("no DVL bottom track")

@@ -73,6 +73,6 @@ def test_a_gap_of_1005_pings_is_one_item_and_loses_no_real_ping(tmp_path):
     # is opened until it starts)
     daemon = AcquisitionDaemon(load_acquire(config_path("acquire.toml"), out_dir=tmp_path))
     for i in items:
-        daemon._take(i)
+        daemon.pipeline.take(i)
     assert daemon.counters.never_delivered == GAP
     assert daemon.counters.delivered == len(numbers) and daemon.counters.incomplete == 0
