@@ -252,6 +252,13 @@ def text(v) -> str | None:
     return v if isinstance(v, str) else None
 
 
+def run_id_attr(attrs) -> str | None:
+    """The run a file's root attributes ``attrs`` name (``run_id``, written by the
+    acquisition daemon into raw runs and by the worker into tiles) as text; None when
+    they name none (absent, empty, or not text)."""
+    return text(attrs.get("run_id")) or None
+
+
 
 
 def format_version(value, path: Path, readable: tuple[int, ...],
