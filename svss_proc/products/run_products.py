@@ -65,6 +65,7 @@ from svss_daq.frames import TrackLine
 from svss_daq.geometry import array_geometry, cone_radius
 from svss_daq.navigation import geodetic_to_ned, ned_to_geodetic
 from svss_daq.rawfile import TIME_UNITS
+from svss_daq.untrusted_hdf5 import run_id_attr
 
 from ..tiles import (TileFileError, finished_tile_paths, read_tile_views,
                      temporary_path, tile_line)
@@ -310,8 +311,7 @@ def run_of_views(views: list[TileView]) -> str:
     one: tiles written before it was kept); the first tile's when they differ (logged)."""
     ids = []
     for v in views:
-        rid = v.data["attrs"].get("run_id")
-        rid = rid.decode(errors="replace") if isinstance(rid, bytes) else rid
+        rid = run_id_attr(v.data["attrs"])
         if isinstance(rid, str) and rid and rid not in ids:
             ids.append(rid)
     if len(ids) > 1:
