@@ -259,6 +259,27 @@ def _regions(labels: np.ndarray, level: np.ndarray) -> Regions:
                    coords[:, starts], lo, hi)
 
 
+#: the strongest responses outside the detectable voxels taken as sidelobe sources
+HIDDEN_SOURCES = 20
+
+
+def _hidden_sources(mask: np.ndarray, level: np.ndarray, mag: np.ndarray, axes, voxel,
+                    min_voxels: int) -> tuple[np.ndarray, np.ndarray]:
+    """(positions (n, 3), peak magnitudes dB re 1 uPa) of the :data:`HIDDEN_SOURCES`
+    strongest regions of ``mask`` (at least ``min_voxels`` voxels), by peak magnitude."""
+    if not mask.any():
+        return np.zeros((0, 3)), np.zeros(0)
+    labels, _ = ndimage.label(mask, structure=np.ones((3, 3, 3), dtype=bool))
+    regions = _regions(labels, np.where(np.isfinite(level), mag, -np.inf))
+    big = regions.counts >= min_voxels
+    peaks, values = regions.peak[:, big], regions.peak_value[big]
+    order = np.argsort(-values)[:HIDDEN_SOURCES]
+    pos = np.stack([np.asarray(axes[k], dtype=np.float64)[peaks[k, order]] for k in range(3)],
+                   axis=1) if order.size else np.zeros((0, 3))
+    db = np.array([amplitude_to_db(max(float(v), 1e-30)) for v in values[order]])
+    return pos, db
+
+
 def _absorb(into: dict, c: dict) -> None:
     """Contact candidate ``c`` made part of ``into``: its extent and voxels added."""
     into["lo"] = np.minimum(into["lo"], c["lo"])
@@ -300,10 +321,9 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
         raise ValueError(f"shapes differ: level {level.shape}, magnitude {mag.shape}, "
                          f"background {background.shape}")
     thr = np.broadcast_to(np.asarray(threshold_db, dtype=np.float64), level.shape[2:])
-    mask = np.asarray(level >= thr[None, None, :])  # NaN compares False
+    over = np.asarray(level >= thr[None, None, :])  # NaN compares False
     floor_db = float(thr.min()) if thr.size else float("inf")
-    if detectable is not None:
-        mask &= detectable
+    mask = over if detectable is None else over & detectable
     if not mask.any():
         return empty()
     labels, n = ndimage.label(mask, structure=np.ones((3, 3, 3), dtype=bool))
@@ -313,6 +333,16 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
     if keep.size == 0:
         return empty()
     voxel = [float(ax[1] - ax[0]) if ax.size > 1 else 0.0 for ax in axes]
+    if detectable is not None and sidelobe_db < np.inf:
+        # responses the coverage rule keeps from detecting (too few pings reached them:
+        # beside a gap, at a run's end) still spread sidelobes into covered voxels:
+        # they are sources, as the neighbouring tiles' contacts are
+        hidden = _hidden_sources(over & ~detectable, level, mag, axes, voxel, min_voxels)
+        if len(hidden[1]):
+            context = hidden if context is None else (
+                np.concatenate([np.asarray(context[0], dtype=np.float64).reshape(-1, 3),
+                                hidden[0]]),
+                np.concatenate([np.asarray(context[1], dtype=np.float64), hidden[1]]))
     if point_threshold_db is not None and point_threshold_db > floor_db:
         # a region is a contact when its peak reaches the point threshold, or when it
         # is an extended object: at least extended_min_m3 above the region threshold

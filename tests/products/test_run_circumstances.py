@@ -217,3 +217,44 @@ def test_the_map_and_the_files_hold_the_stretches(gapped, tmp_path):
     _, _, geometry, data = pyogrio.raw.read(str(tmp_path / CONTACTS_GPKG),
                                             layer="stretches")
     assert list(data[0]) == [k for k, *_ in want] and len(geometry) == 4
+
+
+#: a gap wider than the projector's cone: pings 18-43 lost (2.6 m of track; the array
+#: passes 5.3-7.9 m unseen, over the points at 5.4, 6.2, 7.0 and 7.8 m). Before the
+#: coverage rule's hidden responses were sidelobe sources, this gap gave 3 false
+#: contacts in the tiles and 2 in the run, the sidelobes of the points under it.
+WIDE = frozenset(range(18, 44))
+
+
+@pytest.fixture(scope="module")
+def wide_gap(tmp_path_factory, hardware) -> Path:
+    from sim_device.environment_source import EnvironmentSource
+    from svss_daq.rawfile import RawRunWriter
+    from svss_proc.run_worker import process_raw
+
+    def run() -> Path:
+        root = tmp_path_factory.mktemp("wide-gap")
+        raw = root / "wide.h5"
+        scene = load_scene(SCENE)
+        with RawRunWriter(raw, hardware, run_attrs={}) as rec:
+            for p in itertools.islice(iter(EnvironmentSource(hardware, scene)),
+                                      scene.track.n_pings):
+                if p.sequence not in WIDE:
+                    rec.append(p)
+        process_raw(raw, root / "tiles", processing())
+        return root / "tiles"
+    return computed_once(tmp_path_factory, "run_circumstances-wide", run)
+
+
+@pytest.mark.slow
+def test_a_gap_wider_than_the_cone_makes_no_contact_at_its_edges(wide_gap):
+    """The point under the gap is reached by too few pings to detect; its sidelobes in
+    the covered voxels beside the gap are sidelobes still (the point is their source,
+    detected or not), and no contact; the contacts beside the gap say so."""
+    for level in ("tile", "run"):
+        r = score_tiles(wide_gap, SCENE, level=level)
+        s = r["summary"]
+        assert s["false_alarms"] == 0 and s["duplicates"] == 0, (level, r["detections"])
+        assert s["hits"] >= 2, (level, r["truth"])   # points beside the gap
+    rows = _contacts(wide_gap)
+    assert any("gap" in c["circumstances"] and int(c["pings_missing"]) > 0 for c in rows)
