@@ -495,7 +495,6 @@ class RawRunReader:
         ``acquisition_summary``, else the file beside the run
         (:func:`summary_path`, written when the file could not take it); None when the
         run has none (e.g. a daemon killed before it closed the file)."""
-        import json
         summary_text = text(self.attrs.get("acquisition_summary"))
         where = "root attribute 'acquisition_summary'"
         if summary_text is None:

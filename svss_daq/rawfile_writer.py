@@ -8,6 +8,7 @@ summary of a closed run in it or beside it.
 from __future__ import annotations
 
 import functools
+import json
 import logging
 import os
 import time
@@ -454,7 +455,6 @@ class RawRunWriter:
 def write_summary(path: str | Path, summary: dict) -> None:
     """Store ``summary`` (JSON) as the root attribute ``acquisition_summary`` of a raw
     run whose writer has closed it."""
-    import json
     try:
         with h5py.File(path, "a") as f:
             f.attrs["acquisition_summary"] = json.dumps(summary, sort_keys=True)
@@ -466,7 +466,6 @@ def write_summary(path: str | Path, summary: dict) -> None:
 def write_summary_beside(path: str | Path, summary: dict) -> Path:
     """Store ``summary`` (JSON) in :func:`summary_path` of ``path`` (atomically: a
     temporary file renamed); its path. :class:`RawFileError` naming it on failure."""
-    import json
     side = summary_path(path)
     tmp = side.with_name(side.name + ".partial")
     try:

@@ -259,8 +259,6 @@ def run_id_attr(attrs) -> str | None:
     return text(attrs.get("run_id")) or None
 
 
-
-
 def format_version(value, path: Path, readable: tuple[int, ...],
                    error: type[Exception] = UnreadableFileError) -> int:
     """The ``svss_format_version`` root attribute ``value`` checked: an integer scalar
