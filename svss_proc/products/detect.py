@@ -61,7 +61,8 @@ FIELDS = (
                                   "(-1: not known)")),
     ("false_alarms", "f4", "1", ("voxels of the peak's depth layer in the tile expected "
                                  "at or above its level from the layer's own clutter "
-                                 "(-1: not known)")),
+                                 "(its fitted tail, or speckle's where it has none; -1: "
+                                 "not known: one threshold for all layers)")),
 )
 DTYPE = np.dtype([(name, dt) for name, dt, _, _ in FIELDS])
 #: columns a tile written before they existed may lack, and their fill values

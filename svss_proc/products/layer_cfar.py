@@ -82,10 +82,13 @@ class LayerTails:
     threshold_db: np.ndarray
 
     def expected(self, iz: int, level_db: float) -> float:
-        """Expected voxels of layer ``iz`` at or above ``level_db`` (NaN: no fit)."""
+        """Expected voxels of layer ``iz`` at or above ``level_db``: from the layer's
+        fitted tail, or where it has none (too few voxels left out of the guards) from
+        speckle's (k = 1, lam = 1 / ln 2), which its threshold, the configured one, then
+        assumes."""
         lam, k = float(self.lam[iz]), float(self.k[iz])
         if not (math.isfinite(lam) and math.isfinite(k)):
-            return float("nan")
+            lam, k = 1.0 / math.log(2.0), 1.0
         x = 10.0 ** (level_db / 10.0)
         return float(self.n[iz]) * math.exp(-((x / lam) ** k))
 

@@ -111,6 +111,14 @@ CONTACT_FIELDS = (
     ("size_depth_m", "m", "depth extent above the threshold", 3),
     ("excess_db", "dB", ("signal excess: the level at the peak over the local background "
                          "(3-D median of the image magnitude), dB"), 2),
+    ("threshold_db", "dB", ("the detection threshold at the peak's depth: the configured "
+                            "one, or that depth layer's own from its clutter's tail "
+                            "(layer_false_alarms_per_m3), dB re background"), 2),
+    ("expected_false_alarms", "1", ("voxels of the peak's depth layer in its tile expected "
+                                    "at the contact's level or above from that layer's "
+                                    "clutter (its fitted tail; three significant digits; "
+                                    "empty: no fit): the contact's local false-alarm "
+                                    "estimate"), None),
     ("north_m", "m", "survey-frame north of the peak", 3),
     ("east_m", "m", "survey-frame east of the peak", 3),
     ("along_m", "m", "along-track position in the run frame (the first tile's line)", 3),
@@ -501,6 +509,8 @@ def run_contacts(views: list[TileView],
                          "ned": ned[i], "half": half, "depth_m": float(xyz[i, 2]),
                          "peak_db": float(row["peak_db"]),
                          "excess_db": float(row["excess_db"]),
+                         "threshold_db": _optional(table, row, "threshold_db"),
+                         "false_alarms": _optional(table, row, "false_alarms"),
                          "coverage_pings": int(row["coverage_pings"])})
     n_tile_detections = len(rows)
     kept = filter_contacts(rows, full, depth_axis, min_fraction, dc.merge_m, dc.sidelobe_db,
@@ -524,7 +534,8 @@ def run_contacts(views: list[TileView],
              "latitude_deg": lat, "longitude_deg": lon,
              "depth_below_seabed_m": r["depth_m"], "size_along_m": float(size[0]),
              "size_cross_m": float(size[1]), "size_depth_m": float(size[2]),
-             "excess_db": r["excess_db"],
+             "excess_db": r["excess_db"], "threshold_db": r["threshold_db"],
+             "expected_false_alarms": r["false_alarms"],
              "north_m": float(r["ned"][0]), "east_m": float(r["ned"][1]),
              "along_m": float(r["run_m"][0]), "cross_m": float(r["run_m"][1]),
              "closest_pass_m": dist,
@@ -546,9 +557,21 @@ def run_contacts(views: list[TileView],
     return out, summary
 
 
+def _optional(table: np.ndarray, row, name: str) -> float:
+    """A detection's optional column (NaN where an older tile has none or wrote -1: not
+    known)."""
+    if name not in (table.dtype.names or ()):
+        return float("nan")
+    v = float(row[name])
+    return v if v >= 0.0 else float("nan")
+
+
 def _csv_value(name: str, v) -> str:
     if isinstance(v, float):
-        return f"{v:.{_DECIMALS[name]}f}" if math.isfinite(v) else ""
+        if not math.isfinite(v):
+            return ""
+        d = _DECIMALS.get(name)
+        return f"{v:.3g}" if d is None else f"{v:.{d}f}"
     return str(v)
 
 

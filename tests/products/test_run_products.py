@@ -115,6 +115,14 @@ def test_contacts_at_the_true_latitude_and_longitude(demo_run, tmp_path):
         for key in ("size_along_m", "size_cross_m", "size_depth_m"):
             assert 0.0 < float(row[key]) < 1.0
         assert float(row["excess_db"]) > 14.0
+        # each states its confidence: the threshold of its layer, which its excess
+        # crosses, and its layer's expected false alarms at its level (a point 25 dB
+        # and more over speckle: far below one)
+        thr = float(row["threshold_db"])
+        assert 17.0 <= thr < float(row["excess_db"])
+        fa = float(row["expected_false_alarms"])
+        assert 0.0 <= fa < 1e-3
+        assert feat["properties"]["expected_false_alarms"] == pytest.approx(fa, rel=1e-2)
 
 
 def test_contacts_name_the_run_and_the_time_of_the_closest_pass(demo_run):
