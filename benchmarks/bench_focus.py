@@ -43,6 +43,9 @@ five-times-noisier DVL (``--variants rtk`` one of them); ``--scenes demo`` one s
 re-navigated image's isolated responses (:mod:`svss_proc.micronav.autofocus`), e.g.
 
     python benchmarks/bench_focus.py --quick --variants dvl_noise_x5 --autofocus
+
+``--micronav-report VARIANT --work WORK``: the micronavigation report
+(``focus_micronav``) of a kept sand recording, recomputed (no chain run).
 """
 
 from __future__ import annotations
@@ -818,6 +821,34 @@ def print_micronav_table(cases: list[dict]) -> None:
               + ("n/a (no pair accepted)" if coh is None else f"{coh:.2f}"))
 
 
+def micronav_report(work: Path, variant: str, out: str | None = None) -> dict:
+    """Recompute the micronavigation report of a kept sand recording (``--work WORK`` of
+    an earlier run with ``--scenes sand --micronav``; ``variant``: its instruments) for
+    the array's reference point, print it and save it to ``out`` (JSON) where given."""
+    import focus_micronav as fm
+    from svss_proc.micronav.renav import with_interpolated_bottom
+    files = sorted((work / f"sand-{variant}" / "runs").glob("focus_*.h5"))
+    if not files:
+        raise SystemExit(f"{work / f'sand-{variant}' / 'runs'}: no focus_*.h5 recordings")
+    pings = []
+    for f in files:
+        with RawRunReader(f) as r:
+            hw = r.hardware
+            pings += list(r)
+    pings.sort(key=lambda p: p.sequence)
+    truth = true_poses(pings, load_scene(work / "sand-motion.toml"), hw)
+    renav, _, cfg = renav_poses(files, pings)
+    renav, _ = with_interpolated_bottom(renav)
+    proc = sand_processing(DEFAULT_PROCESSING, work)
+    _, res, sec = fm.fused_poses(pings, renav, hw, proc, cfg)
+    report = fm.report(res, renav, truth, hw.value.lever_arms.array_m)
+    report["seconds"] = sec
+    fm.print_report(variant, report)
+    if out:
+        Path(out).write_text(json.dumps(report, indent=1))
+    return report
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", help="JSON results file")
@@ -854,8 +885,16 @@ def main(argv=None) -> int:
                     help="numba threads of the imaging (default: numba's, one per core)")
     ap.add_argument("--source-revision", help="for a tree outside git (git archive REV): "
                     "the revision it is, recorded in the results")
+    ap.add_argument("--micronav-report", metavar="VARIANT",
+                    help="only recompute the micronavigation report of the sand recording "
+                    "kept in --work for VARIANT (default: its instruments), saved to --out")
     ap.add_argument("-v", "--verbose", action="store_true")
     args = ap.parse_args(argv)
+    if args.micronav_report:
+        if not args.work:
+            ap.error("--micronav-report needs --work (the folder of the kept recordings)")
+        micronav_report(Path(args.work), args.micronav_report, args.out)
+        return 0
     if args.threads:
         import numba
         numba.set_num_threads(args.threads)

@@ -2,10 +2,10 @@
 """Where the simulator's pass 2 spends its time: the receive legs, the echoes' phases and
 weights, and their deposit into the baseband buffer.
 
-Pass 2 (``sim_device.synthesis.accumulate_fast_kernel``) computes, per scatterer, the
+Pass 2 (``sim_device.synthesis_fast.accumulate_fast_kernel``) computes, per scatterer, the
 receive legs to every channel, then each echo's phase and Lagrange weights, then adds the
 echo's four taps into the thread's buffer. To split its time, this benchmark builds two
-scratch copies of ``sim_device/synthesis.py`` in a temporary folder (nothing in the
+scratch copies of ``sim_device/synthesis_fast.py`` in a temporary folder (nothing in the
 project changes):
 
 * ``no_deposit``: the four-tap add replaced by a comparison (the echoes are still formed);
@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import re
 import subprocess
 import sys
 import tempfile
@@ -79,16 +80,15 @@ print(json.dumps(rows))
 
 
 def variants(folder: Path) -> dict[str, Path]:
-    """The scratch copies of ``sim_device/synthesis.py`` in ``folder``, by name."""
-    src = (ROOT / "sim_device" / "synthesis.py").read_text()
-    src = (src.replace("from . import echo_loop, layered_rays",
-                       "from sim_device import echo_loop, layered_rays")
-           .replace("from .layered_rays import", "from sim_device.layered_rays import")
-           .replace("from .synthesis_args import", "from sim_device.synthesis_args import"))
+    """The scratch copies of ``sim_device/synthesis_fast.py`` in ``folder``, by name."""
+    src = (ROOT / "sim_device" / "synthesis_fast.py").read_text()
+    # its relative imports made absolute: the copies live outside the package
+    src = re.sub(r"^from \.(\w)", r"from sim_device.\1", src, flags=re.MULTILINE)
     for part in (_DEPOSIT, _ECHO_LOOP, _AFTER):
         if part not in src:
-            raise SystemExit(f"sim_device/synthesis.py: the text {part.splitlines()[0]!r} "
-                             "this benchmark edits is gone; update bench_sim_pass2.py")
+            raise SystemExit("sim_device/synthesis_fast.py: the text "
+                             f"{part.splitlines()[0]!r} this benchmark edits is gone; "
+                             "update bench_sim_pass2.py")
     no_deposit = src.replace(_DEPOSIT, "                            n_add += 1 if re + im > 1e300 else 0")
     i0, i1 = no_deposit.index(_ECHO_LOOP), no_deposit.index(_AFTER)
     legs_only = (no_deposit[:i0] + "                    n_add += 1 if wk[8, 0] > 1e300 else 0\n"

@@ -1,6 +1,5 @@
 #!/usr/bin/env python
-"""The synthesis kernels alone, through their positional front doors (which main before
-and after the bundled kernels both have), on inputs captured once from
+"""The synthesis kernels alone, through their front doors, on inputs captured once from
 ``EnvironmentSource.scattered`` (issue 28; docs/simulator.md, "Bundled kernels and speed").
 
     python benchmarks/bench_synthesis_bundles.py capture DIR
@@ -15,7 +14,10 @@ and after the bundled kernels both have), on inputs captured once from
         at 2 threads on 20,000 in-view sand scatterers (80 channels)
 
 Run one tree against another by alternating processes, the other tree with
-``PYTHONPATH=<its worktree>`` (benchmarks/results/bench_synthesis_bundles.json).
+``PYTHONPATH=<its worktree>`` (benchmarks/results/bench_synthesis_bundles.json). The
+front doors take the bundles of ``sim_device.synthesis_args`` since issue 50
+(``transmit_legs(pts, samp, img, medium, beam, out, fast)``, pass 2 one ``Pass2``): a
+tree before it takes this script as it was before that change (positional arguments).
 """
 import dataclasses
 import os
@@ -58,22 +60,22 @@ def capture(out: Path):
         cap = {}
         orig_t, orig_f = es.transmit_legs, es.accumulate_fast
         orig_s = es.accumulate_fast_serial
-        def tl(*a):
-            cap["t"] = [np.copy(x) if isinstance(x, np.ndarray) else x for x in a]
-            return orig_t(*a)
-        def af(*a):
-            cap["f"] = list(a)
-            return orig_f(*a)
-        def afs(*a):
-            cap["f"] = list(a)
-            return orig_s(*a)
+        def tl(pts, samp, img, medium, beam, out, fast=False):
+            cap["t"] = (pts, samp, img, medium, beam, out)
+            return orig_t(pts, samp, img, medium, beam, out, fast)
+        def af(p2, n_buf, *rest):
+            cap["f"] = (p2, n_buf)
+            return orig_f(p2, n_buf, *rest)
+        def afs(p2, n_buf, *rest):
+            cap["f"] = (p2, n_buf)
+            return orig_s(p2, n_buf, *rest)
         es.transmit_legs, es.accumulate_fast, es.accumulate_fast_serial = tl, af, afs
         src.scattered(100 if kind != "water" else 40)
         es.transmit_legs, es.accumulate_fast = orig_t, orig_f
         es.accumulate_fast_serial = orig_s
-        f = cap["f"]
-        print(kind, "pass 1 scatterers", cap["t"][0].size, "pass 2", f[0].size, "n_buf",
-              f[27], "img", f[6].shape)
+        p2, n_buf = cap["f"]
+        print(kind, "pass 1 scatterers", cap["t"][0].x.size, "pass 2", p2.pts.x.size,
+              "n_buf", n_buf, "img", p2.paths.img.shape)
         with open(out / f"{kind}.pkl", "wb") as fh:
             pickle.dump(cap, fh)
 
@@ -82,62 +84,67 @@ def load(kind):
     with open(DIR / f"{kind}.pkl", "rb") as fh:
         return pickle.load(fh)
 
+
+def rows(bundle, idx):
+    """``bundle`` (Points or TransmitLegs) with the scatterers ``idx`` only."""
+    return type(bundle)(*(a[idx] for a in bundle))
+
+
 def sub(f, n, seed=0):
-    ns = f[0].size
+    """The captured pass 2 (Pass2, n_buf) cut to ``n`` scatterers."""
+    p2, n_buf = f
+    ns = p2.pts.x.size
     if ns <= n:
-        return list(f)
+        return p2, n_buf
     idx = np.sort(np.random.default_rng(seed).choice(ns, n, replace=False))
-    return [a[idx] for a in f[:6]] + list(f[6:])
+    return p2._replace(pts=rows(p2.pts, idx), legs_t=rows(p2.legs_t, idx)), n_buf
 
-def fast_args(f):
-    # f: 27 positional + n_buf, n_blocks, zmax
-    return f[:27], f[27], f[29]
 
-def ref_buf(f):
-    return np.zeros((f[6].shape[0], f[27]), dtype=np.complex128)
+def ref_buf(p2, n_buf):
+    return np.zeros((p2.paths.img.shape[0], n_buf), dtype=np.complex128)
+
 
 def compare(out):
     res = {}
     for kind in ("water", "sand", "exact"):
         cap = load(kind)
-        t = [np.copy(x) if isinstance(x, np.ndarray) else x for x in cap["t"]]
+        pts, samp, img, medium, beam, legs = cap["t"]
         if kind != "water":   # pass 1 on 40000 scatterers
-            n = 40000
-            ns = cap["t"][0].size
-            t = [a[:n] if isinstance(a, np.ndarray) and a.ndim >= 1 and a.shape[0] == ns
-                 else a for a in t]
-        S.transmit_legs(*t)
-        res[f"{kind}_p1_tau"] = t[-2]; res[f"{kind}_p1_amp"] = t[-1]
-        f = sub(cap["f"], 20000 if kind == "sand" else 4000)
-        a27, n_buf, zmax = fast_args(f)
-        buf = ref_buf(f)
-        res[f"{kind}_ref_n"] = S.accumulate(*a27, buf); res[f"{kind}_ref"] = buf
-        b, n = S.accumulate_fast(*a27, n_buf, 2 * numba.get_num_threads(), zmax)
+            idx = np.arange(min(40000, pts.x.size))
+            pts, samp, legs = rows(pts, idx), samp[idx], rows(legs, idx)
+        legs = type(legs)(*(np.empty_like(a) for a in legs))
+        S.transmit_legs(pts, samp, img, medium, beam, legs, True)
+        res[f"{kind}_p1_tau"], res[f"{kind}_p1_amp"] = legs
+        p2, n_buf = sub(cap["f"], 20000 if kind == "sand" else 4000)
+        buf = ref_buf(p2, n_buf)
+        res[f"{kind}_ref_n"] = S.accumulate(p2, buf); res[f"{kind}_ref"] = buf
+        b, n = S.accumulate_fast(p2, n_buf, 2 * numba.get_num_threads())
         res[f"{kind}_fast"] = b; res[f"{kind}_fast_n"] = n
-        b, n = S.accumulate_fast_serial(*a27, n_buf, 1, zmax)
+        b, n = S.accumulate_fast_serial(p2, n_buf)
         res[f"{kind}_ser"] = b; res[f"{kind}_ser_n"] = n
         print(kind, "echoes ref", res[f"{kind}_ref_n"].sum(), "fast",
               res[f"{kind}_fast_n"].sum(), flush=True)
     np.savez(out, **res)
 
+
 def bench(label, reps=5):
-    f = sub(load("sand")["f"], 20000)
-    a27, n_buf, zmax = fast_args(f)
+    p2, n_buf = sub(load("sand")["f"], 20000)
     numba.set_num_threads(2)
-    S.accumulate_fast_serial(*a27, n_buf, 1, zmax)
-    S.accumulate(*a27, ref_buf(f))
+    S.accumulate_fast_serial(p2, n_buf)
+    S.accumulate(p2, ref_buf(p2, n_buf))
     ts, tr = [], []
     for _ in range(reps):
         c0 = time.process_time()
-        _, n = S.accumulate_fast_serial(*a27, n_buf, 1, zmax)
+        _, n = S.accumulate_fast_serial(p2, n_buf)
         ts.append(time.process_time() - c0)
     for _ in range(reps):
-        buf = ref_buf(f)
+        buf = ref_buf(p2, n_buf)
         c0 = time.process_time()
-        S.accumulate(*a27, buf)
+        S.accumulate(p2, buf)
         tr.append(time.process_time() - c0)
     print(f"{label}: fast serial {min(ts):.4f} s ({min(ts) / n.sum() * 1e9:.1f} ns/echo, "
           f"{n.sum()} echoes); reference {min(tr):.4f} s", flush=True)
+
 
 if __name__ == "__main__":
     cmd = sys.argv[1]

@@ -5,7 +5,8 @@ echoes' increments as ``svss process --micronav`` fuses them
 the simulated truth: per axis (north = along, east = across for the scenes' heading 0,
 down) the rms error of the echoes', the navigation's and the fused increments of the
 array's position (:func:`report`), and rms(error / sigma) of the first two; the interface echo's correlation quality (the
-estimator's patch coherences)."""
+estimator's patch coherences). A kept recording's report is recomputed by
+``python benchmarks/bench_focus.py --work WORK --micronav-report VARIANT``."""
 
 from __future__ import annotations
 
@@ -118,46 +119,3 @@ def print_report(name: str, r: dict) -> None:
         print(f"    renav   rms error {f(e['nav_rms_error_mm'])} mm, sigma "
               f"{f(e['nav_sigma_mm'])} mm, rms(err/sigma) {f(e['nav_rms_error_over_sigma'])}")
         print(f"    fused   rms error {f(e['fused_rms_error_mm'])} mm")
-
-
-def main(argv=None) -> int:
-    """Recompute a kept sand recording's micronavigation report (bench_focus --work
-    WORK): ``python benchmarks/focus_micronav.py WORK VARIANT [--out FILE]``."""
-    import argparse
-    import json
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    import bench_focus as bf
-    from sim_device.scene import load_scene
-    from svss_daq.rawfile import RawRunReader
-    from svss_proc.micronav.renav import with_interpolated_bottom
-    ap = argparse.ArgumentParser(description=main.__doc__.split("\n")[0])
-    ap.add_argument("work")
-    ap.add_argument("variant")
-    ap.add_argument("--out")
-    args = ap.parse_args(argv)
-    work = Path(args.work)
-    files = sorted((work / f"sand-{args.variant}" / "runs").glob("focus_*.h5"))
-    pings = []
-    for f in files:
-        with RawRunReader(f) as r:
-            hw = r.hardware
-            pings += list(r)
-    pings.sort(key=lambda p: p.sequence)
-    truth = bf.true_poses(pings, load_scene(work / "sand-motion.toml"), hw)
-    renav, _, cfg = bf.renav_poses(files, pings)
-    renav, _ = with_interpolated_bottom(renav)
-    proc = bf.sand_processing(bf.DEFAULT_PROCESSING, work)
-    _, res, sec = fused_poses(pings, renav, hw, proc, cfg)
-    out = report(res, renav, truth, hw.value.lever_arms.array_m)
-    out["seconds"] = sec
-    print_report(args.variant, out)
-    if args.out:
-        Path(args.out).write_text(json.dumps(out, indent=1))
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,8 +1,12 @@
-"""The echo accumulation loop of pass 2, written once for the reference CPU kernel
-(:func:`sim_device.synthesis.accumulate_kernel`) and the GPU kernel
-(:mod:`sim_device.synthesis_gpu`): :func:`build` compiles it with a given decorator, the
-leg functions of :func:`sim_device.synthesis.build` compiled for the same target, the
-echo phase function and the target's way of adding an echo to its buffer.
+"""The loops of the point-scatterer synthesis written once over a leg function: pass 1's
+scalar transmit leg (:func:`transmit_leg`: the reference kernels' pass 1 and the legs the
+fast kernel's vector forms leave) and the echo accumulation loop of pass 2, for the
+reference CPU kernel (:func:`sim_device.synthesis_reference.accumulate_kernel`, also
+over the undulating interface's leg, :mod:`sim_device.synthesis_curved`) and the GPU
+kernel (:mod:`sim_device.synthesis_gpu`): :func:`build` compiles them with a given
+decorator, the leg functions of :func:`sim_device.synthesis_legs.build` compiled for the
+same target, the echo phase function and the target's way of adding an echo to its
+buffer.
 
 For one scatterer k, one channel ch and one receive image b that some kept path needs
 (:func:`receive_needed`): the receive leg, unless the straight line at the fastest speed
@@ -12,13 +16,14 @@ A exp(-j 2 pi f_c tau) added at its fractional delay with 4-tap Lagrange weights
 delay, images needed): the reference kernel once per scatterer for all channels, a GPU
 thread for its own scatterer.
 
-:func:`image_echoes` takes the kernels' arrays one by one, not their bundles: the kernels
-unpack their bundles once, at the top. On the CPU an inlined function that takes a bundle
-(a tuple of arrays) holds a reference to each array of the tuple for the call, and where
-the function branches numba cannot prune those reference counts: each is an atomic
-increment and decrement per call (docs/simulator.md, "Bundled kernels and speed").
+:func:`image_echoes` and :func:`transmit_leg` take the kernels' arrays one by one, not
+their bundles: the kernels unpack their bundles once, at the top. On the CPU an inlined
+function that takes a bundle (a tuple of arrays) holds a reference to each array of the
+tuple for the call, and where the function branches numba cannot prune those reference
+counts: each is an atomic increment and decrement per call (docs/simulator.md, "Bundled
+kernels and speed").
 
-The fast CPU kernel (:func:`sim_device.synthesis.accumulate_fast_kernel`) shares the
+The fast CPU kernel (:func:`sim_device.synthesis_fast.accumulate_fast_kernel`) shares the
 scalar receive leg (``leg_body``) but not this loop: it turns the
 loops round (one scatterer's legs and echoes for all channels in vectorisable loops over
 channels, clamped indices and a keep mask instead of branches), which a per-channel loop
@@ -35,7 +40,7 @@ from .synthesis_args import IMG_DIR, IMG_H, IMG_NB, IMG_RS, IMG_X, IMG_Y, MED_IN
 
 def build(jit, legs, cis, deposit):
     """The loop compiled with ``jit`` (``njit(inline="always")`` on the CPU,
-    ``cuda.jit(device=True)`` on the GPU); ``legs``: :func:`sim_device.synthesis.build`'s
+    ``cuda.jit(device=True)`` on the GPU); ``legs``: :func:`sim_device.synthesis_legs.build`'s
     namespace for the same target; ``cis(x)``: (cos, sin) of 2 pi x; ``deposit(out, ch,
     i1, e, w0, w1, w2, w3)``: adds echo ``e`` to channel ``ch`` of ``out`` at samples
     i1 - 1 .. i1 + 2 with those weights. Returns a namespace of the functions."""
@@ -67,6 +72,24 @@ def build(jit, legs, cis, deposit):
             if amp_t[k, a] != 0.0 and path_kept(allowed, zmax, a, b, zk):
                 return True
         return False
+
+    @jit
+    def transmit_leg(k, m, img, sx, sy, sz, smed, samp, c, rho_m, delta, alpha, z_top, tab,
+                     r_top, r_bot, sig, bore, g_front, g_back, lo_front, lo_back, hbuf,
+                     cbuf, tau_out, amp_out):
+        """Pass 1's scalar leg: the transmit leg of scatterer k (``sx`` .. ``smed``: the
+        arrays of a :class:`~sim_device.synthesis_args.Points`) from projector image m
+        (row of ``img``), times sigma^(1/4) of an interface scatterer and the
+        scatterer's strength ``samp[k]``, into ``tau_out[k, m]``, ``amp_out[k, m]``
+        (the arrays of the Medium, Beam and TransmitLegs bundles)."""
+        tau, a, cg = leg_body(img[m, IMG_X], img[m, IMG_Y], img[m, IMG_H], img[m, IMG_DIR],
+                              img[m, IMG_RS], int(img[m, IMG_NB]), sx[k], sy[k], sz[k],
+                              smed[k], False, c, rho_m, delta, alpha, z_top, tab, r_top,
+                              r_bot, bore, g_front, g_back, lo_front, lo_back, hbuf, cbuf)
+        if smed[k] == MED_INTERFACE and a != 0.0:
+            a *= interp(sig, cg)
+        tau_out[k, m] = tau
+        amp_out[k, m] = a * samp[k]
 
     @jit
     def image_echoes(k, ch, b, pos, tmin, img, tau_t, amp_t, allowed, zmax, c, rho_m,
@@ -117,4 +140,5 @@ def build(jit, legs, cis, deposit):
         return n_add
 
     return SimpleNamespace(fastest=fastest, path_kept=path_kept,
-                           receive_needed=receive_needed, image_echoes=image_echoes)
+                           receive_needed=receive_needed, transmit_leg=transmit_leg,
+                           image_echoes=image_echoes)

@@ -58,8 +58,9 @@ from .scene import SceneConfig
 from .specular import (PathSet, SpectralSynthesiser, boundary_paths, interface_paths,
                        merge, select)
 from .specular_curved import curved_interface_paths
-from .synthesis import (SERIAL_BELOW, PulseSynthesiser, accumulate, accumulate_fast,
-                        accumulate_fast_serial, transmit_legs)
+from .pulse import PulseSynthesiser
+from .synthesis import (SERIAL_BELOW, Medium, Pass2, Paths, Points, TransmitLegs, accumulate,
+                        accumulate_fast, accumulate_fast_serial, beam_of, transmit_legs)
 from .synthesis_curved import curved_accumulate, curved_transmit_legs
 from .targets.echo import TargetEchoes, build_targets
 from .track import ping_pose, truth_line
@@ -317,6 +318,14 @@ class EnvironmentSource:
         return Scatterers.concat(parts)
 
     # ---------------------------------------------------------------- synthesis
+    def medium_bundle(self) -> Medium:
+        """The synthesis kernels' :class:`~sim_device.synthesis_args.Medium`: the media at
+        the carrier, the two-medium ray table, the interface's reflection tables and
+        sigma^(1/4)."""
+        m = self.media
+        return Medium(m.c, m.rho, m.delta, m.alpha, m.z_top, self.table, self.r_top,
+                      self.r_bot, self.sig)
+
     def scattered(self, i: int, g: PingGeometry | None = None) -> np.ndarray:
         """Pressure (uPa) of the point scatterers (seabed and scene points) on ping i."""
         t0 = time.perf_counter()
@@ -338,48 +347,41 @@ class EnvironmentSource:
         img_r = self._images(g.rx, (ox, oy)).astype(f)
         sx, sy, sz = (s.x - ox).astype(f), (s.y - oy).astype(f), s.z.astype(f)
         amp = s.amp.astype(cf)
-        m = self.media
-        args_env = (m.c, m.rho, m.delta, m.alpha, m.z_top, self.table, self.r_top,
-                    self.r_bot)
-        bore = np.ascontiguousarray(g.bore, dtype=np.float64)
-        tb = self.tx_beam
-        t1 = time.perf_counter()
-        tau_t = np.empty((s.size, img_t.shape[0]), dtype=f)
-        amp_t = np.empty((s.size, img_t.shape[0]), dtype=cf)
+        medium = self.medium_bundle()
         if curved:
             # the surface's rows in the ping-local frame, in the ray table's place
-            args_env = args_env[:5] + (self.undulation.shifted(ox, oy),) + args_env[6:]
-            curved_transmit_legs(sx, sy, sz, s.med, amp, img_t, *args_env, bore, tb.front,
-                                 tb.back, tb.lo_front, tb.lo_back, self.sig, tau_t, amp_t)
+            medium = medium._replace(tab=self.undulation.shifted(ox, oy))
+        t1 = time.perf_counter()
+        pts = Points(sx, sy, sz, s.med)
+        legs = TransmitLegs(np.empty((s.size, img_t.shape[0]), dtype=f),
+                            np.empty((s.size, img_t.shape[0]), dtype=cf))
+        if curved:
+            curved_transmit_legs(pts, amp, img_t, medium, beam_of(self.tx_beam, g.bore), legs)
         else:
-            transmit_legs(sx, sy, sz, s.med, amp, img_t, *args_env, bore, tb.front,
-                          tb.back, tb.lo_front, tb.lo_back, self.sig, tau_t, amp_t,
-                          self.synthesis != "reference")
-        seen = np.any(amp_t != 0, axis=1)
+            transmit_legs(pts, amp, img_t, medium, beam_of(self.tx_beam, g.bore), legs,
+                          fast=self.synthesis != "reference")
+        seen = np.any(legs.amp != 0, axis=1)
         idx = np.flatnonzero(seen)
         t2 = time.perf_counter()
-        rb = self.rx_beam
-        args = (sx[idx], sy[idx], sz[idx], s.med[idx], tau_t[idx], amp_t[idx], img_r,
-                self.allowed, *args_env, bore, rb.front, rb.back, rb.lo_front, rb.lo_back,
-                self.sig, self.fc, self.pulses.t_lo, self.pulses.t_hi, self.pulses.t_buf0,
-                self.fs)
+        # the deepest scatterer per path, finite: the fast kernels are compiled with
+        # fastmath (no infinities); with the reference every limit is infinite (a finite
+        # one is refused above), so it keeps every path to any depth
+        zlim = np.minimum(self.zmax, np.finfo(np.float64).max)
+        p2 = Pass2(Points(*(a[idx] for a in pts)), TransmitLegs(*(a[idx] for a in legs)),
+                   Paths(img_r, self.allowed, zlim), medium, beam_of(self.rx_beam, g.bore),
+                   self.pulses.window())
         if curved:
             buf = self.pulses.buffer(n_ch).astype(cf)
-            counts = curved_accumulate(*args, buf,
-                                       np.minimum(self.zmax, np.finfo(np.float64).max))
+            counts = curved_accumulate(p2, buf)
         elif self.synthesis == "reference":
             buf = self.pulses.buffer(n_ch).astype(cf)
-            counts = accumulate(*args, buf)
+            counts = accumulate(p2, buf)
+        elif self.gpu is not None:
+            buf, counts = self.gpu(p2, self.pulses.n_buf)
+        elif idx.size < SERIAL_BELOW:
+            buf, counts = accumulate_fast_serial(p2, self.pulses.n_buf)
         else:
-            # finite: the fast kernels are compiled with fastmath (no infinities)
-            zlim = np.minimum(self.zmax, np.finfo(np.float64).max)
-            if self.gpu is not None:
-                buf, counts = self.gpu(*args, self.pulses.n_buf, zlim)
-            elif idx.size < SERIAL_BELOW:
-                buf, counts = accumulate_fast_serial(*args, self.pulses.n_buf, 1, zlim)
-            else:
-                buf, counts = accumulate_fast(*args, self.pulses.n_buf,
-                                              2 * numba.get_num_threads(), zlim)
+            buf, counts = accumulate_fast(p2, self.pulses.n_buf, 2 * numba.get_num_threads())
         t3 = time.perf_counter()
         out = self.pulses.to_passband(buf.astype(np.complex128))
         self.last_stats.update(generated=n_gen, in_view=int(idx.size),

@@ -16,7 +16,7 @@ from . import possm
 from .environment import Environment
 from .multipath import image_depth
 from .scene import SceneConfig
-from .synthesis import MED_INTERFACE
+from .synthesis_args import MED_INTERFACE
 
 
 @dataclass

@@ -187,7 +187,7 @@ class SpectralSynthesiser:
     def __init__(self, pulse_real: np.ndarray, pad: int, fs: float, n_samples: int,
                  t_first: float):
         """``pulse_real``: the pulse on t_j = (j - pad) / fs (see
-        :func:`sim_device.synthesis.digitised_pulse`)."""
+        :func:`sim_device.pulse.digitised_pulse`)."""
         self.fs = float(fs)
         self.n = int(n_samples)
         self.n_pulse = pulse_real.size

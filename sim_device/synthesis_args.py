@@ -3,10 +3,12 @@ which numba passes to CPU kernels and CUDA kernels alike), grouped by meaning: t
 scatterers, their transmit legs, the element images and the paths kept between them, the
 layered medium, a beam, and the baseband buffer's time window.
 
-The same bundles serve the reference and fast kernels of :mod:`sim_device.synthesis` and
-the GPU kernel of :mod:`sim_device.synthesis_gpu`; :func:`bundles` makes them from the
-arrays and scalars :class:`~sim_device.environment_source.EnvironmentSource` forms.
-Also the column layout of an element-image row and the interface scatterers' medium code.
+The same bundles serve the reference and fast kernels (:mod:`sim_device.synthesis`) and
+the GPU kernel of :mod:`sim_device.synthesis_gpu`, and their entry points: pass 1's
+take the bundles (``transmit_legs(pts, samp, img, medium, beam, out)``), pass 2's one
+:class:`Pass2` of them. :func:`beam_of` and :func:`window` make the Beam and the Window of
+a beam table and of the baseband buffer's axis. Also the column layout of an
+element-image row and the interface scatterers' medium code.
 """
 
 from __future__ import annotations
@@ -79,18 +81,22 @@ class Window(NamedTuple):
     fs: float             # samples per second
 
 
-def bundles(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delta, alpha, z_top,
-            tab, r_top, r_bot, bore, g_front, g_back, lo_front, lo_back, sig, fc, t_lo,
-            t_hi, t_buf0, fs, zmax=None):
-    """The pass-2 bundles (Points, TransmitLegs, Paths, Medium, Beam, Window) of the
-    arrays and scalars in the order :class:`~sim_device.environment_source.EnvironmentSource`
-    forms them; ``zmax`` None: every path to any depth."""
-    if zmax is None:
-        zmax = np.full(np.shape(allowed), np.finfo(np.float64).max)
-    return (Points(sx, sy, sz, smed), TransmitLegs(tau_t, amp_t), Paths(img, allowed, zmax),
-            Medium(c, rho_m, delta, alpha, z_top, tab, r_top, r_bot, sig),
-            Beam(bore, g_front, g_back, float(lo_front), float(lo_back)),
-            window(fc, t_lo, t_hi, t_buf0, fs))
+class Pass2(NamedTuple):
+    """Everything pass 2 takes but its output: the bundles in the order of the kernels'
+    arguments (``kernel(*p2, ...)``)."""
+    pts: Points
+    legs_t: TransmitLegs
+    paths: Paths
+    medium: Medium
+    beam: Beam
+    win: Window
+
+
+def beam_of(table, bore) -> Beam:
+    """The :class:`Beam` of a beam table (:class:`sim_device.beams.BeamTable`: ``front``,
+    ``back``, ``lo_front``, ``lo_back``) and the element's boresight ``bore``."""
+    return Beam(np.ascontiguousarray(bore, dtype=np.float64), table.front, table.back,
+                float(table.lo_front), float(table.lo_back))
 
 
 def window(fc, t_lo, t_hi, t_buf0, fs) -> Window:

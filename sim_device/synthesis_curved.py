@@ -1,8 +1,9 @@
 """Point-scatterer synthesis over an undulating interface (:mod:`sim_device.bed_undulation`).
 
-The two passes of :mod:`sim_device.synthesis` (the reference kernels' structure: pass 1
-over scatterers, pass 2 over channels through :mod:`sim_device.echo_loop`'s loop), with
-the leg of a curved interface, :func:`curved_leg_body`, in place of the level one:
+The two passes of the reference kernels (:mod:`sim_device.synthesis_reference`: pass 1
+over scatterers, pass 2 over channels through :mod:`sim_device.echo_loop`'s loops),
+compiled with the leg of a curved interface, :func:`curved_leg_body`, in place of the
+level one (:func:`sim_device.synthesis_reference.kernels_over`):
 
 * a scatterer in the water or on the interface (``MED_INTERFACE``, at z = u(x, y)): the
   straight leg; an interface scatterer's strength is looked up at its grazing angle
@@ -18,10 +19,10 @@ A leg carrying seabed bounces (n_b > 0, multipath order 2 and more) would need t
 curved surface's image; scenes with an undulating interface refuse that order
 (:func:`sim_device.scene.check_undulation`).
 
-The kernels take the bundles of :mod:`sim_device.synthesis_args` as the reference ones
-do; the medium bundle's ray-table slot (``Medium.tab``) carries the surface's rows
-(amplitude, kx, ky, phase; in the scatterers' ping-local frame: :meth:`Undulation.shifted`)
-instead, which these legs use in its place. Everything here runs in double precision on
+The kernels and their entry points take the bundles of :mod:`sim_device.synthesis_args`
+as the reference ones do; the medium bundle's ray-table slot (``Medium.tab``) carries the
+surface's rows (amplitude, kx, ky, phase; in the scatterers' ping-local frame:
+:meth:`Undulation.shifted`) instead, which these legs use in its place. Everything here runs in double precision on
 the CPU: a scene with an undulating interface pays for its crossings, a level one never
 does.
 """
@@ -32,21 +33,19 @@ import math
 from types import SimpleNamespace
 
 import numba as nb
-import numpy as np
 
 from . import echo_loop
 from .bed_undulation import crossing, surface
-from .synthesis import (_deposit, _interp, cis_cycles, lagrange4, leg_amplitude,
-                        receive_plan, two_medium_terms)
-from .synthesis_args import (IMG_DIR, IMG_H, IMG_NB, IMG_RS, IMG_X, IMG_Y, MED_INTERFACE,
-                             Beam, Medium, Points, TransmitLegs, bundles)
+from .synthesis_args import MED_INTERFACE, Beam, Medium, Pass2, Points, TransmitLegs
+from .synthesis_legs import _interp, cis_cycles, lagrange4, leg_amplitude, two_medium_terms
+from .synthesis_reference import _deposit, kernels_over
 
 
 @nb.njit(cache=True, inline="always")
 def curved_leg_body(ex, ey, height, direction, f_surf, n_b, x, y, z, med, up, c, rho_m,
                     delta, alpha, z_top, rows, r_top, r_bot, bore, g_front, g_back,
                     lo_front, lo_back, hbuf, cbuf):
-    """:func:`sim_device.synthesis.leg_body` over the undulating interface ``rows`` (in
+    """:func:`sim_device.synthesis_legs.leg_body` over the undulating interface ``rows`` (in
     the slot of the ray table; the scratch arrays are unused). Returns (delay s, complex
     amplitude factor, cos of the grazing angle about the local normal: at the scatterer
     for an interface scatterer, at the crossing for a buried one)."""
@@ -116,90 +115,23 @@ def curved_leg_body(ex, ey, height, direction, f_surf, n_b, x, y, z, med, up, c,
 
 _legs = SimpleNamespace(leg_body=curved_leg_body, _interp=_interp, lagrange4=lagrange4)
 _echo = echo_loop.build(nb.njit(cache=True, inline="always"), _legs, cis_cycles, _deposit)
-_fastest = _echo.fastest
-_image_echoes = _echo.image_echoes
+#: the reference kernels over the curved leg: pass 1 into a TransmitLegs, pass 2 into a
+#: complex buffer (``medium.tab``: the surface's rows)
+curved_transmit_kernel, curved_accumulate_kernel = kernels_over(_echo, "curved")
 
 
-@nb.njit(parallel=True, cache=True)
-def curved_transmit_kernel(pts, samp, img, medium, beam, out):
-    """Pass 1 over an undulating interface (``medium.tab``: the surface's rows): every
-    scatterer's transmit legs, one per projector image, into ``out``."""
-    sx, sy, sz, smed = pts
-    c, rho_m, delta, alpha, z_top, rows, r_top, r_bot, sig = medium
-    bore, g_front, g_back, lo_front, lo_back = beam
-    tau_out, amp_out = out
-    ns = sx.size
-    nt = img.shape[0]
-    scratch = np.empty(1)
-    for k in nb.prange(ns):
-        for m in range(nt):
-            tau, a, cg = curved_leg_body(img[m, IMG_X], img[m, IMG_Y], img[m, IMG_H],
-                                         img[m, IMG_DIR], img[m, IMG_RS],
-                                         int(img[m, IMG_NB]), sx[k], sy[k], sz[k], smed[k],
-                                         False, c, rho_m, delta, alpha, z_top, rows, r_top,
-                                         r_bot, bore, g_front, g_back, lo_front, lo_back,
-                                         scratch, scratch)
-            if smed[k] == MED_INTERFACE and a != 0.0:
-                a *= _interp(sig, cg)
-            tau_out[k, m] = tau
-            amp_out[k, m] = a * samp[k]
+def curved_transmit_legs(pts: Points, samp, img, medium: Medium, beam: Beam,
+                         out: TransmitLegs) -> None:
+    """Pass 1 over an undulating interface (:func:`curved_transmit_kernel`): every
+    scatterer's transmit legs, one per projector image (rows of ``img``), into ``out``;
+    ``medium.tab``: the surface's rows in the scatterers' frame
+    (:meth:`~sim_device.bed_undulation.Undulation.shifted`)."""
+    curved_transmit_kernel(pts, samp, img, medium, beam, out)
 
 
-@nb.njit(parallel=True, cache=True)
-def curved_accumulate_kernel(pts, legs_t, paths, medium, beam, win, buf):
-    """Pass 2 over an undulating interface: per channel (in parallel) every scatterer's
-    receive legs combined with its transmit legs on the kept paths, into ``buf`` (complex
-    baseband) by :mod:`sim_device.echo_loop`'s loop. Returns the echoes added per
+def curved_accumulate(p2: Pass2, buf):
+    """Pass 2 over an undulating interface (:func:`curved_accumulate_kernel`) of pass 2's
+    bundles (``p2.medium.tab``: the surface's rows; ``p2.paths.zmax``: the deepest
+    scatterer per path) into ``buf`` (complex baseband). Returns the echoes added per
     channel."""
-    sx, sy, sz, smed = pts
-    tau_t, amp_t = legs_t
-    img, allowed, zmax = paths
-    c, rho_m, delta, alpha, z_top, rows, r_top, r_bot, sig = medium
-    bore, g_front, g_back, lo_front, lo_back = beam
-    nch = img.shape[0]
-    nr = img.shape[1]
-    ns = sx.size
-    cmax = _fastest(c)
-    tmin, need = receive_plan(tau_t, amp_t, allowed, zmax, sz, nr)
-    counts = np.zeros(nch, dtype=np.int64)
-    for ch in nb.prange(nch):
-        scratch = np.empty(1)
-        n_add = 0
-        for k in range(ns):
-            if tmin[k] == math.inf:
-                continue
-            for b in range(nr):
-                if need[k, b]:
-                    n_add += _image_echoes(k, ch, b, (sx[k], sy[k], sz[k], smed[k]),
-                                                tmin[k], img, tau_t, amp_t, allowed, zmax,
-                                                c, rho_m, delta, alpha, z_top, rows, r_top,
-                                                r_bot, sig, bore, g_front, g_back,
-                                                lo_front, lo_back, win, cmax, scratch,
-                                                scratch, buf)
-        counts[ch] = n_add
-    return counts
-
-
-def curved_transmit_legs(sx, sy, sz, smed, samp, img, c, rho_m, delta, alpha, z_top, rows,
-                         r_top, r_bot, bore, g_front, g_back, lo_front, lo_back, sig,
-                         tau_out, amp_out):
-    """:func:`curved_transmit_kernel` of the arrays in the order
-    :class:`~sim_device.environment_source.EnvironmentSource` forms them, ``rows`` (the
-    surface in the scatterers' frame) in the ray table's place."""
-    curved_transmit_kernel(Points(sx, sy, sz, smed), samp, img,
-                           Medium(c, rho_m, delta, alpha, z_top, rows, r_top, r_bot, sig),
-                           Beam(bore, g_front, g_back, float(lo_front), float(lo_back)),
-                           TransmitLegs(tau_out, amp_out))
-
-
-def curved_accumulate(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delta, alpha,
-                      z_top, rows, r_top, r_bot, bore, g_front, g_back, lo_front, lo_back,
-                      sig, fc, t_lo, t_hi, t_buf0, fs, buf, zmax=None):
-    """:func:`curved_accumulate_kernel` of the arrays in the order
-    :class:`~sim_device.environment_source.EnvironmentSource` forms them (``zmax``: the
-    deepest scatterer per path; None: any depth)."""
-    return curved_accumulate_kernel(*bundles(sx, sy, sz, smed, tau_t, amp_t, img, allowed,
-                                             c, rho_m, delta, alpha, z_top, rows, r_top,
-                                             r_bot, bore, g_front, g_back, lo_front,
-                                             lo_back, sig, fc, t_lo, t_hi, t_buf0, fs,
-                                             zmax), buf)
+    return curved_accumulate_kernel(*p2, buf)

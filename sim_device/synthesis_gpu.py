@@ -1,12 +1,13 @@
 """Pass 2 of the point-scatterer synthesis on an NVIDIA GPU (numba-cuda).
 
-The same echoes as :func:`sim_device.synthesis.accumulate_fast`, from the same scalar
-functions: :func:`sim_device.synthesis.build` and :func:`sim_device.layered_rays.build`
-compiled as CUDA device functions (the receive leg :func:`~sim_device.synthesis.leg`,
+The same echoes as :func:`sim_device.synthesis_fast.accumulate_fast`, from the same scalar
+functions: :func:`sim_device.synthesis_legs.build` and :func:`sim_device.layered_rays.build`
+compiled as CUDA device functions (the receive leg :func:`~sim_device.synthesis_legs.leg`,
 the echo phase ``cis_cycles32``, the Lagrange weights ``lagrange4``), so the leg physics
 is written once for both targets.
 
-The kernel takes the bundles of :mod:`sim_device.synthesis_args`. One thread per
+The kernel takes the bundles of :mod:`sim_device.synthesis_args`, :class:`GpuAccumulator`
+pass 2's as one :class:`~sim_device.synthesis_args.Pass2`. One thread per
 (scatterer, channel), channel fastest, so that a warp holds one scatterer's echoes on
 neighbouring channels: each thread runs the echo loop of :mod:`sim_device.echo_loop` (the
 reference CPU kernel's loop) for its scatterer and channel, adding every echo
@@ -21,8 +22,9 @@ stays on the CPU; its results go up once per ping.
 :class:`GpuAccumulator` keeps its device buffers from ping to ping (grown when a ping
 needs more, never shrunk) and uploads the scene's fixed tables (refraction, reflection,
 beam and scattering-strength tables) once per table object, and the echo count is reduced
-per block on the device (one atomic add per block): the buffer cache and the block sum of
-the imaging GPU kernel, :mod:`svss_proc.imaging.gpu_shared`.
+per block on the device (one atomic add per block): the buffer cache and the block sum
+of :mod:`svss_daq.gpu_shared`, which the imaging GPU kernel uses too (it sits below
+both: the simulator imports nothing of the processing).
 """
 
 from __future__ import annotations
@@ -35,14 +37,14 @@ import numba
 import numpy as np
 from numba import config, cuda
 
-from svss_proc.imaging.gpu_shared import THREADS, DeviceBuffers, block_count_for
+from svss_daq.gpu_shared import THREADS, DeviceBuffers, block_count_for
 
-from . import echo_loop, layered_rays, synthesis
-from .synthesis_args import bundles
+from . import echo_loop, layered_rays, synthesis_legs
+from .synthesis_args import Pass2
 
 _dev = cuda.jit(device=True)
 _rays = layered_rays.build(_dev, _dev)
-_math = synthesis.build(_dev, _rays, math.floor)
+_math = synthesis_legs.build(_dev, _rays, math.floor)
 _block_count = block_count_for(globals())
 
 #: media a leg may cross (scratch arrays of the ray solver are this long, per thread)
@@ -159,7 +161,7 @@ def _converted(bundle, array):
 
 
 class GpuAccumulator:
-    """:func:`sim_device.synthesis.accumulate_fast` on the GPU, with device buffers
+    """:func:`sim_device.synthesis_fast.accumulate_fast` on the GPU, with device buffers
     reused from ping to ping. Raises RuntimeError where no GPU is present."""
 
     def __init__(self, source: str = "scattering.device"):
@@ -175,25 +177,16 @@ class GpuAccumulator:
             return self._buffers.table(host, dtype)
         return self._buffers.upload_rows(role, host, dtype)
 
-    def __call__(self, sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m, delta,
-                 alpha, z_top, tab, r_top, r_bot, bore, g_front, g_back, lo_front, lo_back,
-                 sig, fc, t_lo, t_hi, t_buf0, fs, n_buf, zmax):
-        """Arguments as :func:`~sim_device.synthesis.accumulate_fast` (no block count).
-        Returns (buffer (n_channels, n_buf) complex128, echoes added (1,) int64)."""
-        return self.run(*bundles(sx, sy, sz, smed, tau_t, amp_t, img, allowed, c, rho_m,
-                                 delta, alpha, z_top, tab, r_top, r_bot, bore, g_front,
-                                 g_back, lo_front, lo_back, sig, fc, t_lo, t_hi, t_buf0, fs,
-                                 zmax), n_buf)
-
-    def run(self, pts, legs_t, paths, medium, beam, win, n_buf):
-        """Pass 2 of the bundles of :mod:`sim_device.synthesis_args` into a buffer of
-        ``n_buf`` samples. Returns (buffer (n_channels, n_buf) complex128, echoes added
-        (1,) int64)."""
+    def __call__(self, p2: Pass2, n_buf: int):
+        """Pass 2 of the bundles ``p2`` into a buffer of ``n_buf`` samples (as
+        :func:`~sim_device.synthesis_fast.accumulate_fast`, no block count). Returns
+        (buffer (n_channels, n_buf) complex128, echoes added (1,) int64)."""
+        pts, paths, medium = p2.pts, p2.paths, p2.medium
         if medium.c.size > MAX_MEDIA:
             raise ValueError(f"{medium.c.size} media: the GPU synthesis handles at most "
                              f"{MAX_MEDIA}")
         t0 = time.perf_counter()
-        dev = [_converted(b, self._device) for b in (pts, legs_t, paths, medium, beam, win)]
+        dev = [_converted(b, self._device) for b in p2]
         nch = paths.img.shape[0]
         n_buf = int(n_buf)
         planes = EchoPlanes(self._buffers.array("planes.re", (n_buf, nch), np.float32),
@@ -218,12 +211,11 @@ class GpuAccumulator:
         return out, n
 
 
-def kernel_signature(*args):
-    """numba types of the receive kernel's arguments for
-    :func:`~sim_device.synthesis.accumulate_fast`'s arguments (no block count; for
+def kernel_signature(p2: Pass2):
+    """numba types of the receive kernel's arguments for pass 2's bundles ``p2`` (for
     ``cuda.compile_ptx``, which needs no GPU)."""
     host = [_converted(b, lambda role, name, v, dt: np.ascontiguousarray(v, dtype=dt))
-            for b in bundles(*args)]
+            for b in p2]
     plane = np.empty((1, 1), dtype=np.float32)
     return (tuple(numba.typeof(b) for b in host)
             + (numba.typeof(EchoPlanes(plane, plane)),

@@ -1,6 +1,11 @@
-"""The dependency rules of docs/architecture.md, read from the source: svss_daq imports
-neither svss_proc nor sim_device; svss_proc never imports sim_device (the imager never
-knows the truth it is tested against); the kernels are not given sound-speed defaults."""
+"""The dependency rules of docs/architecture.md, read from the source (never by importing
+it): svss_daq is the base and imports none of the other three; svss_proc imports svss_daq
+only (the imager never knows the truth it is tested against); sim_device imports
+svss_daq only (the simulator never reuses the processing: what both need sits in
+svss_daq); svss sits on top. No import circle among the packages' modules and the
+benchmarks. No sound speed has a default in code (function parameters, command-line
+options): it comes from the configuration. Omitted configuration keys get their
+defaults from the schema, not from code."""
 
 from __future__ import annotations
 
@@ -23,11 +28,16 @@ def imported_packages(path: Path) -> set[str]:
     return out
 
 
-@pytest.mark.parametrize("package, forbidden", [
-    ("svss_daq", {"svss_proc", "sim_device", "svss"}),
-    ("svss_proc", {"sim_device", "svss"}),
-    ("sim_device", {"svss"}),
-])
+#: what each package may not import (docs/architecture.md, "Dependency rules"); svss
+#: may import all three
+FORBIDDEN = {
+    "svss_daq": {"svss_proc", "sim_device", "svss"},
+    "svss_proc": {"sim_device", "svss"},
+    "sim_device": {"svss_proc", "svss"},
+}
+
+
+@pytest.mark.parametrize("package, forbidden", sorted(FORBIDDEN.items()))
 def test_dependencies_run_one_way(package, forbidden):
     files = sorted((ROOT / package).rglob("*.py"))
     assert files
@@ -43,26 +53,95 @@ def test_the_rule_checker_sees_imports(tmp_path):
     assert imported_packages(f) == {"numpy", "sim_device", "svss_proc"}
 
 
-def test_no_sound_speed_defaults_in_the_imager():
-    for f in sorted((ROOT / "svss_proc").rglob("*.py")):
-        for node in ast.walk(ast.parse(f.read_text())):
-            if isinstance(node, (ast.FunctionDef, ast.Lambda)):
-                args = node.args
-                named = args.args[len(args.args) - len(args.defaults):] + [
-                    a for a, d in zip(args.kwonlyargs, args.kw_defaults) if d is not None]
-                speeds = [a.arg for a in named if a.arg in ("c", "cw", "cs")
-                          or "sound_speed" in a.arg]
-                assert not speeds, f"{f.relative_to(ROOT)}: default for {speeds}"
+def test_the_rules_are_the_documented_ones():
+    """FORBIDDEN says what docs/architecture.md's "Dependency rules" say."""
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    rules = " ".join(text[text.index("## Dependency rules"):].split())
+    assert ("`svss_daq` is the base: it imports neither `svss_proc` nor `sim_device` nor "
+            "`svss`") in rules
+    assert "`svss_proc` imports `svss_daq` only" in rules
+    assert "`sim_device` imports `svss_daq` only" in rules
+    assert set(FORBIDDEN) | {"svss"} == set(PACKAGES)
+
+
+#: packages and script folders whose code may hold no sound-speed default
+SPEED_CODE = ("svss", "svss_daq", "svss_proc", "sim_device", "benchmarks")
+
+#: reviewed: file -> (findings, why they are not a sound speed the chain computes with)
+NOT_SPEED_DEFAULTS = {
+    "svss_daq/protocols/pd0_encoder.py": (1, "encode_ensemble's sound_speed_m_s: the "
+                                          "value a DVL reports in its PD0 record (the "
+                                          "emulators' wire field), not one the chain uses"),
+}
+
+
+def sound_speed_defaults(path: Path) -> list[str]:
+    """Sound speeds given a default in ``path``: parameters named c, cw, cs or
+    ``*sound_speed*`` with a default, and command-line options (``add_argument``) named
+    ``--c``, ``--cw``, ``--cs`` or ``*sound-speed*``/``*sound_speed*`` with a default
+    other than None. Returns "line: name" for each."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+            args = node.args
+            positional = args.posonlyargs + args.args
+            named = positional[len(positional) - len(args.defaults):] + [
+                a for a, d in zip(args.kwonlyargs, args.kw_defaults) if d is not None]
+            out += [f"{node.lineno}: {a.arg}" for a in named
+                    if a.arg in ("c", "cw", "cs") or "sound_speed" in a.arg]
+        elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+              and node.func.attr == "add_argument"):
+            names = [a.value for a in node.args
+                     if isinstance(a, ast.Constant) and isinstance(a.value, str)]
+            default = next((k.value for k in node.keywords if k.arg == "default"), None)
+            if (any(n in ("--c", "--cw", "--cs") or "sound-speed" in n
+                    or "sound_speed" in n for n in names)
+                    and default is not None
+                    and not (isinstance(default, ast.Constant) and default.value is None)):
+                out.append(f"{node.lineno}: {names[0]}")
+    return out
+
+
+def unreviewed(folders, finder, reviewed: dict) -> dict:
+    """The files under ``folders`` whose findings (``finder(path)``, a list) are not the
+    number ``reviewed`` gives them (file -> (count, why); none when not named)."""
+    found = {str(f.relative_to(ROOT)): finder(f)
+             for folder in folders for f in sorted((ROOT / folder).rglob("*.py"))}
+    return {f: hits for f, hits in found.items() if len(hits) != reviewed.get(f, (0,))[0]}
+
+
+def test_no_sound_speed_defaults_in_code():
+    assert not unreviewed(SPEED_CODE, sound_speed_defaults, NOT_SPEED_DEFAULTS)
+
+
+def test_the_speed_checker_sees_planted_defaults(tmp_path):
+    f = tmp_path / "m.py"
+    f.write_text(
+        "import argparse\n"
+        "def delay(r, c=1500.0, *, cs=None, water_sound_speed=1480.0):\n"
+        "    return r / c\n"
+        "def main():\n"
+        "    p = argparse.ArgumentParser()\n"
+        "    p.add_argument('--sound-speed', type=float, default=1500.0)\n"
+        "    p.add_argument('--cw', type=float, default=None)\n"          # from the config
+        "    p.add_argument('--speed', type=float, default=1.0)\n"        # the boat's
+        "    p.add_argument('--sediment-sound-speed', type=float)\n")
+    assert sound_speed_defaults(f) == ["2: c", "2: cs", "2: water_sound_speed",
+                                       "6: --sound-speed"]
 
 
 # ------------------------------------------------------------------- import circles
 
 PACKAGES = ("svss", "svss_daq", "svss_proc", "sim_device")
+#: folders of scripts (not packages) run with their folder on sys.path, so that they
+#: import each other by file name (``import bench_focus``)
+SCRIPT_FOLDERS = ("benchmarks",)
 
 
-def module_files(root: Path, packages=PACKAGES) -> dict[str, Path]:
+def module_files(root: Path, packages=PACKAGES, scripts=()) -> dict[str, Path]:
     """Module name -> file for every module of ``packages`` under ``root`` (a package is
-    its ``__init__.py``)."""
+    its ``__init__.py``) and every script of the folders ``scripts`` (named by its file
+    name, as its neighbours import it)."""
     out = {}
     for package in packages:
         for f in sorted((root / package).rglob("*.py")):
@@ -70,16 +149,21 @@ def module_files(root: Path, packages=PACKAGES) -> dict[str, Path]:
             if parts[-1] == "__init__":
                 parts.pop()
             out[".".join(parts)] = f
+    for folder in scripts:
+        for f in sorted((root / folder).glob("*.py")):
+            assert f.stem not in out, f"{f}: its name is also a module's"
+            out[f.stem] = f
     return out
 
 
-def import_graph(root: Path, packages=PACKAGES) -> dict[str, set[str]]:
+def import_graph(root: Path, packages=PACKAGES, scripts=()) -> dict[str, set[str]]:
     """Module -> the modules of ``packages`` it imports, anywhere in its file (inside
     functions and ``if TYPE_CHECKING`` too), relative imports resolved; ``from P import m``
     names the submodule ``P.m`` when there is one, and the package ``P`` (its
     ``__init__``, whose own imports are its edges) unless ``P`` holds the importing
-    module (Python has initialised it before the module)."""
-    files = module_files(root, packages)
+    module (Python has initialised it before the module). ``scripts``: script folders, as
+    :func:`module_files`."""
+    files = module_files(root, packages, scripts)
     graph: dict[str, set[str]] = {}
     for name, f in files.items():
         is_package = f.name == "__init__.py"
@@ -139,9 +223,26 @@ def import_circles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 
 def test_no_import_circles():
-    graph = import_graph(ROOT)
-    assert len(graph) > 50
+    """None among the packages' modules and the benchmarks (which import the packages
+    and each other)."""
+    graph = import_graph(ROOT, PACKAGES, SCRIPT_FOLDERS)
+    assert len(graph) > 50 and "bench_focus" in graph and "sim_device.synthesis" in graph
+    assert "bench_isa" in graph["bench_sim_pass2"]            # scripts' imports are seen
     assert not import_circles(graph), import_circles(graph)
+
+
+def test_the_circle_checker_sees_a_circle_of_scripts(tmp_path):
+    (tmp_path / "svss_daq").mkdir()
+    (tmp_path / "svss_daq" / "__init__.py").write_text("")
+    bench = tmp_path / "benchmarks"
+    bench.mkdir()
+    (bench / "bench_a.py").write_text("import svss_daq\ndef main():\n"
+                                      "    import helper_b as hb\n")
+    (bench / "helper_b.py").write_text("def main():\n    import bench_a\n")
+    (bench / "bench_c.py").write_text("from helper_b import main\n")
+    graph = import_graph(tmp_path, ("svss_daq",), ("benchmarks",))
+    assert graph["bench_a"] == {"svss_daq", "helper_b"}
+    assert import_circles(graph) == [["bench_a", "helper_b"]]
 
 
 def test_the_circle_checker_sees_a_planted_circle(tmp_path):
@@ -218,11 +319,7 @@ NOT_DEFAULTS = {
 
 def test_no_defaults_in_code():
     """Defaults of omitted configuration keys are the loader's (``spec(default=...)``)."""
-    found = {str(f.relative_to(ROOT)): defaults_in_code(f)
-             for package in ("svss", "svss_daq", "svss_proc")
-             for f in sorted((ROOT / package).rglob("*.py"))}
-    assert not {f: lines for f, lines in found.items()
-                if len(lines) != NOT_DEFAULTS.get(f, (0,))[0]}
+    assert not unreviewed(("svss", "svss_daq", "svss_proc"), defaults_in_code, NOT_DEFAULTS)
 
 
 def test_the_defaults_checker_sees_a_planted_default(tmp_path):

@@ -148,20 +148,28 @@ def main(argv=None) -> int:
     (``python -m svss_proc.micronav.phase_centres [--order 0,2,4,5,3,1]``)."""
     import argparse
 
-    from svss_daq.config import HardwareConfig, config_path, load
+    from svss_daq.config import HardwareConfig, ProcessingConfig, config_path, load
     from svss_daq.geometry import array_geometry
     p = argparse.ArgumentParser(description=main.__doc__)
     p.add_argument("--hardware", default=None, help="hardware TOML (default: the project's)")
     p.add_argument("--order", default=None, help="projector order (default: the sequencer's)")
     p.add_argument("--centre-hz", type=float, default=None,
                    help="frequency of the tolerance lambda/4 (default: the waveform's centre)")
-    p.add_argument("--sound-speed", type=float, default=1500.0, help="m/s")
+    p.add_argument("--processing", default=None,
+                   help="processing TOML whose imaging.water_sound_speed_m_s sets the "
+                   "tolerance (default: the project's)")
+    p.add_argument("--sound-speed", type=float, default=None,
+                   help="water sound speed of the tolerance, m/s (default: the processing "
+                   "configuration's imaging.water_sound_speed_m_s)")
     args = p.parse_args(argv)
     hw = load(HardwareConfig, args.hardware or config_path("hardware.toml"))
+    sound_speed = (args.sound_speed if args.sound_speed is not None else load(
+        ProcessingConfig, args.processing or config_path("processing.toml")
+    ).imaging.water_sound_speed_m_s)
     geo = array_geometry(hw)
     order = ([int(k) for k in args.order.split(",")] if args.order
              else list(hw.sequencer.projector_order))
-    tol = args.sound_speed / (args.centre_hz or hw.waveform.center_hz) / 4
+    tol = sound_speed / (args.centre_hz or hw.waveform.center_hz) / 4
     lags = (1, 2, 3, 4)
     print(f"projector order {order}, ping interval {hw.sequencer.ping_interval_s} s, "
           f"tolerance lambda/4 = {tol * 1e3:.1f} mm; pairs per sequence position")

@@ -14,7 +14,7 @@ import pytest
 from sim_device.environment_source import EnvironmentSource
 from sim_device.fidelity import densities, resolution_cell
 from sim_device.scene import load_scene
-from sim_device.synthesis import transmit_legs
+from sim_device.synthesis import Points, TransmitLegs, beam_of, transmit_legs
 from svss_daq.config import config_path
 
 PING = 100
@@ -155,8 +155,9 @@ def test_near_critical_receive_legs_agree_with_the_scalar_leg(hardware):
     scatterers seen from near the critical angle, where the table is poorest (measured:
     8025 legs in the checked part of the table, 2795 of them poor; delays within 2e-18 s,
     amplitudes 3e-12; without the refinement the delays are off by 2.5e-8 s)."""
-    from sim_device import synthesis as syn
+    from sim_device import layered_rays, synthesis_fast_legs as fl
     from sim_device.layered_rays import TABLE_CEILING, TABLE_RESIDUAL, TABLE_TRUSTED
+    from sim_device.synthesis import leg_body
 
     src = EnvironmentSource(hardware, sand())
     g = src.frame(PING)
@@ -165,10 +166,10 @@ def test_near_critical_receive_legs_agree_with_the_scalar_leg(hardware):
     imt = np.ascontiguousarray(img.transpose(1, 2, 0))
     m, beam = src.media, src.rx_beam
     tab = src.table
-    gtab = syn._beam_table(beam.front, beam.back)
-    itab = syn._interface_tables(src.r_top, src.r_bot)
-    ms = syn._receive_scalars(m.c, m.alpha, g.bore, beam.front, beam.back,
-                              float(beam.lo_front), float(beam.lo_back))
+    gtab = fl._beam_table(beam.front, beam.back)
+    itab = fl._interface_tables(src.r_top, src.r_bot)
+    ms = fl._receive_scalars(m.c, m.alpha, g.bore, beam.front, beam.back,
+                             float(beam.lo_front), float(beam.lo_back))
     nch = img.shape[0]
     fix, wk = np.zeros(nch, dtype=np.bool_), np.empty((11, nch))
     tr, ar_re, ar_im = wk[8], wk[9], wk[10]          # the legs' outputs
@@ -180,23 +181,22 @@ def test_near_critical_receive_legs_agree_with_the_scalar_leg(hardware):
         for r in np.linspace(1.6, 4.0, 13):
             for az in (0.3, 1.9, 3.6):
                 xk, yk = cx + r * math.cos(az), cy + r * math.sin(az)
-                syn._receive_legs(xk, yk, zk, 1, 0, imt, ms, tab.reshape(-1), tab.shape[1],
-                                  itab, gtab, src.sig, fix, wk)
+                fl._receive_legs(xk, yk, zk, 1, 0, imt, ms, tab.reshape(-1), tab.shape[1],
+                                 itab, gtab, src.sig, fix, wk)
                 for ch in range(nch):
                     # the table's own s and residual (what decides the path)
                     ex, ey, h0 = img[ch, 0, 0], img[ch, 0, 1], img[ch, 0, 2]
                     rho = math.hypot(xk - ex, yk - ey)
-                    t = syn.layered_rays.table_ray_tan(rho, h0, zk, m.c[0], m.c[1], tab,
-                                                       hbuf, cbuf)
+                    t = layered_rays.table_ray_tan(rho, h0, zk, m.c[0], m.c[1], tab, hbuf,
+                                                   cbuf)
                     s = t / math.sqrt(1.0 + t * t)
                     if TABLE_TRUSTED <= s < TABLE_CEILING:
                         n_checked += 1
-                    tau, a, _ = syn.leg_body(ex, ey, h0, img[ch, 0, 3], img[ch, 0, 4],
-                                             int(img[ch, 0, 5]), xk, yk, zk, 1, True, m.c,
-                                             m.rho, m.delta, m.alpha, m.z_top, tab,
-                                             src.r_top, src.r_bot, g.bore, beam.front,
-                                             beam.back, beam.lo_front, beam.lo_back, hbuf,
-                                             cbuf)
+                    tau, a, _ = leg_body(ex, ey, h0, img[ch, 0, 3], img[ch, 0, 4],
+                                         int(img[ch, 0, 5]), xk, yk, zk, 1, True, m.c,
+                                         m.rho, m.delta, m.alpha, m.z_top, tab, src.r_top,
+                                         src.r_bot, g.bore, beam.front, beam.back,
+                                         beam.lo_front, beam.lo_back, hbuf, cbuf)
                     if fix[ch]:              # left to the scalar leg by the kernel
                         n_fix += 1
                         continue
@@ -236,7 +236,8 @@ def test_near_critical_echoes_agree_with_the_reference_kernel(hardware):
     Brent in the reference), through a receive beam that sees every direction, so that
     those legs carry amplitude: the fast kernel agrees with the reference kernel to
     float32 rounding (measured without the refinement: 1.5e-2)."""
-    from sim_device.synthesis import accumulate, accumulate_fast
+    from sim_device.synthesis import (Beam, Pass2, Paths, Points, TransmitLegs, accumulate,
+                                      accumulate_fast)
 
     src = EnvironmentSource(hardware, sand())
     g = src.frame(PING)
@@ -261,12 +262,12 @@ def test_near_critical_echoes_agree_with_the_reference_kernel(hardware):
     allowed[0, 0] = True
     wide = np.ones(64)                          # gain 1 for cos(off-axis) in [-1, 1]
     m, p = src.media, src.pulses
-    args = (sx, sy, sz, med, tau_t, amp_t, img_r, allowed, m.c, m.rho, m.delta, m.alpha,
-            m.z_top, src.table, src.r_top, src.r_bot, g.bore, wide, np.zeros(0), -1.0,
-            1.0, src.sig, src.fc, p.t_lo, p.t_hi, p.t_buf0, src.fs)
+    p2 = Pass2(Points(sx, sy, sz, med), TransmitLegs(tau_t, amp_t),
+               Paths(img_r, allowed, np.full(allowed.shape, 1e300)), src.medium_bundle(),
+               Beam(g.bore, wide, np.zeros(0), -1.0, 1.0), p.window())
     ref = p.buffer(img_r.shape[0])
-    n_ref = accumulate(*args, ref)
-    fast, n_fast = accumulate_fast(*args, p.n_buf, 2, np.full(allowed.shape, 1e300))
+    n_ref = accumulate(p2, ref)
+    fast, n_fast = accumulate_fast(p2, p.n_buf, 2)
     assert n_fast.sum() == n_ref.sum() > 0.9 * n * img_r.shape[0]
     assert rel(fast, ref) < 1e-6
 
@@ -274,16 +275,13 @@ def test_near_critical_echoes_agree_with_the_reference_kernel(hardware):
 def _transmit_pair(src, x, y, z, med, amp, img):
     """The transmit legs of the scatterers (x, y, z, med, strength amp) from the
     projector images ``img`` by the scalar kernel and by the vectorised one."""
-    m, tb = src.media, src.tx_beam
+    beam = beam_of(src.tx_beam, src.frame(PING).bore)
     out = []
     for fast in (False, True):
-        tau = np.empty((x.size, img.shape[0]))
-        a = np.empty((x.size, img.shape[0]), dtype=np.complex128)
-        transmit_legs(x, y, z, med, amp, img, m.c, m.rho, m.delta, m.alpha, m.z_top,
-                      src.table, src.r_top, src.r_bot, np.ascontiguousarray(
-                          src.frame(PING).bore), tb.front, tb.back, tb.lo_front,
-                      tb.lo_back, src.sig, tau, a, fast)
-        out.append((tau, a))
+        legs = TransmitLegs(np.empty((x.size, img.shape[0])),
+                            np.empty((x.size, img.shape[0]), dtype=np.complex128))
+        transmit_legs(Points(x, y, z, med), amp, img, src.medium_bundle(), beam, legs, fast)
+        out.append(legs)
     return out
 
 

@@ -42,9 +42,10 @@ def sand(**scattering):
 def pass2_case(name: str, n_each: int = 60, hardware=None):
     """Inputs of pass 2 for one ping, as EnvironmentSource.scattered forms them, cut to
     ``n_each`` interface and ``n_each`` volume scatterers in view (all, for points in
-    water) and the channels CHANNELS. Returns (args before n_buf, n_buf, zmax)."""
+    water) and the channels CHANNELS. Returns (pass 2's bundles, n_buf)."""
     from sim_device.environment_source import EnvironmentSource
-    from sim_device.synthesis import MED_INTERFACE, transmit_legs
+    from sim_device.synthesis import (MED_INTERFACE, Pass2, Paths, Points, TransmitLegs,
+                                      beam_of, transmit_legs)
     from svss_daq.config import HardwareConfig, load_with_text
     hw = (hardware if hardware is not None
           else load_with_text(HardwareConfig, config_path("hardware.toml")))
@@ -60,16 +61,12 @@ def pass2_case(name: str, n_each: int = 60, hardware=None):
     ox, oy = float(g.tx[0]), float(g.tx[1])
     img_t = src._images((g.tx - [ox, oy, 0.0])[None, :])[0]
     img_r = np.ascontiguousarray(src._images(g.rx - [ox, oy, 0.0])[CHANNELS])
-    sx, sy, sz = s.x - ox, s.y - oy, s.z
-    m = src.media
-    env = (m.c, m.rho, m.delta, m.alpha, m.z_top, src.table, src.r_top, src.r_bot)
-    bore = np.ascontiguousarray(g.bore, dtype=np.float64)
-    tb, rb = src.tx_beam, src.rx_beam
-    tau_t = np.empty((s.size, img_t.shape[0]))
-    amp_t = np.empty((s.size, img_t.shape[0]), dtype=np.complex128)
-    transmit_legs(sx, sy, sz, s.med, s.amp.astype(np.complex128), img_t, *env, bore,
-                  tb.front, tb.back, tb.lo_front, tb.lo_back, src.sig, tau_t, amp_t)
-    idx = np.flatnonzero(np.any(amp_t != 0, axis=1))
+    pts = Points(s.x - ox, s.y - oy, s.z, s.med)
+    legs = TransmitLegs(np.empty((s.size, img_t.shape[0])),
+                        np.empty((s.size, img_t.shape[0]), dtype=np.complex128))
+    transmit_legs(pts, s.amp.astype(np.complex128), img_t, src.medium_bundle(),
+                  beam_of(src.tx_beam, g.bore), legs)
+    idx = np.flatnonzero(np.any(legs.amp != 0, axis=1))
     if name != "water":
         rng = np.random.default_rng(5)
         inter = idx[s.med[idx] == MED_INTERFACE]
@@ -79,10 +76,10 @@ def pass2_case(name: str, n_each: int = 60, hardware=None):
     zmax = np.minimum(src.zmax, np.finfo(np.float64).max)
     if zmax.shape[0] > 1 and zmax.shape[1] > 1:
         zmax[1, 0] = 0.4          # a level cut-off on one multipath path
-    args = (sx[idx], sy[idx], sz[idx], s.med[idx], tau_t[idx], amp_t[idx], img_r,
-            src.allowed, *env, bore, rb.front, rb.back, rb.lo_front, rb.lo_back, src.sig,
-            src.fc, src.pulses.t_lo, src.pulses.t_hi, src.pulses.t_buf0, src.fs)
-    return args, src.pulses.n_buf, zmax
+    p2 = Pass2(Points(*(a[idx] for a in pts)), TransmitLegs(*(a[idx] for a in legs)),
+               Paths(img_r, src.allowed, zmax), src.medium_bundle(),
+               beam_of(src.rx_beam, g.bore), src.pulses.window())
+    return p2, src.pulses.n_buf
 
 
 SCRIPT = textwrap.dedent("""
@@ -93,12 +90,12 @@ SCRIPT = textwrap.dedent("""
     gpu = GpuAccumulator()
     out = {}
     for name in sys.argv[2:]:
-        args, n_buf, zmax = pass2_case(name, N_EACH[name])
-        cpu, n_cpu = accumulate_fast_serial(*args, n_buf, 1, zmax)
-        dev, n_dev = gpu(*args, n_buf, zmax)
+        p2, n_buf = pass2_case(name, N_EACH[name])
+        cpu, n_cpu = accumulate_fast_serial(p2, n_buf)
+        dev, n_dev = gpu(p2, n_buf)
         out[name + "_cpu"], out[name + "_gpu"] = cpu, dev
         out[name + "_n"] = np.array([n_cpu.sum(), n_dev.sum()])
-        out[name + "_med"] = args[3]
+        out[name + "_med"] = p2.pts.med
     a, b = wired_pair()
     out["wired_gpu"], out["wired_cpu"] = a.scattered(40), b.scattered(40)
     out["wired_n"] = np.array([a.last_stats["echoes"], b.last_stats["echoes"]])
@@ -188,8 +185,8 @@ def test_kernel_compiles_for_a_real_gpu(monkeypatch):
     if hasattr(cuda_dispatcher, "get_current_device") and not sg.cuda_available():
         monkeypatch.setattr(cuda_dispatcher, "get_current_device",
                             lambda: types.SimpleNamespace(compute_capability=(9, 0)))
-    args, _, zmax = pass2_case("water")
-    ptx, _ = cuda.compile_ptx(sg._receive_kernel.py_func, sg.kernel_signature(*args, zmax),
+    p2, _ = pass2_case("water")
+    ptx, _ = cuda.compile_ptx(sg._receive_kernel.py_func, sg.kernel_signature(p2),
                               cc=(9, 0))
     assert ".entry" in ptx and "atom" in ptx
 
