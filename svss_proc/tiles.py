@@ -12,14 +12,12 @@ naming the file and the path.
 
 from __future__ import annotations
 
-import functools
 import json
 import logging
 import os
 import re
 import secrets
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -36,7 +34,7 @@ from svss_daq.untrusted_hdf5 import (H5_ERRORS, abandon, cause, dataset, format_
 
 from .products import detect
 from .products.circumstances import tile_counts
-from .imaging.grid import TileGrid
+from .imaging.tile import Tile  # noqa: F401  (the tile files' Tile: formed by the imager)
 
 if TYPE_CHECKING:
     from .imaging.coverage import Coverage
@@ -103,50 +101,6 @@ def is_temporary(path: str | Path) -> bool:
     """Whether ``path`` is a file still being written (:func:`temporary_path`)."""
     name = Path(path).name
     return name.startswith(".") and PARTIAL in name
-
-
-@dataclass
-class Tile:
-    """A tile being formed or finished: the image (real and imaginary planes in the
-    kernel's precision while forming) and what went into it."""
-    grid: TileGrid
-    line: TrackLine
-    re: np.ndarray
-    im: np.ndarray
-    pings: list[int] = field(default_factory=list)
-    updates: int = 0
-    #: which pings and channels reached each voxel (None: not computed)
-    coverage: "Coverage | None" = None
-    #: what the pings were posed with (provenance attribute ``poses``), e.g. "recorded
-    #: live poses" or "re-navigated from N NMEA sentences and M PD0 ensembles"
-    poses: str = ""
-    #: the run the tile belongs to (root attribute ``run_id``; "" unknown)
-    run_id: str = ""
-    #: the sediment speed it was imaged with and where it came from (provenance group
-    #: ``seabed``'s attributes; :class:`svss_proc.seabed.speed.SpeedEstimate` summary)
-    seabed: dict | None = None
-    #: per ping of :attr:`pings`: (transmit time ns UTC, body origin north m, east m,
-    #: the navigation's NAV_* flags ``nav.quality``); the flags may be left out (a
-    #: 3-tuple: not known, no ``ping_nav_flags`` written)
-    track: list[tuple] = field(default_factory=list)
-    #: the next tile's first along-track planes, complete when this tile was: (magnitude,
-    #: ping-channel pairs or None), for products without seams (None: not known)
-    after: "tuple[np.ndarray, np.ndarray | None] | None" = None
-
-    @functools.cached_property
-    def image(self) -> np.ndarray:
-        """The complex image (along x cross x depth), complex64, uPa; built once, when
-        the tile is finished."""
-        out = np.empty(self.re.shape, dtype=np.complex64)
-        out.real = self.re
-        out.imag = self.im
-        return out
-
-    def to_host(self) -> "Tile":
-        """Bring device-resident planes (GPU imaging) back to host memory."""
-        if hasattr(self.re, "copy_to_host"):
-            self.re, self.im = self.re.copy_to_host(), self.im.copy_to_host()
-        return self
 
 
 def tile_line(attrs: dict) -> TrackLine:

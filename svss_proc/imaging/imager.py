@@ -25,13 +25,13 @@ from svss_daq.ping_gate import PingRejected, checked_ping_problem
 from svss_daq.waveform import make_waveform
 
 from ..conditioning import Conditioned, Conditioner
-from ..tiles import Tile
 from .coverage import Coverage
 from .cpu_kernel import run_ping
 from .delays import SpeedProfile, TravelTimeTable, build_table
 from .grid import kernel_voxels, tile_grid
 from .handback import Handback
 from .surface import InterfaceShape
+from .tile import Tile
 from .kernel_args import DelayModel, ImageSlice, PingArray, VoxelAxes, prepare
 from .pose_check import check_pose_flags
 from .schedule import PingStep, TileSchedule
