@@ -334,3 +334,20 @@ def test_the_defaults_checker_sees_a_planted_default(tmp_path):
         "    g = None if cfg.products is None else cfg.products.dpi\n"  # no default given
         "    return a, b, c, d, e, g\n")
     assert defaults_in_code(f) == [2, 3, 4]
+
+
+#: what the imaging core (its kernels, their scheduling and the tile it forms) may import
+#: of svss_proc besides itself: the conditioning of pings and the preflight of a
+#: configuration; never the files, the products or the workers (docs/architecture.md)
+IMAGING_MAY_USE = ("svss_proc.conditioning", "svss_proc.preflight")
+
+
+def test_the_imaging_core_knows_no_files_and_no_products():
+    graph = import_graph(ROOT)
+    bad = {m: sorted(t for t in ts if t.startswith("svss_proc.")
+                     and not t.startswith("svss_proc.imaging")
+                     and t not in IMAGING_MAY_USE and t != "svss_proc")
+           for m, ts in graph.items() if m.startswith("svss_proc.imaging")}
+    assert not {m: v for m, v in bad.items() if v}, bad
+    # and the checker sees such an import: the tile file module imports the products
+    assert "svss_proc.products.detect" in graph["svss_proc.tiles"]
