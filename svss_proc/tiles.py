@@ -262,7 +262,7 @@ def _write(f: h5py.File, tile: Tile, hardware: Loaded[HardwareConfig],
                                         for n in NAV_FLAG_NAMES], dtype=np.uint32),
                 "flag_meanings": " ".join(NAV_FLAG_NAMES)})
             _attach(ds, f, ("ping_sequence",))
-    # what happened among the tile's pings (docs/products.md, "Circumstances")
+    # what happened among the tile's pings (docs/run_products.md, "Circumstances")
     f.attrs.update(tile_counts(tile.pings, flags))
     # the magnitude is not stored: it is |image| (read_tile computes it), and was 30 MB
     # of a default tile written twice

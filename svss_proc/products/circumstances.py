@@ -1,6 +1,6 @@
 """The circumstances of a run's pings: where pings are missing and where their poses
 were held or dead-reckoned, so that each contact and product can say what happened
-around it (docs/products.md, "Circumstances"). Pure functions on a table of the run's
+around it (docs/run_products.md, "Circumstances"). Pure functions on a table of the run's
 imaged pings (sequence, time, position, navigation flags); no files.
 
 A *stretch* is a run of pings sharing one circumstance:

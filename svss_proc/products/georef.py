@@ -1,5 +1,5 @@
 """Map products of a run: the mosaic as a GeoTIFF and the contacts as a GeoPackage
-layer, both in the survey's UTM zone (docs/products.md "Map products").
+layer, both in the survey's UTM zone (docs/run_products.md "Map products").
 
 Libraries, not hand-written geodesy or file formats: pyproj (PROJ) for the projection
 between WGS-84 latitude/longitude and UTM; rasterio (GDAL, shipped in its wheels) writes

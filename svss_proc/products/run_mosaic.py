@@ -1,7 +1,7 @@
 """The run's mosaic of the tiles' plan-view MIPs: the survey-frame grid and its
 composite, the UTM one for the GeoTIFF (:mod:`.georef`), the HDF5 file (CF grid
 mapping, the run's stretches and array track) and the PNG map (the contacts circled,
-the stretches along the swath's edges, docs/products.md "Run products")."""
+the stretches along the swath's edges, docs/run_products.md)."""
 
 from __future__ import annotations
 
@@ -198,7 +198,7 @@ def _write_stretches_h5(f: h5py.File, track: PingTrack | None,
     the array's track they lie on (group ``track``, dimension ``ping``)."""
     g = f.create_group("stretches")
     g.attrs["long_name"] = ("the run's stretches of missing pings, dead-reckoned and "
-                            "held poses (docs/products.md, Circumstances)")
+                            "held poses (docs/run_products.md, Circumstances)")
     idx = g.create_dataset("stretch", data=np.arange(len(found), dtype=np.int64))
     idx.attrs.update({"units": "1", "long_name": "stretch number"})
     idx.make_scale("stretch")

@@ -7,7 +7,7 @@ Each contact names its run (the tiles' ``run_id``), its tile and the UTC time of
 closest pass (:func:`closest_pass` on the run's ping track, :func:`run_track`); values
 are rounded to their meaningful precision (:data:`CONTACT_FIELDS`).
 
-Contacts (docs/products.md "Run products"). Each tile's detections are placed in the
+Contacts (docs/run_products.md). Each tile's detections are placed in the
 survey frame through the tile's line, then into the run frame (the first tile's line),
 and filtered across tiles, which a tile alone cannot do:
 
