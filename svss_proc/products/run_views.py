@@ -108,24 +108,11 @@ def utc_text(time_ns: int) -> str:
 
 def run_track(views: list[TileView]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The run's track: (transmit time ns, body origin north m, east m) of every ping of
-    its tiles, once each, in time order; empty arrays when no tile keeps its pings'
-    track (tiles written before it was kept)."""
-    seq, t, n, e = [], [], [], []
-    for v in views:
-        d = v.data
-        if all(k in d for k in ("ping_time", "ping_north_m", "ping_east_m")):
-            seq.append(d["ping_sequence"])
-            t.append(d["ping_time"])
-            n.append(d["ping_north_m"])
-            e.append(d["ping_east_m"])
-    if not seq:
-        return (np.zeros(0, np.int64), np.zeros(0), np.zeros(0))
-    t, n, e = np.concatenate(t), np.concatenate(n), np.concatenate(e)
-    _, first = np.unique(np.concatenate(seq), return_index=True)
-    keep = first[np.argsort(t[first], kind="stable")]
-    ok = np.isfinite(n[keep]) & np.isfinite(e[keep])
-    keep = keep[ok]
-    return t[keep].astype(np.int64), n[keep], e[keep]
+    its tiles (:func:`run_pings`), once each, in time order; empty arrays when no tile
+    keeps its pings' track (tiles written before it was kept)."""
+    p = run_pings(views)
+    order = np.argsort(p.time_ns, kind="stable")
+    return p.time_ns[order].astype(np.int64), p.north_m[order], p.east_m[order]
 
 
 def closest_pass(track: tuple[np.ndarray, np.ndarray, np.ndarray], ned: np.ndarray

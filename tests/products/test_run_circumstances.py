@@ -65,26 +65,34 @@ def processing():
     return loaded_from_text(ProcessingConfig, new, "processing-demo.toml, held imaged")
 
 
-@pytest.fixture(scope="module")
-def gapped(tmp_path_factory, hardware) -> Path:
-    """The run's tiles and run products (``svss process``'s function)."""
+def processed(tmp_path_factory, hardware, name: str, missing: frozenset, flags) -> Path:
+    """The demo scene's pings with ``missing`` left out and each kept one's navigation
+    flags ``flags(sequence)`` (None: as simulated), recorded and imaged by ``svss
+    process``'s function: the run's tiles and run products (computed once a session)."""
     from sim_device.environment_source import EnvironmentSource
     from svss_daq.rawfile import RawRunWriter
     from svss_proc.run_worker import process_raw
 
     def run() -> Path:
-        root = tmp_path_factory.mktemp("gapped")
-        raw = root / "gapped.h5"
+        root = tmp_path_factory.mktemp(name)
+        raw = root / f"{name}.h5"
         scene = load_scene(SCENE)
         with RawRunWriter(raw, hardware, run_attrs={}) as rec:
             for p in itertools.islice(iter(EnvironmentSource(hardware, scene)),
                                       scene.track.n_pings):
-                if p.sequence not in MISSING:
-                    rec.append(dataclasses.replace(p, nav=dataclasses.replace(
-                        p.nav, quality=flags_of(p.sequence))))
+                if p.sequence in missing:
+                    continue
+                rec.append(p if flags is None else dataclasses.replace(
+                    p, nav=dataclasses.replace(p.nav, quality=flags(p.sequence))))
         process_raw(raw, root / "tiles", processing())
         return root / "tiles"
-    return computed_once(tmp_path_factory, "run_circumstances-gapped", run)
+    return computed_once(tmp_path_factory, f"run_circumstances-{name}", run)
+
+
+@pytest.fixture(scope="module")
+def gapped(tmp_path_factory, hardware) -> Path:
+    """The run's tiles and run products (``svss process``'s function)."""
+    return processed(tmp_path_factory, hardware, "gapped", MISSING, flags_of)
 
 
 def _contacts(folder: Path) -> list[dict]:
@@ -228,22 +236,7 @@ WIDE = frozenset(range(18, 44))
 
 @pytest.fixture(scope="module")
 def wide_gap(tmp_path_factory, hardware) -> Path:
-    from sim_device.environment_source import EnvironmentSource
-    from svss_daq.rawfile import RawRunWriter
-    from svss_proc.run_worker import process_raw
-
-    def run() -> Path:
-        root = tmp_path_factory.mktemp("wide-gap")
-        raw = root / "wide.h5"
-        scene = load_scene(SCENE)
-        with RawRunWriter(raw, hardware, run_attrs={}) as rec:
-            for p in itertools.islice(iter(EnvironmentSource(hardware, scene)),
-                                      scene.track.n_pings):
-                if p.sequence not in WIDE:
-                    rec.append(p)
-        process_raw(raw, root / "tiles", processing())
-        return root / "tiles"
-    return computed_once(tmp_path_factory, "run_circumstances-wide", run)
+    return processed(tmp_path_factory, hardware, "wide", WIDE, None)
 
 
 @pytest.mark.slow
