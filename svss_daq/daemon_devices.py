@@ -283,28 +283,32 @@ class DeviceSupervisor:
             ("dvl", self.dvl_link, self.dvl_parser),
             ("gps", self.gps_link, self.gps_tap)) if link is not None]
 
+    def _taps(self) -> list:
+        """(queue, the recorder's method that writes its records) of each record tap
+        opened."""
+        out = [(tap.raw, write) for tap, write in ((self.gps_tap, "append_nmea"),
+                                                   (self.dvl_parser, "append_pd0"))
+               if tap is not None]
+        if self.clock_tap is not None:
+            out.append((self.clock_tap, "append_clock_reference"))
+        return out
+
     def write_records(self) -> None:
         """Write the tapped records (NMEA sentences, PD0 ensembles, transmit records)
         to the recording while it takes them; count what their queues dropped (an
         event at every power of 10)."""
         rec = self.run.recorder
-        taps = [(self.gps_link and self.gps_tap, "append_nmea"),
-                (self.dvl_link and self.dvl_parser, "append_pd0"),
-                (self.clock_tap, "append_clock_reference")]
-        for tap, write in taps:
-            q = tap if isinstance(tap, RecordQueue) else getattr(tap, "raw", None)
-            if q is None or not rec or rec.stopped:
-                continue
+        taps = self._taps()
+        for q, write in taps:
+            if not rec or rec.stopped:
+                break
             while q:
                 a, b = q.popleft()
                 try:
                     getattr(rec, write)(a, b)
                 except RecordingStopped:
                     break
-        queues = [q for q in (getattr(self.gps_tap, "raw", None),
-                              getattr(self.dvl_parser, "raw", None), self.clock_tap)
-                  if isinstance(q, RecordQueue)]
-        dropped = sum(q.dropped for q in queues)
+        dropped = sum(q.dropped for q, _ in taps)
         c = self.run.counters
         old, c.records_dropped = c.records_dropped, dropped
         if dropped > old and (old == 0 or len(str(dropped)) > len(str(old))):
