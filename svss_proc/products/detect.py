@@ -264,14 +264,14 @@ def _regions(labels: np.ndarray, level: np.ndarray) -> Regions:
 HIDDEN_SOURCES = 20
 
 
-def _hidden_sources(mask: np.ndarray, level: np.ndarray, mag: np.ndarray, axes, voxel,
-                    min_voxels: int) -> tuple[np.ndarray, np.ndarray]:
+def _hidden_sources(mask: np.ndarray, mag: np.ndarray, axes, min_voxels: int
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """(positions (n, 3), peak magnitudes dB re 1 uPa) of the :data:`HIDDEN_SOURCES`
     strongest regions of ``mask`` (at least ``min_voxels`` voxels), by peak magnitude."""
     if not mask.any():
         return np.zeros((0, 3)), np.zeros(0)
     labels, _ = ndimage.label(mask, structure=np.ones((3, 3, 3), dtype=bool))
-    regions = _regions(labels, np.where(np.isfinite(level), mag, -np.inf))
+    regions = _regions(labels, mag)     # labelled voxels only: their levels are finite
     big = regions.counts >= min_voxels
     peaks, values = regions.peak[:, big], regions.peak_value[big]
     order = np.argsort(-values)[:HIDDEN_SOURCES]
@@ -338,7 +338,7 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
         # responses the coverage rule keeps from detecting (too few pings reached them:
         # beside a gap, at a run's end) still spread sidelobes into covered voxels:
         # they are sources, as the neighbouring tiles' contacts are
-        hidden = _hidden_sources(over & ~detectable, level, mag, axes, voxel, min_voxels)
+        hidden = _hidden_sources(over & ~detectable, mag, axes, min_voxels)
         if len(hidden[1]):
             context = hidden if context is None else (
                 np.concatenate([np.asarray(context[0], dtype=np.float64).reshape(-1, 3),
