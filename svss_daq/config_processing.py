@@ -73,6 +73,22 @@ class ImagingConfig:
     precision: str = spec("kernel arithmetic", choices=("float32", "float64"))
     apodisation: str = spec("receive-aperture weighting", choices=("none", "hann"))
     device: str = spec("where the kernel runs", choices=("cpu", "cuda"))
+    method: str | None = spec(
+        "imaging method of `svss process`, `svss batch` and a replay: 'exact' (one sum per "
+        "voxel and channel) or 'factorised' (channels summed on a coarse lattice of "
+        "columns, interpolated to the voxels: docs/imaging.md); omitted: exact",
+        choices=("exact", "factorised"), default="exact")
+    live_method: str | None = spec(
+        "imaging method of the live worker (`svss worker`; with device = 'cuda' the exact "
+        "method runs whatever this says); omitted: exact",
+        choices=("exact", "factorised"), default="exact")
+    factorised_step_m: float | None = spec(
+        "factorised method: spacing of the coarse columns along and across the track, m; "
+        "omitted: 0.08", lo=0.005, hi=1.0,
+        default=0.08)
+    factorised_lobes: int | None = spec(
+        "factorised method: lobes of the Lanczos interpolator (2 x lobes columns per "
+        "axis); omitted: 3", lo=1, hi=8, default=3)
     gpu_pings_per_launch: int | None = spec(
         "on the GPU, pings of a tile imaged by one kernel launch (each voxel summed over "
         "them, then added once); omitted: 16", lo=1, hi=256, default=16)
@@ -408,6 +424,10 @@ class ProcessingConfig:
             if not relief or len(widths) != 1 or min(widths) < 1:
                 return ("imaging.interface_relief_m", f"expected rows of equal length (one "
                         f"row per node along the track), got lengths {sorted(widths)}")
+        im = self.imaging
+        if im.factorised_step_m < self.tile.voxel_m:
+            return ("imaging.factorised_step_m", f"got {im.factorised_step_m!r} m, finer "
+                    f"than a voxel (tile.voxel_m = {self.tile.voxel_m!r} m)")
         if self.imaging.sediment_layers and self.imaging.delays != "table":
             return ("imaging.sediment_layers", "layers need imaging.delays = 'table' (got "
                     f"{self.imaging.delays!r})")

@@ -182,8 +182,11 @@ class _Progress:
 
 #: optional fields of a worker's progress message, each a number >= 0 or null: its open
 #: tiles, the most its memory bound (limits.memory_gib) allows, and how long ago it
-#: last reached that bound (closed a tile early or refused a ping for it)
-PROGRESS_EXTRAS = ("open_tiles", "max_open_tiles", "memory_bound_age_s")
+#: last reached that bound (closed a tile early or refused a ping for it); and the
+#: imaging method it runs (one of :data:`IMAGING_METHODS`)
+PROGRESS_EXTRAS = ("open_tiles", "max_open_tiles", "memory_bound_age_s", "imaging_method")
+#: the words a worker may give for its imaging method (docs/imaging.md)
+IMAGING_METHODS = ("exact", "factorised")
 
 
 @dataclass
@@ -446,7 +449,13 @@ class PingService:
                 raise RequestError("expected 'client' (1 to 64 of A-Z a-z 0-9 . _ : -), "
                                    "'run_id' (a string) and 'done' (true or false)")
             extras = {k: req[k] for k in PROGRESS_EXTRAS if k in req}
+            method = extras.get("imaging_method")
+            if method is not None and method not in IMAGING_METHODS:
+                raise RequestError(f"field 'imaging_method' expected one of "
+                                   f"{list(IMAGING_METHODS)}, got {messages._show(method)}")
             for k, v in extras.items():
+                if k == "imaging_method":
+                    continue
                 if v is not None and not (isinstance(v, (int, float))
                                           and not isinstance(v, bool) and 0 <= v < 1e12):
                     raise RequestError(f"field '{k}' expected a number >= 0 or null, got "

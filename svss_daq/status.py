@@ -297,6 +297,7 @@ def format_status(s: dict) -> str:
                                            f"({_n(w.get('backlog_s'), '.1f', ' s')}) behind")
                      + (f", {w.get('open_tiles')} of {w.get('max_open_tiles')} tiles open"
                         if w.get("open_tiles") is not None else "")
+                     + (f", imaging {w['imaging_method']}" if w.get("imaging_method") else "")
                      + (f", SILENT for {_n(w.get('heard_s'), '.0f', ' s')}"
                         if w.get("silent") else ""))
     for e in s.get("events", [])[-5:]:

@@ -31,7 +31,7 @@ from svss_daq.ping_gate import PingGate, PingRejected
 from svss_daq.progress import Progress
 from svss_daq.rawfile import RawRunReader, run_of
 
-from .imaging.imager import TileImager
+from .imaging.imager import TileImager, imaging_method
 from .imaging.pose_check import check_pose_flags
 from .live_clock import SonarLag, StageClock, instrument
 from .micronav.live import live_stage
@@ -75,7 +75,7 @@ class Worker:
                  out_dir: str | Path, *, force: bool = False, run_id: str | None = None,
                  resume: bool = False, poses: str = LIVE_POSES,
                  max_listed_gaps: int = MAX_LISTED_GAPS, run_label: str | None = None,
-                 live_poses: bool | None = None):
+                 live_poses: bool | None = None, live: bool = False):
         self.hardware, self.processing = hardware, processing
         #: ranges [first, last] of the run's pings skipped (never imaged: lost on the
         #: stream and not fetched), the first ``max_listed_gaps``; the rest counted
@@ -100,7 +100,10 @@ class Worker:
         #: the run the tiles name (tile attribute ``run_id``, the contacts' ``run_id``):
         #: ``run_label``, else ``run_id`` ("" unknown); no journal without ``run_id``
         self.run_label = run_label or run_id or ""
-        self.imager = TileImager(hardware, processing.value, source=processing.source)
+        #: ``live``: the live worker's imaging method (``[imaging] live_method``), else
+        #: ``method`` (:func:`~svss_proc.imaging.imager.imaging_method`)
+        self.imager = TileImager(hardware, processing.value, source=processing.source,
+                                 method=imaging_method(processing.value, live))
         #: CPU and wall time per stage (manifest ``stage_times``; docs/keeping_up.md)
         self.clock = StageClock()
         instrument(self.imager, self.clock)
@@ -382,6 +385,7 @@ class Worker:
             # they span; ``complete`` says the run was finished, not that it is whole
             "missing_pings": self.missing_in_sequence, "gaps": list(self.gap_list),
             "run_id": self.run_id, "pings": self.imager.n_pings,
+            "imaging_method": self.imager.accumulator.method,
             "poses": self.poses, "pose_flags": dict(sorted(self.pose_flags.items())),
             "pings_refused": self.gate.n_refused, "refused": dict(self.gate.refused),
             "imaging_errors": self.imaging_errors, "late_pings": self.imager.late_pings,

@@ -49,4 +49,5 @@ def memory_state(worker: Worker | None, now: float) -> dict:
     sched = worker.imager.schedule
     at = sched.memory_bound_at
     return {"open_tiles": len(worker.imager.active), "max_open_tiles": sched.max_open_tiles,
-            "memory_bound_age_s": None if at is None else round(now - at, 3)}
+            "memory_bound_age_s": None if at is None else round(now - at, 3),
+            "imaging_method": worker.imager.accumulator.method}

@@ -283,6 +283,7 @@ def _write(f: h5py.File, tile: Tile, hardware: Loaded[HardwareConfig],
                        "processing_config_source": processing.source})
     if tile.poses:
         prov.attrs["poses"] = tile.poses
+    prov.attrs["imaging_method"] = tile.method
     if tile.seabed:
         _write_seabed(prov, tile.seabed)
 
@@ -513,6 +514,9 @@ def _header(f: h5py.File, path: Path) -> dict:
     out["poses"] = (_text(prov.attrs.get("poses")) if isinstance(prov, h5py.Group)
                     else None)
     out["seabed"] = _read_seabed(prov)
+    # tiles written before the live method existed were made by the exact method
+    out["imaging_method"] = (_text(prov.attrs.get("imaging_method", "exact"))
+                             if isinstance(prov, h5py.Group) else None)
     return out
 
 

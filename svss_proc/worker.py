@@ -37,7 +37,7 @@ from svss_daq.progress import Progress
 from svss_daq.signals import raise_if_stopped, stop_once
 from svss_daq.subscriber import subscribe
 
-from .imaging.imager import PingAccumulator
+from .imaging.imager import PingAccumulator, imaging_method
 from .folder_lock import FolderLock
 from .preflight import preflight
 from .run_folder import MANIFEST, atomic_json, prepare_output_dir, read_journal, run_folder_name
@@ -144,7 +144,7 @@ class StreamWorker:
         folder = self._folder(run_id)
         worker = self._configured(Worker(self.hardware, self.processing, folder,
                                          run_id=run_id, resume=True,
-                                         max_listed_gaps=self.max_listed_gaps))
+                                         max_listed_gaps=self.max_listed_gaps, live=True))
         start = worker.resume_sequence if worker.resume_sequence is not None else first
         run = _Run(run_id, worker, start)
         self._say(run)                     # the service knows at once this worker needs it
@@ -205,7 +205,8 @@ class StreamWorker:
         log.info("a run begins at ping %d: imaging into %s until its end marker names it",
                  seq, folder)
         return _Run(None, self._configured(Worker(
-            self.hardware, self.processing, folder, max_listed_gaps=self.max_listed_gaps)),
+            self.hardware, self.processing, folder, max_listed_gaps=self.max_listed_gaps,
+            live=True)),
             seq)
 
     def _configured(self, worker: Worker) -> Worker:
@@ -810,7 +811,8 @@ def serve(endpoint: str, out_dir: str | Path, hardware: Loaded[HardwareConfig],
         # service: a first run's compile at the first ping left it silent past the
         # daemon's service.worker_silence_s. (Before subscribing, the daemon's 10 s wait
         # for a subscriber ran out during it on a cold cache.)
-        PingAccumulator(hardware, processing.value).warm_up()
+        PingAccumulator(hardware, processing.value,
+                        method=imaging_method(processing.value, live=True)).warm_up()
         log.info("worker: waiting for pings from %s%s", endpoint,
                  f" (catch-up service {service})" if service else "")
         try:

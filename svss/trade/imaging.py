@@ -121,9 +121,10 @@ def variants(proc: ProcessingConfig, hw: HardwareConfig, c_sed: float, quick: bo
     im = proc.imaging
     default = {"interpolation": im.interpolation, "precision": im.precision,
                "delays": im.delays, "voxel_m": proc.tile.voxel_m, "channels": "all",
-               "upsample": proc.conditioning.upsample, "device": im.device}
+               "upsample": proc.conditioning.upsample, "device": im.device,
+               "method": im.method}
     ref = dict(default, interpolation="cubic", precision="float64", delays="exact",
-               upsample=4, device="cpu")
+               upsample=4, device="cpu", method="exact")
     rows = [("reference", "highest fidelity", ref), ("default", "processing.toml", default)]
     for interp in ("nearest", "linear", "cubic"):
         rows.append(("interpolation", interp, dict(default, interpolation=interp)))
@@ -137,6 +138,12 @@ def variants(proc: ProcessingConfig, hw: HardwareConfig, c_sed: float, quick: bo
     for name in list(channel_subsets(hw))[1:]:
         rows.append(("channels", name, dict(default, channels=name)))
     rows.append(("upsample", "4", dict(default, upsample=4)))
+    # the live worker's method (docs/imaging.md: the live method), at the configured
+    # lattice and one twice as coarse in area
+    for m in ("exact", "factorised"):
+        rows.append(("method", m, dict(default, method=m)))
+    rows.append(("method", f"factorised, {1.4 * im.factorised_step_m:.3g} m lattice",
+                 dict(default, method="factorised", factorised_step_m=1.4 * im.factorised_step_m)))
     rows.append(("combined", "nearest, float32, 2x voxel",
                  dict(default, interpolation="nearest", precision="float32",
                       voxel_m=2 * v0 if not quick else 3 * v0)))
@@ -173,7 +180,9 @@ def configure(proc: ProcessingConfig, s: dict, workload: Workload,
     tile = dataclasses.replace(workload.tile, voxel_m=s["voxel_m"])
     im = dataclasses.replace(proc.imaging, interpolation=s["interpolation"],
                              precision=s["precision"], delays=s["delays"],
-                             sediment_sound_speed_m_s=c_sed, device=s["device"])
+                             sediment_sound_speed_m_s=c_sed, device=s["device"],
+                             method=s["method"], factorised_step_m=s.get(
+                                 "factorised_step_m", proc.imaging.factorised_step_m))
     cond = dataclasses.replace(proc.conditioning, upsample=s["upsample"])
     return dataclasses.replace(proc, tile=tile, imaging=im, conditioning=cond)
 
@@ -187,15 +196,21 @@ def run(hw: Loaded[HardwareConfig], proc: ProcessingConfig, workload: Workload, 
     full = proc.tile
     spacing = workload.scene.track.speed_m_s * hw.value.sequencer.ping_interval_s
     out = []
-    ref_img = ref_grid = None
+    ref_img = ref_grid = default_img = None
     for opt, val, s in rows:
         p = configure(proc, s, workload, c_sed)
         ch = subsets[s["channels"]]
         img, grid, el, t_cond, upd, cpu = image(hw, p, pings, workload.tile_index, ch)
         if opt == "reference":
             ref_img, ref_grid = img, grid
+        if opt == "default":
+            default_img = img
         n_ch = n_all if ch is None else len(ch)
         err = errors(img, grid, ref_img, ref_grid, scale=n_all / n_ch)
+        if default_img is not None and img.shape == default_img.shape:
+            # against the default (the exact method's image): what a method alone costs
+            err["vs_default_db"] = errors(img, grid, default_img, grid,
+                                          scale=n_all / n_ch)["rel_rms_db"]
         ratio = extrapolation(p.tile, full)
         # the pings of a full tile: its length plus the workload's reach on both sides
         tile_pings = full.length_m / spacing + (len(pings) * workload.stride

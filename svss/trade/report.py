@@ -68,7 +68,8 @@ def _fmt(v) -> str:
 
 COLUMNS = ("area", "option", "value", "time_s", "tile_s", "error", "on_front",
            "is_default", "is_reference")
-EXTRA = {"imaging": ("rel_rms_db", "peak_db", "peak_shift_m", "error_basis", "cpu_s"),
+EXTRA = {"imaging": ("rel_rms_db", "vs_default_db", "peak_db", "peak_shift_m", "error_basis",
+                    "cpu_s"),
          "simulation": ("d_level_db", "d_contrast_db", "d_excess_db", "scintillation",
                         "ks_exponential"),
          "normalisation": ("max_db", "mean_db")}

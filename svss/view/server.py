@@ -169,6 +169,7 @@ class ViewState:
             png = path.with_name(path.stem + QUICKLOOK_SUFFIX)
             tiles.append({"name": path.stem, "mtime": mtime,
                           "pings": int(v.data["ping_sequence"].size),
+                          "imaging_method": v.data.get("imaging_method"),
                           "detections": int(len(det)),
                           "quicklook": f"/files/{path.stem}{QUICKLOOK_SUFFIX}?m={mtime}"
                           if png.is_file() else None})
@@ -386,6 +387,7 @@ class Handler(BaseHTTPRequestHandler):
         png = p.with_name(p.stem + QUICKLOOK_SUFFIX)
         self._json({"name": p.stem, "pings": int(d["ping_sequence"].size),
                     "poses": d.get("poses"), "run_id": _text(a.get("run_id")),
+                    "imaging_method": d.get("imaging_method"),
                     "sediment": seabed_line(d["seabed"]) if d.get("seabed") else None,
                     "created_utc": _text(a.get("creation_time_utc")),
                     "quicklook": (f"/files/{png.name}?m={png.stat().st_mtime}"

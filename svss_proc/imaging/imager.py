@@ -28,6 +28,7 @@ from ..conditioning import Conditioned, Conditioner
 from .coverage import Coverage
 from .cpu_kernel import run_ping
 from .delays import SpeedProfile, TravelTimeTable, build_table
+from .factorised import Factorisation, add_ping
 from .grid import kernel_voxels, tile_grid
 from .handback import Handback
 from .surface import InterfaceShape
@@ -57,16 +58,36 @@ def receive_apodisation(receivers_body: np.ndarray, kind: str) -> np.ndarray | N
     return w / w.mean()
 
 
+def imaging_method(processing: ProcessingConfig, live: bool = False) -> str:
+    """The imaging method a setting runs: ``[imaging] live_method`` for the live worker,
+    ``method`` otherwise; 'exact' on the GPU (the factorised second stage is a CPU
+    kernel, and the GPU keeps up with the exact method)."""
+    im = processing.imaging
+    method = im.live_method if live else im.method
+    return "exact" if im.device == "cuda" else method
+
+
 class PingAccumulator:
     """Images pings into tiles: conditions a ping (:meth:`condition`), builds the kernel
     arguments once per ping and runs the imaging and coverage kernels on the slices a
     :class:`~.schedule.PingStep` gives (:meth:`image`). ``channels``: sum only these
-    receive channels (None: all; ``svss trade``'s sub-arrays)."""
+    receive channels (None: all; ``svss trade``'s sub-arrays). ``method``: 'exact' or
+    'factorised' (:mod:`.factorised`; None: ``[imaging] method``, see
+    :func:`imaging_method`)."""
 
     def __init__(self, hardware: Loaded[HardwareConfig], processing: ProcessingConfig, *,
-                 channels: np.ndarray | None = None):
+                 channels: np.ndarray | None = None, method: str | None = None):
         hw = hardware.value
         self._proc = processing
+        im = processing.imaging
+        #: the imaging method run ('exact' or 'factorised'), named in tiles and manifests
+        self.method = method if method is not None else imaging_method(processing)
+        if self.method not in ("exact", "factorised"):
+            raise ValueError(f"imaging method {self.method!r}: expected 'exact' or "
+                             "'factorised'")
+        if self.method == "factorised" and im.device == "cuda":
+            self.method = "exact"
+        self._plan = Factorisation(im.factorised_step_m, im.factorised_lobes)
         self._channels = None if channels is None else np.asarray(channels)
         geometry = array_geometry(hw)
         if self._channels is not None:
@@ -161,7 +182,10 @@ class PingAccumulator:
         out = ImageSlice(self._zeros((2, 2, 2), dtype=self._dtype),    # (not 1: a 1-voxel
                          self._zeros((2, 2, 2), dtype=self._dtype),    # axis is also F order)
                          VoxelAxes(np.zeros(2), np.zeros(2), np.array([0.4, 0.5])), 0, 2)
-        self.kernel(out, kd, array, delays, gating=im.beam_gating)
+        if self.method == "factorised":
+            add_ping(out, kd, array, delays, self._plan, self.kernel, gating=im.beam_gating)
+        else:
+            self.kernel(out, kd, array, delays, gating=im.beam_gating)
 
     def ping_inputs(self, tx: np.ndarray, rx: np.ndarray, bore: np.ndarray,
                     reach: float) -> tuple[PingArray, DelayModel]:
@@ -213,6 +237,9 @@ class PingAccumulator:
                     entry = self._pending[id(tile)] = (tile, self._device_counter())
                 self.kernel(out, kd, array, delays, gating=im.beam_gating, count=entry[1])
                 n = 0
+            elif self.method == "factorised":
+                n = add_ping(out, kd, array, delays, self._plan, self.kernel,
+                             gating=im.beam_gating)
             else:
                 n = self.kernel(out, kd, array, delays, gating=im.beam_gating)
             # which voxels this ping reached (geometry only; the image is not touched)
@@ -221,6 +248,7 @@ class PingAccumulator:
             tile.track.append((int(ping.transmit_time_ns), float(ping.nav.north_m),
                                float(ping.nav.east_m), int(ping.nav.quality)))
             tile.updates += int(n)
+            tile.method = self.method
             total += int(n)
         self._updates += total
         return total
@@ -267,14 +295,15 @@ class TileImager:
 
     def __init__(self, hardware: Loaded[HardwareConfig], processing: ProcessingConfig, *,
                  source: str = "processing configuration",
-                 channels: np.ndarray | None = None):
+                 channels: np.ndarray | None = None, method: str | None = None):
         self._hardware = hardware
         self._proc = processing
         #: what to image where, from the poses (set-up: ``fix_frame``, ``mark_done``,
         #: ``trust_poses``)
         self.schedule = TileSchedule(hardware, processing, source=source)
         #: conditions pings and runs the kernels (``condition``, ``kernel``)
-        self.accumulator = PingAccumulator(hardware, processing, channels=channels)
+        self.accumulator = PingAccumulator(hardware, processing, channels=channels,
+                                           method=method)
         #: the tiles being formed or held (complete, until the next tile's first planes
         #: are: :mod:`.handback`), by index
         self._tiles: dict[int, Tile] = {}

@@ -34,6 +34,9 @@ class Tile:
     #: what the pings were posed with (provenance attribute ``poses``), e.g. "recorded
     #: live poses" or "re-navigated from N NMEA sentences and M PD0 ensembles"
     poses: str = ""
+    #: the imaging method that made it, 'exact' or 'factorised' (provenance attribute
+    #: ``imaging_method``; :mod:`svss_proc.imaging.factorised`)
+    method: str = "exact"
     #: the run the tile belongs to (root attribute ``run_id``; "" unknown)
     run_id: str = ""
     #: the sediment speed it was imaged with and where it came from (provenance group

@@ -67,7 +67,8 @@ function showGlance(s) {
       + (r.stopped ? ` — STOPPED: ${r.stopped}` : "")),
     row("workers", workers.length ? workers.map((w) =>
       `${w.client}: ${w.backlog_pings == null ? "?" : w.backlog_pings} ping(s)`
-      + ` (${num(w.backlog_s, 1, " s")}) behind`).join("; ") : "none heard"));
+      + ` (${num(w.backlog_s, 1, " s")}) behind`
+      + (w.imaging_method ? `, imaging ${w.imaging_method}` : "")).join("; ") : "none heard"));
   box.append(el("h2", {}, "At a glance"), t);
 }
 
@@ -132,7 +133,8 @@ function onTiles(m) {
   for (const t of m.tiles) {
     const card = el("div", {class: "tile", "data-tile": t.name, title: "open " + t.name},
       t.quicklook ? el("img", {src: t.quicklook, alt: t.name + " quicklook"}) : "",
-      el("div", {}, `${t.name}: ${t.pings} pings, ${t.detections} detection(s)`));
+      el("div", {}, `${t.name}: ${t.pings} pings, ${t.detections} detection(s)`
+        + (t.imaging_method ? `, ${t.imaging_method}` : "")));
     card.addEventListener("click", () => openTile(t.name));
     box.append(card);
   }
@@ -155,6 +157,7 @@ function openTile(name) {
     $("tile-title").textContent = `${t.name} — run ${t.run_id || "?"}`;
     $("tile-meta").textContent = `${t.pings} pings; written ${t.created_utc || "?"};`
       + ` poses: ${t.poses || "?"}; sediment: ${t.sediment || "?"};`
+      + ` imaging method: ${t.imaging_method || "?"};`
       + ` ${t.detections.length} detection(s) in the tile`;
     const img = $("tile-img");
     if (t.quicklook) img.src = t.quicklook; else img.removeAttribute("src");
