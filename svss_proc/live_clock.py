@@ -70,11 +70,12 @@ class StageClock:
 
 def instrument(imager, clock: StageClock) -> None:
     """Time ``imager``'s stages on ``clock``: ``conditioning`` (matched filter and
-    baseband), ``imaging`` (the back-projection kernel), ``coverage`` (which voxels each
+    baseband), ``imaging`` (the back-projection: the kernel, or the factorised method's
+    two stages around it), ``coverage`` (which voxels each
     ping reached) and ``scheduling`` (the pose placed in the tile frame, the tiles it
     reaches and closes)."""
     acc = imager.accumulator
-    acc.kernel = clock.wrap(acc.kernel, "imaging")
+    acc.image_slice = clock.wrap(acc.image_slice, "imaging")
     acc.condition = clock.wrap(acc.condition, "conditioning")
     new_tile = acc.new_tile
 

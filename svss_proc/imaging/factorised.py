@@ -155,56 +155,51 @@ def add_ping(out: ImageSlice, kd: KernelData, array: PingArray, delays, plan: Fa
 
 
 @nb.njit(inline="always", cache=True)
-def _column_times(mode, g, tt, ia, ic, lo, hi, out, row, one):
-    """tau_ref down column (ia, ic) of the reference geometry ``g`` (the projector's leg
-    and the array centre's, as the kernels time them) for depths lo <= iz < hi, into
-    ``out[row]``; a column's horizontal offsets, and so its table rows, are fixed."""
-    x = g.ax[ia]
-    y = g.cy[ic]
-    s = g.surf[ia, ic]
-    h_tx = g.h_tx + s
-    h_o = g.rx_h[0] + s
-    ox = x - g.rx_dx[0]
-    oy = y - g.rx_dy[0]
+def _column_times(mode, x, y, h_tx, ox, oy, h_o, dz, tt, tz, ez, kz, inv_drho, h_ref,
+                  inv_cw, lo, hi, out, row, one):
+    """tau_ref down one column (the projector's leg from offset (x, y) and height h_tx,
+    the array centre's from (ox, oy) and h_o, as the kernels time them) for depths
+    lo <= iz < hi, into ``out[row]``; a column's horizontal offsets, and so its table
+    rows, are fixed. Arrays come in unpacked (see :func:`_interpolate_add`)."""
     if mode == TABLE:
-        n_rho = tt.tz.shape[0]
-        i1, a1, d1 = _table_row(x, y, h_tx, tt.inv_drho, n_rho, tt.h_ref, one)
-        i2, a2, d2 = _table_row(ox, oy, h_o, tt.inv_drho, n_rho, tt.h_ref, one)
+        n_rho = tz.shape[0]
+        i1, a1, d1 = _table_row(x, y, h_tx, inv_drho, n_rho, h_ref, one)
+        i2, a2, d2 = _table_row(ox, oy, h_o, inv_drho, n_rho, h_ref, one)
         for iz in range(lo, hi):
-            out[row, iz] = (_table_time(tt.tz, tt.ez, tt.kz, True, i1, a1, d1, iz, one)
-                       + _table_time(tt.tz, tt.ez, tt.kz, True, i2, a2, d2, iz, one))
+            out[row, iz] = (_table_time(tz, ez, kz, True, i1, a1, d1, iz, one)
+                            + _table_time(tz, ez, kz, True, i2, a2, d2, iz, one))
     elif mode == STRAIGHT:
         xy1 = x * x + y * y
         xy2 = ox * ox + oy * oy
         for iz in range(lo, hi):
-            v1 = g.dz[iz] + h_tx
-            v2 = g.dz[iz] + h_o
-            out[row, iz] = (math.sqrt(xy1 + v1 * v1) + math.sqrt(xy2 + v2 * v2)) * tt.inv_cw
+            v1 = dz[iz] + h_tx
+            v2 = dz[iz] + h_o
+            out[row, iz] = (math.sqrt(xy1 + v1 * v1) + math.sqrt(xy2 + v2 * v2)) * inv_cw
     else:
         for iz in range(lo, hi):
-            z = g.dz[iz]
+            z = dz[iz]
             out[row, iz] = (_travel_time(mode, x, y, z, h_tx, tt)
-                       + _travel_time(mode, ox, oy, z, h_o, tt))
+                            + _travel_time(mode, ox, oy, z, h_o, tt))
 
 
 @nb.njit(inline="always", cache=True)
 def _column_phases(sig, t, row, lo, hi, c_out, s_out, one):
-    """exp(j sig t[row, iz]) into c_out[row], s_out[row] for lo <= iz < hi: the column's first time's phase in float64,
-    the rest relative to it in ``one``'s precision (reduced to [-pi, pi], the kernels'
-    series after two halvings, written out so that the depth loop vectorises)."""
+    """exp(j sig t[row, iz]) into c_out[row], s_out[row] for lo <= iz < hi: the column's
+    first time's phase in float64, the rest relative to it in ``one``'s precision
+    (reduced to [-pi, pi], the kernels' series after two halvings, written out so that
+    the depth loop vectorises)."""
     if hi <= lo:
         return
-    t0 = np.float64(t[row, lo])
-    p0 = sig * t0
+    p0 = sig * np.float64(t[row, lo])
     c0 = cast_like(one, math.cos(p0))
     s0 = cast_like(one, math.sin(p0))
     sg = cast_like(one, sig)
     tw = cast_like(one, _TWO_PI)
     inv_tw = cast_like(one, 1.0 / _TWO_PI)
     half = cast_like(one, 0.5)
-    t0k = t[row, lo]
     quarter = cast_like(one, 0.25)
     two = one + one
+    t0k = t[row, lo]
     for iz in range(lo, hi):
         ph = sg * (t[row, iz] - t0k)
         ph -= tw * math.floor(ph * inv_tw + half)
@@ -223,28 +218,38 @@ def _column_phases(sig, t, row, lo, hi, c_out, s_out, one):
 
 
 @nb.njit(inline="always", cache=True)
-def _cone_depths(gate, ia, ic, gating, flags, row):
-    """The depth indices [lo, hi) of column (ia, ic) inside the projector's cone (the
-    kernels' float64 decision; a line meets a cone in one interval), decided for every
-    depth at once into the work row ``flags[row]``; the whole column without gating."""
-    nd = gate.dz.size
+def _inside(x, y, vz, b0, b1, b2, cos_tx):
+    """A voxel at offset (x, y, vz) from the projector inside its cone: the kernels'
+    float64 decision (``tx_inside64``)."""
+    return x * b0 + y * b1 + vz * b2 >= math.sqrt(x * x + y * y + vz * vz) * cos_tx
+
+
+@nb.njit(inline="always", cache=True)
+def _cone_depths(x, y, h, dz, b0, b1, b2, cos_tx, gating):
+    """The depth indices [lo, hi) of a column (offset (x, y) from the projector, which
+    is h above the column's interface) inside the projector's cone, by the kernels'
+    float64 decision; the whole column without gating. A line meets a cone in one
+    interval; with the vertical inside the cone (b2 > cos_tx: a sonar looking down) it
+    runs to the deepest voxel, and its top is found by bisection."""
+    nd = dz.size
     if not gating:
         return 0, nd
-    x = gate.ax[ia]
-    y = gate.cy[ic]
-    h = gate.h_tx + gate.surf[ia, ic]
-    b0, b1, b2 = gate.bore[0], gate.bore[1], gate.bore[2]
-    xy = x * x + y * y
-    dot = x * b0 + y * b1
-    cos_tx = gate.cos_tx
-    for iz in range(nd):
-        vz = gate.dz[iz] + h
-        flags[row, iz] = dot + vz * b2 >= math.sqrt(xy + vz * vz) * cos_tx
+    if b2 > cos_tx:
+        if not _inside(x, y, dz[nd - 1] + h, b0, b1, b2, cos_tx):
+            return nd, nd
+        lo, hi = -1, nd - 1               # outside at lo (or above the column), inside at hi
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            if _inside(x, y, dz[mid] + h, b0, b1, b2, cos_tx):
+                hi = mid
+            else:
+                lo = mid
+        return hi, nd
     lo = 0
-    while lo < nd and not flags[row, lo]:
+    while lo < nd and not _inside(x, y, dz[lo] + h, b0, b1, b2, cos_tx):
         lo += 1
     hi = nd
-    while hi > lo and not flags[row, hi - 1]:
+    while hi > lo and not _inside(x, y, dz[hi - 1] + h, b0, b1, b2, cos_tx):
         hi -= 1
     return lo, hi
 
@@ -255,12 +260,32 @@ def _demodulate(re, im, g, tt, mode, sig):
     na, nc, nd = re.shape
     one = cast_like(re[0, 0, 0], 1)
     ft = re.dtype
+    # unpacked outside the parallel loop (as the imaging kernels do): the loop body sees
+    # plain arrays, which numba knows do not alias, and its depth loops vectorise
+    ax = g.ax
+    cy = g.cy
+    dz = g.dz
+    surf = g.surf
+    h_tx0 = g.h_tx
+    odx = g.rx_dx[0]
+    ody = g.rx_dy[0]
+    oh0 = g.rx_h[0]
+    tz = tt.tz
+    ez = tt.ez
+    kz = tt.kz
+    inv_drho = tt.inv_drho
+    h_ref = tt.h_ref
+    inv_cw = tt.inv_cw
     tw = np.empty((na, nd), dtype=ft)
     cw = np.empty((na, nd), dtype=ft)
     sw = np.empty((na, nd), dtype=ft)
     for ia in nb.prange(na):
+        x = ax[ia]
         for ic in range(nc):
-            _column_times(mode, g, tt, ia, ic, 0, nd, tw, ia, one)
+            y = cy[ic]
+            s = surf[ia, ic]
+            _column_times(mode, x, y, h_tx0 + s, x - odx, y - ody, oh0 + s, dz, tt, tz, ez,
+                          kz, inv_drho, h_ref, inv_cw, 0, nd, tw, ia, one)
             _column_phases(sig, tw, ia, 0, nd, cw, sw, one)
             for iz in range(nd):
                 r = re[ia, ic, iz]
@@ -269,59 +294,95 @@ def _demodulate(re, im, g, tt, mode, sig):
                 im[ia, ic, iz] = i * cw[ia, iz] - r * sw[ia, iz]
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+def _make_interpolate_add(nt: int):
+    """The second stage's kernel for a stencil of ``nt`` taps per axis (a compile-time
+    constant: the tap loops unroll and the depth loop vectorises)."""
+
+    @nb.njit(parallel=True, fastmath=True, cache=True)
+    def interpolate_add(dre, dim, ja, wa, jc, wc, img_re, img_im, g, tt, gate, mode, sig,
+                        ia0, gating):
+        nk = ja.size
+        ncc = dre.shape[1]
+        nc = jc.size
+        nd = dre.shape[2]
+        one = cast_like(dre[0, 0, 0], 1)
+        zero = one - one
+        ft = dre.dtype
+        ax = g.ax
+        cy = g.cy
+        dz = g.dz
+        surf = g.surf
+        h_tx0 = g.h_tx
+        odx = g.rx_dx[0]
+        ody = g.rx_dy[0]
+        oh0 = g.rx_h[0]
+        tz = tt.tz
+        ez = tt.ez
+        kz = tt.kz
+        inv_drho = tt.inv_drho
+        h_ref = tt.h_ref
+        inv_cw = tt.inv_cw
+        gax = gate.ax
+        gcy = gate.cy
+        gdz = gate.dz
+        gsurf = gate.surf
+        gh = gate.h_tx
+        b0, b1, b2 = gate.bore[0], gate.bore[1], gate.bore[2]
+        cos_tx = gate.cos_tx
+        row_re = np.empty((nk, ncc, nd), dtype=ft)      # the along pass, per slice
+        row_im = np.empty((nk, ncc, nd), dtype=ft)
+        tw = np.empty((nk, nd), dtype=ft)               # a column's times and phases
+        cw = np.empty((nk, nd), dtype=ft)
+        sw = np.empty((nk, nd), dtype=ft)
+        for k in nb.prange(nk):
+            ia = ia0 + k
+            j0 = ja[k]
+            for icc in range(ncc):
+                for iz in range(nd):
+                    vr = zero
+                    vi = zero
+                    for m in range(nt):
+                        vr += wa[k, m] * dre[j0 + m, icc, iz]
+                        vi += wa[k, m] * dim[j0 + m, icc, iz]
+                    row_re[k, icc, iz] = vr
+                    row_im[k, icc, iz] = vi
+            x = ax[ia]
+            for ic in range(nc):
+                lo, hi = _cone_depths(gax[ia], gcy[ic], gh + gsurf[ia, ic], gdz, b0, b1,
+                                      b2, cos_tx, gating)
+                if hi <= lo:
+                    continue
+                y = cy[ic]
+                s = surf[ia, ic]
+                _column_times(mode, x, y, h_tx0 + s, x - odx, y - ody, oh0 + s, dz, tt, tz,
+                              ez, kz, inv_drho, h_ref, inv_cw, lo, hi, tw, k, one)
+                _column_phases(sig, tw, k, lo, hi, cw, sw, one)
+                j1 = jc[ic]
+                for iz in range(lo, hi):
+                    vr = zero
+                    vi = zero
+                    for m in range(nt):
+                        vr += wc[ic, m] * row_re[k, j1 + m, iz]
+                        vi += wc[ic, m] * row_im[k, j1 + m, iz]
+                    c = cw[k, iz]
+                    sn = sw[k, iz]
+                    img_re[ia, ic, iz] += vr * c - vi * sn
+                    img_im[ia, ic, iz] += vr * sn + vi * c
+
+    return interpolate_add
+
+
+_INTERPOLATE_ADD: dict = {}
+
+
 def _interpolate_add(dre, dim, ja, wa, jc, wc, img_re, img_im, g, tt, gate, mode, sig,
                      ia0, gating):
     """Interpolate the demodulated lattice (along, then across), remodulate and add into
-    the voxels ia0 + k (k < ja.size) inside the projector's cone. Work rows are indexed
-    in the loop body, not taken as views (numba then knows they do not alias, and the
-    depth loops vectorise)."""
-    nk = ja.size
+    the voxels ia0 + k (k < ja.size) inside the projector's cone. The kernel's arguments
+    are unpacked before its parallel loop and work rows indexed in it, not taken as
+    views (numba then knows they do not alias, and the depth loops vectorise)."""
     nt = wa.shape[1]
-    ncc = dre.shape[1]
-    nc = jc.size
-    nd = dre.shape[2]
-    one = cast_like(dre[0, 0, 0], 1)
-    zero = one - one
-    ft = dre.dtype
-    row_re = np.empty((nk, ncc, nd), dtype=ft)      # the along pass, per slice
-    row_im = np.empty((nk, ncc, nd), dtype=ft)
-    tw = np.empty((nk, nd), dtype=ft)               # a column's times and phases
-    cw = np.empty((nk, nd), dtype=ft)
-    sw = np.empty((nk, nd), dtype=ft)
-    flw = np.empty((nk, nd), dtype=np.bool_)        # a column's cone decisions
-    vrw = np.empty((nk, nd), dtype=ft)              # a column's interpolated values
-    viw = np.empty((nk, nd), dtype=ft)
-    for k in nb.prange(nk):
-        ia = ia0 + k
-        for icc in range(ncc):
-            for iz in range(nd):
-                row_re[k, icc, iz] = zero
-                row_im[k, icc, iz] = zero
-        for m in range(nt):
-            j = ja[k] + m
-            w = wa[k, m]
-            for icc in range(ncc):
-                for iz in range(nd):
-                    row_re[k, icc, iz] += w * dre[j, icc, iz]
-                    row_im[k, icc, iz] += w * dim[j, icc, iz]
-        for ic in range(nc):
-            lo, hi = _cone_depths(gate, ia, ic, gating, flw, k)
-            if hi <= lo:
-                continue
-            _column_times(mode, g, tt, ia, ic, lo, hi, tw, k, one)
-            _column_phases(sig, tw, k, lo, hi, cw, sw, one)
-            for iz in range(lo, hi):
-                vrw[k, iz] = zero
-                viw[k, iz] = zero
-            for m in range(nt):
-                w = wc[ic, m]
-                j = jc[ic] + m
-                for iz in range(lo, hi):
-                    vrw[k, iz] += w * row_re[k, j, iz]
-                    viw[k, iz] += w * row_im[k, j, iz]
-            for iz in range(lo, hi):
-                c = cw[k, iz]
-                s = sw[k, iz]
-                img_re[ia, ic, iz] += vrw[k, iz] * c - viw[k, iz] * s
-                img_im[ia, ic, iz] += vrw[k, iz] * s + viw[k, iz] * c
+    kernel = _INTERPOLATE_ADD.get(nt)
+    if kernel is None:
+        kernel = _INTERPOLATE_ADD[nt] = _make_interpolate_add(nt)
+    kernel(dre, dim, ja, wa, jc, wc, img_re, img_im, g, tt, gate, mode, sig, ia0, gating)

@@ -182,10 +182,16 @@ class PingAccumulator:
         out = ImageSlice(self._zeros((2, 2, 2), dtype=self._dtype),    # (not 1: a 1-voxel
                          self._zeros((2, 2, 2), dtype=self._dtype),    # axis is also F order)
                          VoxelAxes(np.zeros(2), np.zeros(2), np.array([0.4, 0.5])), 0, 2)
+        self.image_slice(out, kd, array, delays, gating=im.beam_gating)
+
+    def image_slice(self, out: ImageSlice, kd, array: PingArray, delays: DelayModel, *,
+                    gating: bool) -> int:
+        """One ping into one tile's slice by this accumulator's :attr:`method` (the
+        kernel's front door, or the factorised method's two stages around it); returns
+        the voxel-channel updates. The live clock times the worker's imaging here."""
         if self.method == "factorised":
-            add_ping(out, kd, array, delays, self._plan, self.kernel, gating=im.beam_gating)
-        else:
-            self.kernel(out, kd, array, delays, gating=im.beam_gating)
+            return add_ping(out, kd, array, delays, self._plan, self.kernel, gating=gating)
+        return self.kernel(out, kd, array, delays, gating=gating)
 
     def ping_inputs(self, tx: np.ndarray, rx: np.ndarray, bore: np.ndarray,
                     reach: float) -> tuple[PingArray, DelayModel]:
@@ -237,11 +243,8 @@ class PingAccumulator:
                     entry = self._pending[id(tile)] = (tile, self._device_counter())
                 self.kernel(out, kd, array, delays, gating=im.beam_gating, count=entry[1])
                 n = 0
-            elif self.method == "factorised":
-                n = add_ping(out, kd, array, delays, self._plan, self.kernel,
-                             gating=im.beam_gating)
             else:
-                n = self.kernel(out, kd, array, delays, gating=im.beam_gating)
+                n = self.image_slice(out, kd, array, delays, gating=im.beam_gating)
             # which voxels this ping reached (geometry only; the image is not touched)
             tile.coverage.add(tile.grid, s.ia0, s.ia1, placed, geo, window, im, ping.nav)
             tile.pings.append(ping.sequence)
