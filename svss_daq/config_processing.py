@@ -82,10 +82,9 @@ class ImagingConfig:
         "imaging method of the live worker (`svss worker`; with device = 'cuda' the exact "
         "method runs whatever this says); omitted: exact",
         choices=("exact", "factorised"), default="exact")
-    factorised_step_m: float | None = spec(
+    factorised_step_m: tuple[float, float] | None = spec(
         "factorised method: spacing of the coarse columns along and across the track, m; "
-        "omitted: 0.08", lo=0.005, hi=1.0,
-        default=0.08)
+        "omitted: [0.085, 0.07]", lo=0.005, hi=1.0, length=2, default=(0.085, 0.07))
     factorised_lobes: int | None = spec(
         "factorised method: lobes of the Lanczos interpolator (2 x lobes columns per "
         "axis); omitted: 3", lo=1, hi=8, default=3)
@@ -425,8 +424,8 @@ class ProcessingConfig:
                 return ("imaging.interface_relief_m", f"expected rows of equal length (one "
                         f"row per node along the track), got lengths {sorted(widths)}")
         im = self.imaging
-        if im.factorised_step_m < self.tile.voxel_m:
-            return ("imaging.factorised_step_m", f"got {im.factorised_step_m!r} m, finer "
+        if min(im.factorised_step_m) < self.tile.voxel_m:
+            return ("imaging.factorised_step_m", f"got {list(im.factorised_step_m)} m, finer "
                     f"than a voxel (tile.voxel_m = {self.tile.voxel_m!r} m)")
         if self.imaging.sediment_layers and self.imaging.delays != "table":
             return ("imaging.sediment_layers", "layers need imaging.delays = 'table' (got "

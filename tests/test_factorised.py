@@ -137,12 +137,17 @@ def test_factorised_over_a_sloping_interface_and_at_tile_edges(hw, pings):
     for k, err, levels, _ in _compare(exact, fact):
         assert err <= -30.0, (k, err)
         assert all(abs(v) <= 0.5 for v in levels), levels
-        # the outermost columns (the halo's interpolation) as good as the rest
+        # the outermost columns (read through the lattice's halo) no worse than the
+        # worst of the interior columns (each column's error re its own image; a missing
+        # or misplaced halo column makes an edge tens of dB worse)
         a = exact[k].re + 1j * exact[k].im.astype(np.complex128)
         b = fact[k].re + 1j * fact[k].im.astype(np.complex128)
-        edge = np.r_[0, a.shape[1] - 1]
-        e = np.linalg.norm((b - a)[:, edge]) / np.linalg.norm(a[:, edge])
-        assert 20 * math.log10(e) <= -30.0
+        n = a.shape[1]
+
+        def rel(c):
+            return np.linalg.norm((b - a)[:, c]) / np.linalg.norm(a[:, c])
+        worst_inside = max(rel(c) for c in range(3, n - 3))
+        assert max(rel(0), rel(n - 1)) <= worst_inside * 10 ** (1 / 20), k
 
 
 def test_lanczos_interpolates_a_band_limited_signal():
@@ -184,7 +189,7 @@ def test_lattice_surface_extends_a_plane_exactly():
 
 def test_factorised_lattice_finer_than_a_voxel_is_refused(tmp_path):
     text = (config_path("processing.toml").read_text()
-            .replace("factorised_step_m = 0.08", "factorised_step_m = 0.01"))
+            .replace("factorised_step_m = [0.085, 0.07]", "factorised_step_m = [0.085, 0.01]"))
     p = tmp_path / "p.toml"
     p.write_text(text)
     with pytest.raises(ConfigError, match="imaging.factorised_step_m"):

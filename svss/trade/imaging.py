@@ -142,8 +142,9 @@ def variants(proc: ProcessingConfig, hw: HardwareConfig, c_sed: float, quick: bo
     # lattice and one twice as coarse in area
     for m in ("exact", "factorised"):
         rows.append(("method", m, dict(default, method=m)))
-    rows.append(("method", f"factorised, {1.4 * im.factorised_step_m:.3g} m lattice",
-                 dict(default, method="factorised", factorised_step_m=1.4 * im.factorised_step_m)))
+    coarser = tuple(1.4 * h for h in im.factorised_step_m)
+    rows.append(("method", "factorised, lattice {:.3g} x {:.3g} m".format(*coarser),
+                 dict(default, method="factorised", factorised_step_m=coarser)))
     rows.append(("combined", "nearest, float32, 2x voxel",
                  dict(default, interpolation="nearest", precision="float32",
                       voxel_m=2 * v0 if not quick else 3 * v0)))

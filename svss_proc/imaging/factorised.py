@@ -4,7 +4,7 @@ A ping is imaged in two stages instead of one sum per voxel and channel:
 
 1. **Coarse columns.** The imaging kernel itself (any delay model, precision, build or
    device it runs on) sums the ping's channels at a lattice of voxel columns
-   ``step_m`` apart along and across the track, at the tile's own voxel depths. The
+   ``factorised_step_m`` apart (along, across the track), at the tile's own voxel depths. The
    projector's cone is widened for this stage by the lattice's stencil, so that every
    voxel of the real cone has its neighbours computed.
 2. **Interpolation.** At each depth the coarse image, demodulated by a reference delay
@@ -49,9 +49,11 @@ _TWO_PI = 2.0 * math.pi
 
 @dataclasses.dataclass(frozen=True)
 class Factorisation:
-    """The live method's lattice: coarse columns ``step_m`` apart (along and across), a
-    Lanczos interpolator of ``lanczos`` lobes (2 x lanczos taps per axis)."""
-    step_m: float
+    """The live method's lattice: coarse columns ``step_along_m`` apart along the track
+    and ``step_across_m`` across it, a Lanczos interpolator of ``lanczos`` lobes
+    (2 x lanczos taps per axis)."""
+    step_along_m: float
+    step_across_m: float
     lanczos: int
 
     @property
@@ -129,14 +131,18 @@ def add_ping(out: ImageSlice, kd: KernelData, array: PingArray, delays, plan: Fa
         return 0
     along, cross, depth = (np.asarray(a, dtype=np.float64)
                            for a in (axes.along, axes.cross, axes.depth))
-    h, halo = plan.step_m, plan.halo
+    h, hc, halo = plan.step_along_m, plan.step_across_m, plan.halo
     ca = coarse_axis(along[ia0], along[ia1 - 1], h, halo)
-    cc = coarse_axis(cross[0], cross[-1], h, halo)
-    coarse = VoxelAxes(ca, cc, depth, coarse_surface(axes, ca, cc))
-    # the cone widened by the stencil's reach at the nearest depth
+    cc = coarse_axis(cross[0], cross[-1], hc, halo)
+    surf = coarse_surface(axes, ca, cc)
+    coarse = VoxelAxes(ca, cc, depth, surf)
+    # the cone widened by the stencil's reach at the tile's nearest depth (one kernel
+    # call: bands of depths, each widened for its own top, cost more in calls than they
+    # saved in columns)
     tx = np.asarray(array.tx, dtype=np.float64)
-    nearest = max(float(depth[0]) - float(tx[2]), 1e-3)
-    half = math.acos(min(1.0, array.cos_tx)) + math.atan(halo * h * math.sqrt(2) / nearest)
+    rise = 0.0 if surf is None else min(0.0, float(surf.min()))   # the interface's highest
+    nearest = max(float(depth[0]) + rise - float(tx[2]), 1e-3)
+    half = math.acos(min(1.0, array.cos_tx)) + math.atan(halo * math.hypot(h, hc) / nearest)
     wide = array._replace(cos_tx=math.cos(min(half, math.pi / 2)))
     ft = kd.dtype.type
     shape = (ca.size, cc.size, depth.size)
@@ -144,7 +150,7 @@ def add_ping(out: ImageSlice, kd: KernelData, array: PingArray, delays, plan: Fa
     im = np.zeros(shape, dtype=ft)
     n = kernel(ImageSlice(re, im, coarse, 0, ca.size), kd, wide, delays, gating=gating)
     sig = float(kd.planes.theta) * float(kd.planes.inv_dt)   # REMODULATION_SIGN 2 pi f_c
-    ref_c = _reference(kd, wide, coarse, delays, wide.cos_tx)
+    ref_c = _reference(kd, array, coarse, delays, array.cos_tx)
     _demodulate(re, im, ref_c.geometry, ref_c.delays, delays.code, sig)
     ja, wa = lanczos_weights(along[ia0:ia1], ca, plan.lanczos)
     jc, wc = lanczos_weights(cross, cc, plan.lanczos)
@@ -329,8 +335,11 @@ def _make_interpolate_add(nt: int):
         gh = gate.h_tx
         b0, b1, b2 = gate.bore[0], gate.bore[1], gate.bore[2]
         cos_tx = gate.cos_tx
-        row_re = np.empty((nk, ncc, nd), dtype=ft)      # the along pass, per slice
-        row_im = np.empty((nk, ncc, nd), dtype=ft)
+        # the along pass, per slice, flat: rows addressed by unsigned offsets (no
+        # negative-index wraparound in the depth loops, which then vectorise)
+        row_re = np.empty(nk * ncc * nd, dtype=ft)
+        row_im = np.empty(nk * ncc * nd, dtype=ft)
+        und = np.uint64(nd)
         tw = np.empty((nk, nd), dtype=ft)               # a column's times and phases
         cw = np.empty((nk, nd), dtype=ft)
         sw = np.empty((nk, nd), dtype=ft)
@@ -338,14 +347,15 @@ def _make_interpolate_add(nt: int):
             ia = ia0 + k
             j0 = ja[k]
             for icc in range(ncc):
+                ob = np.uint64(k * ncc + icc) * und
                 for iz in range(nd):
                     vr = zero
                     vi = zero
                     for m in range(nt):
                         vr += wa[k, m] * dre[j0 + m, icc, iz]
                         vi += wa[k, m] * dim[j0 + m, icc, iz]
-                    row_re[k, icc, iz] = vr
-                    row_im[k, icc, iz] = vi
+                    row_re[ob + np.uint64(iz)] = vr
+                    row_im[ob + np.uint64(iz)] = vi
             x = ax[ia]
             for ic in range(nc):
                 lo, hi = _cone_depths(gax[ia], gcy[ic], gh + gsurf[ia, ic], gdz, b0, b1,
@@ -357,13 +367,15 @@ def _make_interpolate_add(nt: int):
                 _column_times(mode, x, y, h_tx0 + s, x - odx, y - ody, oh0 + s, dz, tt, tz,
                               ez, kz, inv_drho, h_ref, inv_cw, lo, hi, tw, k, one)
                 _column_phases(sig, tw, k, lo, hi, cw, sw, one)
-                j1 = jc[ic]
+                ob = np.uint64(k * ncc + jc[ic]) * und
                 for iz in range(lo, hi):
+                    u = np.uint64(iz)
                     vr = zero
                     vi = zero
                     for m in range(nt):
-                        vr += wc[ic, m] * row_re[k, j1 + m, iz]
-                        vi += wc[ic, m] * row_im[k, j1 + m, iz]
+                        o = ob + np.uint64(m) * und + u
+                        vr += wc[ic, m] * row_re[o]
+                        vi += wc[ic, m] * row_im[o]
                     c = cw[k, iz]
                     sn = sw[k, iz]
                     img_re[ia, ic, iz] += vr * c - vi * sn

@@ -87,7 +87,7 @@ class PingAccumulator:
                              "'factorised'")
         if self.method == "factorised" and im.device == "cuda":
             self.method = "exact"
-        self._plan = Factorisation(im.factorised_step_m, im.factorised_lobes)
+        self._plan = Factorisation(*im.factorised_step_m, im.factorised_lobes)
         self._channels = None if channels is None else np.asarray(channels)
         geometry = array_geometry(hw)
         if self._channels is not None:

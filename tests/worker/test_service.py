@@ -228,3 +228,35 @@ def test_a_run_still_being_written_answers_pending_then_found(tmp_path):
     with RawRunStore([path]) as store:
         (run,) = store.runs()
         assert run.ended and run.n_pings == 10
+
+
+def _until(cond, timeout_s=30.0):
+    """Wait for ``cond()`` (the service reads progress messages on its own thread)."""
+    end = time.monotonic() + timeout_s
+    while not cond():
+        if time.monotonic() > end:
+            raise AssertionError("condition not met in time")
+        time.sleep(0.02)
+
+
+def test_a_worker_says_its_imaging_method(holed):
+    """A worker's progress message carries its imaging method (docs/live_method.md):
+    the service lists it and `svss status` shows it; a word that is not a method is
+    refused and counted, the worker's earlier state kept."""
+    from svss_daq.status import format_status
+
+    with RawRunStore([holed]) as store, \
+            PingService("tcp://127.0.0.1:*", store) as svc, \
+            PingFetcher(svc.endpoint, timeout_s=10) as f:
+        f.runs()                                       # learns that it takes progress
+        assert f.progress("w1", "holed", 5, False, {"open_tiles": 1,
+                                                    "imaging_method": "factorised"})
+        _until(lambda: svc.workers())
+        [w] = svc.workers()
+        assert w["imaging_method"] == "factorised" and w["open_tiles"] == 1
+        assert f.progress("w1", "holed", 6, False, {"imaging_method": "fastest"})
+        _until(lambda: svc.progress_refused == 1)
+        [w] = svc.workers()
+        assert w["next"] == 5 and w["imaging_method"] == "factorised"
+        text = format_status({"workers": [dict(w, backlog_pings=0, backlog_s=0.0)]})
+        assert "imaging factorised" in text

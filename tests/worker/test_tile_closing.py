@@ -148,7 +148,8 @@ def test_the_memory_bound_reached_is_said_to_the_daemon(hw):
     p = dataclasses.replace(base, limits=dataclasses.replace(base.limits, memory_gib=gib))
     sched = TileSchedule(hw, p)
     assert sched.max_open_tiles == 2 and sched.memory_bound_at is None
-    worker = SimpleNamespace(imager=SimpleNamespace(schedule=sched, active={}))
+    worker = SimpleNamespace(imager=SimpleNamespace(
+        schedule=sched, active={}, accumulator=SimpleNamespace(method="factorised")))
     ps = pings(hw, [0.1 * i for i in range(40)])              # 4 m forward: 3 tiles
     for ping in ps[:5]:
         sched.step(ping)
@@ -156,4 +157,5 @@ def test_the_memory_bound_reached_is_said_to_the_daemon(hw):
     early = [k for ping in ps[5:] for k in sched.step(ping).closed_early]
     assert early and sched.memory_bound_at is not None
     state = memory_state(worker, sched.memory_bound_at + 1.5)
-    assert state == {"open_tiles": 0, "max_open_tiles": 2, "memory_bound_age_s": 1.5}
+    assert state == {"open_tiles": 0, "max_open_tiles": 2, "memory_bound_age_s": 1.5,
+                     "imaging_method": "factorised"}
