@@ -81,7 +81,8 @@ from svss_daq.rawfile import RawRunReader
 from svss_proc.run_worker import Worker
 proc = load_with_text(ProcessingConfig, config_path("processing.toml"))
 with RawRunReader(sys.argv[1]) as run:
-    w = Worker(run.hardware, proc, sys.argv[2], run_label="warm-up")
+    # the live worker's method (``[imaging] live_method``), as svss worker runs it
+    w = Worker(run.hardware, proc, sys.argv[2], run_label="warm-up", live=True)
     w.imager.accumulator.warm_up()
     w.run((p for i, p in zip(range(int(sys.argv[3])), run)))
 print("warm", w.clock.totals())
