@@ -89,7 +89,7 @@ def focus_run(pings: Iterable[Ping], hardware, processing
     settings = autofocus_settings(processing)
     pings = list(pings)
     navs = [p.nav for p in pings]
-    imager = TileImager(hardware, processing)
+    imager = TileImager(hardware, processing, method="exact")   # estimation: the exact sum
     tiles, used, where = [], [], []
     for k, p in enumerate(pings):
         try:

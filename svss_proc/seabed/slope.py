@@ -141,7 +141,7 @@ def image_slab(pings: Sequence[Ping], hardware, processing: ProcessingConfig,
         processing, products=None,
         tile=dataclasses.replace(processing.tile, voxel_m=v, top_m=-half_m,
                                  depth_m=2 * half_m))
-    imager = TileImager(hardware, slab)
+    imager = TileImager(hardware, slab, method="exact")   # estimation: the exact sum
     tiles = []
     for i in range(len(pings)):
         try:

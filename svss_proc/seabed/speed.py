@@ -202,7 +202,7 @@ def _search_image(pings: Sequence[Ping], hardware, processing: ProcessingConfig)
     coarse = dataclasses.replace(
         processing, products=None,
         tile=dataclasses.replace(processing.tile, voxel_m=sb.search_voxel_m))
-    imager = TileImager(hardware, coarse)
+    imager = TileImager(hardware, coarse, method="exact")   # estimation: the exact sum
     tiles, reach, placer = [], [], None
     for i in range(len(pings)):
         p = pings[i]
