@@ -40,16 +40,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from bench_false_alarms import LINES  # noqa: E402  (the same lines and configurations)
 from bench_isa import machine_isa  # noqa: E402
 from sim_device.scene import load_scene  # noqa: E402
 from svss.score import half_extent, score_tiles, tile_paths  # noqa: E402
 from svss_proc.tiles import read_tile  # noqa: E402
 
 log = logging.getLogger("bench_live_method")
-
-LINES = (("seed_cylinder_sand", "processing.toml"), ("seed_cylinder_silt", "processing.toml"),
-         ("sayers_field", "processing.toml"), ("demo_seabed", "processing-demo.toml"))
-
 
 def factorised_config(config: str, cache: Path) -> Path:
     """The configuration with ``[imaging] method = "factorised"``."""

@@ -192,8 +192,7 @@ def _column_times(mode, x, y, h_tx, ox, oy, h_o, dz, tt, tz, ez, kz, inv_drho, h
 def _column_phases(sig, t, row, lo, hi, c_out, s_out, one):
     """exp(j sig t[row, iz]) into c_out[row], s_out[row] for lo <= iz < hi: the column's
     first time's phase in float64, the rest relative to it in ``one``'s precision
-    (reduced to [-pi, pi], the kernels' series after two halvings, written out so that
-    the depth loop vectorises)."""
+    (reduced to [-pi, pi], the kernels' series after two halvings)."""
     if hi <= lo:
         return
     p0 = sig * np.float64(t[row, lo])
@@ -203,22 +202,11 @@ def _column_phases(sig, t, row, lo, hi, c_out, s_out, one):
     tw = cast_like(one, _TWO_PI)
     inv_tw = cast_like(one, 1.0 / _TWO_PI)
     half = cast_like(one, 0.5)
-    quarter = cast_like(one, 0.25)
-    two = one + one
     t0k = t[row, lo]
     for iz in range(lo, hi):
         ph = sg * (t[row, iz] - t0k)
         ph -= tw * math.floor(ph * inv_tw + half)
-        x = ph * quarter                           # |x| <= pi / 4: the series, then
-        x2 = x * x                                 # doubled twice
-        c = one + x2 * (cast_like(one, -1 / 2) + x2 * (cast_like(one, 1 / 24) + x2 * (
-            cast_like(one, -1 / 720) + x2 * (cast_like(one, 1 / 40320)
-                                             + x2 * cast_like(one, -1 / 3628800)))))
-        s = x * (one + x2 * (cast_like(one, -1 / 6) + x2 * (cast_like(one, 1 / 120) + x2 * (
-            cast_like(one, -1 / 5040) + x2 * (cast_like(one, 1 / 362880)
-                                              + x2 * cast_like(one, -1 / 39916800))))))
-        c, s = c * c - s * s, two * c * s
-        c, s = c * c - s * s, two * c * s
+        c, s = _cis(ph, 2, one)                    # |ph| <= pi: two halvings
         c_out[row, iz] = c * c0 - s * s0
         s_out[row, iz] = s * c0 + c * s0
 
@@ -260,6 +248,15 @@ def _cone_depths(x, y, h, dz, b0, b1, b2, cos_tx, gating):
     return lo, hi
 
 
+@nb.njit(inline="always", cache=True)
+def _reference_arrays(g, tt):
+    """The reference geometry's and travel times' arrays and numbers, one by one: the
+    voxel axes and interface depths, the projector's height, the array centre's offsets
+    and height, and the table's depth-interpolated times, slownesses and curvatures."""
+    return (g.ax, g.cy, g.dz, g.surf, g.h_tx, g.rx_dx[0], g.rx_dy[0], g.rx_h[0], tt.tz,
+            tt.ez, tt.kz, tt.inv_drho, tt.h_ref, tt.inv_cw)
+
+
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def _demodulate(re, im, g, tt, mode, sig):
     """The coarse image times exp(-j sig tau_ref), in place."""
@@ -268,20 +265,8 @@ def _demodulate(re, im, g, tt, mode, sig):
     ft = re.dtype
     # unpacked outside the parallel loop (as the imaging kernels do): the loop body sees
     # plain arrays, which numba knows do not alias, and its depth loops vectorise
-    ax = g.ax
-    cy = g.cy
-    dz = g.dz
-    surf = g.surf
-    h_tx0 = g.h_tx
-    odx = g.rx_dx[0]
-    ody = g.rx_dy[0]
-    oh0 = g.rx_h[0]
-    tz = tt.tz
-    ez = tt.ez
-    kz = tt.kz
-    inv_drho = tt.inv_drho
-    h_ref = tt.h_ref
-    inv_cw = tt.inv_cw
+    (ax, cy, dz, surf, h_tx0, odx, ody, oh0, tz, ez, kz, inv_drho, h_ref,
+     inv_cw) = _reference_arrays(g, tt)
     tw = np.empty((na, nd), dtype=ft)
     cw = np.empty((na, nd), dtype=ft)
     sw = np.empty((na, nd), dtype=ft)
@@ -314,20 +299,8 @@ def _make_interpolate_add(nt: int):
         one = cast_like(dre[0, 0, 0], 1)
         zero = one - one
         ft = dre.dtype
-        ax = g.ax
-        cy = g.cy
-        dz = g.dz
-        surf = g.surf
-        h_tx0 = g.h_tx
-        odx = g.rx_dx[0]
-        ody = g.rx_dy[0]
-        oh0 = g.rx_h[0]
-        tz = tt.tz
-        ez = tt.ez
-        kz = tt.kz
-        inv_drho = tt.inv_drho
-        h_ref = tt.h_ref
-        inv_cw = tt.inv_cw
+        (ax, cy, dz, surf, h_tx0, odx, ody, oh0, tz, ez, kz, inv_drho, h_ref,
+         inv_cw) = _reference_arrays(g, tt)
         gax = gate.ax
         gcy = gate.cy
         gdz = gate.dz
