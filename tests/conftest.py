@@ -35,6 +35,20 @@ def pytest_configure(config):
         import compileall
         for pkg in PACKAGES:
             compileall.compile_dir(str(ROOT / pkg), quiet=1)
+        if (getattr(config.option, "numprocesses", None) or 0) and not config.option.collectonly:
+            _warm_kernels()
+
+
+def _warm_kernels():
+    """Numba's cache filled before the test processes start (:mod:`tests.warm_kernels`),
+    its groups in parallel: on a cold cache (a fresh clone, CI) the kernels that several
+    test processes and the end-to-end tests' daemons and devices use are compiled once,
+    not once in each; on a warm cache the groups only load them."""
+    import subprocess
+    procs = [subprocess.Popen([sys.executable, "-m", "tests.warm_kernels", group], cwd=ROOT)
+             for group in ("sim", "imaging")]
+    for p in procs:
+        p.wait()
 
 
 def pytest_xdist_auto_num_workers(config):
