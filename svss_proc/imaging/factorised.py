@@ -2,11 +2,11 @@
 
 A ping is imaged in two stages instead of one sum per voxel and channel:
 
-1. **Coarse columns.** The imaging kernel itself (any delay model, precision, build or
-   device it runs on) sums the ping's channels at a lattice of voxel columns
-   ``factorised_step_m`` apart (along, across the track), at the tile's own voxel depths. The
-   projector's cone is widened for this stage by the lattice's stencil, so that every
-   voxel of the real cone has its neighbours computed.
+1. **Coarse columns.** The imaging kernel itself (any delay model, precision or build)
+   sums the ping's channels at a lattice of voxel columns ``factorised_step_m`` apart
+   (along, across the track), at the tile's own voxel depths. The projector's cone is
+   widened for this stage by the lattice's stencil, so that every voxel of the real
+   cone has its neighbours computed.
 2. **Interpolation.** At each depth the coarse image, demodulated by a reference delay
    tau_ref = t(projector -> voxel) + t(voxel -> array centre) from the same travel-time
    model, varies only as slowly as the receive aperture and the echo's envelope allow
@@ -16,9 +16,9 @@ A ping is imaged in two stages instead of one sum per voxel and channel:
 
 The depth axis is never interpolated (both stages use the same voxel depths), which keeps
 the sharp range envelope exact. The channel sum is made once per coarse column instead
-of once per voxel: (step / voxel)^2 fewer updates less the stencil's halo, for an
-interpolation error measured against the exact method in ``svss trade``
-(docs/imaging.md: the live method).
+of once per voxel: (step_along x step_across / voxel^2) fewer updates less the
+stencil's halo, for an interpolation error measured against the exact method
+(docs/live_method.md; ``svss trade``; ``benchmarks/bench_live_method.py``).
 
 Interpolation and phases run in the kernel precision, the cone decision in float64 (as
 the kernels decide it, :class:`~.kernel_args.ConeGate`). The second stage is a numba CPU
@@ -35,13 +35,12 @@ import numba as nb
 import numpy as np
 
 from .cpu_kernel import _cpu, _table_row, _table_time
-from .kernel_args import (STRAIGHT, TABLE, ImageSlice, KernelData, PingArray, VoxelAxes, kernel_args,
-                          surface_of)
+from .kernel_args import (STRAIGHT, TABLE, ImageSlice, KernelData, PingArray, VoxelAxes,
+                          kernel_args, surface_of)
 from .kernel_math import cast_like
 
-#: cone decisions of the second stage (float64, as :func:`~.kernel_math.build`'s
-#: ``tx_inside64``), its phase factor and the travel times, from the kernels' own
-#: building blocks
+#: the second stage's phase factor and travel times, from the kernels' own building
+#: blocks
 _cis = _cpu.cis
 _travel_time = _cpu.travel_time
 _TWO_PI = 2.0 * math.pi
