@@ -336,11 +336,13 @@ def _make_interpolate_add(nt: int):
                     continue
                 y = cy[ic]
                 s = surf[ia, ic]
+                # the whole column, the voxels outside the cone weighing 0: loops over
+                # a fixed range vectorise where [lo, hi) did not (1.7x faster)
                 _column_times(mode, x, y, h_tx0 + s, x - odx, y - ody, oh0 + s, dz, tt, tz,
-                              ez, kz, inv_drho, h_ref, inv_cw, lo, hi, tw, k, one)
-                _column_phases(sig, tw, k, lo, hi, cw, sw, one)
+                              ez, kz, inv_drho, h_ref, inv_cw, 0, nd, tw, k, one)
+                _column_phases(sig, tw, k, 0, nd, cw, sw, one)
                 ob = np.uint64(k * ncc + jc[ic]) * und
-                for iz in range(lo, hi):
+                for iz in range(nd):
                     u = np.uint64(iz)
                     vr = zero
                     vi = zero
@@ -348,8 +350,9 @@ def _make_interpolate_add(nt: int):
                         o = ob + np.uint64(m) * und + u
                         vr += wc[ic, m] * row_re[o]
                         vi += wc[ic, m] * row_im[o]
-                    c = cw[k, iz]
-                    sn = sw[k, iz]
+                    g_in = one if lo <= iz < hi else zero
+                    c = cw[k, iz] * g_in
+                    sn = sw[k, iz] * g_in
                     img_re[ia, ic, iz] += vr * c - vi * sn
                     img_im[ia, ic, iz] += vr * sn + vi * c
 
