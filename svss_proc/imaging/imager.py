@@ -217,7 +217,8 @@ class PingAccumulator:
         grid = tile_grid(self._proc.tile, index, InterfaceShape.of(self._proc.imaging))
         return Tile(grid, line, self._zeros(grid.shape, dtype=self._dtype),
                     self._zeros(grid.shape, dtype=self._dtype),
-                    coverage=Coverage.new(grid.shape, self._geometry.receivers))
+                    coverage=Coverage.new(grid.shape, self._geometry.receivers),
+                    method=self.method)
 
     def image(self, ping: Ping, cond: Conditioned, step: PingStep,
               tiles: dict[int, Tile]) -> int:
@@ -251,7 +252,6 @@ class PingAccumulator:
             tile.track.append((int(ping.transmit_time_ns), float(ping.nav.north_m),
                                float(ping.nav.east_m), int(ping.nav.quality)))
             tile.updates += int(n)
-            tile.method = self.method
             total += int(n)
         self._updates += total
         return total
