@@ -9,6 +9,9 @@ other configuration tables (``density_kg_m3``, ``c_l_m_s``, ``c_t_m_s``,
 Loss convention (time dependence exp(-iωt), as in the form functions): a medium with
 attenuation α_λ dB/λ has the complex speed c̃ = c / (1 + iδ) with δ = α_λ / (40π log10 e),
 so that k = ω/c̃ has a positive imaginary part (waves decay as they travel).
+A loss factor η = 1/Q (``loss_factor``: the imaginary part of a complex modulus
+M(1 − iη), applied to both wave types) is the same to first order: δ = η/2, i.e.
+α_λ = 20π log10(e) η dB per wavelength; the loader converts it so.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ __all__ = [
     "get_fluid",
     "get_material",
     "load_materials",
+    "loss_factor_to_db_per_wavelength",
 ]
 
 #: File name of the default table inside the configuration folder
@@ -48,6 +52,11 @@ class MaterialsError(ConfigError):
 def db_per_wavelength_to_delta(alpha_db_per_wavelength: float) -> float:
     """Loss parameter δ (dimensionless) from attenuation in dB per wavelength."""
     return float(alpha_db_per_wavelength) / (40.0 * math.pi * math.log10(math.e))
+
+
+def loss_factor_to_db_per_wavelength(eta: float) -> float:
+    """Attenuation (dB per wavelength) of a loss factor η = 1/Q (δ = η/2)."""
+    return 20.0 * math.pi * math.log10(math.e) * float(eta)
 
 
 def _where(origin: str, kind: str, name: str) -> str:
@@ -126,6 +135,11 @@ class ElasticMaterial:
         """True for a target without shear rigidity (c_t = 0)."""
         return self.c_t == 0.0
 
+    def lossless(self) -> "ElasticMaterial":
+        """The same material without loss."""
+        return ElasticMaterial(self.name, self.density, self.c_l, self.c_t, 0.0, 0.0,
+                               self.source)
+
     def normal_incidence_reflection(self, fluid: Fluid) -> complex:
         """Plane-wave pressure reflection coefficient at normal incidence from ``fluid``
         onto a half-space of this material, R = (ρ₁c̃_l − ρc)/(ρ₁c̃_l + ρc).
@@ -165,7 +179,8 @@ _SOLID_KEYS = {"density": "density_kg_m3", "c_l": "c_l_m_s", "c_t": "c_t_m_s",
                "alpha_t": "alpha_t_db_per_wavelength"}
 _FLUID_KEYS = {"density": "density_kg_m3", "sound_speed": "sound_speed_m_s"}
 _SOLID_REQUIRED = ("density_kg_m3", "c_l_m_s", "c_t_m_s", "source")
-_SOLID_OPTIONAL = ("alpha_l_db_per_wavelength", "alpha_t_db_per_wavelength", "description")
+_SOLID_OPTIONAL = ("alpha_l_db_per_wavelength", "alpha_t_db_per_wavelength", "loss_factor",
+                   "description")
 _FLUID_REQUIRED = ("density_kg_m3", "sound_speed_m_s", "source")
 _FLUID_OPTIONAL = ("description",)
 
@@ -224,6 +239,17 @@ def parse_materials(data: Mapping[str, Any], origin: str = "<materials>") -> Mat
         where = _where(origin, "material", name)
         _check_keys(entry, where=where, required=_SOLID_REQUIRED, optional=_SOLID_OPTIONAL)
         fields = {f: entry.get(key, 0.0) for f, key in _SOLID_KEYS.items()}
+        if "loss_factor" in entry:
+            if any(k in entry for k in ("alpha_l_db_per_wavelength",
+                                        "alpha_t_db_per_wavelength")):
+                raise MaterialsError(f"{where}: give either 'loss_factor' or the "
+                                     "alpha_*_db_per_wavelength keys, not both")
+            eta = _check_number(entry["loss_factor"], where=where, key="loss_factor",
+                                expected="a finite number >= 0 (1/Q)", allow_zero=True)
+            if eta > 0.5:
+                raise MaterialsError(f"{where}: key 'loss_factor' must be <= 0.5 (a small "
+                                     f"loss, 1/Q), got {eta!r}")
+            fields["alpha_l"] = fields["alpha_t"] = loss_factor_to_db_per_wavelength(eta)
         _validate_solid_fields(name=name, origin=origin, keys=_SOLID_KEYS, **fields)
         m = ElasticMaterial(name=name, source=entry["source"],
                             **{k: float(v) for k, v in fields.items()})

@@ -53,7 +53,7 @@ def test_loss_convention_gives_stated_attenuation_per_wavelength():
 
 def test_normal_incidence_reflection():
     water = Fluid("w", 1000.0, 1500.0)
-    granite = get_material("granite")
+    granite = get_material("granite").lossless()
     z1 = 2650.0 * 4960.0
     assert granite.normal_incidence_reflection(water) == pytest.approx(
         (z1 - 1.5e6) / (z1 + 1.5e6))
@@ -107,3 +107,28 @@ def test_programmatic_construction_is_validated():
     assert DEFAULT_MATERIALS_FILE == "materials.toml"
     assert issubclass(MaterialsError, ConfigError)
     assert np.isfinite(get_material("steel").complex_c_t)
+
+
+def test_loss_factor_key(tmp_path):
+    """loss_factor = eta = 1/Q gives delta = eta/2 on both wave types (complex modulus
+    M(1 - i eta): c~ = c sqrt(1 - i eta) = c/(1 + i eta/2) to first order), i.e. a
+    resonance of width f/Q, and cannot be combined with the alpha keys."""
+    text = GOOD_SOLID.replace('source = ', 'loss_factor = 1.0e-3\nsource = ', 1)
+    m = load_materials(_write(tmp_path, text)).material("rock")
+    eta = 1e-3
+    exact = m.c_l * np.sqrt(1 - 1j * eta)
+    assert m.complex_c_l == pytest.approx(exact, rel=1e-6)
+    assert m.complex_c_t == pytest.approx(m.c_t * np.sqrt(1 - 1j * eta), rel=1e-6)
+    # Q from the attenuation per wavelength: 1/Q = alpha lambda / pi (alpha in Np/m)
+    alpha_np_per_wavelength = m.alpha_l / (20 * np.log10(np.e))
+    assert np.pi / alpha_np_per_wavelength == pytest.approx(1 / eta)
+    both = text.replace("loss_factor", "alpha_l_db_per_wavelength = 0.1\nloss_factor")
+    with pytest.raises(MaterialsError, match="not both"):
+        load_materials(_write(tmp_path, both))
+    with pytest.raises(MaterialsError, match="loss_factor"):
+        load_materials(_write(tmp_path, text.replace("1.0e-3", "-1.0")))
+    # the shipped metals are lossy, tungsten carbide (no sourced value) is not
+    table = load_materials()
+    assert table.material("aluminium").alpha_l > 0
+    assert table.material("tungsten_carbide").alpha_l == 0
+    assert table.material("aluminium").lossless().alpha_t == 0
