@@ -91,7 +91,7 @@ def test_empty_shell_rayleigh_limit_from_lame():
     ref = -k ** 2 * A ** 3 * ((1 - kappa_e / kappa) / 3
                               + (rho_e - WATER.density) / (2 * rho_e + WATER.density))
     got = shell_backscatter(np.array([f]), A, h, WATER, m, "vacuum")[0]
-    assert got.real == pytest.approx(ref, rel=2e-3)
+    assert got.real == pytest.approx(ref, rel=3e-4)          # measured 6e-5
 
 
 def test_bad_arguments():
