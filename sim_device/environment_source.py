@@ -192,7 +192,9 @@ class EnvironmentSource:
                 t.position = np.array(t.position, dtype=np.float64)
                 t.position[2] += float(self.undulation.height(*t.position[:2]))
         if self.targets:
-            self.contributions.append(TargetEchoes(self, self.targets))
+            tm = scene.target_model
+            self.contributions.append(TargetEchoes(
+                self, self.targets, tm.ring_max_s if tm is not None else None))
         self.last_stats: dict = {}
 
     def with_seed(self, seed: int) -> "EnvironmentSource":

@@ -200,7 +200,8 @@ class TransducerConfig:
 @dataclass(frozen=True)
 class TargetConfig:
     """A target of the target-scattering model (:mod:`sim_device.targets`)."""
-    kind: str = spec("target type", choices=("cylinder", "sphere", "disc"))
+    kind: str = spec("target type (shell: a hollow sphere, empty or filled)",
+                     choices=("cylinder", "sphere", "disc", "shell"))
     material: str = spec("material name in config/materials.toml, or 'rigid' (rigid, "
                          "fixed)")
     along_m: float = spec("centre along-track from the first ping, m", lo=-1e4, hi=1e4)
@@ -215,6 +216,12 @@ class TargetConfig:
                                        "down (disc: normal tilt from vertical), deg",
                                        lo=-90, hi=90)
     description: str | None = spec("what the target is")
+    thickness_m: float | None = field(default=None, metadata=spec(
+        "disc: thickness of the rock slab (an elastic plate; absent: a half-space face); "
+        "shell: wall thickness, m", lo=1e-5, hi=100).metadata)
+    fill: str | None = field(default=None, metadata=spec(
+        "shell: its fill, a fluid in config/materials.toml or 'vacuum' (empty or "
+        "air-filled; absent: vacuum)").metadata)
 
 
 @dataclass(frozen=True)
@@ -227,6 +234,13 @@ class TargetModelConfig:
                                lo=0, hi=5000)
     bistatic: str = spec("cylinders: monostatic model along the bisector at Kell's "
                          "frequency f cos(beta/2) or at f", choices=("kell", "bisector"))
+    material_loss: bool | None = field(default=None, metadata=spec(
+        "materials' loss factors on (absent: true) or off (lossless targets)").metadata)
+    ring_max_s: float | None = field(default=None, metadata=spec(
+        "longest target ringing synthesised without windowing, s: longer responses are "
+        "cut (tapered) there so they cannot wrap into the window (absent: the receive "
+        "window's length plus the pulse's, so nothing visible is cut)", lo=1e-4,
+        hi=10).metadata)
 
 
 @dataclass(frozen=True)
@@ -320,6 +334,17 @@ def check_scene(sc: SceneConfig, source: str = "<scene>") -> SceneConfig:
         if t.kind != "cylinder" and t.length_m is not None:
             raise fail(f"targets[{k}].length_m", f"only cylinders have a length (this "
                        f"target is a {t.kind})")
+        if t.kind == "shell" and t.thickness_m is None:
+            raise fail(f"targets[{k}].thickness_m", "a shell needs its wall thickness")
+        if t.kind == "shell" and t.thickness_m > t.radius_m:
+            raise fail(f"targets[{k}].thickness_m", f"{t.thickness_m} m is more than the "
+                       f"radius {t.radius_m} m")
+        if t.kind not in ("disc", "shell") and t.thickness_m is not None:
+            raise fail(f"targets[{k}].thickness_m", f"only discs (slabs) and shells have a "
+                       f"thickness (this target is a {t.kind})")
+        if t.kind != "shell" and t.fill is not None:
+            raise fail(f"targets[{k}].fill", f"only shells have a fill (this target is a "
+                       f"{t.kind})")
     return sc
 
 

@@ -185,16 +185,18 @@ class SpectralSynthesiser:
     digitiser's grid t_n = t_first + n / fs."""
 
     def __init__(self, pulse_real: np.ndarray, pad: int, fs: float, n_samples: int,
-                 t_first: float):
+                 t_first: float, tail_samples: int = 0):
         """``pulse_real``: the pulse on t_j = (j - pad) / fs (see
-        :func:`sim_device.pulse.digitised_pulse`)."""
+        :func:`sim_device.pulse.digitised_pulse`); ``tail_samples``: extra length of the
+        FFT period so that responses longer than a pulse (ringing targets) end before
+        they could wrap into the window (:mod:`sim_device.targets.echo`)."""
         self.fs = float(fs)
         self.n = int(n_samples)
         self.n_pulse = pulse_real.size
         self.pad = int(pad)
         self.lead = self.n_pulse + 4
         self.t0 = float(t_first) - self.lead / self.fs
-        self.n_fft = sfft.next_fast_len(self.n + 2 * self.lead)
+        self.n_fft = sfft.next_fast_len(self.n + 2 * self.lead + int(tail_samples))
         self.spectrum = sfft.rfft(pulse_real, self.n_fft)
         self.f = np.arange(self.spectrum.size) * self.fs / self.n_fft
         self.t_lo = float(t_first) - (self.n_pulse - self.pad + 1) / self.fs

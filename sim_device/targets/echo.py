@@ -18,6 +18,16 @@ For one ping and one target:
    pulse spectrum), summed per channel and inverse transformed on the digitiser's grid
    (:meth:`sim_device.specular.SpectralSynthesiser.responses`).
 
+Ringing (docs/targets_elastic.md): the echo spectrum is sampled on the FFT grid of a
+:class:`~sim_device.specular.SpectralSynthesiser`, whose period 1/Δf bounds how long a
+response may last before it wraps round into the window.  Each target gets its own grid:
+once, its brightest monostatic response (times the pulse spectrum) is transformed on a
+fine grid and its ring time t_ring is where the energy still to come falls below
+RING_DB (60 dB) under the total; the period is lengthened by t_ring (plus the target's
+front-face advance).  A response that rings longer than the cap (``ring_max_s``;
+default the receive window plus the pulse, so that nothing visible is cut) is cut there
+with a short taper, path by path, before synthesis.
+
 A scene without targets never builds this; a target outside every beam or window costs
 two ray solves per ping.
 """
@@ -29,11 +39,14 @@ import math
 import time
 
 import numpy as np
+import scipy.fft as sfft
 
+from ..specular import SpectralSynthesiser
 from ._series import DEFAULT_TOL
 from .materials import Fluid, MaterialTable, load_materials
 from .model import SceneTarget
 from .paths import target_legs
+from .shells import VACUUM
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +55,10 @@ DEFAULT_FREQ_STEP_HZ = 5.0
 DEFAULT_BISTATIC = "kell"
 #: material name of a rigid, fixed target (no entry in the materials table)
 RIGID = "rigid"
+#: a target's ring time: when the energy still to come is this far below the total, dB
+RING_DB = 60.0
+#: taper (s) of the cut of a response that rings past the cap
+RING_TAPER_S = 5e-4
 
 
 def build_targets(scene, media, materials: MaterialTable | None = None,
@@ -53,31 +70,119 @@ def build_targets(scene, media, materials: MaterialTable | None = None,
     tol = tm.truncation_tol if tm is not None else DEFAULT_TOL
     step = tm.freq_step_hz if tm is not None else DEFAULT_FREQ_STEP_HZ
     rule = tm.bistatic if tm is not None else DEFAULT_BISTATIC
+    lossy = tm is None or tm.material_loss is None or tm.material_loss
     out = []
     for k, cfg in enumerate(scene.targets):
         try:
             material = None if cfg.material == RIGID else materials.material(cfg.material)
         except Exception as exc:
             raise ValueError(f"{source}: key 'targets[{k}].material': {exc}") from None
+        if material is not None and not lossy:
+            material = material.lossless()
+        fill = VACUUM
+        if cfg.kind == "shell":
+            if material is None or material.is_fluid:
+                raise ValueError(f"{source}: key 'targets[{k}].material': a shell needs an "
+                                 f"elastic solid, got {cfg.material!r}")
+            if cfg.fill is not None and cfg.fill != VACUUM:
+                try:
+                    fill = materials.fluid(cfg.fill)
+                except Exception as exc:
+                    raise ValueError(f"{source}: key 'targets[{k}].fill': {exc}") from None
         med = 0 if cfg.depth_m < 0.0 else int(
             np.searchsorted(media.z_top[1:], cfg.depth_m, side="right"))
         host = Fluid("water" if med == 0 else f"medium {med}", float(media.rho[med]),
                      float(media.c[med]))
         out.append(SceneTarget(cfg, material, host, med, tol=tol, freq_step_hz=step,
-                               bistatic=rule, index=k))
+                               bistatic=rule, index=k, fill=fill))
     return out
+
+
+def ring_time(target: SceneTarget, spec, cap_s: float,
+              pulse: np.ndarray) -> tuple[float, bool]:
+    """(t_ring, cut): how long (s, from the start of the pulse at the centre's delay) the
+    target's brightest monostatic echo of ``pulse`` (the digitised transmit pulse) lasts
+    until the energy still to come is RING_DB below the total, at most ``cap_s``;
+    ``cut`` when it rings longer than ``cap_s``."""
+    fs = spec.fs
+    pre = _advance(target, fs)
+    n_e = sfft.next_fast_len(int(math.ceil(2.0 * cap_s * fs)) + 2 * pre + spec.n_pulse)
+    f_e = np.arange(1, n_e // 2 + 1) * fs / n_e
+    s_e = sfft.rfft(pulse, n_e)[1:]
+    keep = np.abs(s_e) > 1e-6 * np.abs(s_e).max()
+    k_in, k_out = target.reference_directions()
+    x = np.zeros(n_e // 2 + 1, dtype=complex)
+    x[1:][keep] = np.conj(target.amplitude(f_e[keep], k_in, k_out)[0]) * s_e[keep]
+    e = sfft.irfft(x, n_e) ** 2
+    total = float(e.sum())
+    if not total > 0:
+        return 0.0, False
+    after = np.cumsum(e[:n_e - pre][::-1])[::-1]          # energy from sample i on
+    thr = total * 10.0 ** (-RING_DB / 10.0)
+    i_cap = min(int(math.ceil(cap_s * fs)), after.size - 1)
+    if after[i_cap] > thr:
+        return cap_s, True
+    return float(np.argmax(after <= thr)) / fs, False
+
+
+def _advance(target: SceneTarget, fs: float) -> int:
+    """Samples by which a target's echo may precede its centre's delay (front face),
+    with a margin."""
+    return int(math.ceil((2.0 * target.extent / target.host.sound_speed + 2e-4) * fs)) + 4
+
+
+def _cut_window(n_fft: int, fs: float, pre: int, t_cut: float) -> np.ndarray:
+    """1 from -pre samples to t_cut, a raised-cosine taper over RING_TAPER_S, 0 after
+    (circular time: the last ``pre`` samples are the negative times)."""
+    t = np.arange(n_fft) / fs
+    t[n_fft - pre:] -= n_fft / fs
+    x = np.clip((t - t_cut) / RING_TAPER_S, 0.0, 1.0)
+    return 0.5 * (1.0 + np.cos(np.pi * x))
 
 
 class TargetEchoes:
     """Callable ``(source, i, geometry) -> pressure (channels, samples) uPa`` adding the
     echoes of ``targets`` to the pings of ``source``."""
 
-    def __init__(self, source, targets: list[SceneTarget]):
+    def __init__(self, source, targets: list[SceneTarget], ring_max_s: float | None = None):
         self.targets = targets
         spec = source.spectral
-        self.bins = spec.band()
-        self.freq = spec.f[self.bins]
         self.t_lo, self.t_hi = spec.t_lo, spec.t_hi
+        fs = spec.fs
+        #: the cap of a target's ringing (s)
+        self.ring_cap = (float(ring_max_s) if ring_max_s is not None
+                         else (spec.n + spec.n_pulse) / fs)
+        self._synths: dict[int, SpectralSynthesiser] = {}
+        #: per target, made when it is first in view: (synthesiser, bins, freq, cut
+        #: window or None, t_ring)
+        self.grids: list = [None] * len(targets)
+
+    def grid(self, source, k: int):
+        """The synthesis grid of target k (made once, when it is first seen)."""
+        if self.grids[k] is not None:
+            return self.grids[k]
+        spec = source.spectral
+        fs = spec.fs
+        target = self.targets[k]
+        t_ring, cut = ring_time(target, spec, self.ring_cap, source.pulses.pulse_real)
+        pre = _advance(target, fs)
+        tail = int(math.ceil((t_ring + (RING_TAPER_S if cut else 0.0)) * fs)) + pre
+        syn = self._synths.get(tail)
+        if syn is None:
+            syn = self._synths[tail] = SpectralSynthesiser(
+                source.pulses.pulse_real, source.pulses.pad, fs, spec.n,
+                spec.t0 + spec.lead / fs, tail_samples=tail)
+        bins = syn.band()
+        win = _cut_window(syn.n_fft, fs, pre, t_ring) if cut else None
+        if cut and target._form is not None:
+            # a cylinder's table is cut on its own fine grid (before any sampling on the
+            # synthesis grid, which would alias what rings past its period)
+            target._form.set_cut(t_ring)
+        self.grids[k] = (syn, bins, syn.f[bins], win, t_ring)
+        log.info("target %d (%s): rings %.2f ms%s; synthesis period %.2f ms",
+                 target.index, target.kind, 1e3 * t_ring, " (cut)" if cut else "",
+                 1e3 * syn.n_fft / fs)
+        return self.grids[k]
 
     def paths(self, source, g, target: SceneTarget):
         """Echo paths of ``target`` on the ping with geometry ``g``: (channel, tau,
@@ -122,18 +227,22 @@ class TargetEchoes:
         out = np.zeros((n_ch, source.spectral.n))
         in_view = 0
         rows = 0
-        f = self.freq
-        for target in self.targets:
+        for k, target in enumerate(self.targets):
             p = self.paths(source, g, target)
             if p is None:
                 continue
+            syn, bins, f, win, _ = self.grid(source, k)
             ch, tau, amp, beta, gamma, k_in, k_out = p
             in_view += 1
             rows += ch.size
-            form = target.amplitude(f, k_in, k_out)                       # (M, F)
-            resp = (np.conj(amp[:, None] * form)
+            form = np.conj(target.amplitude(f, k_in, k_out))              # (M, F)
+            if win is not None:                 # cut the ringing past the cap
+                x = np.zeros((form.shape[0], syn.spectrum.size), dtype=complex)
+                x[:, bins] = form
+                form = sfft.rfft(sfft.irfft(x, syn.n_fft, axis=-1) * win, axis=-1)[:, bins]
+            resp = (np.conj(amp)[:, None] * form
                     * np.exp(-beta[:, None] * f * f - gamma[:, None] * f))
-            out += source.spectral.responses(n_ch, ch, tau, resp, self.bins, source.p0)
+            out += syn.responses(n_ch, ch, tau, resp, bins, source.p0)
         source.last_stats.update(targets_in_view=in_view, target_paths=rows,
                                  target_s=time.perf_counter() - t0)
         return out

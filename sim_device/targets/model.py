@@ -13,7 +13,9 @@ holds the centre (water, or a sediment treated as a fluid, as TIER does).
   (:mod:`.bistatic`); the infinite-cylinder form T is either summed for every projected
   frequency ("exact") or read from a table over projected frequency with a given step
   (linear interpolation of the complex values), built once per target;
-* disc (flat rock): the bistatic Kirchhoff disc.
+* shell: the exact shell series (:mod:`.shells`), empty or filled, used like a sphere's;
+* disc (flat rock): the bistatic Kirchhoff disc, its face a half-space or, with a
+  thickness, an elastic plate (slab) in the host fluid.
 
 Orientation (tile frame: x along-track, y starboard, z down): a cylinder's axis is
 (cos t cos h, cos t sin h, sin t) for heading h from along-track and tilt t (positive
@@ -32,9 +34,10 @@ from .bistatic import angle_between, bistatic_from_directions
 from .cylinders import _MIN_KA, cylinder_backscatter_at, infinite_cylinder_form
 from .materials import ElasticMaterial, Fluid
 from .rocks import disc_scattering_amplitude
+from .shells import VACUUM, shell_modal_series
 from .spheres import sphere_modal_series
 
-KINDS = ("sphere", "cylinder", "disc")
+KINDS = ("sphere", "cylinder", "disc", "shell")
 
 
 def _deg(x) -> float:
@@ -53,11 +56,36 @@ class FormTable:
         self.f = np.zeros(0)
         self.t = np.zeros(0, dtype=complex)
 
+    #: a cut of the table's impulse response (s after the axis' echo; None: none)
+    cut_s: float | None = None
+
     def _build(self, f_hi: float) -> None:
         n = int(math.ceil((f_hi - self.f_min) / self.step)) + 2
         self.f = self.f_min + self.step * np.arange(n)
         self.t = infinite_cylinder_form(self.f, self.radius, self.host, self.material,
                                         tol=self.tol)
+        if self.cut_s is not None:
+            self.t = self._cut(self.t)
+
+    def _cut(self, t: np.ndarray) -> np.ndarray:
+        """T with its impulse response (over projected frequency, period 1/step) cut at
+        ``cut_s`` by a 0.5 ms raised-cosine taper: the ringing a path's echo keeps
+        (docs/targets_elastic.md).  The grid starts at f_min ~ 0 and is treated as
+        k * step (the shift f_min is a phase ramp of < 1e-6 rad over the cut)."""
+        n_t = 2 * (t.size - 1)
+        fs = n_t * self.step
+        h = np.fft.irfft(np.conj(t), n_t)
+        tt = np.arange(n_t) / fs
+        pre = 2.0 * self.radius / self.host.sound_speed + 2e-4
+        tt[tt > n_t / fs - pre] -= n_t / fs
+        w = 0.5 * (1.0 + np.cos(np.pi * np.clip((tt - self.cut_s) / 5e-4, 0.0, 1.0)))
+        return np.conj(np.fft.rfft(h * w))[: t.size]
+
+    def set_cut(self, cut_s: float) -> None:
+        """Cut the ringing at ``cut_s`` (s) from now on (the table is rebuilt)."""
+        self.cut_s = float(cut_s)
+        if self.t.size:
+            self.t = self._cut(self.t)
 
     def __call__(self, f_proj: np.ndarray) -> np.ndarray:
         hi = float(np.max(f_proj))
@@ -72,11 +100,12 @@ class SceneTarget:
 
     ``cfg``: a :class:`sim_device.scene.TargetConfig`; ``host``: the fluid holding the
     centre; ``medium``: its index (0 water); ``freq_step_hz``: cylinder form-table step
-    (0: exact series); ``bistatic``: "kell" or "bisector"."""
+    (0: exact series); ``bistatic``: "kell" or "bisector"; ``fill``: a shell's fill
+    (a :class:`Fluid` or "vacuum")."""
 
     def __init__(self, cfg, material: ElasticMaterial, host: Fluid, medium: int,
                  tol: float = DEFAULT_TOL, freq_step_hz: float = 0.0,
-                 bistatic: str = "kell", index: int = 0):
+                 bistatic: str = "kell", index: int = 0, fill=VACUUM):
         if cfg.kind not in KINDS:
             raise ValueError(f"targets[{index}].kind: expected one of {KINDS}, "
                              f"got {cfg.kind!r}")
@@ -90,6 +119,9 @@ class SceneTarget:
         self.bistatic = bistatic
         self.radius = float(cfg.radius_m)
         self.length = float(cfg.length_m) if cfg.length_m is not None else 0.0
+        thick = getattr(cfg, "thickness_m", None)
+        self.thickness = float(thick) if thick is not None else None
+        self.fill = fill
         self.position = np.array([cfg.along_m, cfg.cross_m, cfg.depth_m], dtype=np.float64)
         h, t = _deg(cfg.axis_heading_deg), _deg(cfg.axis_tilt_deg)
         if self.kind == "disc":
@@ -110,8 +142,13 @@ class SceneTarget:
     def _sphere(self, freq: np.ndarray):
         key = freq.tobytes()
         if key != self._series_key:
-            self._series = sphere_modal_series(freq, self.radius, self.host, self.material,
-                                               tol=self.tol)
+            if self.kind == "shell":
+                self._series = shell_modal_series(freq, self.radius, self.thickness,
+                                                  self.host, self.material, self.fill,
+                                                  tol=self.tol)
+            else:
+                self._series = sphere_modal_series(freq, self.radius, self.host,
+                                                   self.material, tol=self.tol)
             self._series_key = key
         return self._series
 
@@ -123,14 +160,15 @@ class SceneTarget:
         k_in = np.asarray(k_in, dtype=np.float64).reshape(-1, 3)
         k_out = np.asarray(k_out, dtype=np.float64).reshape(-1, 3)
         self.evaluations += freq.size * k_in.shape[0]
-        if self.kind == "sphere":
+        if self.kind in ("sphere", "shell"):
             s = self._sphere(freq)
             mu = np.clip(np.sum(k_in * k_out, axis=1), -1.0, 1.0)     # cos(theta)
             p = legendre_table(s.coefficients.shape[1], mu)
             return ((-1j / s.k)[:, None] * complex_matmul(s.coefficients, p)).T
         if self.kind == "disc":
             return disc_scattering_amplitude(freq, self.radius, self.host, k_in, k_out,
-                                             self.axis, self.material).T
+                                             self.axis, self.material,
+                                             thickness=self.thickness).T
         geo = bistatic_from_directions(k_in, k_out)
         psi = angle_between(geo.bisector, self.axis)
         scale = np.cos(0.5 * geo.bistatic_angle) if self.bistatic == "kell" else 1.0
@@ -138,3 +176,19 @@ class SceneTarget:
         return cylinder_backscatter_at(f_eq, psi[:, None], self.radius, self.length,
                                        self.host, self.material, tol=self.tol,
                                        form=self._form)
+
+    def reference_directions(self) -> tuple[np.ndarray, np.ndarray]:
+        """Incident and scattered directions (1, 3) of the target's brightest monostatic
+        view: a disc at normal incidence, a cylinder at broadside (from above where the
+        axis allows), a sphere or shell from above."""
+        if self.kind == "disc":
+            k_in = -self.axis
+        elif self.kind == "cylinder":
+            down = np.array([0.0, 0.0, 1.0])
+            k_in = down - (down @ self.axis) * self.axis
+            if np.linalg.norm(k_in) < 1e-6:               # vertical axis: from the side
+                k_in = np.array([1.0, 0.0, 0.0])
+            k_in = k_in / np.linalg.norm(k_in)
+        else:
+            k_in = np.array([0.0, 0.0, 1.0])
+        return k_in[None, :], -k_in[None, :]
