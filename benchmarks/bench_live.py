@@ -34,6 +34,13 @@ then off (default: on, as configured); the live micronavigation's time is the
 ``micronav`` stage (a part of each ping's, its conditioning not included) and its
 refusals are reported from the run's manifest.
 
+``--products process,inline`` runs each trial with daq.toml's ``[worker] products`` as
+given (default: as configured, ``process``): the full products in a second process beside
+the imaging, or inline. With the products process the worker's own ``products`` stage is
+the hand-over (``products_wait``: any wait for the process); the process's busy time
+(``products.process``) gets a margin of its own, and the reported ``margin`` is the
+smaller of the two.
+
 ``--quick``: the sand line, native build only (``--lines sand --isa native``; the same
 cached recording).
 """
@@ -69,7 +76,7 @@ log = logging.getLogger("bench_live")
 LINES = {"sand": ("seed_cylinder_sand", 450), "field": ("sayers_field", 260)}
 ISAS = {"native": {}, "avx2": dict(AVX2_TARGET)}
 #: top-level stages of the worker: their wall times add up to its processing time
-TOP = ("ping", "products", "quicklook", "run_products")
+TOP = ("ping", "products", "products_wait", "quicklook", "run_products")
 #: parts of a ping's imaging (inside "ping"; micronav: the live micronavigation stage,
 #: the ping's conditioning not included)
 PING_PARTS = ("micronav", "conditioning", "imaging", "coverage", "scheduling")
@@ -224,9 +231,27 @@ def processing_file(micronav: str, tmp: Path) -> Path:
     return path
 
 
+def daq_dir(products: str | None, tmp: Path) -> Path | None:
+    """A configuration folder like config/ with daq.toml's ``[worker] products`` as
+    ``products`` says (None: the shipped folder as it is)."""
+    if products is None:
+        return None
+    d = tmp / f"config-products-{products}"
+    shutil.copytree(ROOT / "config", d)
+    text = (d / "daq.toml").read_text()
+    new, n = re.subn(r'(?m)^products = "\w+"', f'products = "{products}"', text)
+    if n != 1:
+        raise RuntimeError("daq.toml: no [worker] products line")
+    (d / "daq.toml").write_text(new)
+    return d
+
+
 def trial(run: Path, isa: str, cache_root: Path, tmp: Path, load: bool,
-          micronav: str = "on") -> dict:
+          micronav: str = "on", products: str | None = None) -> dict:
     env = env_for(isa, cache_root)
+    cfg = daq_dir(products, tmp)
+    if cfg is not None:
+        env = {**env, "SVSS_CONFIG_DIR": str(cfg)}
     proc = processing_file(micronav, tmp)
     pub, svc = f"tcp://127.0.0.1:{free_port()}", f"tcp://127.0.0.1:{free_port()}"
     out, timings = tmp / "tiles", tmp / "timings.json"
@@ -297,6 +322,10 @@ def summarise(r: dict, published: dict, ended_at, t_start: float, t_done: float,
     busy = {k: st.get(k, {}).get("wall_s", 0.0) for k in TOP}
     busy["fetch"] = r["fetch_s"]
     busy_s = sum(busy.values())
+    # the products process (daq.toml [worker] products = "process"): its own busy time
+    side_s = st.get("products.process", {}).get("wall_s", 0.0)
+    margin_main = sonar_s / busy_s
+    margin_side = sonar_s / side_s if side_s > 0 else None
     # backlog: published but not yet fed, every 0.5 s from the first ping to the end
     grid = np.arange(t0, max(t_done, pub_t[-1]) + 0.5, 0.5)
     backlog = (np.searchsorted(pub_t, grid, side="right")
@@ -320,7 +349,11 @@ def summarise(r: dict, published: dict, ended_at, t_start: float, t_done: float,
     return {"pings": pings, "published": len(published), "sonar_s": sonar_s,
             "processing_s": round(busy_s, 2), "processing_by_stage_s": {
                 k: round(v, 2) for k, v in busy.items()},
-            "margin": round(sonar_s / busy_s, 3),
+            "margin": round(min(margin_main, margin_side or margin_main), 3),
+            "margin_worker": round(margin_main, 3),
+            "products_process_s": round(side_s, 2) if side_s else None,
+            "margin_products_process": (None if margin_side is None
+                                        else round(margin_side, 3)),
             "worker_cpu_s": round(worker_cpu_s, 1),
             # cores the worker kept busy per core-second of sonar time: above the
             # machine's cores it cannot keep up even alone (start-up included)
@@ -351,6 +384,9 @@ def main(argv=None) -> int:
     ap.add_argument("--micronav", default="on",
                     help="[micronav] live in the worker's processing: on, off or "
                          "on,off (one trial each, in that order)")
+    ap.add_argument("--products", default=None,
+                    help="daq.toml [worker] products in the worker: process, inline or "
+                         "process,inline (one trial each; default: as configured)")
     ap.add_argument("--quick", action="store_true",
                     help="the sand line, native build only (--lines sand --isa native)")
     args = ap.parse_args(argv)
@@ -368,7 +404,9 @@ def main(argv=None) -> int:
     isas = args.isa.split(",")
     for name in args.lines.split(","):
         run = survey_line(name, args.pings or LINES[name][1], cache)
-        for isa, mn in ((i, m) for i in isas for m in args.micronav.split(",")):
+        modes = args.products.split(",") if args.products else [None]
+        for isa, mn, pm in ((i, m, q) for i in isas for m in args.micronav.split(",")
+                            for q in modes):
             with tempfile.TemporaryDirectory(prefix="bench_live_") as tmp:
                 tmp = Path(tmp)
                 env = env_for(isa, cache)
@@ -377,10 +415,11 @@ def main(argv=None) -> int:
                 load0 = os.getloadavg()
                 log.info("%s, %s build, micronavigation %s: replaying %s at its real rate "
                          "(load %.2f)", name, isa, mn, run.name, load0[0])
-                r = trial(run, isa, cache, tmp, not args.no_load, mn)
+                r = trial(run, isa, cache, tmp, not args.no_load, mn, pm)
                 r["load_during"] = [load0, os.getloadavg()]
                 r["navigation_pose_ms_per_ping"] = nav_ms
                 key = isa if args.micronav == "on" else f"{isa}, micronav {mn}"
+                key = key if pm is None else f"{key}, products {pm}"
                 res["lines"].setdefault(name, {})[key] = r
                 log.info("%s %s: margin %.2f (sonar %.0f s, processing %.0f s), backlog "
                          "peak %d, %d at the last ping; tiles %s", name, key, r["margin"],
@@ -404,11 +443,15 @@ def report(res: dict) -> str:
               "products",
               "products.chain", "products.background", "products.normalisation",
               "products.compression_and_mips", "products.detection", "products.quicklook_png",
-              "products.tile_file", "quicklook", "run_products")
+              "products.tile_file", "products.process", "products_wait", "quicklook",
+              "run_products")
     for name, by_isa in res["lines"].items():
         for isa, r in by_isa.items():
             lines.append(f"\n{name}, {isa}: {r['pings']} pings, sonar {r['sonar_s']:.0f} s, "
-                         f"processing {r['processing_s']:.1f} s, margin {r['margin']:.2f}; "
+                         f"processing {r['processing_s']:.1f} s, margin {r['margin']:.2f}"
+                         + ("" if r.get("products_process_s") is None else
+                            f" (worker {r['margin_worker']:.2f}, products process "
+                            f"{r['margin_products_process']:.2f})") + "; "
                          f"backlog peak {r['backlog_pings']['peak']} pings, "
                          f"{r['backlog_pings']['at_last_ping']} at the last ping; done "
                          f"{r['done_after_last_ping_s']:.1f} s after it; worker CPU "

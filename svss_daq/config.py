@@ -181,6 +181,18 @@ class WorkerConfig:
         "tiles whose full products wait at most (their image planes stay in memory, 60 MB "
         "per default tile in float32); beyond, the oldest is finished at once", lo=1,
         hi=1000, default=4)
+    products: str | None = spec(
+        "where a live worker makes a completed tile's full products (background, "
+        "detections, tile file, PNG): process (a second process, beside the imaging: "
+        "docs/keeping_up.md) or inline (the worker waits for them)",
+        choices=("process", "inline"), default="process")
+    products_threads: int | None = spec(
+        "numba threads of the products process (1: the imaging keeps both cores of a "
+        "2-core machine when it needs them)", lo=1, hi=1024, default=1)
+    products_in_flight: int | None = spec(
+        "tiles handed to the products process and not yet written at most (their image "
+        "planes stay in memory, 60 MB per default tile); beyond, the worker waits",
+        lo=1, hi=100, default=2)
 
 
 @dataclass(frozen=True)

@@ -37,11 +37,12 @@ from .live_clock import SonarLag, StageClock, instrument
 from .micronav.live import live_stage
 from .products.chain import Seams, save_quicklook, save_tile
 from .products.run_products import run_products_at_end
+from .products_process import PROCESS_STAGE, ProductsProcessGone
 from .seabed.speed import configured_speed
 from .run_folder import (JOURNAL, JOURNAL_SCHEMA, JOURNAL_VERSION, MANIFEST, atomic_json,
                          prepare_output_dir, read_journal)
 from .survey_index import write_survey_index
-from .tiles import finished_tiles_by_index, tile_file_paths
+from .tiles import TileFileError, finished_tiles_by_index, tile_file_paths
 
 log = logging.getLogger(__name__)
 
@@ -126,6 +127,14 @@ class Worker:
         self.deferred: list = []
         #: every tile whose full products were deferred in this session (manifest)
         self.deferred_tiles: list[int] = []
+        #: a :class:`~svss_proc.products_process.ProductsProcess` that makes the full
+        #: products beside the imaging (the stream worker's, daq.toml ``[worker] products
+        #: = "process"``); None: inline
+        self.offload = None
+        #: tiles handed to it and not yet written, in order: (job, tile, entry)
+        self.in_flight: list = []
+        #: tiles handed over at most; beyond, the worker waits for the oldest
+        self.max_in_flight = 2
         #: times the worker fell behind in this run (manifest ``behind``)
         self.behind_episodes = 0
         #: per tile written: index, pings, quick look and tile file times (unix s)
@@ -206,9 +215,10 @@ class Worker:
         if resume is None:
             resume = (self.last_sequence + 1 if self.last_sequence is not None
                       else self.resume_sequence)
-        # a tile waiting for its full products has no tile file yet: not written, and
-        # rebuilt from its first ping after a crash
-        waiting = [t.pings[0] for t, _ in self.deferred if t.pings]
+        # a tile waiting for its full products (or being written by the products
+        # process) has no tile file yet: not written, and rebuilt from its first ping
+        # after a crash
+        waiting = [t.pings[0] for t in self._waiting() if t.pings]
         if waiting:
             resume = min(waiting) if resume is None else min(resume, min(waiting))
         atomic_json(self.out / JOURNAL, {
@@ -218,7 +228,7 @@ class Worker:
                 "origin_ne": list(line.origin_ne), "heading": line.heading,
                 "interface_down": line.interface_down},
             "written": sorted(self.imager.done - set(stopped_open)
-                              - {t.grid.index for t, _ in self.deferred}),
+                              - {t.grid.index for t in self._waiting()}),
             "stopped_open": sorted(stopped_open),
             "resume_sequence": resume, "last_sequence": self.last_sequence,
             "resumed": self.resumed, "skipped": self.skipped_ranges,
@@ -279,6 +289,8 @@ class Worker:
             self.last_sequence = seq
         for tile in tiles:
             self._save(tile)
+        if self.in_flight:
+            self.collect()
         if tiles or (self.imager.line is not None and not self._journal_line):
             self._journal_line = True
             self._write_journal()
@@ -311,11 +323,82 @@ class Worker:
                         self.deferred[0][0].grid.index)
             self.complete_deferred()
 
+    def _waiting(self) -> list:
+        """The completed tiles without their tile file yet: deferred, or handed over."""
+        return [t for t, _ in self.deferred] + [t for _, t, _ in self.in_flight]
+
     def _save_full(self, tile, entry: dict) -> None:
+        if self.offload is not None:
+            try:
+                with self.clock.stage("products"):      # the hand-over
+                    job = self.offload.submit(self.out, tile)
+            except ProductsProcessGone:
+                self._offload_gone()
+            except Exception:                   # a defect: this tile is made here
+                log.exception("%s: tile %d: not handed to the products process; made "
+                              "here", self.out, tile.grid.index)
+            else:
+                self.in_flight.append((job, tile, entry))
+                while len(self.in_flight) > self.max_in_flight:
+                    self.collect(block=True)            # the products are behind: wait
+                return
         with self.clock.stage("products"):
             self.written += save_tile(tile, self.out, self.hardware, self.processing,
                                       self.seams, clock=self.clock)
         entry["written_unix_s"] = round(time.time(), 4)
+
+    def collect(self, block: bool = False) -> int:
+        """Take the tiles the products process has written, oldest first; ``block``:
+        wait for the oldest (timed as ``products_wait``). How many were taken. A tile whose
+        products failed there raises :class:`~svss_proc.tiles.TileFileError`, as inline;
+        a products process gone has its tiles made here."""
+        n = 0
+        while self.in_flight:
+            job, tile, entry = self.in_flight[0]
+            try:
+                if block and n == 0:
+                    with self.clock.stage("products_wait"):
+                        r = self.offload.wait(job)
+                else:
+                    r = self.offload.result(job)
+            except ProductsProcessGone:
+                self._offload_gone()
+                return n
+            if r is None:
+                break
+            self.in_flight.pop(0)
+            n += 1
+            for k, v in r.stages.items():
+                self.clock.add(k, math.nan if v["cpu_s"] is None else v["cpu_s"],
+                               v["wall_s"], v["calls"])
+            self.clock.add(PROCESS_STAGE, r.cpu_s, r.wall_s)
+            if r.error is not None:
+                raise TileFileError(f"{self.out}: tile {tile.grid.index}: products "
+                                    f"process: {r.error}")
+            self.written += r.paths
+            entry["written_unix_s"] = round(time.time(), 4)
+        if n:
+            self._write_journal()
+        return n
+
+    def _offload_gone(self) -> None:
+        """The products process died: every tile handed to it is made here, and the
+        run goes on inline (the seams it kept are lost: the next tile is made without
+        its predecessor's planes)."""
+        pending, self.in_flight = self.in_flight, []
+        self.offload = None
+        self.seams = Seams()
+        for _, tile, entry in pending:
+            self._save_full(tile, entry)
+        if pending:
+            self._write_journal()
+
+    def drain_products(self) -> None:
+        """Wait until every tile handed to the products process is written."""
+        while self.in_flight:
+            self.collect(block=True)
+        if self.offload is not None:
+            self.offload.end_run(self.out)
 
     def complete_deferred(self) -> bool:
         """Make the full products and the tile file of the oldest tile waiting for them
@@ -365,6 +448,7 @@ class Worker:
             self._write_journal(stopped_open=open_tiles)    # intent first
         for tile in self.imager.finish():
             self._save(tile)
+        self.drain_products()
         refused = dict(self.gate.refused)
         if self.gate.n_refused or self.imaging_errors or self.imager.late_pings:
             log.warning("%d ping(s) refused %s, %d failed in imaging, %d reached only "

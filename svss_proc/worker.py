@@ -40,6 +40,7 @@ from svss_daq.subscriber import subscribe
 from .imaging.imager import PingAccumulator, imaging_method
 from .folder_lock import FolderLock
 from .preflight import preflight
+from .products_process import ProductsProcess
 from .run_folder import MANIFEST, atomic_json, prepare_output_dir, read_journal, run_folder_name
 from .run_worker import MAX_LISTED_GAPS, Worker
 from .stream_run import _Run, memory_state  # noqa: F401  (memory_state: svss_proc.worker's)
@@ -80,6 +81,11 @@ class StreamWorker:
         self.policy = behind if behind is not None else from_dict(
             WorkerConfig, {}, "[worker] defaults")
         self.behind = False
+        #: the products process the runs' workers share (``[worker] products``; None:
+        #: inline), started at the first tile
+        p = self.policy
+        self.offload = (ProductsProcess(hardware, processing, threads=p.products_threads)
+                        if p.products == "process" else None)
         #: ``--timings FILE``: per run, the stage times, every ping's lag and every
         #: tile's times, rewritten at each run's end (benchmarks/bench_live.py)
         self.timings_path = None if timings is None else Path(timings)
@@ -211,6 +217,8 @@ class StreamWorker:
 
     def _configured(self, worker: Worker) -> Worker:
         worker.max_deferred = self.policy.max_deferred_tiles
+        worker.offload = self.offload
+        worker.max_in_flight = self.policy.products_in_flight
         if self.timings_path is not None:
             worker.lag.timeline = []
         return worker
@@ -657,6 +665,8 @@ class StreamWorker:
                             "tile(s) wait for their full products", len(r.worker.deferred))
             if not self.behind:
                 r.worker.complete_deferred()
+            if r.worker.in_flight:
+                r.worker.collect()
         now = time.monotonic()
         if (self.fetcher is None or r is None or r.worker is None or r.run_id is None
                 or r.buffer or now - r.heard_at < self.gap_wait_s or now < r.ask_at):
@@ -696,6 +706,8 @@ class StreamWorker:
         if finished:
             self._say(r, done=True)             # the service is not needed any more
         files = w.finish(complete=complete)
+        if self.offload is not None:
+            self.offload.close_if_idle()      # a new one for the next run's first tile
         if finished and r.run_id is not None:
             self.ended.add(r.run_id)
         summary = w.summary(complete)
@@ -730,6 +742,11 @@ class StreamWorker:
             self._say(r, done=True)
             self._finish_run(r, finished=False)
         self.write_manifest(complete=False)
+
+    def close(self) -> None:
+        """End the products process (its tiles were written with their runs)."""
+        if self.offload is not None:
+            self.offload.close()
 
     def write_manifest(self, complete: bool) -> None:
         """``OUT/manifest.json``: this session's runs, their counts and files."""
@@ -795,7 +812,7 @@ def serve(endpoint: str, out_dir: str | Path, hardware: Loaded[HardwareConfig],
     fetcher = (PingFetcher(service, curve=curve, timeout_s=service_timeout_s,
                            max_pings_per_reply=max_pings_per_reply)
                if service is not None else None)
-    sock = None
+    sock = sw = None
     guards = contextlib.ExitStack()
     try:
         guards.enter_context(stop_once("writing the open tiles and the manifest"))
@@ -828,6 +845,8 @@ def serve(endpoint: str, out_dir: str | Path, hardware: Loaded[HardwareConfig],
             sock.close(linger=0)
         if fetcher is not None:
             fetcher.close()
+        if sw is not None:
+            sw.close()
         guards.close()
 
 

@@ -78,6 +78,21 @@ def _leg_time(dx, dy, z, h, inv_cw, inv_cs):
 
 
 @nb.njit(inline="always", cache=True)
+def _rx_time(e, xa, yc, z, s, rx, b0, b1, b2, cos_rx, gating, inv_cw, inv_cs):
+    """The one-way time from the voxel (``xa, yc``, ``z`` below its column's interface,
+    ``s`` below the level of the element heights) to receive element ``e``; infinite
+    where ``gating`` and the voxel lies outside the element's cone."""
+    ex = xa - rx[e, 0]
+    ey = yc - rx[e, 1]
+    ez = z + s - rx[e, 2]
+    if gating:
+        r2 = math.sqrt(ex * ex + ey * ey + ez * ez)
+        if ex * b0 + ey * b1 + ez * b2 < r2 * cos_rx:
+            return math.inf
+    return _leg_time(ex, ey, z, s - rx[e, 2], inv_cw, inv_cs)
+
+
+@nb.njit(inline="always", cache=True)
 def _count(x, y, z, s, xa, yc, h_tx, h_min, rx, corners, b0, b1, b2, cos_tx, cos_rx,
            gating, t_lo, t_hi, inv_cw, inv_cs):
     """Channels one ping reaches at one voxel (``x, y``: its offset from the projector,
@@ -99,27 +114,14 @@ def _count(x, y, z, s, xa, yc, h_tx, h_min, rx, corners, b0, b1, b2, cos_tx, cos
         if not ok:
             break
         e = corners[k]
-        ex = xa - rx[e, 0]
-        ey = yc - rx[e, 1]
-        ez = z + s - rx[e, 2]
-        if gating:
-            r2 = math.sqrt(ex * ex + ey * ey + ez * ez)
-            if ex * b0 + ey * b1 + ez * b2 < r2 * cos_rx:
-                ok = False
-        if t1 + _leg_time(ex, ey, z, s - rx[e, 2], inv_cw, inv_cs) > t_hi:
+        if t1 + _rx_time(e, xa, yc, z, s, rx, b0, b1, b2, cos_rx, gating, inv_cw,
+                         inv_cs) > t_hi:
             ok = False
     if ok:
         return nch, True
     n = 0
     for e in range(nch):
-        ex = xa - rx[e, 0]
-        ey = yc - rx[e, 1]
-        ez = z + s - rx[e, 2]
-        if gating:
-            r2 = math.sqrt(ex * ex + ey * ey + ez * ez)
-            if ex * b0 + ey * b1 + ez * b2 < r2 * cos_rx:
-                continue
-        t = t1 + _leg_time(ex, ey, z, s - rx[e, 2], inv_cw, inv_cs)
+        t = t1 + _rx_time(e, xa, yc, z, s, rx, b0, b1, b2, cos_rx, gating, inv_cw, inv_cs)
         if t_lo <= t <= t_hi:
             n += 1
     return n, False
@@ -236,6 +238,12 @@ class Coverage:
     tx_along_min_m: float = math.inf
     tx_along_max_m: float = -math.inf
     geodetic_ref: tuple[float, float, float, float, float] | None = None
+
+    def __getstate__(self) -> dict:
+        """Pickled (handed to the products process) without instance-level wrappers of
+        its methods (a stage clock's timing of :meth:`add`)."""
+        return {k: v for k, v in self.__dict__.items()
+                if not (callable(v) and hasattr(type(self), k))}
 
     @classmethod
     def new(cls, shape: tuple[int, int, int], receivers_body: np.ndarray) -> Coverage:

@@ -59,6 +59,13 @@ class Tile:
         out.imag = self.im
         return out
 
+    def __getstate__(self) -> dict:
+        """Pickled (handed to the products process) without the cached complex image:
+        it is the planes again, built anew where it is needed."""
+        state = self.__dict__.copy()
+        state.pop("image", None)
+        return state
+
     def to_host(self) -> "Tile":
         """Bring device-resident planes (GPU imaging) back to host memory."""
         if hasattr(self.re, "copy_to_host"):
