@@ -280,6 +280,14 @@ def cmd_view(args) -> int:
     return 0
 
 
+def _print_written(command: str, files) -> int:
+    """The files ``svss COMMAND`` wrote, one a line on stdout; the exit status 0."""
+    print(f"svss {command} wrote:")
+    for p in files:
+        print(f"  {p}")
+    return 0
+
+
 def cmd_demo(args) -> int:
     from svss.demo import DemoError, run_demo
 
@@ -290,10 +298,7 @@ def cmd_demo(args) -> int:
     except DemoError as exc:
         log.error("%s", exc)
         return 1
-    print("svss demo wrote:")
-    for p in files:
-        print(f"  {p}")
-    return 0
+    return _print_written("demo", files)
 
 
 def cmd_inspect(args) -> int:
@@ -355,10 +360,7 @@ def cmd_products(args) -> int:
     if not files:
         log.error("%s: no tiles with products; nothing written", args.tiles)
         return 1
-    print("svss products wrote:")
-    for p in files:
-        print(f"  {p}")
-    return 0
+    return _print_written("products", files)
 
 
 def cmd_score(args) -> int:

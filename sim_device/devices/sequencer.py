@@ -24,10 +24,10 @@ import re
 import select
 import threading
 import time
-import tty
 from pathlib import Path
 from typing import Callable, Optional
 
+from sim_device.devices.serial_device import close_fds, open_raw_pty
 from svss_daq.protocols import sequencer as proto
 
 __all__ = ["SequencerEmulator", "device_time_ns"]
@@ -88,10 +88,7 @@ class SequencerEmulator:
     # -- pty -------------------------------------------------------------------------
 
     def _open_pty(self) -> None:
-        master, slave = os.openpty()
-        tty.setraw(slave)
-        tty.setraw(master)
-        os.set_blocking(master, False)  # never block on a reader that does not read
+        master, slave = open_raw_pty()
         self._master, self._slave = master, slave
         self.device = os.ttyname(slave)
         if self.link_path is not None:
@@ -107,12 +104,7 @@ class SequencerEmulator:
     def _close_pty(self) -> None:
         with self._wlock:
             fds, self._master, self._slave = (self._master, self._slave), None, None
-        for fd in fds:
-            if fd is not None:
-                try:
-                    os.close(fd)
-                except OSError:
-                    pass
+        close_fds(fds)
 
     # -- life cycle ------------------------------------------------------------------
 

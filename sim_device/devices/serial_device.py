@@ -26,9 +26,30 @@ from typing import Optional
 
 from sim_device.devices.clock import SimClock
 
-__all__ = ["SerialDevice", "SerialDeviceStats", "Fault"]
+__all__ = ["SerialDevice", "SerialDeviceStats", "Fault", "open_raw_pty", "close_fds"]
 
 logger = logging.getLogger(__name__)
+
+
+def open_raw_pty() -> tuple[int, int]:
+    """A new pty's (master, slave) descriptors, both raw; the master non-blocking, so
+    that a full pty, or a reader that does not read, drops output rather than stalling
+    the device."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    tty.setraw(master)
+    os.set_blocking(master, False)
+    return master, slave
+
+
+def close_fds(fds) -> None:
+    """Close each of ``fds`` that is open (not None), errors ignored."""
+    for fd in fds:
+        if fd is not None:
+            try:
+                os.close(fd)
+            except OSError:
+                pass
 
 
 @dataclass(frozen=True)
@@ -87,10 +108,7 @@ class SerialDevice:
         return self.clock.now_ns() if self.clock is not None else time.time_ns()
 
     def _open_pty(self) -> None:
-        master, slave = os.openpty()
-        tty.setraw(slave)
-        tty.setraw(master)
-        os.set_blocking(master, False)  # a full pty drops output rather than stalling
+        master, slave = open_raw_pty()
         tmp = self.directory / f".{self.name}.new"
         if tmp.is_symlink() or tmp.exists():
             tmp.unlink()
@@ -104,12 +122,7 @@ class SerialDevice:
         with self._wlock:
             fds = (self._master, self._slave)
             self._master = self._slave = None
-        for fd in fds:
-            if fd is not None:
-                try:
-                    os.close(fd)
-                except OSError:
-                    pass
+        close_fds(fds)
         try:
             os.unlink(self.port)
         except FileNotFoundError:

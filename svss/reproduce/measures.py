@@ -178,6 +178,19 @@ def background(mag: np.ndarray, voxel_m: float, kernel_m=(1.2, 0.2, 0.1),
                              boundary, ignore_zeros=True)
 
 
+def _peak_near(mag: np.ndarray, axes, centre: tuple[float, float, float],
+               radius: float):
+    """The voxel axes (float64) and the index (i, j, k) of the largest ``mag`` within
+    ``radius`` (m) of ``centre``; ValueError where no imaged voxel is that near."""
+    a, c, d = (np.asarray(x, dtype=np.float64) for x in axes)
+    r2 = ((a[:, None, None] - centre[0]) ** 2 + (c[None, :, None] - centre[1]) ** 2
+          + (d[None, None, :] - centre[2]) ** 2)
+    near = np.where(r2 <= radius ** 2, mag, -1.0)
+    if near.max() <= 0:
+        raise ValueError(f"no imaged voxel within {radius} m of the target at {centre}")
+    return (a, c, d), np.unravel_index(int(np.argmax(near)), mag.shape)
+
+
 def target_excess(image: np.ndarray, axes, voxel_m: float, centre: tuple[float, float, float],
                   radius: float = 0.3, kernel_m=(1.2, 0.2, 0.1), method: str = "histogram",
                   bin_db: float = 0.05, boundary: str = "reflect",
@@ -188,13 +201,7 @@ def target_excess(image: np.ndarray, axes, voxel_m: float, centre: tuple[float, 
     mag = np.abs(np.asarray(image)).astype(np.float32)
     bg = background(mag, voxel_m, kernel_m, method, bin_db, boundary)
     level = level_db(normalise(mag, bg, floor_db))
-    a, c, d = (np.asarray(x, dtype=np.float64) for x in axes)
-    r2 = ((a[:, None, None] - centre[0]) ** 2 + (c[None, :, None] - centre[1]) ** 2
-          + (d[None, None, :] - centre[2]) ** 2)
-    near = np.where(r2 <= radius ** 2, mag, -1.0)
-    if near.max() <= 0:
-        raise ValueError(f"no imaged voxel within {radius} m of the target at {centre}")
-    i, j, k = np.unravel_index(int(np.argmax(near)), mag.shape)
+    (a, c, d), (i, j, k) = _peak_near(mag, axes, centre, radius)
     return Excess(float(level[i, j, k]), (float(a[i]), float(c[j]), float(d[k])),
                   float(mag[i, j, k]), float(bg[i, j, k]))
 
@@ -209,13 +216,7 @@ def surround_excess(image: np.ndarray, axes, centre: tuple[float, float, float],
     background cannot hold the target itself (the products' 1.2 m x 0.2 m x 0.1 m median
     window is half filled by a 61 cm cylinder lying along the track)."""
     mag = np.abs(np.asarray(image)).astype(np.float64)
-    a, c, d = (np.asarray(x, dtype=np.float64) for x in axes)
-    r2 = ((a[:, None, None] - centre[0]) ** 2 + (c[None, :, None] - centre[1]) ** 2
-          + (d[None, None, :] - centre[2]) ** 2)
-    near = np.where(r2 <= radius ** 2, mag, -1.0)
-    if near.max() <= 0:
-        raise ValueError(f"no imaged voxel within {radius} m of the target at {centre}")
-    i, j, k = np.unravel_index(int(np.argmax(near)), mag.shape)
+    (a, c, d), (i, j, k) = _peak_near(mag, axes, centre, radius)
     h2 = (a[:, None] - centre[0]) ** 2 + (c[None, :] - centre[1]) ** 2
     ring = (h2 > keep_out ** 2)[:, :, None] & (np.abs(d - d[k]) <= band + 1e-9)[None, None, :]
     vals = mag[ring & (mag > 0)]

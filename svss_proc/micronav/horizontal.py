@@ -61,6 +61,7 @@ from svss_daq.geometry import ArrayGeometry
 
 from .patch_focus import SubAperture, focus, ping_taps
 from .phase_centres import PhaseCentrePairs, near_pairs, phase_centres
+from .rpc import shifted_samples
 
 __all__ = ["DisplacementEstimate", "Patch", "TapCache", "displacement_pass",
            "estimate_displacement", "focus_points", "layer_offsets", "phase_gradient",
@@ -139,15 +140,7 @@ def focus_points(bb: np.ndarray, t0_s: float, dt_s: float, center_hz: float,
     p = np.asarray(points, dtype=np.float64)
     tau = (np.linalg.norm(p - tx, axis=1)[None, :]
            + np.linalg.norm(p[None, :, :] - rx[:, None, :], axis=2)) / sound_speed_m_s
-    u = (tau - t0_s) / dt_s
-    k = np.floor(u).astype(np.int64)
-    f = u - k
-    n = bb.shape[1]
-    ok = (k >= 0) & (k + 1 < n)
-    k = np.clip(k, 0, n - 2)
-    rows = np.arange(bb.shape[0])[:, None]
-    s = (bb[rows, k] * (1.0 - f) + bb[rows, k + 1] * f) * ok
-    s = s * np.exp(2j * math.pi * center_hz * tau)
+    s = shifted_samples(bb, t0_s, dt_s, tau) * np.exp(2j * math.pi * center_hz * tau)
     if isinstance(weights, str):
         if weights != "channels":
             raise ValueError(f"weights {weights!r}: expected per-channel numbers, None or "

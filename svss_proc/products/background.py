@@ -90,6 +90,20 @@ def _slab(levels, ia, j, m, wc, wd, s, fine, mid, top, three, ptr, below):
     return below, n
 
 
+@numba.njit(cache=True, inline="always")
+def _walk(counts, ptr, below, k):
+    """The pointer moved over ``counts`` (a count per level, or per block of levels) to
+    the entry that holds the ``k``-th counted level (0-based), ``below`` the count under
+    it before and after: returns (ptr, below)."""
+    while below + counts[ptr] <= k:
+        below += counts[ptr]
+        ptr += 1
+    while below > k:
+        ptr -= 1
+        below -= counts[ptr]
+    return ptr, below
+
+
 @numba.njit(cache=True, parallel=True)
 def _sliding_median_levels(levels, wa, wc, wd, n_levels, three, counts_dtype_probe,
                            n_threads, out):
@@ -127,12 +141,7 @@ def _sliding_median_levels(levels, wa, wc, wd, n_levels, three, counts_dtype_pro
                 else:
                     k = (count - 1) // 2
                     if three:
-                        while below + top[ptr] <= k:
-                            below += top[ptr]
-                            ptr += 1
-                        while below > k:
-                            ptr -= 1
-                            below -= top[ptr]
+                        ptr, below = _walk(top, ptr, below, k)
                         r = k - below
                         b = ptr << 6
                         while mid[b] <= r:
@@ -144,12 +153,7 @@ def _sliding_median_levels(levels, wa, wc, wd, n_levels, three, counts_dtype_pro
                             lev += 1
                         out[i, j, m] = lev
                     else:
-                        while below + fine[ptr] <= k:
-                            below += fine[ptr]
-                            ptr += 1
-                        while below > k:
-                            ptr -= 1
-                            below -= fine[ptr]
+                        ptr, below = _walk(fine, ptr, below, k)
                         out[i, j, m] = ptr
                 below, n = _slab(levels, i, j, m, wc, wd, -1, fine, mid, top, three, ptr,
                                  below)
