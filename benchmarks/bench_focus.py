@@ -167,14 +167,18 @@ def write_variant(name: str, base: Path, folder: Path) -> Path:
     return path
 
 
-def write_motion_scene(base: Path, folder: Path) -> Path:
-    text = base.read_text().replace('name = "demo-points"', 'name = "demo-points-motion"')
-    text += "\n# bench_focus: platform motion (issue 26)\n[track.motion]\n" + "".join(
-        f"{k} = {v!r}\n" for k, v in MOTION.items())
-    path = folder / "demo-motion.toml"
-    path.write_text(text)
+def _write_with_motion(text: str, path: Path) -> Path:
+    """The scene ``text`` with the platform motion (MOTION) added, written to ``path``
+    and validated."""
+    text = text.rstrip("\n") + "\n\n# bench_focus: platform motion (issue 26)\n[track.motion]\n"
+    path.write_text(text + "".join(f"{k} = {v!r}\n" for k, v in MOTION.items()))
     load_scene(path)
     return path
+
+
+def write_motion_scene(base: Path, folder: Path) -> Path:
+    text = base.read_text().replace('name = "demo-points"', 'name = "demo-points-motion"')
+    return _write_with_motion(text, folder / "demo-motion.toml")
 
 
 def write_sand_scene(folder: Path) -> Path:
@@ -187,12 +191,7 @@ def write_sand_scene(folder: Path) -> Path:
     text += "\n# bench_focus (issue 29): points in the sand\n" + "".join(
         f"[[points]]\nalong_m = {a!r}\ncross_m = {c!r}\ndepth_m = {d!r}\n"
         "target_strength_db = -20.0\n\n" for a, c, d in SAND_POINTS)
-    text += "# bench_focus: platform motion (issue 26)\n[track.motion]\n" + "".join(
-        f"{k} = {v!r}\n" for k, v in MOTION.items())
-    path = folder / "sand-motion.toml"
-    path.write_text(text)
-    load_scene(path)
-    return path
+    return _write_with_motion(text, folder / "sand-motion.toml")
 
 
 def sand_processing(base: Path, folder: Path):

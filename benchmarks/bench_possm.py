@@ -244,6 +244,12 @@ def row_options(key: str, value) -> tuple[dict, str]:
     return dict(TOP, **{key: value}), f"{key} = {value}"
 
 
+def _only(variants: list, only_rows: str | None) -> list:
+    """The ``(key, value)`` variants whose key ``only_rows`` (comma-separated) names;
+    all of them without it."""
+    return [v for v in variants if v[0] in only_rows.split(",")] if only_rows else variants
+
+
 def fidelity(hw, n: int, quick: bool, only_rows: str | None = None
              ) -> tuple[dict, list[dict]]:
     """The fidelity table on ``n`` pings of the sand scene."""
@@ -275,8 +281,7 @@ def fidelity(hw, n: int, quick: bool, only_rows: str | None = None
         variants = [("per_cell", 2.0), ("order", 0), ("below_noise", 20.0),
                     ("precision", "float32"), ("default", None),
                     ("seed", base.scene.seed + 1)]
-    if only_rows:
-        variants = [v for v in variants if v[0] in only_rows.split(",")]
+    variants = _only(variants, only_rows)
     rows = []
     for key, value in variants:
         opts, label = row_options(key, value)
@@ -396,8 +401,7 @@ def image_fidelity(hw, quick: bool, only_rows: str | None = None
     if quick:
         variants = [("per_cell", 2.0), ("per_cell", 1.0), ("default", None),
                     ("seed", base.scene.seed + 1)]
-    if only_rows:
-        variants = [v for v in variants if v[0] in only_rows.split(",")]
+    variants = _only(variants, only_rows)
     rows = []
     for key, value in variants:
         opts, label = row_options(key, value)
