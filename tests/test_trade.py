@@ -17,16 +17,22 @@ import pytest
 
 from svss import cli
 from svss.trade import report
+from tests.computed_once import computed_once
 
 AREAS = ("imaging", "simulation", "normalisation")
 
 
 @pytest.fixture(scope="module")
 def trade(tmp_path_factory):
-    out = tmp_path_factory.mktemp("trade")
-    rc = cli.main(["-q", "trade", "--quick", "--out", str(out), "--budget-s", "15"])
-    assert rc == 0
-    return out, json.loads((out / "trade.json").read_text())
+    """One run for the session (:mod:`tests.computed_once`): the module's tests are
+    spread over the workers, and each worker's own run compiled every option's kernels
+    (3 CPU-minutes a time on a cold cache)."""
+    def run():
+        out = tmp_path_factory.mktemp("trade")
+        rc = cli.main(["-q", "trade", "--quick", "--out", str(out), "--budget-s", "15"])
+        assert rc == 0
+        return out, json.loads((out / "trade.json").read_text())
+    return computed_once(tmp_path_factory, "test_trade-trade", run)
 
 
 def rows_of(result, area):
