@@ -121,8 +121,11 @@ def mosaic_levels(tiles_dir: Path, scene, detected: list[int]) -> tuple[float, f
     return outside, min((at[k] for k in detected), default=float("nan"))
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def line_args(doc: str) -> argparse.Namespace:
+    """The command line of a benchmark over LINES (``--cache`` of the simulated runs,
+    made here; ``--out``; ``--only`` scene names), ``doc``'s first paragraph its
+    description; logging set up."""
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     ap.add_argument("--cache", type=Path, required=True)
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--only", nargs="*", default=None, help="scene names to run")
@@ -130,6 +133,11 @@ def main() -> None:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s",
                         datefmt="%H:%M:%S")
     args.cache.mkdir(parents=True, exist_ok=True)
+    return args
+
+
+def main() -> None:
+    args = line_args(__doc__)
     svss = [sys.executable, "-m", "svss"]
     rows = []
     for name, config in LINES:

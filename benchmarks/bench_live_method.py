@@ -24,7 +24,6 @@ worker runs: docs/imaging.md "The live method"). Reported per line:
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import math
@@ -40,7 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_false_alarms import LINES  # noqa: E402  (the same lines and configurations)
+from bench_false_alarms import LINES, line_args  # noqa: E402  (the same lines and configurations)
 from bench_isa import machine_isa  # noqa: E402
 from sim_device.scene import load_scene  # noqa: E402
 from svss.score import half_extent, score_tiles, tile_paths  # noqa: E402
@@ -129,14 +128,7 @@ def compare(exact_dir: Path, fact_dir: Path, scored: dict) -> dict:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--cache", type=Path, required=True)
-    ap.add_argument("--out", type=Path, default=None)
-    ap.add_argument("--only", nargs="*", default=None, help="scene names to run")
-    args = ap.parse_args()
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s",
-                        datefmt="%H:%M:%S")
-    args.cache.mkdir(parents=True, exist_ok=True)
+    args = line_args(__doc__)
     rows = []
     for name, config in LINES:
         if args.only and name not in args.only:
