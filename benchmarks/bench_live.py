@@ -37,9 +37,10 @@ refusals are reported from the run's manifest.
 ``--products process,inline`` runs each trial with daq.toml's ``[worker] products`` as
 given (default: as configured, ``process``): the full products in a second process beside
 the imaging, or inline. With the products process the worker's own ``products`` stage is
-the hand-over (``products_wait``: any wait for the process); the process's busy time
-(``products.process``) gets a margin of its own, and the reported ``margin`` is the
-smaller of the two.
+the hand-over (``products_wait``: any wait for the process while imaging; the wait for the
+last tiles at the line's end, ``products_drain``, is in their latency, not in the
+margin); the process's busy time (``products.process``) gets a margin of its own, and
+the reported ``margin`` is the smaller of the two.
 
 ``--quick``: the sand line, native build only (``--lines sand --isa native``; the same
 cached recording).
@@ -443,7 +444,8 @@ def report(res: dict) -> str:
               "products",
               "products.chain", "products.background", "products.normalisation",
               "products.compression_and_mips", "products.detection", "products.quicklook_png",
-              "products.tile_file", "products.process", "products_wait", "quicklook",
+              "products.tile_file", "products.process", "products_wait",
+              "products_drain", "quicklook",
               "run_products")
     for name, by_isa in res["lines"].items():
         for isa, r in by_isa.items():

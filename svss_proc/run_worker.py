@@ -347,9 +347,9 @@ class Worker:
                                       self.seams, clock=self.clock)
         entry["written_unix_s"] = round(time.time(), 4)
 
-    def collect(self, block: bool = False) -> int:
+    def collect(self, block: bool = False, stage: str = "products_wait") -> int:
         """Take the tiles the products process has written, oldest first; ``block``:
-        wait for the oldest (timed as ``products_wait``). How many were taken. A tile whose
+        wait for the oldest (timed as ``stage``). How many were taken. A tile whose
         products failed there raises :class:`~svss_proc.tiles.TileFileError`, as inline;
         a products process gone has its tiles made here."""
         n = 0
@@ -357,7 +357,7 @@ class Worker:
             job, tile, entry = self.in_flight[0]
             try:
                 if block and n == 0:
-                    with self.clock.stage("products_wait"):
+                    with self.clock.stage(stage):
                         r = self.offload.wait(job)
                 else:
                     r = self.offload.result(job)
@@ -394,9 +394,10 @@ class Worker:
             self._write_journal()
 
     def drain_products(self) -> None:
-        """Wait until every tile handed to the products process is written."""
+        """Wait until every tile handed to the products process is written (at the
+        run's end: timed as ``products_drain``, apart from the waits while imaging)."""
         while self.in_flight:
-            self.collect(block=True)
+            self.collect(block=True, stage="products_drain")
         if self.offload is not None:
             self.offload.end_run(self.out)
 
