@@ -25,7 +25,8 @@ from .config_loader import (CONFIG_ENV, SHIPPED_FILES, ConfigError, Loaded, conf
                             loaded_from_text, loads, omitted_default, read_toml, spec)
 from .config_processing import (AutofocusConfig, BackgroundConfig, ConditioningConfig,
                                 DepthGainConfig, DetectionConfig, DrcConfig,
-                                ImagingConfig, LimitsConfig, MicronavConfig,
+                                FeaturesConfig, ImagingConfig, LimitsConfig,
+                                MicronavConfig,
                                 PingGateConfig, ProcessingConfig, ProductsConfig,
                                 QuicklookConfig, SeabedConfig, SedimentLayerConfig,
                                 TileConfig)
@@ -411,7 +412,8 @@ __all__ = ["CONFIG_ENV", "ConfigError", "spec", "omitted_default", "ReceiveSecti
            "Sequencer", "LeverArms", "HardwareConfig", "TileConfig",
            "ConditioningConfig", "SedimentLayerConfig", "ImagingConfig",
            "BackgroundConfig", "DepthGainConfig", "DrcConfig", "DetectionConfig",
-           "QuicklookConfig", "ProductsConfig", "PingGateConfig", "LimitsConfig",
+           "QuicklookConfig", "FeaturesConfig", "ProductsConfig", "PingGateConfig",
+           "LimitsConfig",
            "MicronavConfig", "AutofocusConfig", "SeabedConfig", "ProcessingConfig",
            "PublisherConfig", "SubscriberConfig", "WHEN_BEHIND", "WorkerConfig",
            "ServiceConfig", "RecorderConfig", "DaqConfig", "worker_section",

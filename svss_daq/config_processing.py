@@ -214,6 +214,41 @@ class QuicklookConfig:
 
 
 @dataclass(frozen=True)
+class FeaturesConfig:
+    enabled: bool = spec("measure each contact's features (its tail below it: extent, "
+                         "decay, late-to-specular ratio; docs/contact_features.md)")
+    footprint_min_m: tuple[float, float] = spec(
+        "smallest footprint (along, cross) over which a contact's tail is averaged, m; "
+        "its extent above the threshold where larger", length=2, lo=0.0, hi=10.0)
+    footprint_max_m: tuple[float, float] = spec(
+        "largest footprint (along, cross), m", length=2, lo=0.0, hi=10.0)
+    peak_window_m: float = spec("the object's own (specular) window: apparent depth below "
+                                "its peak, m", lo=0.0, hi=5.0)
+    tail_window_m: float = spec("the tail window below the peak window (late energy), m",
+                                lo=0.01, hi=10.0)
+    background_within_db: float = spec(
+        "the tail ends where its profile falls to within this of the local background, dB",
+        lo=0.0, hi=60.0)
+    below_run_m: float = spec("... and stays there over this apparent depth, m", lo=0.0,
+                              hi=5.0)
+    reference_boxes: int = spec("reference footprints beside the contact along-track, on "
+                                "each side (the local background's mean and spread)",
+                                lo=1, hi=100)
+    reference_gap_m: float = spec("gap between the footprint and its references, m",
+                                  lo=0.0, hi=10.0)
+    min_fit_points: int = spec("fewest depth voxels for the decay's fit", lo=3, hi=10000)
+    profile_m: float = spec("length of the tail profile kept per contact (tile file, PNG), m",
+                            lo=0.0, hi=10.0)
+
+    def config_problem(self) -> tuple[str, str] | None:
+        for lo, hi in zip(self.footprint_min_m, self.footprint_max_m):
+            if lo > hi:
+                return ("footprint_min_m", f"{list(self.footprint_min_m)} exceeds "
+                        f"footprint_max_m {list(self.footprint_max_m)}")
+        return None
+
+
+@dataclass(frozen=True)
 class ProductsConfig:
     background: BackgroundConfig = spec("background estimation by a 3-D median")
     depth_gain: DepthGainConfig = spec("depth-varying gain")
@@ -222,6 +257,9 @@ class ProductsConfig:
     quicklook: QuicklookConfig = spec("PNG quicklooks")
     store_volumes: bool = spec("write the background and the compressed volume into the "
                                "tile file (each as large as the magnitude)")
+    features: FeaturesConfig | None = spec(
+        "each contact's features (docs/contact_features.md; omitted: none measured)",
+        default=None)
 
 
 @dataclass(frozen=True)

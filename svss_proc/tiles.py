@@ -373,6 +373,15 @@ def _write_products(f: h5py.File, p: "Products", keep) -> None:
         ds.attrs.update({"units": units, "long_name": long_name})
         ds.dims[0].attach_scale(idx)
     grp.attrs.update({k: v for k, v in p.detection_attrs.items()})
+    if p.tail_profiles is not None:     # each contact's tail (docs/contact_features.md)
+        ds = keep(grp.create_dataset("tail_profile_db",
+                                     data=np.asarray(p.tail_profiles, dtype=np.float32)))
+        ds.attrs.update({"units": "dB re background", "step_m": p.tail_profile_step_m,
+                         "long_name": "mean normalised intensity over the contact's "
+                                      "footprint over that of reference footprints beside "
+                                      "it, from the peak's depth down in steps of step_m "
+                                      "(NaN: below the tile)"})
+        ds.dims[0].attach_scale(idx)
 
 
 def _text(v) -> str:
@@ -500,6 +509,11 @@ def _header(f: h5py.File, path: Path) -> dict:
         raise TileFileError(f"{path}: group '/detections' missing; expected it in a tile "
                             "with products (root attribute has_products is true)")
     out["detections"] = _read_detections(f, path)
+    prof = f.get("detections/tail_profile_db")
+    if isinstance(prof, h5py.Dataset) and prof.ndim == 2 and prof.dtype.kind == "f" \
+            and prof.shape[0] == len(out["detections"]) and prof.shape[1] <= 100_000:
+        out["tail_profile_db"] = prof[()]
+        out["tail_profile_step_m"] = float(prof.attrs.get("step_m", np.nan))
     out["products"] = [k for k in ("background", "drc", *MIPS, "detections") if k in f]
     if "coverage_full_pings" in f:
         out["coverage_full_pings"] = _volume(f, "coverage_full_pings", path,

@@ -24,6 +24,7 @@ from svss_daq.decibels import amplitude_to_db
 from . import drc as drc_mod
 from .background import greater_of_below, kernel_voxels, median_background
 from .circumstances import circumstances_text, tile_counts
+from .contact_features import contact_features, with_features
 from .detect import Footprint, detect, sidelobe_zone
 from .layer_cfar import guarded_along, guarded_regions, layer_tails
 from ..imaging.coverage import aperture_fraction, full_fraction
@@ -233,6 +234,13 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
     table = table[:dc.max_per_tile]
     t4 = time.perf_counter()
     t["detection"] = t4 - t3
+    profiles, step = None, float("nan")
+    fcfg = cfg.features
+    if fcfg is not None and fcfg.enabled:     # each contact's tail below it
+        feats = contact_features(level, axes, table, fcfg)
+        table, profiles, step = with_features(table, feats), feats.profiles, feats.step_m
+        t5 = time.perf_counter()
+        t["features"], t4 = t5 - t4, t5
     g = cfg.depth_gain
     gain = drc_mod.depth_gain_db(axes[2], g.db_per_m, g.start_m).astype(np.float32)
     display = _shown(level, mag, axes, sources, before, dc,
@@ -254,6 +262,7 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
         drc_attrs={"floor_db": d.floor_db, "knee_db": d.knee_db,
                    "ceiling_db": d.ceiling_db, "depth_gain_db_per_m": g.db_per_m,
                    "depth_gain_start_m": g.start_m},
+        tail_profiles=profiles, tail_profile_step_m=step,
         detection_attrs={"threshold_db": dc.threshold_db, "min_voxels": dc.min_voxels,
                          "layer_false_alarms_per_m3": (np.nan if dc.layer_false_alarms_per_m3
                                                        is None
@@ -439,7 +448,9 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
             else:
                 products_png(tmp_png, prods.mips, prods.level, prods.gain_db,
                              prods.detections, g, voxel, pcfg, title, ident,
-                             coverage=None if tile.coverage is None else tile.coverage.pings)
+                             coverage=None if tile.coverage is None else tile.coverage.pings,
+                             profiles=prods.tail_profiles,
+                             profile_step_m=prods.tail_profile_step_m)
         except OSError as exc:
             raise TileFileError(f"{png}: writing the quicklook failed "
                                 f"({exc.strerror or exc}); no file written") from None

@@ -35,6 +35,8 @@ from scipy import ndimage
 from svss_daq.decibels import amplitude_to_db
 from svss_daq.geometry import cone_radius
 
+from .contact_features import FEATURE_FIELDS, FEATURE_FILL
+
 log = logging.getLogger(__name__)
 
 #: detection table columns: (name, dtype, units, meaning)
@@ -64,10 +66,12 @@ FIELDS = (
                                  "(its fitted tail, or speckle's where it has none; -1: "
                                  "not known: one threshold for all layers)")),
 )
+#: each contact's features (:mod:`.contact_features`; not measured: their fill values)
+FIELDS = FIELDS + FEATURE_FIELDS
 DTYPE = np.dtype([(name, dt) for name, dt, _, _ in FIELDS])
 #: columns a tile written before they existed may lack, and their fill values
 OPTIONAL_FIELDS = {"coverage_pings": 0, "coverage_fraction": -1.0,
-                   "threshold_db": -1.0, "false_alarms": -1.0}
+                   "threshold_db": -1.0, "false_alarms": -1.0, **FEATURE_FILL}
 
 
 @dataclass(frozen=True)
@@ -410,6 +414,8 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
     kept.sort(key=lambda c: -c["excess"])
     kept = kept[:max_detections]
     out = np.zeros(len(kept), dtype=DTYPE)
+    for name, fill in FEATURE_FILL.items():      # measured later (chain), if at all
+        out[name] = fill
     for row, c in zip(out, kept):
         p = c["peak"]
         row["along_m"], row["cross_m"], row["depth_m"] = c["pos"]

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import math
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,7 @@ from matplotlib import colormaps
 from svss_daq.config import ProductsConfig
 from svss_daq.decibels import amplitude_to_db_floored
 
+from .contact_features import LATE_UPPER_BOUND
 from .drc import compress
 from .raster import Canvas, View, rgb8, save_rgb_palette_png
 from ..imaging.grid import TileGrid
@@ -119,7 +121,9 @@ def _sides(canvas: Canvas, v: View, horizontal: bool) -> None:
 def products_png(path: str | Path, mips: dict[str, np.ndarray], level: np.ndarray,
                  gain_db: np.ndarray, detections: np.ndarray, grid: TileGrid,
                  voxel_m: float, cfg: ProductsConfig, title: str, identity: str,
-                 coverage: np.ndarray | None = None) -> Path:
+                 coverage: np.ndarray | None = None,
+                 profiles: np.ndarray | None = None, profile_step_m: float = float("nan")
+                 ) -> Path:
     """Quicklook of a tile's products.
 
     Full-width views stacked (top view, side view, depth slices at
@@ -132,7 +136,11 @@ def products_png(path: str | Path, mips: dict[str, np.ndarray], level: np.ndarra
     ``quicklook.max_labels`` that do not overlap are numbered on the views, every one
     is circled and the list gives the first 25; ``coverage``: pings per voxel (voxels
     no ping reached are drawn in :data:`NO_DATA_RGBA`; None: all imaged); ``title``
-    and ``identity``: the tile's name and provenance lines.
+    and ``identity``: the tile's name and provenance lines; ``profiles``: each
+    contact's tail profile (dB re background from its peak down in steps of
+    ``profile_step_m``, :mod:`.contact_features`): the strongest are drawn beside the
+    list (:data:`TAIL_PANELS` at most, as the width allows) and the list gives each
+    contact's tail features.
     """
     d = cfg.drc
     max_labels = cfg.quicklook.max_labels
@@ -164,6 +172,9 @@ def products_png(path: str | Path, mips: dict[str, np.ndarray], level: np.ndarra
     bottom_h = BOTTOM_VIEW_IN
     slot = TITLE_IN + XLABEL_IN             # a panel's title above, its x axis below
     height = SUPTITLE_IN + sum(h for h, _ in heights) + len(panels) * slot + slot + bottom_h
+    tails = profiles is not None and len(profiles) > 0 and np.isfinite(profile_step_m)
+    if tails:                       # a row of tail profiles under the bottom row
+        height += TAIL_ROW_IN
     # the layout is fixed here, in inches; the views are placed in its pixels
     canvas = Canvas(width, height, cfg.quicklook.dpi)
     n_det = len(detections)
@@ -204,6 +215,10 @@ def products_png(path: str | Path, mips: dict[str, np.ndarray], level: np.ndarra
     text_left = cbar_left + COLORBAR_W_IN + COLORBAR_LABELS_IN
     canvas.text((text_left * canvas.dpi, (top + TITLE_IN) * canvas.dpi),
                 _detection_lines(detections, 25), 7, "la", "mono")
+    if tails:
+        _tail_panels(canvas, LEFT_IN, top + TITLE_IN + bottom_h + XLABEL_IN,
+                     width - RIGHT_IN, TAIL_ROW_IN, detections, profiles, profile_step_m,
+                     cfg)
     canvas.text((canvas.width / 2, 0.08 * canvas.dpi),
                 f"{title}\n{n_det} detection(s) at {cfg.detection.threshold_db:g} dB re "
                 f"background (numbered: the strongest {max_labels} on each view)\n"
@@ -282,19 +297,83 @@ def _palette(cmap: str = CMAP) -> tuple[int, ...]:
     return tuple(int(round(255 * v)) for c in cols[:256] for v in c)
 
 
+#: the row of tail profiles under the bottom row: its height, at most this many panels,
+#: each this wide and this far apart (inches)
+TAIL_ROW_IN, TAIL_PANELS, TAIL_PANEL_IN, TAIL_GAP_IN = 2.6, 8, 1.1, 0.55
+
+
+def _tail_panels(canvas, left_in: float, top_in: float, right_in: float, h_in: float,
+                 detections: np.ndarray, profiles: np.ndarray, step_m: float,
+                 cfg: ProductsConfig) -> None:
+    """The tail profiles of the strongest contacts (numbered as the list), one small
+    panel each from ``left_in`` while they fit before ``right_in``: level (dB re
+    background) against apparent depth below the peak, the features'
+    background_within_db marked (grey), the decay (dB/m) and the tail's extent
+    above."""
+    fc = cfg.features
+    n = int(min(len(profiles), TAIL_PANELS,
+                max(0, (right_in - left_in + TAIL_GAP_IN) // (TAIL_PANEL_IN + TAIL_GAP_IN))))
+    depth = np.arange(profiles.shape[1]) * step_m
+    hi = float(np.nanmax(profiles[:n])) if n and np.isfinite(profiles[:n]).any() else 30.0
+    xe = (-5.0, max(10.0, 10.0 * math.ceil(hi / 10.0)))
+    ye = (0.0, float(depth[-1]) if depth.size > 1 else 1.0)
+    grey = rgb8((0.6, 0.6, 0.6))
+    for i in range(n):
+        x0 = left_in + i * (TAIL_PANEL_IN + TAIL_GAP_IN)
+        box = canvas.box(x0, top_in + 0.45, TAIL_PANEL_IN, h_in - 0.95)
+        v = canvas.view(box, np.ones((1, 1, 3)), xe, ye, True)
+        canvas.x_axis(v, "dB re background", max_ticks=3)
+        if i == 0:
+            canvas.y_axis(v, "below peak (m)")
+        if fc is not None:
+            x = v.to_px([fc.background_within_db] * 2, list(ye))
+            canvas.draw.line([tuple(p) for p in x], fill=grey)
+        ok = np.isfinite(profiles[i])
+        pts = v.to_px(np.clip(profiles[i][ok], *xe), depth[ok])
+        if len(pts) > 1:
+            canvas.draw.line([tuple(p) for p in pts], fill=rgb8((0.0, 0.45, 0.7)), width=2)
+        row = detections[i]
+        decay = row["tail_decay_db_per_m"]
+        ext = row["tail_extent_m"]
+        canvas.text((v.x0, v.y0 - canvas.px(2)),
+                    f"#{i} " + (f"{decay:.0f}\u00b1{row['tail_decay_err_db_per_m']:.0f} dB/m"
+                                if np.isfinite(decay) else "no decay")
+                    + "\n" + (f"tail {ext:.2f} m" if np.isfinite(ext) else "tail cut"),
+                    7, "ld")
+
+
 def _detection_lines(detections: np.ndarray, n_max: int = 20) -> str:
     """The strongest detections as text lines: number, position (m; depth below the
-    seabed), excess (dB re background), largest extent (m)."""
+    seabed), excess (dB re background), largest extent (m) and, where measured, the
+    tail's extent (m), decay (dB/m) and late-to-specular ratio (dB; '<' an upper bound,
+    docs/contact_features.md)."""
+    feats = "tail_extent_m" in (detections.dtype.names or ()) and len(detections) \
+        and np.any(detections["feature_flags"] >= 0)
     lines = ["#    along  cross  depth  excess   size", "      (m)    (m)    (m)    (dB)    (m)"]
+    if feats:
+        lines[0] += "   tail  decay    L/S"
+        lines[1] += "    (m) (dB/m)   (dB)"
     for i, row in enumerate(detections[:n_max]):
         size = max(row["extent_along_m"], row["extent_cross_m"], row["extent_depth_m"])
         lines.append(f"{i:<3d}{row['along_m']:6.2f} {row['cross_m']:6.2f} "
-                     f"{row['depth_m']:6.2f} {row['excess_db']:6.1f} {size:6.2f}")
+                     f"{row['depth_m']:6.2f} {row['excess_db']:6.1f} {size:6.2f}"
+                     + (_feature_text(row) if feats else ""))
     if len(detections) > n_max:
         lines.append(f"... {len(detections) - n_max} more (in the tile file)")
     if len(detections) == 0:
         lines.append("(no detections)")
     return "\n".join(lines)
+
+
+def _feature_text(row) -> str:
+    """A contact's tail features for the list: extent, decay, late-to-specular."""
+    def num(v, w, d):
+        return f"{v:{w}.{d}f}" if np.isfinite(v) else " " * (w - 1) + "-"
+    ls = row["late_to_specular_db"]
+    bound = "<" if row["feature_flags"] >= 0 and row["feature_flags"] & LATE_UPPER_BOUND \
+        and np.isfinite(ls) else " "
+    return (f" {num(row['tail_extent_m'], 6, 2)} {num(row['tail_decay_db_per_m'], 6, 0)} "
+            f"{bound}{num(ls, 5, 1)}")
 
 
 def _mark(canvas: Canvas, v: View, detections: np.ndarray, idx: np.ndarray,

@@ -56,6 +56,7 @@ from svss_daq.navigation import ned_to_geodetic
 
 from ..tiles import TileFileError, temporary_path
 from .chain import coverage_settings, footprint_for
+from .contact_features import FEATURE_FILL, FEATURE_NAMES, flags_text
 from .circumstances import (FALLBACK_REACH_M, KINDS, LABELS, PingTrack, Stretch,
                             circumstances_text, counts_near, is_partial)
 from .detect import Footprint, is_later_echo, sidelobe_filter
@@ -122,6 +123,24 @@ CONTACT_FIELDS = (
      None),
     ("tile_row", "1", "row of the tile's detection table", None),
     ("n_tiles", "1", "tiles whose detections were merged into the contact", None),
+    # each contact's features, from its strongest tile detection (docs/contact_features.md)
+    ("tail_extent_m", "m", ("apparent depth below the peak down to where the tail falls "
+                            "to within background_within_db of the local background "
+                            "(empty: cut by the tile's bottom, or not measured)"), 3),
+    ("tail_decay_db_per_m", "dB/m", ("decay of the tail below the object per metre of "
+                                     "apparent depth, positive decaying (empty: no tail)"),
+     2),
+    ("tail_decay_err_db_per_m", "dB/m", "standard error of tail_decay_db_per_m", 2),
+    ("late_to_specular_db", "dB", ("late energy (the tail window below the object) over "
+                                   "the object's own (its peak window), background "
+                                   "subtracted (an upper bound where feature_notes say "
+                                   "so)"), 2),
+    ("late_to_specular_err_db", "dB", ("uncertainty of late_to_specular_db from the local "
+                                       "background's fluctuation"), 2),
+    ("feature_flags", "1", ("bits: 1 tail cut by the tile's bottom, 2 no tail, 4 "
+                            "late-to-specular an upper bound, 8 no reference beside it, 16 "
+                            "tail too short to fit; -1 not measured"), None),
+    ("feature_notes", "", "feature_flags in words (empty: every feature measured)", None),
 )
 _DECIMALS = {name: d for name, _, _, d in CONTACT_FIELDS}
 
@@ -247,7 +266,8 @@ def run_contacts(views: list[TileView],
                          "excess_db": float(row["excess_db"]),
                          "threshold_db": _optional(table, row, "threshold_db"),
                          "false_alarms": _optional(table, row, "false_alarms"),
-                         "coverage_pings": int(row["coverage_pings"])})
+                         "coverage_pings": int(row["coverage_pings"]),
+                         **_features(table, row)})
     n_tile_detections = len(rows)
     kept = filter_contacts(rows, full, depth_axis, min_fraction, dc.merge_m, dc.sidelobe_db,
                            dc.sidelobe_m, footprint, dc.later_echo_m)
@@ -278,7 +298,9 @@ def run_contacts(views: list[TileView],
              "coverage_fraction": float(r["coverage_fraction"]),
              **contact_circumstances(pings, r["ned"], r["depth_m"],
                                      float(r["coverage_fraction"]), reach),
-             "tile_row": r["tile_row"], "n_tiles": r["n_tiles"]}
+             "tile_row": r["tile_row"], "n_tiles": r["n_tiles"],
+             **{k: r[k] for k in FEATURE_NAMES},
+             "feature_notes": flags_text(r["feature_flags"])}
         out.append({name: _rounded(name, c[name]) for name, *_ in CONTACT_FIELDS})
     summary = {"tiles": len(views), "tile_detections": n_tile_detections,
                "run_id": run_id,
@@ -300,6 +322,14 @@ def _optional(table: np.ndarray, row, name: str) -> float:
         return float("nan")
     v = float(row[name])
     return v if v >= 0.0 else float("nan")
+
+
+def _features(table: np.ndarray, row) -> dict:
+    """A detection's feature columns (their fill values where an older tile has none)."""
+    names = table.dtype.names or ()
+    out = {k: (row[k].item() if k in names else FEATURE_FILL[k]) for k in FEATURE_NAMES}
+    out["feature_flags"] = int(out["feature_flags"])
+    return out
 
 
 def _csv_value(name: str, v) -> str:

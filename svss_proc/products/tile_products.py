@@ -16,7 +16,7 @@ class Products:
     gain), ``drc`` display values 0..1 (None when not kept), ``mips`` the maximum
     intensity projections (:data:`svss_proc.tiles.MIPS`) of level + gain (dB),
     ``detections`` a :data:`svss_proc.products.detect.DTYPE` table, ``timings`` seconds per
-    stage."""
+    stage; ``tail_profiles`` each contact's tail profile (docs/contact_features.md)."""
     method: str
     kernel_m: tuple[float, float, float]
     kernel_voxels: tuple[int, int, int]
@@ -33,3 +33,7 @@ class Products:
     drc_attrs: dict = field(default_factory=dict)
     detection_attrs: dict = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
+    #: each contact's tail profile (n x m, dB re background, from its peak down at
+    #: ``tail_profile_step_m``; :mod:`.contact_features`), None when not measured
+    tail_profiles: np.ndarray | None = None
+    tail_profile_step_m: float = float("nan")

@@ -127,5 +127,6 @@ def test_depth_gain_is_for_display_only():
                                np.broadcast_to(expected_gain, g.mips["mip_cross"].shape),
                                atol=1e-4)
     np.testing.assert_array_equal(g.level, plain.level)
-    np.testing.assert_array_equal(g.detections, plain.detections)
+    for name in plain.detections.dtype.names:      # NaN: features not measured
+        np.testing.assert_array_equal(g.detections[name], plain.detections[name])
     assert np.all(g.drc >= plain.drc)
