@@ -239,6 +239,9 @@ class FeaturesConfig:
     min_fit_points: int = spec("fewest depth voxels for the decay's fit", lo=3, hi=10000)
     profile_m: float = spec("length of the tail profile kept per contact (tile file, PNG), m",
                             lo=0.0, hi=10.0)
+    aspect_window_m: float = spec(
+        "along-track window about a contact whose spectrum gives its look angles over "
+        "the aperture (aspect_centre_deg, aspect_width_deg), m", lo=0.04, hi=20.0)
 
     def config_problem(self) -> tuple[str, str] | None:
         for lo, hi in zip(self.footprint_min_m, self.footprint_max_m):

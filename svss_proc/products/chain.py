@@ -130,7 +130,8 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
                      footprint: Footprint | None = None,
                      aperture: np.ndarray | None = None,
                      before: Before | None = None,
-                     after: tuple[np.ndarray, np.ndarray | None] | None = None) -> Products:
+                     after: tuple[np.ndarray, np.ndarray | None] | None = None,
+                     wavenumber_rad_m: float | None = None) -> Products:
     """Products of one tile. ``image``: complex image or magnitude (along x cross x
     depth, uPa); ``axes``: voxel-centre coordinates (m); ``voxel_m``: voxel edge (m).
     ``keep_volumes``: return the background and compressed volumes (else None).
@@ -141,7 +142,8 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
     None: unknown), voxels below ``min_coverage_fraction`` do not detect; ``before``:
     the previous tile's last planes and contacts (:class:`Before`; None: none known);
     ``after``: the next tile's first planes (magnitude, ping-channel pairs; None: not
-    known)."""
+    known); ``wavenumber_rad_m``: 2 pi f_c / c_w of the pings, for the contacts' aspect
+    over the aperture (None: not measured; docs/contact_features.md)."""
     t = {}
     t0 = time.perf_counter()
     mag = np.abs(image).astype(np.float32, copy=False)
@@ -237,7 +239,7 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
     profiles, step = None, float("nan")
     fcfg = cfg.features
     if fcfg is not None and fcfg.enabled:     # each contact's tail below it
-        feats = contact_features(level, axes, table, fcfg)
+        feats = contact_features(level, axes, table, fcfg, image, wavenumber_rad_m)
         table, profiles, step = with_features(table, feats), feats.profiles, feats.step_m
         t5 = time.perf_counter()
         t["features"], t4 = t5 - t4, t5
@@ -430,7 +432,10 @@ def save_tile(tile: Tile, out_dir: str | Path, hardware: Loaded[HardwareConfig],
                                  footprint=fp, aperture=tile_aperture(tile, fp),
                                  before=(seams.before_for(tile) if seams is not None
                                          and pcfg.background.across_seams else None),
-                                 after=tile.after if pcfg.background.across_seams else None)
+                                 after=tile.after if pcfg.background.across_seams else None,
+                                 wavenumber_rad_m=2.0 * math.pi
+                                 * hardware.value.waveform.center_hz
+                                 / processing.value.imaging.water_sound_speed_m_s)
         if clock is not None:       # the chain's CPU in all, its steps' wall times
             clock.add("products.chain", time.process_time() - c_chain,
                       time.perf_counter() - w_chain)

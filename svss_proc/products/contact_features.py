@@ -19,6 +19,11 @@ resonances die within a few cycles. Measured here, from the normalised level of 
   (10 log10(I/B - 1), dB) from the end of the peak window to the extent, dB per metre of
   apparent depth (positive: decaying), with its standard error from the residuals
   (inflated for their depth correlation, an AR(1) factor);
+* the **aspect over the aperture**: the look angles (along-track) the contact's
+  response came from, from the complex image's along-track spectrum about it
+  (:func:`aspect_spread`: their mean and rms spread; a flat face answers only near its
+  normal, a point or a sphere over the whole aperture); the per-ping levels would give
+  the same with the ping-to-ping variation, and across-track too;
 * the **late-to-specular ratio**: the background-subtracted energy in the tail window
   below the object over that in its peak window (dB), its uncertainty from the spread of
   the same energies in the reference footprints (the background's fluctuation); where
@@ -48,10 +53,11 @@ NO_TAIL = 2             # the profile falls to the background within the peak wi
 LATE_UPPER_BOUND = 4    # late energy under twice its uncertainty: an upper bound
 NO_REFERENCE = 8        # fewer than 2 reference footprints: background from the layer
 SHORT_FIT = 16          # fewer than min_fit_points for the decay
+NO_ASPECT = 32          # no complex image, no wavenumber, or the window leaves the tile
 FLAG_TEXT = {TAIL_CUT: "tail cut by the tile's bottom", NO_TAIL: "no tail",
              LATE_UPPER_BOUND: "late energy an upper bound",
              NO_REFERENCE: "no reference beside it (background from its layer)",
-             SHORT_FIT: "tail too short to fit"}
+             SHORT_FIT: "tail too short to fit", NO_ASPECT: "aspect not measured"}
 
 #: detection-table columns of the features: (name, dtype, units, meaning), as
 #: :data:`svss_proc.products.detect.FIELDS`
@@ -70,17 +76,25 @@ FEATURE_FIELDS = (
     ("late_to_specular_err_db", "f4", "dB", ("uncertainty of late_to_specular_db from the "
                                              "local background's fluctuation (NaN for an "
                                              "upper bound)")),
+    ("aspect_centre_deg", "f4", "deg", ("power-weighted mean look angle along-track of "
+                                        "the contact's response over the aperture (in "
+                                        "water; NaN: not measured)")),
+    ("aspect_width_deg", "f4", "deg", ("rms spread of that look angle: narrow for a "
+                                       "specular face, the aperture's for a point")),
+    ("aspect_width_err_deg", "f4", "deg", "standard error of aspect_width_deg (jackknife)"),
     ("feature_flags", "i4", "1", ("bits: 1 tail cut by the tile's bottom, 2 no tail, 4 "
                                   "late-to-specular an upper bound, 8 no reference "
-                                  "footprint beside it, 16 tail too short to fit; -1: "
-                                  "features not measured")),
+                                  "footprint beside it, 16 tail too short to fit, 32 "
+                                  "aspect not measured; -1: features not measured")),
 )
 FEATURE_NAMES = tuple(name for name, *_ in FEATURE_FIELDS)
 #: fill values of the feature columns (a tile written before them, or without
 #: ``[products.features]``)
 FEATURE_FILL = {"tail_extent_m": np.nan, "tail_decay_db_per_m": np.nan,
                 "tail_decay_err_db_per_m": np.nan, "late_to_specular_db": np.nan,
-                "late_to_specular_err_db": np.nan, "feature_flags": -1}
+                "late_to_specular_err_db": np.nan, "aspect_centre_deg": np.nan,
+                "aspect_width_deg": np.nan, "aspect_width_err_deg": np.nan,
+                "feature_flags": -1}
 #: levels at or below this (dB re background) are voxels no ping reached (drc.MIN_DB)
 _MISSING_DB = -299.0
 
@@ -117,11 +131,19 @@ def _box(axis: np.ndarray, centre: float, half: float) -> tuple[int, int]:
     return min(lo, k), max(hi, k + 1)
 
 
-def _box_mean(power: np.ndarray, a: tuple[int, int], c: tuple[int, int], k0: int
+def _power(level: np.ndarray) -> np.ndarray:
+    """Normalised intensity 10^(L/10) of a level in dB (NaN where missing)."""
+    lv = np.asarray(level, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        return np.where(lv > _MISSING_DB, 10.0 ** (lv / 10.0), np.nan)
+
+
+def _box_mean(level: np.ndarray, a: tuple[int, int], c: tuple[int, int], k0: int
               ) -> np.ndarray:
-    """Mean of ``power`` (NaN: missing) over along ``a`` x cross ``c`` at each depth from
-    ``k0`` down (NaN where the box holds no data)."""
-    block = power[a[0]:a[1], c[0]:c[1], k0:]
+    """Mean normalised intensity of ``level`` (dB; NaN or -300: missing) over along
+    ``a`` x cross ``c`` at each depth from ``k0`` down (NaN where the box holds no
+    data)."""
+    block = _power(level[a[0]:a[1], c[0]:c[1], k0:])
     n = np.sum(np.isfinite(block), axis=(0, 1))
     s = np.nansum(block, axis=(0, 1))
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -136,11 +158,11 @@ def footprint_half(row, cfg) -> tuple[float, float]:
                  zip(ext, cfg.footprint_min_m, cfg.footprint_max_m))
 
 
-def tail_profile(power: np.ndarray, axes, row, cfg, others: np.ndarray | None = None
+def tail_profile(level: np.ndarray, axes, row, cfg, others: np.ndarray | None = None
                  ) -> TailProfile:
     """The tail profile of the contact ``row`` (a detection: ``along_m``, ``cross_m``,
-    ``depth_m``, extents) in ``power`` (normalised intensity 10^(L/10), NaN where
-    missing) on ``axes`` (voxel centres, m). Reference footprints: the same footprint
+    ``depth_m``, extents) in ``level`` (normalised level, dB re background; NaN or
+    -300 dB where missing) on ``axes`` (voxel centres, m). Reference footprints: the same footprint
     shifted along-track, ``reference_gap_m`` beyond it and then side by side, up to
     ``reference_boxes`` on each side, inside the tile and clear (by the gap) of every
     contact in ``others`` ((n, 2) along, cross, with their half sizes (n, 2) as columns
@@ -151,7 +173,7 @@ def tail_profile(power: np.ndarray, axes, row, cfg, others: np.ndarray | None = 
     pa, pc, pz = float(row["along_m"]), float(row["cross_m"]), float(row["depth_m"])
     k0 = int(np.argmin(np.abs(z - pz)))
     ia, ic = _box(a, pa, ha), _box(c, pc, hc)
-    inten = _box_mean(power, ia, ic, k0)
+    inten = _box_mean(level, ia, ic, k0)
     gap = float(cfg.reference_gap_m)
     step = 2.0 * ha + (a[1] - a[0] if a.size > 1 else 0.0)
     refs = []
@@ -164,7 +186,7 @@ def tail_profile(power: np.ndarray, axes, row, cfg, others: np.ndarray | None = 
                     (np.abs(others[:, 0] - ca) <= ha + others[:, 2] + gap)
                     & (np.abs(others[:, 1] - pc) <= hc + others[:, 3] + gap)):
                 continue
-            m = _box_mean(power, _box(a, ca, ha), ic, k0)
+            m = _box_mean(level, _box(a, ca, ha), ic, k0)
             if np.isfinite(m).any():
                 refs.append(m)
     flags = 0
@@ -174,7 +196,7 @@ def tail_profile(power: np.ndarray, axes, row, cfg, others: np.ndarray | None = 
             reference = np.nanmean(refs, axis=0)
     else:
         flags |= NO_REFERENCE
-        layer = power[:, :, k0:].reshape(-1, power.shape[2] - k0)
+        layer = _power(level[:, :, k0:]).reshape(-1, level.shape[2] - k0)
         n = np.sum(np.isfinite(layer), axis=0)
         reference = np.where(n > 0, np.nansum(layer, axis=0) / np.maximum(n, 1), np.nan)
         refs = np.zeros((0, inten.size))
@@ -284,12 +306,88 @@ class ContactFeatures:
     step_m: float
 
 
-def contact_features(level: np.ndarray, axes, detections: np.ndarray, cfg
-                     ) -> ContactFeatures:
+def aspect_spread(image: np.ndarray, axes, row, cfg, wavenumber_rad_m: float,
+                  background: np.ndarray | None = None
+                  ) -> tuple[float, float, float]:
+    """How the contact ``row`` responds over the synthetic aperture, from the complex
+    ``image`` alone: its along-track spectrum. A voxel's along-track wavenumber k_x is
+    2 k sin(theta), theta the look angle along-track (in water: the interface keeps
+    k_x), k = ``wavenumber_rad_m`` (2 pi f_c / c_w). Over ``aspect_window_m`` along
+    about the peak (Hann taper), for every column of the footprint (cross) and of the
+    peak window (depth, above and below the peak), the power spectrum in k_x is summed
+    (less the mean spectrum of the same patch in ``background`` noise columns when
+    given: (columns, samples) complex); the look angle's power-weighted mean (deg), its
+    rms spread (deg) and that spread's jackknife standard error over the columns.
+    NaN where the window leaves the tile or no power remains."""
+    a, c, z = (np.asarray(x, dtype=np.float64) for x in axes)
+    nan3 = (float("nan"),) * 3
+    if a.size < 4 or not np.iscomplexobj(image) or not wavenumber_rad_m > 0:
+        return nan3
+    dx = float(a[1] - a[0])
+    half = int(round(0.5 * float(cfg.aspect_window_m) / dx))
+    i0 = int(np.argmin(np.abs(a - float(row["along_m"]))))
+    if half < 2 or i0 - half < 0 or i0 + half + 1 > a.size:
+        return nan3
+    ic = _box(c, float(row["cross_m"]), footprint_half(row, cfg)[1])
+    iz = _box(z, float(row["depth_m"]), float(cfg.peak_window_m))
+    patch = np.asarray(image[i0 - half:i0 + half + 1, ic[0]:ic[1], iz[0]:iz[1]])
+    cols = patch.reshape(patch.shape[0], -1).T                   # (columns, samples)
+    taper = np.hanning(cols.shape[1])
+    spec = np.abs(np.fft.fft(cols * taper, axis=1)) ** 2
+    if background is not None and len(background):
+        spec = spec - np.mean(np.abs(np.fft.fft(background * taper, axis=1)) ** 2, axis=0)
+    k = 2.0 * np.pi * np.fft.fftfreq(cols.shape[1], dx)
+    s = np.clip(k / (2.0 * wavenumber_rad_m), -1.0, 1.0)
+    theta = np.degrees(np.arcsin(s))
+
+    def moments(p):
+        p = np.clip(p, 0.0, None)
+        w = float(p.sum())
+        if not w > 0:
+            return float("nan"), float("nan")
+        m = float(np.sum(p * theta) / w)
+        return m, math.sqrt(float(np.sum(p * (theta - m) ** 2) / w))
+
+    centre, width = moments(spec.sum(axis=0))
+    n = spec.shape[0]
+    err = float("nan")
+    if n >= 3 and math.isfinite(width):
+        tot = spec.sum(axis=0)
+        jack = np.array([moments(tot - spec[j])[1] for j in range(n)])
+        err = math.sqrt((n - 1) / n * float(np.nansum((jack - np.nanmean(jack)) ** 2)))
+    return centre, width, err
+
+
+def _aspect_background(image: np.ndarray, axes, row, cfg) -> np.ndarray | None:
+    """The columns of :func:`aspect_spread`'s patch shifted along-track by its length
+    plus ``reference_gap_m``, on both sides where inside the tile: the background's own
+    spectrum (None where neither fits)."""
+    a, c, z = (np.asarray(x, dtype=np.float64) for x in axes)
+    if a.size < 4 or not np.iscomplexobj(image):
+        return None
+    dx = float(a[1] - a[0])
+    half = int(round(0.5 * float(cfg.aspect_window_m) / dx))
+    shift = 2 * half + 1 + int(round(float(cfg.reference_gap_m) / dx))
+    i0 = int(np.argmin(np.abs(a - float(row["along_m"]))))
+    ic = _box(c, float(row["cross_m"]), footprint_half(row, cfg)[1])
+    iz = _box(z, float(row["depth_m"]), float(cfg.peak_window_m))
+    out = []
+    for i in (i0 - shift, i0 + shift):
+        if half >= 2 and i - half >= 0 and i + half + 1 <= a.size:
+            p = np.asarray(image[i - half:i + half + 1, ic[0]:ic[1], iz[0]:iz[1]])
+            out.append(p.reshape(p.shape[0], -1).T)
+    return np.concatenate(out) if out else None
+
+
+def contact_features(level: np.ndarray, axes, detections: np.ndarray, cfg,
+                     image: np.ndarray | None = None,
+                     wavenumber_rad_m: float | None = None) -> ContactFeatures:
     """The features of every contact of ``detections`` (a detection table) in the
     normalised ``level`` (dB re background, along x cross x depth; NaN or -300 dB:
-    missing) on ``axes`` (voxel centres, m). The stored profiles run ``profile_m``
-    below each peak."""
+    missing) on ``axes`` (voxel centres, m); with the complex ``image`` and the
+    wavenumber of the band's centre in water (rad/m) also the aspect over the aperture
+    (:func:`aspect_spread`; else flag :data:`NO_ASPECT`). The stored profiles run
+    ``profile_m`` below each peak."""
     z = np.asarray(axes[2], dtype=np.float64)
     step = float(z[1] - z[0]) if z.size > 1 else 0.0
     m = int(round(float(cfg.profile_m) / step)) + 1 if step > 0 else 1
@@ -299,15 +397,22 @@ def contact_features(level: np.ndarray, axes, detections: np.ndarray, cfg
     profiles = np.full((n, m), np.nan, dtype=np.float32)
     if n == 0:
         return ContactFeatures(cols, profiles, step)
-    lv = np.asarray(level, dtype=np.float64)
-    power = np.where(lv > _MISSING_DB, 10.0 ** (lv / 10.0), np.nan)
     others = np.array([[r["along_m"], r["cross_m"], *footprint_half(r, cfg)]
                        for r in detections], dtype=np.float64)
     for i, row in enumerate(detections):
-        prof = tail_profile(power, axes, row, cfg, np.delete(others, i, axis=0))
+        prof = tail_profile(level, axes, row, cfg, np.delete(others, i, axis=0))
         f = tail_features(prof, cfg)
         for k, v in f.as_row().items():
             cols[k][i] = v
+        asp = (float("nan"),) * 3
+        if image is not None and wavenumber_rad_m:
+            asp = aspect_spread(image, axes, row, cfg, wavenumber_rad_m,
+                                _aspect_background(image, axes, row, cfg))
+        if np.isfinite(asp[1]):
+            cols["aspect_centre_deg"][i], cols["aspect_width_deg"][i], \
+                cols["aspect_width_err_deg"][i] = asp
+        else:
+            cols["feature_flags"][i] |= NO_ASPECT
         k = min(m, prof.level_db.size)
         profiles[i, :k] = prof.level_db[:k]
     return ContactFeatures(cols, profiles, step)
@@ -337,17 +442,29 @@ class ResonanceLines:
     width_err_hz: np.ndarray
 
 
+#: the matrix pencil's default length: a third of the window, at most this
+MAX_PENCIL = 100
+
+
+def _gram(x: np.ndarray, pencil: int) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues (ascending) and eigenvectors of H^H H, H the snapshots' Hankel
+    matrices (rows: windows of ``pencil + 1`` samples) stacked: the squared singular
+    values and right singular vectors of H, at the cost of a (pencil + 1)^2 matrix."""
+    hank = np.concatenate([np.lib.stride_tricks.sliding_window_view(s, pencil + 1)
+                           for s in x])
+    return np.linalg.eigh(hank.conj().T @ hank)
+
+
 def _pencil(x: np.ndarray, fs: float, order: int, pencil: int
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Matrix pencil of snapshots ``x`` (snapshots, samples; complex): the ``order``
     poles' frequencies (Hz), widths (Hz) and amplitudes (mean magnitude over the
     snapshots)."""
     n = x.shape[1]
-    L = pencil
-    hank = np.concatenate([np.lib.stride_tricks.sliding_window_view(s, L + 1)
-                           for s in x])                     # rows: (n - L) per snapshot
-    _, _, vh = np.linalg.svd(hank, full_matrices=False)
-    v = vh[:order].T             # rows of the Hankel matrix: (L + 1, order)
+    _, vecs = _gram(x, pencil)
+    # the signal subspace of the Hankel matrices' rows (conjugated right singular
+    # vectors): (L + 1, order)
+    v = np.conj(vecs[:, ::-1][:, :order])
     v1, v2 = v[:-1], v[1:]
     poles = np.linalg.eigvals(np.linalg.pinv(v1) @ v2)
     poles = poles[np.abs(poles) > 1e-12]
@@ -367,7 +484,9 @@ def resonance_lines(echoes: np.ndarray, fs: float, max_lines: int = 4,
     specular to the end of the ringing), sampled at ``fs`` (Hz); complex baseband
     (frequencies then re its centre: ``f_offset_hz`` added) or real (each line then
     appears at +f and -f: the positive one is kept). A multi-snapshot matrix pencil:
-    the snapshots' Hankel matrices stacked, the signal subspace of the singular values
+    the snapshots' Hankel matrices (windows of ``pencil`` + 1 samples; default a third
+    of the window, at most :data:`MAX_PENCIL`) stacked, the signal subspace of the
+    singular values
     above ``rel_threshold`` of the largest (at most ``2 max_lines``), its poles
     z = exp((-pi w + 2 pi i f) / fs) give each line's frequency f and width w (full
     width at half power); lines are sorted by amplitude. The uncertainty of f and w is a
@@ -376,9 +495,8 @@ def resonance_lines(echoes: np.ndarray, fs: float, max_lines: int = 4,
     real = not np.iscomplexobj(x)
     x = x.astype(np.complex128)
     n = x.shape[1]
-    L = int(pencil) if pencil else max(2, n // 3)
-    hank = np.concatenate([np.lib.stride_tricks.sliding_window_view(s, L + 1) for s in x])
-    sv = np.linalg.svd(hank, compute_uv=False)
+    L = int(pencil) if pencil else max(2, min(n // 3, MAX_PENCIL))
+    sv = np.sqrt(np.maximum(_gram(x, L)[0][::-1], 0.0))
     cap = 2 * max_lines if real else max_lines
     order = int(min(cap, np.sum(sv > rel_threshold * sv[0]))) if sv.size and sv[0] > 0 else 0
     empty = np.zeros(0)

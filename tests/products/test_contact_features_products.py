@@ -36,6 +36,7 @@ reference_boxes = 4
 reference_gap_m = 0.2
 min_fit_points = 4
 profile_m = 0.6
+aspect_window_m = 0.6
 """
 ORIGIN = (41.5240, -70.6710, 0.0)
 DECAY = 40.0                     # dB per metre of the planted tail
