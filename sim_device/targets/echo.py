@@ -18,15 +18,16 @@ For one ping and one target:
    pulse spectrum), summed per channel and inverse transformed on the digitiser's grid
    (:meth:`sim_device.specular.SpectralSynthesiser.responses`).
 
-Ringing (docs/targets_elastic.md): the echo spectrum is sampled on the FFT grid of a
-:class:`~sim_device.specular.SpectralSynthesiser`, whose period 1/Δf bounds how long a
-response may last before it wraps round into the window.  Each target gets its own grid:
-once, its brightest monostatic response (times the pulse spectrum) is transformed on a
-fine grid and its ring time t_ring is where the energy still to come falls below
-RING_DB (60 dB) under the total; the period is lengthened by t_ring (plus the target's
-front-face advance).  A response that rings longer than the cap (``ring_max_s``;
-default the receive window plus the pulse, so that nothing visible is cut) is cut there
-with a short taper, path by path, before synthesis.
+Ringing (docs/targets_elastic.md §4): the echo spectrum is sampled on the FFT grid of a
+:class:`~sim_device.specular.SpectralSynthesiser`, whose period bounds how long a response
+may last before it wraps round into the window.  A sphere, a shell or a cylinder with a
+form table keeps a grid a little longer than the pings' own and each path's response is
+cut where the window can no longer see it (:mod:`.ringing`: tables cut on a fine grid,
+shared by the paths; nothing wraps, by construction).  A disc (or a cylinder summed
+exactly, step 0) gets a grid lengthened by its ring time t_ring, measured once on a fine
+grid (where the energy still to come falls RING_DB below the total), and a response
+that rings longer than the cap (``ring_max_s``; default the receive window plus the
+pulse) is cut there with a short taper, path by path.
 
 A scene without targets never builds this; a target outside every beam or window costs
 two ray solves per ping.
@@ -46,6 +47,7 @@ from ._series import DEFAULT_TOL
 from .materials import Fluid, MaterialTable, load_materials
 from .model import SceneTarget
 from .paths import target_legs
+from .ringing import RING_TAPER_S, CylinderRinging, ModalRinging, cut_window, tail_samples
 from .shells import VACUUM
 
 log = logging.getLogger(__name__)
@@ -57,8 +59,6 @@ DEFAULT_BISTATIC = "kell"
 RIGID = "rigid"
 #: a target's ring time: when the energy still to come is this far below the total, dB
 RING_DB = 60.0
-#: taper (s) of the cut of a response that rings past the cap
-RING_TAPER_S = 5e-4
 
 
 def build_targets(scene, media, materials: MaterialTable | None = None,
@@ -136,8 +136,7 @@ def _cut_window(n_fft: int, fs: float, pre: int, t_cut: float) -> np.ndarray:
     (circular time: the last ``pre`` samples are the negative times)."""
     t = np.arange(n_fft) / fs
     t[n_fft - pre:] -= n_fft / fs
-    x = np.clip((t - t_cut) / RING_TAPER_S, 0.0, 1.0)
-    return 0.5 * (1.0 + np.cos(np.pi * x))
+    return cut_window(t, t_cut)
 
 
 class TargetEchoes:
@@ -156,6 +155,18 @@ class TargetEchoes:
         #: per target, made when it is first in view: (synthesiser, bins, freq, cut
         #: window or None, t_ring)
         self.grids: list = [None] * len(targets)
+        #: per target: its :mod:`.ringing` cut responses (None: a disc, a cylinder
+        #: without table)
+        self.ringing: list = [None] * len(targets)
+
+    def _synth(self, source, tail: int) -> SpectralSynthesiser:
+        spec = source.spectral
+        syn = self._synths.get(tail)
+        if syn is None:
+            syn = self._synths[tail] = SpectralSynthesiser(
+                source.pulses.pulse_real, source.pulses.pad, spec.fs, spec.n,
+                spec.t0 + spec.lead / spec.fs, tail_samples=tail)
+        return syn
 
     def grid(self, source, k: int):
         """The synthesis grid of target k (made once, when it is first seen)."""
@@ -164,20 +175,36 @@ class TargetEchoes:
         spec = source.spectral
         fs = spec.fs
         target = self.targets[k]
-        t_ring, cut = ring_time(target, spec, self.ring_cap, source.pulses.pulse_real)
         pre = _advance(target, fs)
+        pulse = source.pulses.pulse_real
+        if target.kind in ("sphere", "shell") or target._form is not None:
+            syn = self._synth(source, tail_samples(target, fs, pre))
+            bins = syn.band()
+            f_max = float(syn.f[bins].max())
+            if target._form is None:
+                # the longest cut: the window and pulse (at most the cap), and its taper
+                keep = int(math.ceil((min(self.ring_cap, (spec.n + spec.n_pulse + 1) / fs)
+                                      + RING_TAPER_S + 2.5e-4) * fs)) + 2
+                ring = ModalRinging(target, pulse, fs, f_max, pre, keep, syn.n_fft, bins,
+                                    self.ring_cap)
+                t_ring, note = ring.t_ring, (f"; fine grid {1e3 * ring.fine_s:.0f} ms, "
+                                             f"{10 * math.log10(max(ring.fold, 1e-300)):.0f}"
+                                             " dB in its last quarter")
+            else:
+                ring = CylinderRinging(target, f_max)
+                t_ring, _ = ring_time(target, spec, self.ring_cap, pulse)
+                note = ""
+            self.ringing[k] = ring
+            self.grids[k] = (syn, bins, syn.f[bins], None, t_ring)
+            log.info("target %d (%s): rings %.2f ms%s; synthesis period %.2f ms, each "
+                     "path cut where the window ends", target.index, target.kind,
+                     1e3 * t_ring, note, 1e3 * syn.n_fft / fs)
+            return self.grids[k]
+        t_ring, cut = ring_time(target, spec, self.ring_cap, pulse)
         tail = int(math.ceil((t_ring + (RING_TAPER_S if cut else 0.0)) * fs)) + pre
-        syn = self._synths.get(tail)
-        if syn is None:
-            syn = self._synths[tail] = SpectralSynthesiser(
-                source.pulses.pulse_real, source.pulses.pad, fs, spec.n,
-                spec.t0 + spec.lead / fs, tail_samples=tail)
+        syn = self._synth(source, tail)
         bins = syn.band()
         win = _cut_window(syn.n_fft, fs, pre, t_ring) if cut else None
-        if cut and target._form is not None:
-            # a cylinder's table is cut on its own fine grid (before any sampling on the
-            # synthesis grid, which would alias what rings past its period)
-            target._form.set_cut(t_ring)
         self.grids[k] = (syn, bins, syn.f[bins], win, t_ring)
         log.info("target %d (%s): rings %.2f ms%s; synthesis period %.2f ms",
                  target.index, target.kind, 1e3 * t_ring, " (cut)" if cut else "",
@@ -235,7 +262,15 @@ class TargetEchoes:
             ch, tau, amp, beta, gamma, k_in, k_out = p
             in_view += 1
             rows += ch.size
-            form = np.conj(target.amplitude(f, k_in, k_out))              # (M, F)
+            ring = self.ringing[k]
+            if ring is not None:
+                # each path cut where the window ends (at most at the cap)
+                keep = np.minimum(syn.t0 + (syn.lead + syn.n + syn.pad) / syn.fs - tau,
+                                  self.ring_cap)
+                form = (ring.form(k_in, k_out, keep) if target._form is None
+                        else ring.form(f, k_in, k_out, keep))
+            else:
+                form = np.conj(target.amplitude(f, k_in, k_out))          # (M, F)
             if win is not None:                 # cut the ringing past the cap
                 x = np.zeros((form.shape[0], syn.spectrum.size), dtype=complex)
                 x[:, bins] = form

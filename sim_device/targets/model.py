@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import scipy.fft as sfft
 
 from ._series import DEFAULT_TOL, complex_matmul, legendre_table
 from .bistatic import angle_between, bistatic_from_directions
@@ -38,6 +39,8 @@ from .shells import VACUUM, shell_modal_series
 from .spheres import sphere_modal_series
 
 KINDS = ("sphere", "cylinder", "disc", "shell")
+#: a cut form table is read on a grid this many times finer than its step
+CUT_FINER = 4
 
 
 def _deg(x) -> float:
@@ -56,41 +59,51 @@ class FormTable:
         self.f = np.zeros(0)
         self.t = np.zeros(0, dtype=complex)
 
-    #: a cut of the table's impulse response (s after the axis' echo; None: none)
-    cut_s: float | None = None
+    @property
+    def pre(self) -> float:
+        """Projected time (s) by which T's impulse response may precede the axis' echo."""
+        return 2.0 * self.radius / self.host.sound_speed + 2e-4
 
     def _build(self, f_hi: float) -> None:
         n = int(math.ceil((f_hi - self.f_min) / self.step)) + 2
+        n = sfft.next_fast_len(2 * (n - 1), real=True) // 2 + 1   # a fast cut FFT
         self.f = self.f_min + self.step * np.arange(n)
         self.t = infinite_cylinder_form(self.f, self.radius, self.host, self.material,
                                         tol=self.tol)
-        if self.cut_s is not None:
-            self.t = self._cut(self.t)
 
-    def _cut(self, t: np.ndarray) -> np.ndarray:
-        """T with its impulse response (over projected frequency, period 1/step) cut at
-        ``cut_s`` by a 0.5 ms raised-cosine taper: the ringing a path's echo keeps
-        (docs/targets_elastic.md).  The grid starts at f_min ~ 0 and is treated as
-        k * step (the shift f_min is a phase ramp of < 1e-6 rad over the cut)."""
+    def ensure(self, f_hi: float) -> None:
+        """Cover projected frequencies up to ``f_hi`` (Hz)."""
+        if self.f.size == 0 or f_hi > self.f[-1]:
+            self._build(f_hi * 1.05)
+
+    def cut(self, cut_s: float):
+        """The table with its impulse response (over projected frequency, period 1/step)
+        cut ``cut_s`` (s, projected time) after the axis' echo by a raised-cosine taper
+        (:data:`.ringing.RING_TAPER_S`; the front tapered likewise before -pre), as a
+        callable like the table; see
+        :class:`.ringing.CylinderRinging`.  The grid starts at f_min ~ 0 and is treated
+        as k * step (the shift f_min is a phase ramp of < 1e-6 rad over the cut)."""
+        from .ringing import RING_TAPER_S, cut_window
+        t = self.t
         n_t = 2 * (t.size - 1)
         fs = n_t * self.step
-        h = np.fft.irfft(np.conj(t), n_t)
+        h = sfft.irfft(np.conj(t), n_t)
         tt = np.arange(n_t) / fs
-        pre = 2.0 * self.radius / self.host.sound_speed + 2e-4
-        tt[tt > n_t / fs - pre] -= n_t / fs
-        w = 0.5 * (1.0 + np.cos(np.pi * np.clip((tt - self.cut_s) / 5e-4, 0.0, 1.0)))
-        return np.conj(np.fft.rfft(h * w))[: t.size]
-
-    def set_cut(self, cut_s: float) -> None:
-        """Cut the ringing at ``cut_s`` (s) from now on (the table is rebuilt)."""
-        self.cut_s = float(cut_s)
-        if self.t.size:
-            self.t = self._cut(self.t)
+        tt[tt > n_t / fs - self.pre - RING_TAPER_S] -= n_t / fs
+        # the cut response is short: its spectrum on a grid CUT_FINER times finer
+        # (exact, by zero-padding in time) is read by linear interpolation with images
+        # CUT_FINER^4 weaker in energy than on the table's own step
+        hw = h * cut_window(tt, cut_s, t_front=-self.pre)
+        neg = int(np.count_nonzero(tt < 0))
+        z = np.zeros(CUT_FINER * n_t)
+        z[:n_t - neg] = hw[:n_t - neg]
+        z[z.size - neg:] = hw[n_t - neg:]
+        tc = np.conj(sfft.rfft(z))[: CUT_FINER * (t.size - 1) + 1]
+        f = self.f_min + (self.step / CUT_FINER) * np.arange(tc.size)
+        return lambda fp: np.interp(fp, f, tc.real) + 1j * np.interp(fp, f, tc.imag)
 
     def __call__(self, f_proj: np.ndarray) -> np.ndarray:
-        hi = float(np.max(f_proj))
-        if self.f.size == 0 or hi > self.f[-1]:
-            self._build(hi * 1.05)
+        self.ensure(float(np.max(f_proj)))
         return np.interp(f_proj, self.f, self.t.real) + 1j * np.interp(f_proj, self.f,
                                                                        self.t.imag)
 
@@ -139,23 +152,42 @@ class SceneTarget:
         #: modal-series evaluations so far (frequencies x terms summed), for the stats
         self.evaluations = 0
 
+    def series(self, freq: np.ndarray):
+        """The modal series (a :class:`.spheres.SphereSeries`) of a sphere or shell."""
+        if self.kind == "shell":
+            return shell_modal_series(freq, self.radius, self.thickness, self.host,
+                                      self.material, self.fill, tol=self.tol)
+        return sphere_modal_series(freq, self.radius, self.host, self.material,
+                                   tol=self.tol)
+
     def _sphere(self, freq: np.ndarray):
         key = freq.tobytes()
         if key != self._series_key:
-            if self.kind == "shell":
-                self._series = shell_modal_series(freq, self.radius, self.thickness,
-                                                  self.host, self.material, self.fill,
-                                                  tol=self.tol)
-            else:
-                self._series = sphere_modal_series(freq, self.radius, self.host,
-                                                   self.material, tol=self.tol)
+            self._series = self.series(freq)
             self._series_key = key
         return self._series
 
-    def amplitude(self, freq: np.ndarray, k_in: np.ndarray, k_out: np.ndarray) -> np.ndarray:
+    def _cylinder_geometry(self, k_in, k_out):
+        geo = bistatic_from_directions(k_in, k_out)
+        psi = angle_between(geo.bisector, self.axis)
+        scale = np.cos(0.5 * geo.bistatic_angle) if self.bistatic == "kell" else 1.0
+        return psi, np.broadcast_to(scale, psi.shape)
+
+    def cylinder_scales(self, k_in: np.ndarray, k_out: np.ndarray):
+        """(s, b) per path of a cylinder: projected frequency = s x frequency
+        (s = scale sin psi), and the half-length (s) of the box the sinc of its length
+        convolves with (scale L |cos psi| / c)."""
+        psi, scale = self._cylinder_geometry(np.asarray(k_in, float).reshape(-1, 3),
+                                             np.asarray(k_out, float).reshape(-1, 3))
+        return (scale * np.abs(np.sin(psi)),
+                scale * self.length * np.abs(np.cos(psi)) / self.host.sound_speed)
+
+    def amplitude(self, freq: np.ndarray, k_in: np.ndarray, k_out: np.ndarray,
+                  form=None) -> np.ndarray:
         """f (m, complex; shape (M, F)) at frequencies ``freq`` (F,) Hz for unit
         directions of travel ``k_in`` (M, 3) (towards the target) and ``k_out`` (M, 3)
-        (away from it)."""
+        (away from it); ``form``: a cylinder's T(projected frequency), replacing its
+        table (a cut one, :class:`.ringing.CylinderRinging`)."""
         freq = np.asarray(freq, dtype=np.float64)
         k_in = np.asarray(k_in, dtype=np.float64).reshape(-1, 3)
         k_out = np.asarray(k_out, dtype=np.float64).reshape(-1, 3)
@@ -169,13 +201,11 @@ class SceneTarget:
             return disc_scattering_amplitude(freq, self.radius, self.host, k_in, k_out,
                                              self.axis, self.material,
                                              thickness=self.thickness).T
-        geo = bistatic_from_directions(k_in, k_out)
-        psi = angle_between(geo.bisector, self.axis)
-        scale = np.cos(0.5 * geo.bistatic_angle) if self.bistatic == "kell" else 1.0
-        f_eq = np.multiply.outer(np.broadcast_to(scale, psi.shape), freq)
+        psi, scale = self._cylinder_geometry(k_in, k_out)
+        f_eq = np.multiply.outer(scale, freq)
         return cylinder_backscatter_at(f_eq, psi[:, None], self.radius, self.length,
                                        self.host, self.material, tol=self.tol,
-                                       form=self._form)
+                                       form=self._form if form is None else form)
 
     def reference_directions(self) -> tuple[np.ndarray, np.ndarray]:
         """Incident and scattered directions (1, 3) of the target's brightest monostatic

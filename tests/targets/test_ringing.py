@@ -11,6 +11,7 @@ import pytest
 
 from sim_device.environment_source import EnvironmentSource
 from sim_device.scene import TargetModelConfig, load_scene
+from sim_device.specular import SpectralSynthesiser
 from sim_device.targets import Fluid, sphere_scattering_amplitude
 from sim_device.targets.echo import ring_time
 from svss_daq.config import ConfigError, config_path
@@ -31,12 +32,51 @@ def _cylinder(src0, depth=1.2):
                   axis_heading_deg=90.0, axis_tilt_deg=0.0)
 
 
+def direct_synthesis(src, i: int, finer: int = 10, form=None) -> np.ndarray:
+    """The target's echo on ping i synthesised directly: every path's uncut response
+    (a cylinder's with ``form`` for its form table) on an FFT grid ``finer`` times longer
+    than the pings' own, with nothing cut."""
+    echo, target, g = src.contributions[0], src.targets[0], src.frame(i)
+    ch, tau, amp, beta, gamma, k_in, k_out = echo.paths(src, g, target)
+    spec = src.spectral
+    syn = SpectralSynthesiser(src.pulses.pulse_real, src.pulses.pad, spec.fs, spec.n,
+                              spec.t0 + spec.lead / spec.fs,
+                              tail_samples=(finer - 1) * spec.n_fft)
+    assert syn.n_fft >= finer * spec.n_fft
+    bins = syn.band()
+    f = syn.f[bins]
+    resp = (np.conj(amp)[:, None] * np.conj(target.amplitude(f, k_in, k_out, form=form))
+            * np.exp(-beta[:, None] * f * f - gamma[:, None] * f))
+    return syn.responses(g.rx.shape[0], ch, tau, resp, bins, src.p0)
+
+
+def _check_window(src, p, ref, early_max=1e-12):
+    """Nothing before the target's front face (wrapped ringing would put it there: at
+    most ``early_max`` of the energy), and the window equal to the direct synthesis:
+    returns the error (dB re its RMS)."""
+    echo = src.contributions[0]
+    syn = echo.grids[0][0]
+    g = src.frame(0)
+    pos = src.targets[0].position
+    # earliest possible arrival: the nearest point of the target, both legs, minus
+    # the pulse's lead before its nominal time
+    r_min = (np.linalg.norm(pos - g.tx) + np.min(np.linalg.norm(g.rx - pos, axis=1))
+             - 2 * src.targets[0].extent)
+    t = syn.t0 + (syn.lead + np.arange(syn.n)) / syn.fs
+    early = t < r_min / C_W - syn.n_pulse / syn.fs
+    assert early.sum() > 100
+    e_total = float(np.sum(p ** 2))
+    assert e_total > 0 and float(np.sum(p[:, early] ** 2)) < early_max * e_total
+    err = np.sqrt(np.mean((p - ref) ** 2) / np.mean(ref ** 2))
+    return 20 * np.log10(err)
+
+
 def test_lossless_ringing_cylinder_does_not_wrap_into_the_window(hardware):
     """The lossless 61 cm aluminium cylinder rings for far longer than the FFT period of
-    the pings (its n = 2 resonance is ~5 Hz wide: tens of ms).  Nothing may arrive
-    before its front face (causality: wrapped ringing would), and the window must not
-    depend on how long a ringing the synthesis keeps beyond it (default cap = window +
-    pulse, against a 0.2 s cap, a grid 15x finer)."""
+    the pings (its n = 2 resonance is ~5 Hz wide: tens of ms).  Its grid stays short
+    (each path cut where the window ends, ringing/CylinderRinging); nothing arrives
+    before its front face, and the window equals a direct synthesis of the uncut
+    responses on a grid 10x longer than the pings'."""
     src0 = EnvironmentSource(hardware, water_scene())
     tgt = _cylinder(src0)
     sc = dataclasses.replace(water_scene(tgt), target_model=_model(loss=False))
@@ -44,25 +84,48 @@ def test_lossless_ringing_cylinder_does_not_wrap_into_the_window(hardware):
     p = src.pressure(0)
     echo = src.contributions[0]
     syn, _, _, win, t_ring = echo.grids[0]
-    assert win is not None and t_ring == pytest.approx(echo.ring_cap)   # it was cut
-    g = src.frame(0)
-    pos = src.targets[0].position
-    # earliest possible arrival: the nearest point of the cylinder, both legs, minus
-    # the pulse's lead before its nominal time
-    r_min = (np.linalg.norm(pos - g.tx) + np.min(np.linalg.norm(g.rx - pos, axis=1))
-             - 2 * src.targets[0].extent)
-    t = syn.t0 + (syn.lead + np.arange(syn.n)) / syn.fs
-    early = t < r_min / C_W - syn.n_pulse / syn.fs
-    assert early.sum() > 100
-    e_early = float(np.sum(p[:, early] ** 2))
-    e_total = float(np.sum(p ** 2))
-    assert e_total > 0 and e_early < 1e-12 * e_total
-    long = EnvironmentSource(hardware, dataclasses.replace(
-        sc, target_model=_model(loss=False, ring=0.2)))
-    q = long.pressure(0)
-    assert long.contributions[0].grids[0][0].n_fft > 15 * syn.n_fft // 2
-    err = np.sqrt(np.mean((p - q) ** 2) / np.mean(q ** 2))
-    assert 20 * np.log10(err) < -60
+    assert win is None and echo.ringing[0] is not None
+    assert t_ring == pytest.approx(echo.ring_cap)              # it rings past the cap
+    assert syn.n_fft < src.spectral.n_fft + 0.003 * syn.fs     # the grid stays short
+    # before the front face: the images of the cut form table's linear interpolation
+    # (at s x 0.8 s, folded) leave -116 dB (the uncut table's -85 dB); no longer a hard
+    # window per path on the synthesis grid, as before (1e-12), hence 1e-11.
+    # The reference's table is cut at 60 ms (projected time; >= 58 ms real on these
+    # paths): its 5 Hz step folds what rings past 0.2 s (the table's period, a limit of
+    # the step), and its linear interpolation puts images of the uncut ringing at
+    # -33 dB after 14 ms: that would wrap on the reference's own 134 ms grid
+    ref = direct_synthesis(src, 0, form=src.targets[0]._form.cut(0.06))
+    err = _check_window(src, p, ref, early_max=1e-11)
+    print(f"cylinder: {err:.1f} dB re the direct synthesis")
+    assert err < -60
+
+
+def test_lossless_filled_shell_rings_past_the_period_without_folding(hardware):
+    """A lossless TNT-filled steel shell (a = 5 cm, 1 cm wall) rings ~50 ms (60 dB),
+    four times the pings' FFT period, and its echo starts 3-4 ms into the 12 ms window,
+    so its ringing crosses the window's end: on the pings' period it would fold back
+    into the window, ahead of the echo.  The modal responses are cut on a fine grid and
+    each path where the window ends: nothing before the front face, and the window
+    equals a direct synthesis of the uncut series on a grid 10x longer (-60 dB)."""
+    src0 = EnvironmentSource(hardware, water_scene())
+    g = src0.frame(0)
+    tgt = target(kind="shell", material="steel", radius=0.05, thickness_m=0.01,
+                 fill="tnt_like", along=g.tx[0] + 0.2, cross=g.tx[1], depth=1.2)
+    sc = dataclasses.replace(water_scene(tgt), target_model=_model(loss=False))
+    src = EnvironmentSource(hardware, sc)
+    p = src.pressure(0)
+    echo = src.contributions[0]
+    syn, _, _, win, t_ring = echo.grids[0]
+    ring = echo.ringing[0]
+    assert win is None and ring is not None
+    assert t_ring > 3 * src.spectral.n_fft / syn.fs                # rings > 3 periods
+    assert ring.fold < 1e-8                                        # fine grid long enough
+    assert syn.n_fft < src.spectral.n_fft + 0.003 * syn.fs
+    ch, tau = echo.paths(src, g, src.targets[0])[:2]
+    assert np.all(tau + 0.02 > syn.t0 + (syn.lead + syn.n) / syn.fs)  # rings out of it
+    err = _check_window(src, p, direct_synthesis(src, 0))
+    print(f"shell: {err:.1f} dB re the direct synthesis")
+    assert err < -60
 
 
 def test_material_loss_shortens_the_ringing(hardware):
