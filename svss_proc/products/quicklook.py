@@ -345,14 +345,14 @@ def _tail_panels(canvas, left_in: float, top_in: float, right_in: float, h_in: f
 def _detection_lines(detections: np.ndarray, n_max: int = 20) -> str:
     """The strongest detections as text lines: number, position (m; depth below the
     seabed), excess (dB re background), largest extent (m) and, where measured, the
-    tail's extent (m), decay (dB/m) and late-to-specular ratio (dB; '<' an upper bound,
-    docs/contact_features.md)."""
+    tail's extent (m), decay (dB/m), late-to-specular ratio (dB; '<' an upper bound) and
+    the rms spread of the look angles over the aperture (deg; docs/contact_features.md)."""
     feats = "tail_extent_m" in (detections.dtype.names or ()) and len(detections) \
         and np.any(detections["feature_flags"] >= 0)
     lines = ["#    along  cross  depth  excess   size", "      (m)    (m)    (m)    (dB)    (m)"]
     if feats:
-        lines[0] += "   tail  decay    L/S"
-        lines[1] += "    (m) (dB/m)   (dB)"
+        lines[0] += "   tail  decay    L/S aspect"
+        lines[1] += "    (m) (dB/m)   (dB)  (deg)"
     for i, row in enumerate(detections[:n_max]):
         size = max(row["extent_along_m"], row["extent_cross_m"], row["extent_depth_m"])
         lines.append(f"{i:<3d}{row['along_m']:6.2f} {row['cross_m']:6.2f} "
@@ -366,14 +366,14 @@ def _detection_lines(detections: np.ndarray, n_max: int = 20) -> str:
 
 
 def _feature_text(row) -> str:
-    """A contact's tail features for the list: extent, decay, late-to-specular."""
+    """A contact's features for the list: tail extent, decay, late-to-specular, aspect."""
     def num(v, w, d):
         return f"{v:{w}.{d}f}" if np.isfinite(v) else " " * (w - 1) + "-"
     ls = row["late_to_specular_db"]
     bound = "<" if row["feature_flags"] >= 0 and row["feature_flags"] & LATE_UPPER_BOUND \
         and np.isfinite(ls) else " "
     return (f" {num(row['tail_extent_m'], 6, 2)} {num(row['tail_decay_db_per_m'], 6, 0)} "
-            f"{bound}{num(ls, 5, 1)}")
+            f"{bound}{num(ls, 5, 1)} {num(row['aspect_width_deg'], 6, 1)}")
 
 
 def _mark(canvas: Canvas, v: View, detections: np.ndarray, idx: np.ndarray,

@@ -137,9 +137,15 @@ CONTACT_FIELDS = (
                                    "so)"), 2),
     ("late_to_specular_err_db", "dB", ("uncertainty of late_to_specular_db from the local "
                                        "background's fluctuation"), 2),
+    ("aspect_centre_deg", "deg", ("mean look angle along-track of the contact's response "
+                                  "over the aperture (in water)"), 1),
+    ("aspect_width_deg", "deg", ("rms spread of that look angle: narrow for a specular "
+                                 "face, the aperture's for a point"), 2),
+    ("aspect_width_err_deg", "deg", "standard error of aspect_width_deg", 2),
     ("feature_flags", "1", ("bits: 1 tail cut by the tile's bottom, 2 no tail, 4 "
                             "late-to-specular an upper bound, 8 no reference beside it, 16 "
-                            "tail too short to fit; -1 not measured"), None),
+                            "tail too short to fit, 32 aspect not measured; -1 not "
+                            "measured"), None),
     ("feature_notes", "", "feature_flags in words (empty: every feature measured)", None),
 )
 _DECIMALS = {name: d for name, _, _, d in CONTACT_FIELDS}

@@ -134,6 +134,14 @@ def test_tile_file_run_contacts_and_quicklook_carry_the_features(
     assert abs(float(ringing["tail_decay_db_per_m"]) - DECAY) < \
         3 * float(ringing["tail_decay_err_db_per_m"])
     assert ringing["feature_flags"] == "0" and ringing["feature_notes"] == ""
+    # the aspect: measured (save_tile gives the band's wavenumber). The planted blob is
+    # in phase, a Gaussian of 1.2 voxels along-track: its power spectrum in k_x is a
+    # Gaussian of deviation 1 / (sigma sqrt 2), centred; widened by the Hann window's
+    k = 2 * np.pi * hardware.value.waveform.center_hz / 1500.0
+    sig = np.degrees(np.arcsin(1.0 / (1.2 * VOXEL * np.sqrt(2.0)) / (2.0 * k)))
+    win = np.degrees(2 * np.pi / (np.sqrt(3.0) * 31 * VOXEL) / (2.0 * k))
+    assert abs(float(ringing["aspect_centre_deg"])) < 0.5
+    assert float(ringing["aspect_width_deg"]) == pytest.approx(np.hypot(sig, win), abs=0.5)
     assert any("no tail" in r["feature_notes"] or "too short" in r["feature_notes"]
                for r in rows)
     gj = json.loads((tmp_path / "run" / CONTACTS_GEOJSON).read_text())
