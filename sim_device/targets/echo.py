@@ -187,9 +187,10 @@ class TargetEchoes:
                                       + RING_TAPER_S + 2.5e-4) * fs)) + 2
                 ring = ModalRinging(target, pulse, fs, f_max, pre, keep, syn.n_fft, bins,
                                     self.ring_cap)
-                t_ring, note = ring.t_ring, (f"; fine grid {1e3 * ring.fine_s:.0f} ms, "
-                                             f"{10 * math.log10(max(ring.fold, 1e-300)):.0f}"
-                                             " dB in its last quarter")
+                fold_db = 10 * math.log10(max(ring.fold, 1e-300))
+                t_ring = ring.t_ring
+                note = (f"; fine grid {1e3 * ring.fine_s:.0f} ms, {fold_db:.0f} dB in its "
+                        "last quarter")
             else:
                 ring = CylinderRinging(target, f_max)
                 t_ring, _ = ring_time(target, spec, self.ring_cap, pulse)

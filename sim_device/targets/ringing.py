@@ -10,7 +10,8 @@ echo with delay tau reaches no sample of the window with its response after
 (n window samples from t_first; the pulse starts pad samples before its nominal time),
 so cutting it there (raised-cosine taper of RING_TAPER_S after the cut) changes nothing
 in the window.  The response's front is kept from -pre (the front-face advance, with a
-margin) and tapered over RING_TAPER_S before that (:func:`cut_window`).  The cut response of every path then ends before t_first + P when
+margin) and tapered over RING_TAPER_S before that (:func:`cut_window`).  The cut
+response of every path then ends before t_first + P when
 
     P >= n + n_pulse + pre + 2 taper + delta (+ 2 b for a cylinder)     (samples)
 
@@ -26,9 +27,9 @@ The cut is quantised upwards in steps of CUT_STEP_S (delta) so that paths share 
 * cylinder with a form table (:class:`CylinderRinging`): T over projected frequency
   f s (s = sin psi, times cos(beta/2) with Kell's rule) maps projected time t_p to real
   time s t_p; the sinc of the length spreads it by b = L |cos psi| cos(beta/2) / c either
-  side.  A path keeping l real seconds with s >= S_KEEP takes the table cut at c = (l + b)/s
-  (projected, quantised upwards by delta; at most C_LIM of the table's period 1/step,
-  less its front and taper); a path with s < S_KEEP (psi more than 26 deg from
+  side.  A path keeping l real seconds with s >= S_KEEP takes the table cut at
+  c = (l + b)/s (projected, quantised upwards by delta; at most C_LIM of the table's
+  period 1/step, less its front and tapers); a path with s < S_KEEP (psi more than 26 deg from
   broadside, where the sinc of the length is below 1/(kL |cos psi|): -30 dB for the
   61 cm cylinder at 30 kHz) takes c = l + b, so that the paths share a few tables: its
   ringing ends at s (l + b) in real time, before the window's end (dropped, never
@@ -90,7 +91,8 @@ def tail_samples(target, fs: float, pre: int) -> int:
     two pulse leads): the front-face advance, the taper, the quantisation of the cut and,
     for a cylinder, twice the spread of the sinc of its length."""
     b = 2.0 * target.length / target.host.sound_speed if target.kind == "cylinder" else 0.0
-    return pre + front_samples(fs) + int(math.ceil((RING_TAPER_S + CUT_STEP_S + b) * fs)) + 2
+    return (pre + front_samples(fs)
+            + int(math.ceil((RING_TAPER_S + CUT_STEP_S + b) * fs)) + 2)
 
 
 class _Tables:
@@ -121,8 +123,9 @@ class ModalRinging:
     """The cut modal responses of a sphere or shell on a synthesis grid (n_fft, bins).
 
     ``pulse``: the digitised transmit pulse (for the fold bound and the ring time);
-    ``pre``: samples of the front-face advance (a taper of RING_TAPER_S before it); ``keep``: samples after the echo's
-    nominal time to hold (the longest cut plus its taper); ``cap`` (s): longest cut."""
+    ``pre``: samples of the front-face advance (a taper of RING_TAPER_S before it);
+    ``keep``: samples after the echo's nominal time to hold (the longest cut plus its
+    taper); ``cap`` (s): longest cut."""
 
     def __init__(self, target, pulse: np.ndarray, fs: float, f_max: float, pre: int,
                  keep: int, n_fft: int, bins: np.ndarray, cap: float):
