@@ -34,16 +34,14 @@ def scene(rng, nch=6, nt=300, dt=16e-6):
 
 
 #: the default run: every delay model with the default interpolation and precision,
-#: every interpolation once (with the shipped table delays: the kernels `svss trade`
-#: compiles), float64 once; the other combinations (each a kernel specialisation numba
-#: compiles anew on a cold cache) are `extended`
+#: every interpolation once, float64 once; the other combinations (each a kernel
+#: specialisation numba compiles anew on a cold cache) are `extended`
 DEFAULT_CASES = {("linear", "float32", "straight"), ("linear", "float32", "exact"),
-                 ("linear", "float32", "table"), ("nearest", "float32", "table"),
-                 ("cubic", "float32", "table"), ("cubic", "float64", "exact")}
+                 ("linear", "float32", "table"), ("nearest", "float32", "straight"),
+                 ("cubic", "float32", "straight"), ("cubic", "float64", "exact")}
 CASES = [(interp, prec, mode) for interp in ("nearest", "linear", "cubic")
          for prec in ("float32", "float64") for mode in ("straight", "exact")]
-CASES += [("linear", "float64", "table"), ("linear", "float32", "table"),
-          ("nearest", "float32", "table"), ("cubic", "float32", "table")]
+CASES += [("linear", "float64", "table"), ("linear", "float32", "table")]
 CASES = [c if c in DEFAULT_CASES else pytest.param(*c, marks=pytest.mark.extended)
          for c in CASES]
 
