@@ -303,6 +303,10 @@ ALLOWED = {
         "in_child: the result of a read passes from the process's own fork to it over "
         "an os.pipe; the bytes are written by pickle.dumps in that fork, never read "
         "from a file or a socket",
+    ("svss_proc/products_process.py", "import pickle"):
+        "a finished tile passes from the live worker to the products process it spawned "
+        "itself, over that child's multiprocessing queue (an os.pipe); the bytes are "
+        "written by pickle.dumps in the worker, never read from a file or a socket",
 }
 
 
