@@ -275,7 +275,8 @@ def test_aspect_over_the_aperture_against_the_angular_spectrum_put_in(centre, sp
     want = math.hypot(sig, sig_win)
     err = f["aspect_width_err_deg"][0]
     assert np.isfinite(err) and err > 0
-    assert abs(f["aspect_width_deg"][0] - want) < 3 * err + 0.3, (f["aspect_width_deg"][0], want, err)
+    assert abs(f["aspect_width_deg"][0] - want) < 3 * err + 0.3, \
+        (f["aspect_width_deg"][0], want, err)
     assert abs(f["aspect_centre_deg"][0] - centre) < 0.5 + 0.1 * spread
 
 
