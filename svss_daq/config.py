@@ -190,6 +190,10 @@ class WorkerConfig:
     products_threads: int | None = spec(
         "numba threads of the products process (1: the imaging keeps both cores of a "
         "2-core machine when it needs them)", lo=1, hi=1024, default=1)
+    products_nice: int | None = spec(
+        "the products process's niceness above the worker's: the imaging, which must "
+        "keep up with the pings, goes first and the products take the cores' idle time "
+        "(0: equal shares)", lo=0, hi=19, default=10)
     products_in_flight: int | None = spec(
         "tiles handed to the products process and not yet written at most (their image "
         "planes stay in memory, 60 MB per default tile); beyond, the worker waits",

@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import multiprocessing
+import os
 import pickle
 import queue
 import signal
@@ -55,12 +56,15 @@ class Written:
 
 class ProductsProcess:
     """The child process and its two queues. ``threads``: numba threads in the child (1:
-    the imaging keeps both cores of a 2-core machine when it needs them). Started at
-    the first :meth:`submit`, so a worker that completes no tile pays nothing."""
+    the imaging keeps both cores of a 2-core machine when it needs them); ``nice``: the
+    child's niceness above the worker's (the imaging, which must keep up with the pings,
+    goes first; the products take the cores' idle time). Started at the first
+    :meth:`submit`, so a worker that completes no tile pays nothing."""
 
-    def __init__(self, hardware, processing, threads: int = 1):
+    def __init__(self, hardware, processing, threads: int = 1, nice: int = 0):
         self.hardware, self.processing = hardware, processing
         self.threads = int(threads)
+        self.nice = int(nice)
         self._ctx = multiprocessing.get_context("spawn")
         self._proc = None
         self._jobs = None
@@ -78,10 +82,10 @@ class ProductsProcess:
         self._proc = self._ctx.Process(
             target=serve, name="svss-products", daemon=True,
             args=(self._jobs, self._results, self.hardware, self.processing,
-                  self.threads, logging.getLogger().getEffectiveLevel()))
+                  self.threads, logging.getLogger().getEffectiveLevel(), self.nice))
         self._proc.start()
-        log.info("products process started (pid %d, %d numba thread(s))", self._proc.pid,
-                 self.threads)
+        log.info("products process started (pid %d, %d numba thread(s), nice +%d)",
+                 self._proc.pid, self.threads, self.nice)
 
     @property
     def alive(self) -> bool:
@@ -193,13 +197,16 @@ class ProductsProcess:
 
 
 # --------------------------------------------------------------------------- the child
-def serve(jobs, results, hardware, processing, threads: int, level: int) -> None:
+def serve(jobs, results, hardware, processing, threads: int, level: int,
+          nice: int = 0) -> None:
     """The child's loop: ``("tile", job, out, tile)`` written by
     :func:`~svss_proc.products.chain.save_tile` with the run's seams, its outcome put on
     ``results``; ``("end", out)`` forgets a run's seams; None (or the worker gone) ends
     it."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    if nice > 0:
+        os.nice(nice)
     logging.basicConfig(level=level, format="%(asctime)s products %(levelname)s "
                         "%(name)s: %(message)s")
     import numba

@@ -84,7 +84,8 @@ class StreamWorker:
         #: the products process the runs' workers share (``[worker] products``; None:
         #: inline), started at the first tile
         p = self.policy
-        self.offload = (ProductsProcess(hardware, processing, threads=p.products_threads)
+        self.offload = (ProductsProcess(hardware, processing, threads=p.products_threads,
+                                        nice=p.products_nice)
                         if p.products == "process" else None)
         #: ``--timings FILE``: per run, the stage times, every ping's lag and every
         #: tile's times, rewritten at each run's end (benchmarks/bench_live.py)

@@ -62,9 +62,12 @@ def _run(hw, proc, out, pings, offload=None, run_id=None):
 def test_the_products_process_writes_what_inline_writes(hw_loaded, proc_products, pings,
                                                         tmp_path):
     _, inline = _run(hw_loaded, proc_products, tmp_path / "inline", pings)
-    pp = ProductsProcess(hw_loaded, proc_products, threads=1)
+    pp = ProductsProcess(hw_loaded, proc_products, threads=1, nice=5)
     try:
         w, side = _run(hw_loaded, proc_products, tmp_path / "process", pings, pp)
+        # it has made tiles, so it has lowered its priority: the imaging goes first
+        assert (os.getpriority(os.PRIO_PROCESS, pp._proc.pid)
+                == min(os.getpriority(os.PRIO_PROCESS, 0) + 5, 19))
     finally:
         pp.close()
     names = sorted(p.name for p in inline)
