@@ -36,7 +36,8 @@ log = logging.getLogger("bench_products")
 
 #: the stages reported, in the worker's stage clock names
 STAGES = ("products.background", "products.normalisation",
-          "products.compression_and_mips", "products.detection", "products.chain",
+          "products.compression_and_mips", "products.detection", "products.features",
+          "products.chain",
           "products.quicklook_png", "products.tile_file", "products")
 
 

@@ -158,8 +158,15 @@ def footprint_half(row, cfg) -> tuple[float, float]:
                  zip(ext, cfg.footprint_min_m, cfg.footprint_max_m))
 
 
-def tail_profile(level: np.ndarray, axes, row, cfg, others: np.ndarray | None = None
-                 ) -> TailProfile:
+def layer_means(level: np.ndarray) -> np.ndarray:
+    """The mean normalised intensity of each depth layer of ``level`` (NaN: none)."""
+    p = _power(level).reshape(-1, level.shape[2])
+    n = np.sum(np.isfinite(p), axis=0)
+    return np.where(n > 0, np.nansum(p, axis=0) / np.maximum(n, 1), np.nan)
+
+
+def tail_profile(level: np.ndarray, axes, row, cfg, others: np.ndarray | None = None,
+                 layers: dict | None = None) -> TailProfile:
     """The tail profile of the contact ``row`` (a detection: ``along_m``, ``cross_m``,
     ``depth_m``, extents) in ``level`` (normalised level, dB re background; NaN or
     -300 dB where missing) on ``axes`` (voxel centres, m). Reference footprints: the same footprint
@@ -167,7 +174,8 @@ def tail_profile(level: np.ndarray, axes, row, cfg, others: np.ndarray | None = 
     ``reference_boxes`` on each side, inside the tile and clear (by the gap) of every
     contact in ``others`` ((n, 2) along, cross, with their half sizes (n, 2) as columns
     2-3). Fewer than 2: the mean of the depth layer instead (flag
-    :data:`NO_REFERENCE`)."""
+    :data:`NO_REFERENCE`; :func:`layer_means`, kept in ``layers`` under "means" for
+    the tile's other contacts)."""
     a, c, z = (np.asarray(x, dtype=np.float64) for x in axes)
     ha, hc = footprint_half(row, cfg)
     pa, pc, pz = float(row["along_m"]), float(row["cross_m"]), float(row["depth_m"])
@@ -196,9 +204,10 @@ def tail_profile(level: np.ndarray, axes, row, cfg, others: np.ndarray | None = 
             reference = np.nanmean(refs, axis=0)
     else:
         flags |= NO_REFERENCE
-        layer = _power(level[:, :, k0:]).reshape(-1, level.shape[2] - k0)
-        n = np.sum(np.isfinite(layer), axis=0)
-        reference = np.where(n > 0, np.nansum(layer, axis=0) / np.maximum(n, 1), np.nan)
+        layers = {} if layers is None else layers
+        if "means" not in layers:
+            layers["means"] = layer_means(level)
+        reference = layers["means"][k0:]
         refs = np.zeros((0, inten.size))
     with np.errstate(invalid="ignore", divide="ignore"):
         level = 10.0 * np.log10(inten / reference)
@@ -399,8 +408,9 @@ def contact_features(level: np.ndarray, axes, detections: np.ndarray, cfg,
         return ContactFeatures(cols, profiles, step)
     others = np.array([[r["along_m"], r["cross_m"], *footprint_half(r, cfg)]
                        for r in detections], dtype=np.float64)
+    layers: dict = {}
     for i, row in enumerate(detections):
-        prof = tail_profile(level, axes, row, cfg, np.delete(others, i, axis=0))
+        prof = tail_profile(level, axes, row, cfg, np.delete(others, i, axis=0), layers)
         f = tail_features(prof, cfg)
         for k, v in f.as_row().items():
             cols[k][i] = v
