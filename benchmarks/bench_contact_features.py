@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_false_alarms import _run, line_args  # noqa: E402
+from bench_false_alarms import _run, line_args, simulated_line  # noqa: E402
 from bench_isa import machine_isa  # noqa: E402
 from svss.score import score_tiles  # noqa: E402
 from svss_daq.config import HardwareConfig, ProcessingConfig, config_path, load  # noqa: E402
@@ -89,11 +89,7 @@ def main() -> None:
         if args.only and name not in args.only:
             continue
         scene_path = ROOT / "config" / "scenes" / f"{name}.toml"
-        raw = args.cache / f"{name}.h5"
-        if not raw.exists():
-            log.info("%s: simulating", name)
-            _run(svss + ["simulate", "--scene", str(scene_path), "--out", str(raw)],
-                 args.cache / f"{name}.simulate.log")
+        raw = simulated_line(name, args.cache)
         cfg_path = sand_processing(args.cache) if opts.get("sand") \
             else ROOT / "config" / "processing.toml"
         out = args.cache / name

@@ -58,6 +58,18 @@ def _run(cmd: list[str], log_path: Path) -> float:
     return time.perf_counter() - t
 
 
+def simulated_line(name: str, cache: Path) -> Path:
+    """The run of config/scenes/NAME.toml, simulated once into ``cache`` (``svss
+    simulate``, its log beside it) and reused."""
+    raw = cache / f"{name}.h5"
+    if not raw.exists():
+        log.info("%s: simulating", name)
+        _run([sys.executable, "-m", "svss", "simulate", "--scene",
+              str(ROOT / "config" / "scenes" / f"{name}.toml"), "--out", str(raw)],
+             cache / f"{name}.simulate.log")
+    return raw
+
+
 def one_threshold(config: str, cache: Path) -> Path:
     """``config`` without ``layer_false_alarms_per_m3``: one threshold for all layers."""
     text = (ROOT / "config" / config).read_text()
@@ -145,11 +157,7 @@ def main() -> None:
             continue
         scene_path = ROOT / "config" / "scenes" / f"{name}.toml"
         scene = load_scene(scene_path)
-        raw = args.cache / f"{name}.h5"
-        if not raw.exists():
-            log.info("%s: simulating", name)
-            _run(svss + ["simulate", "--scene", str(scene_path), "--out", str(raw)],
-                 args.cache / f"{name}.simulate.log")
+        raw = simulated_line(name, args.cache)
         track_m = scene.track.n_pings * scene.track.speed_m_s / 10.0
         for variant, cfg in (("one threshold", one_threshold(config, args.cache)),
                              ("per layer (shipped)", ROOT / "config" / config)):

@@ -39,7 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_false_alarms import LINES, line_args  # noqa: E402  (the same lines and configurations)
+from bench_false_alarms import LINES, line_args, simulated_line  # noqa: E402  (the same lines)
 from bench_isa import machine_isa  # noqa: E402
 from sim_device.scene import load_scene  # noqa: E402
 from svss.score import half_extent, score_tiles, tile_paths  # noqa: E402
@@ -134,13 +134,7 @@ def main() -> None:
         if args.only and name not in args.only:
             continue
         scene_path = ROOT / "config" / "scenes" / f"{name}.toml"
-        raw = args.cache / f"{name}.h5"
-        if not raw.exists():
-            log.info("%s: simulating", name)
-            with open(args.cache / f"{name}.simulate.log", "w") as f:
-                subprocess.run([sys.executable, "-m", "svss", "simulate", "--scene",
-                                str(scene_path), "--out", str(raw)], check=True, stdout=f,
-                               stderr=subprocess.STDOUT, cwd=ROOT)
+        raw = simulated_line(name, args.cache)
         runs = {}
         for method, cfg in (("exact", ROOT / "config" / config),
                             ("factorised", factorised_config(config, args.cache))):
