@@ -13,7 +13,8 @@ Nothing handed over is lost: the worker keeps each tile until the child says it 
 written, and a child that dies (killed, out of memory) is reported; the worker then
 makes the products of every tile it had handed over itself, inline, and goes on inline.
 The child ignores SIGINT and SIGTERM (the worker's own stop writes the open tiles through
-it) and leaves when told, or when the worker is gone (its queue closes).
+it) and leaves when told, or when the worker is gone (killed: it looks every second
+while idle).
 
 The child's time comes back with each tile (the chain's stages, and the whole job as
 ``products.process``), so the manifest's ``stage_times`` keep the products' figures.
@@ -33,6 +34,9 @@ from pathlib import Path
 
 log = logging.getLogger(__name__)
 
+#: how often an idle products process looks whether its worker is still there, s (the
+#: queue alone does not say: the child holds both of its ends)
+PARENT_CHECK_S = 1.0
 #: the child's whole job per tile, CPU and wall (manifest ``stage_times``)
 PROCESS_STAGE = "products.process"
 
@@ -215,10 +219,16 @@ def serve(jobs, results, hardware, processing, threads: int, level: int,
     from .products.chain import Seams, save_tile
     numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
     seams: dict[str, Seams] = {}
+    parent = multiprocessing.parent_process()
     while True:
         try:
-            msg = jobs.get()
-        except (EOFError, OSError):          # the worker is gone
+            msg = jobs.get(timeout=PARENT_CHECK_S)
+        except queue.Empty:
+            if parent is not None and not parent.is_alive():
+                log.warning("the worker (pid %s) is gone: leaving", parent.pid)
+                return
+            continue
+        except (EOFError, OSError):          # the queue is broken
             return
         if msg is None:
             return

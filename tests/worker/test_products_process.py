@@ -8,6 +8,10 @@ from __future__ import annotations
 import json
 import os
 import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -20,7 +24,7 @@ from svss_proc.run_folder import JOURNAL
 from svss_proc.run_worker import Worker
 from svss_proc.tiles import read_tile_header
 
-from .conftest import small_processing_text
+from .conftest import ROOT, small_processing_text
 
 
 @pytest.fixture(scope="module")
@@ -126,3 +130,40 @@ def test_a_killed_products_process_loses_no_tile(hw_loaded, proc_products, pings
     assert journal["complete"]
     assert sorted(journal["written"]) == sorted(
         int(t.stem.split("_")[1]) for t in tiles)
+
+
+def _running(pid: int) -> bool:
+    """``pid`` exists and is not a zombie (an orphan's parent may not reap it at once)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def test_the_products_process_leaves_when_its_worker_is_killed(tmp_path):
+    """A worker killed with SIGKILL cannot tell its products process to leave: the
+    process sees it gone and leaves by itself, rather than living on as an orphan."""
+    script = tmp_path / "worker.py"
+    script.write_text(
+        "import sys, time\n"
+        "from svss_daq.config import HardwareConfig, ProcessingConfig, config_path, "
+        "load_with_text\n"
+        "from svss_proc.products_process import ProductsProcess\n"
+        "if __name__ == '__main__':\n"
+        "    pp = ProductsProcess(load_with_text(HardwareConfig, config_path('hardware.toml')),"
+        " load_with_text(ProcessingConfig, config_path('processing.toml')))\n"
+        "    pp._start()\n"
+        "    print(pp._proc.pid, flush=True)\n"
+        "    time.sleep(3600)\n")
+    worker = subprocess.Popen([sys.executable, str(script)], cwd=ROOT,
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        child = int(worker.stdout.readline())
+        assert _running(child)
+    finally:
+        worker.kill()
+        worker.wait()
+    deadline = time.monotonic() + 60           # the condition, with a generous bound
+    while _running(child) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not _running(child), f"products process {child} outlived its killed worker"
