@@ -86,7 +86,7 @@ class ProductsProcess:
         self._proc = self._ctx.Process(
             target=serve, name="svss-products", daemon=True,
             args=(self._jobs, self._results, self.hardware, self.processing,
-                  self.threads, logging.getLogger().getEffectiveLevel(), self.nice))
+                  self.threads, _log_setup(), self.nice))
         self._proc.start()
         log.info("products process started (pid %d, %d numba thread(s), nice +%d)",
                  self._proc.pid, self.threads, self.nice)
@@ -201,7 +201,16 @@ class ProductsProcess:
 
 
 # --------------------------------------------------------------------------- the child
-def serve(jobs, results, hardware, processing, threads: int, level: int,
+def _log_setup() -> tuple:
+    """The worker's logging level, and its first handler's format and date format, for
+    the child's lines to read as the worker's."""
+    root = logging.getLogger()
+    fmt = next((h.formatter for h in root.handlers if h.formatter is not None), None)
+    return (root.getEffectiveLevel(), None if fmt is None else fmt._fmt,
+            None if fmt is None else fmt.datefmt)
+
+
+def serve(jobs, results, hardware, processing, threads: int, log_setup: tuple,
           nice: int = 0) -> None:
     """The child's loop: ``("tile", job, out, tile)`` written by
     :func:`~svss_proc.products.chain.save_tile` with the run's seams, its outcome put on
@@ -211,8 +220,9 @@ def serve(jobs, results, hardware, processing, threads: int, level: int,
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     if nice > 0:
         os.nice(nice)
-    logging.basicConfig(level=level, format="%(asctime)s products %(levelname)s "
-                        "%(name)s: %(message)s")
+    level, fmt, datefmt = log_setup
+    logging.basicConfig(level=level, format=fmt or "%(asctime)s %(levelname)s %(name)s: "
+                        "%(message)s", datefmt=datefmt)
     import numba
 
     from .live_clock import StageClock
