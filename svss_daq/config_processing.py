@@ -251,6 +251,47 @@ class FeaturesConfig:
         return None
 
 
+#: contact features a classifier may use (svss_proc.products.contact_features names)
+CLASSIFY_FEATURES = ("tail_extent_m", "tail_decay_db_per_m", "late_to_specular_db",
+                     "aspect_centre_deg", "aspect_width_deg")
+
+
+@dataclass(frozen=True)
+class ClassifyConfig:
+    enabled: bool = spec("call each contact man-made, natural or undecided from its "
+                         "features (docs/contact_features.md, classification)")
+    features: tuple[str, ...] = spec("the model's features, columns of the contacts",
+                                     choices=CLASSIFY_FEATURES, min_length=1)
+    mean: tuple[float, ...] = spec("each feature's mean over the training contacts "
+                                   "(its standardisation), feature units",
+                                   min_length=1, lo=-1e6, hi=1e6)
+    scale: tuple[float, ...] = spec("each feature's standard deviation over them, feature "
+                                    "units", min_length=1, lo=1e-9, hi=1e6)
+    coefficients: tuple[float, ...] = spec(
+        "logistic regression's weight of each standardised feature (log-odds of man-made "
+        "per standard deviation)", min_length=1, lo=-1e3, hi=1e3)
+    intercept: float = spec("log-odds of man-made at the training mean", lo=-1e3, hi=1e3)
+    manmade_above: float = spec("p_manmade above this: man-made", lo=0.0, hi=1.0)
+    natural_below: float = spec("p_manmade below this: natural (between the two: "
+                                "undecided)", lo=0.0, hi=1.0)
+    undecided_flags: tuple[int, ...] = spec(
+        "feature_flags bits that leave a contact undecided (e.g. 32: aspect not measured)",
+        lo=1, hi=1 << 30, min_length=0)
+
+    def config_problem(self) -> tuple[str, str] | None:
+        n = len(self.features)
+        for key in ("mean", "scale", "coefficients"):
+            if len(getattr(self, key)) != n:
+                return (key, f"{len(getattr(self, key))} entries; expected one per feature "
+                        f"({n}: {list(self.features)})")
+        if len(set(self.features)) != n:
+            return ("features", f"{list(self.features)} names a feature twice")
+        if self.natural_below > self.manmade_above:
+            return ("natural_below", f"{self.natural_below} exceeds manmade_above "
+                    f"{self.manmade_above}")
+        return None
+
+
 @dataclass(frozen=True)
 class ProductsConfig:
     background: BackgroundConfig = spec("background estimation by a 3-D median")
@@ -263,6 +304,9 @@ class ProductsConfig:
     features: FeaturesConfig | None = spec(
         "each contact's features (docs/contact_features.md; omitted: none measured)",
         default=None)
+    classify: ClassifyConfig | None = spec(
+        "each contact called man-made, natural or undecided from its features "
+        "(docs/contact_features.md; omitted: not classified)", default=None)
 
 
 @dataclass(frozen=True)

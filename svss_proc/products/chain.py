@@ -24,6 +24,7 @@ from svss_daq.decibels import amplitude_to_db
 from . import drc as drc_mod
 from .background import greater_of_below, kernel_voxels, median_background
 from .circumstances import circumstances_text, tile_counts
+from .classify import with_class
 from .contact_features import contact_features, with_features
 from .detect import Footprint, detect, sidelobe_zone
 from .layer_cfar import guarded_along, guarded_regions, layer_tails
@@ -243,6 +244,9 @@ def compute_products(image: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.n
         table, profiles, step = with_features(table, feats), feats.profiles, feats.step_m
         t5 = time.perf_counter()
         t["features"], t4 = t5 - t4, t5
+        ccfg = cfg.classify
+        if ccfg is not None and ccfg.enabled:     # man-made, natural or undecided
+            table = with_class(table, ccfg)
     g = cfg.depth_gain
     gain = drc_mod.depth_gain_db(axes[2], g.db_per_m, g.start_m).astype(np.float32)
     display = _shown(level, mag, axes, sources, before, dc,

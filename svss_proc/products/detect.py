@@ -35,6 +35,7 @@ from scipy import ndimage
 from svss_daq.decibels import amplitude_to_db
 from svss_daq.geometry import cone_radius
 
+from .classify import CLASS_FIELDS, CLASS_FILL
 from .contact_features import FEATURE_FIELDS, FEATURE_FILL
 
 log = logging.getLogger(__name__)
@@ -67,11 +68,12 @@ FIELDS = (
                                  "not known: one threshold for all layers)")),
 )
 #: each contact's features (:mod:`.contact_features`; not measured: their fill values)
-FIELDS = FIELDS + FEATURE_FIELDS
+FIELDS = FIELDS + FEATURE_FIELDS + CLASS_FIELDS    # and its class (:mod:`.classify`)
 DTYPE = np.dtype([(name, dt) for name, dt, _, _ in FIELDS])
 #: columns a tile written before they existed may lack, and their fill values
 OPTIONAL_FIELDS = {"coverage_pings": 0, "coverage_fraction": -1.0,
-                   "threshold_db": -1.0, "false_alarms": -1.0, **FEATURE_FILL}
+                   "threshold_db": -1.0, "false_alarms": -1.0, **FEATURE_FILL,
+                   **CLASS_FILL}
 
 
 @dataclass(frozen=True)
@@ -414,7 +416,7 @@ def detect(level: np.ndarray, mag: np.ndarray, background: np.ndarray,
     kept.sort(key=lambda c: -c["excess"])
     kept = kept[:max_detections]
     out = np.zeros(len(kept), dtype=DTYPE)
-    for name, fill in FEATURE_FILL.items():      # measured later (chain), if at all
+    for name, fill in {**FEATURE_FILL, **CLASS_FILL}.items():  # later (chain), if at all
         out[name] = fill
     for row, c in zip(out, kept):
         p = c["peak"]

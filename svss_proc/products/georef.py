@@ -128,7 +128,8 @@ def write_mosaic_geotiff(path: Path, m: dict, epsg: int, description: str) -> Pa
 #: GeoPackage field types of the contact columns that are not floats
 _INT_FIELDS = ("contact", "tile_row", "n_tiles", "pings_missing", "poses_dead_reckoned",
                "poses_held", "feature_flags")
-_TEXT_FIELDS = ("run_id", "tile", "time_utc", "circumstances", "feature_notes")
+_TEXT_FIELDS = ("run_id", "tile", "time_utc", "circumstances", "feature_notes",
+                "class")
 
 
 def write_contacts_gpkg(path: Path, contacts: list[dict], fields: list[str],

@@ -24,6 +24,7 @@ from matplotlib import colormaps
 from svss_daq.config import ProductsConfig
 from svss_daq.decibels import amplitude_to_db_floored
 
+from .classify import NOT_CLASSIFIED, class_text
 from .contact_features import LATE_UPPER_BOUND
 from .drc import compress
 from .raster import Canvas, View, rgb8, save_rgb_palette_png
@@ -346,18 +347,25 @@ def _detection_lines(detections: np.ndarray, n_max: int = 20) -> str:
     """The strongest detections as text lines: number, position (m; depth below the
     seabed), excess (dB re background), largest extent (m) and, where measured, the
     tail's extent (m), decay (dB/m), late-to-specular ratio (dB; '<' an upper bound) and
-    the rms spread of the look angles over the aperture (deg; docs/contact_features.md)."""
+    the rms spread of the look angles over the aperture (deg; docs/contact_features.md);
+    where classified, its class and p_manmade (:mod:`.classify`)."""
     feats = "tail_extent_m" in (detections.dtype.names or ()) and len(detections) \
         and np.any(detections["feature_flags"] >= 0)
     lines = ["#    along  cross  depth  excess   size", "      (m)    (m)    (m)    (dB)    (m)"]
+    classed = "class" in (detections.dtype.names or ()) and len(detections) \
+        and np.any(detections["class"] != NOT_CLASSIFIED)
     if feats:
         lines[0] += "   tail  decay    L/S aspect"
         lines[1] += "    (m) (dB/m)   (dB)  (deg)"
+    if classed:
+        lines[0] += "  class      p"
+        lines[1] += "         (man-made)"
     for i, row in enumerate(detections[:n_max]):
         size = max(row["extent_along_m"], row["extent_cross_m"], row["extent_depth_m"])
         lines.append(f"{i:<3d}{row['along_m']:6.2f} {row['cross_m']:6.2f} "
                      f"{row['depth_m']:6.2f} {row['excess_db']:6.1f} {size:6.2f}"
-                     + (_feature_text(row) if feats else ""))
+                     + (_feature_text(row) if feats else "")
+                     + (_class_text(row) if classed else ""))
     if len(detections) > n_max:
         lines.append(f"... {len(detections) - n_max} more (in the tile file)")
     if len(detections) == 0:
@@ -374,6 +382,12 @@ def _feature_text(row) -> str:
         and np.isfinite(ls) else " "
     return (f" {num(row['tail_extent_m'], 6, 2)} {num(row['tail_decay_db_per_m'], 6, 0)} "
             f"{bound}{num(ls, 5, 1)} {num(row['aspect_width_deg'], 6, 1)}")
+
+
+def _class_text(row) -> str:
+    """A contact's class and p_manmade for the list (:mod:`.classify`)."""
+    p = row["p_manmade"]
+    return f"  {class_text(row['class']):<9} " + (f"{p:4.2f}" if np.isfinite(p) else "   -")
 
 
 def _mark(canvas: Canvas, v: View, detections: np.ndarray, idx: np.ndarray,

@@ -56,6 +56,7 @@ from svss_daq.navigation import ned_to_geodetic
 
 from ..tiles import TileFileError, temporary_path
 from .chain import coverage_settings, footprint_for
+from .classify import CLASS_FILL, CLASS_NAMES, class_text
 from .contact_features import FEATURE_FILL, FEATURE_NAMES, flags_text
 from .circumstances import (FALLBACK_REACH_M, KINDS, LABELS, PingTrack, Stretch,
                             circumstances_text, counts_near, is_partial)
@@ -147,6 +148,12 @@ CONTACT_FIELDS = (
                             "tail too short to fit, 32 aspect not measured; -1 not "
                             "measured"), None),
     ("feature_notes", "", "feature_flags in words (empty: every feature measured)", None),
+    # its class from those features (svss_proc.products.classify)
+    ("class", "", ("man-made, natural or undecided (probability between the thresholds, "
+                   "or a feature missing or flagged); empty: not classified"), None),
+    ("p_manmade", "1", ("probability that the contact is man-made (logistic regression on "
+                        "its features, [products.classify]; empty: not classified or a "
+                        "feature missing)"), 3),
 )
 _DECIMALS = {name: d for name, _, _, d in CONTACT_FIELDS}
 
@@ -306,7 +313,8 @@ def run_contacts(views: list[TileView],
                                      float(r["coverage_fraction"]), reach),
              "tile_row": r["tile_row"], "n_tiles": r["n_tiles"],
              **{k: r[k] for k in FEATURE_NAMES},
-             "feature_notes": flags_text(r["feature_flags"])}
+             "feature_notes": flags_text(r["feature_flags"]),
+             "class": class_text(r["class"]), "p_manmade": r["p_manmade"]}
         out.append({name: _rounded(name, c[name]) for name, *_ in CONTACT_FIELDS})
     summary = {"tiles": len(views), "tile_detections": n_tile_detections,
                "run_id": run_id,
@@ -331,10 +339,14 @@ def _optional(table: np.ndarray, row, name: str) -> float:
 
 
 def _features(table: np.ndarray, row) -> dict:
-    """A detection's feature columns (their fill values where an older tile has none)."""
+    """A detection's feature and class columns (their fill values where an older tile
+    has none)."""
     names = table.dtype.names or ()
     out = {k: (row[k].item() if k in names else FEATURE_FILL[k]) for k in FEATURE_NAMES}
     out["feature_flags"] = int(out["feature_flags"])
+    for k in CLASS_NAMES:        # its class (an older tile: not classified)
+        out[k] = row[k].item() if k in names else CLASS_FILL[k]
+    out["class"] = int(out["class"])
     return out
 
 

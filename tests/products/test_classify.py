@@ -1,0 +1,166 @@
+"""Each contact called man-made, natural or undecided (issue 51; svss_proc.products.classify):
+the logistic model against hand-computed values, undecided on missing or flagged
+features, the configuration's errors naming file and key, and the class carried by the
+tile file, the run's contacts (CSV, GeoJSON, GeoPackage) and the quicklook's list."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+
+import h5py
+import numpy as np
+import pytest
+
+from svss_daq.config import ClassifyConfig, ConfigError, ProcessingConfig, loaded_from_text
+from svss_daq.config_processing import CLASSIFY_FEATURES
+from svss_proc.products import detect
+from svss_proc.products.chain import save_tile
+from svss_proc.products.classify import (CLASS_FILL, MANMADE, NATURAL, NOT_CLASSIFIED,
+                                         UNDECIDED, classify, logistic, probability,
+                                         with_class)
+from svss_proc.products.contact_features import FEATURE_NAMES, LATE_UPPER_BOUND, NO_ASPECT
+from svss_proc.products.quicklook import _detection_lines
+from svss_proc.products.run_products import (CONTACTS_CSV, CONTACTS_GEOJSON, CONTACTS_GPKG,
+                                             write_run_products)
+from svss_proc.tiles import read_tile
+
+from .test_contact_features_products import FEATURES, ORIGIN, ringing_tile  # noqa: F401
+
+CFG = ClassifyConfig(enabled=True, features=("aspect_width_deg", "late_to_specular_db"),
+                     mean=(6.0, -3.0), scale=(3.0, 4.0), coefficients=(2.0, 1.0),
+                     intercept=-0.5, manmade_above=0.6, natural_below=0.4,
+                     undecided_flags=(NO_ASPECT,))
+
+CLASSIFY = """
+[products.classify]
+enabled = true
+features = ["aspect_width_deg"]
+mean = [0.0]
+scale = [1.0]
+coefficients = [0.0]
+intercept = 2.0
+manmade_above = 0.6
+natural_below = 0.4
+undecided_flags = [32]
+"""
+
+
+def table(rows: list[tuple[float, float, int]]) -> np.ndarray:
+    """Detections with (aspect_width_deg, late_to_specular_db, feature_flags)."""
+    out = np.zeros(len(rows), dtype=detect.DTYPE)
+    for r, (w, ls, flags) in zip(out, rows):
+        r["aspect_width_deg"], r["late_to_specular_db"], r["feature_flags"] = w, ls, flags
+    return out
+
+
+def test_the_model_is_the_logistic_of_the_standardised_features():
+    # hand-computed: z = ((9 - 6) / 3, (1 + 3) / 4) = (1, 1), t = -0.5 + 2 + 1 = 2.5,
+    # p = 1 / (1 + e^-2.5) = 0.924142; at the means t = -0.5, p = 0.377541;
+    # z = (-1, -1): t = -3.5, p = 0.029312
+    p = probability(np.array([[9.0, 1.0], [6.0, -3.0], [3.0, -7.0]]), CFG)
+    np.testing.assert_allclose(p, [0.924142, 0.377541, 0.029312], atol=2e-6)
+    assert p[0] == pytest.approx(1 / (1 + math.exp(-2.5)), rel=1e-12)
+    cls, pm = classify(table([(9.0, 1.0, 0), (6.0, -3.0, 0), (3.0, -7.0, 0),
+                              (6.6, -3.0, LATE_UPPER_BOUND)]), CFG)
+    # the fourth: t = -0.5 + 0.4 = -0.1, p = 0.475021: between the thresholds
+    assert cls.tolist() == [MANMADE, NATURAL, NATURAL, UNDECIDED]
+    assert cls.dtype == np.int8 and pm.dtype == np.float32
+    assert float(pm[3]) == pytest.approx(0.475021, abs=1e-6)
+    # a flag not among undecided_flags leaves the class as the probability says
+    assert classify(table([(9.0, 1.0, LATE_UPPER_BOUND)]), CFG)[0][0] == MANMADE
+
+
+def test_thresholds_and_extremes():
+    assert logistic(np.array([-1000.0, 0.0, 1000.0])).tolist() == [0.0, 0.5, 1.0]
+    cfg = dataclasses.replace(CFG, manmade_above=0.9, natural_below=0.1)
+    cls, _ = classify(table([(9.0, 1.0, 0), (6.0, -3.0, 0), (3.0, -7.0, 0)]), cfg)
+    assert cls.tolist() == [MANMADE, UNDECIDED, NATURAL]
+
+
+def test_a_missing_or_flagged_feature_leaves_the_contact_undecided():
+    cls, p = classify(table([(np.nan, 1.0, 0), (9.0, np.nan, 0), (9.0, 1.0, NO_ASPECT),
+                             (9.0, 1.0, -1), (9.0, 1.0, 0)]), CFG)
+    assert cls.tolist() == [UNDECIDED] * 4 + [MANMADE]
+    assert np.all(np.isnan(p[:4])) and np.isfinite(p[4])
+    # an empty table
+    cls, p = classify(detect.empty(), CFG)
+    assert cls.size == 0 and p.size == 0
+    out = with_class(table([(9.0, 1.0, 0)]), CFG)
+    assert out["class"][0] == MANMADE and out["p_manmade"][0] == pytest.approx(0.924142,
+                                                                                abs=1e-6)
+
+
+def test_the_features_a_model_may_use_are_contact_features():
+    assert set(CLASSIFY_FEATURES) <= set(FEATURE_NAMES)
+    # a detection table starts not classified
+    assert detect.empty().dtype["class"] == np.int8
+    assert CLASS_FILL["class"] == NOT_CLASSIFIED
+
+
+@pytest.mark.parametrize("old,new,key", [
+    ("mean = [0.0]", "mean = [0.0, 1.0]", r"products\.classify\.mean"),
+    ("scale = [1.0]", "scale = [0.0]", r"products\.classify\.scale"),
+    ('features = ["aspect_width_deg"]', 'features = ["aspect_width_deg", "colour"]',
+     r"products\.classify\.features\[1\]"),
+    ("natural_below = 0.4", "natural_below = 0.7", r"products\.classify\.natural_below"),
+    ("coefficients = [0.0]\n", "", r"products\.classify\.coefficients"),
+    ("intercept = 2.0", 'intercept = "high"', r"products\.classify\.intercept"),
+])
+def test_config_errors_name_the_file_and_key(demo_processing, old, new, key):
+    assert old in CLASSIFY
+    with pytest.raises(ConfigError, match=r"bad\.toml.*" + key):
+        loaded_from_text(ProcessingConfig, demo_processing.text + FEATURES
+                         + CLASSIFY.replace(old, new), "bad.toml")
+
+
+def test_the_shipped_configuration_classifies():
+    from svss_daq.config import config_path, load
+    cfg = load(ProcessingConfig, config_path("processing.toml"))
+    c = cfg.products.classify
+    assert c is not None and c.enabled and cfg.products.features.enabled
+    assert len(c.features) == len(c.coefficients) and c.natural_below <= c.manmade_above
+
+
+def test_the_class_in_the_tile_file_run_contacts_and_quicklook(
+        ringing_tile, demo_processing, hardware, tmp_path):  # noqa: F811
+    processing = loaded_from_text(ProcessingConfig, demo_processing.text + FEATURES
+                                  + CLASSIFY, "classify")
+    tile, _, _ = ringing_tile
+    h5, png = save_tile(tile, tmp_path, hardware, processing)
+    det = read_tile(h5)["detections"]
+    # the model: p = logistic(2) = 0.880797 wherever the aspect is measured
+    measured = np.isfinite(det["aspect_width_deg"]) & (det["feature_flags"] >= 0) \
+        & ((det["feature_flags"] & NO_ASPECT) == 0)
+    assert measured.sum() >= 1
+    assert np.all(det["class"][measured] == MANMADE)
+    np.testing.assert_allclose(det["p_manmade"][measured], 0.880797, atol=1e-6)
+    assert np.all(det["class"][~measured] == UNDECIDED)
+    text = _detection_lines(det)
+    assert "class" in text.splitlines()[0] and "man-made  0.88" in text
+    write_run_products(tmp_path, tmp_path / "run", origin=ORIGIN)
+    with open(tmp_path / "run" / CONTACTS_CSV) as f:
+        rows = list(csv.DictReader(f))
+    assert any(r["class"] == "man-made" and r["p_manmade"] == "0.881" for r in rows)
+    assert all(r["class"] in ("man-made", "undecided") for r in rows)
+    gj = json.loads((tmp_path / "run" / CONTACTS_GEOJSON).read_text())
+    props = [f["properties"] for f in gj["features"] if f["properties"]["kind"] == "contact"]
+    assert any(p["class"] == "man-made" and p["p_manmade"] == 0.881 for p in props)
+    import pyogrio
+    import pyogrio.raw
+    _, _, _, data = pyogrio.raw.read(str(tmp_path / "run" / CONTACTS_GPKG), layer="contacts")
+    cols = list(pyogrio.read_info(str(tmp_path / "run" / CONTACTS_GPKG),
+                                  layer="contacts")["fields"])
+    assert "man-made" in list(data[cols.index("class")])
+    # a tile written before the classification: not classified, empty in the contacts
+    with h5py.File(h5, "r+") as f:
+        for name in CLASS_FILL:
+            del f["detections"][name]
+    det = read_tile(h5)["detections"]
+    assert np.all(det["class"] == NOT_CLASSIFIED) and np.all(np.isnan(det["p_manmade"]))
+    assert "class" not in _detection_lines(det).splitlines()[0]
+    write_run_products(tmp_path, tmp_path / "run2")
+    with open(tmp_path / "run2" / CONTACTS_CSV) as f:
+        assert all(r["class"] == "" and r["p_manmade"] == "" for r in csv.DictReader(f))
