@@ -8,6 +8,12 @@ through the scene's own track line, then into each tile's frame through the line
 tile was imaged in (its root attributes), so the comparison holds whether the tiles
 were formed with ``track_line = "first_ping"`` or a fixed line. Targets outside every
 tile's volume are listed but not scored.
+
+Each target has a truth class (:func:`truth_class`): ``man-made`` for the targets of
+metal (shells, cylinders, spheres: every material but the rocks), ``natural`` for the
+rocks (:data:`NATURAL_MATERIALS`), ``other`` for points and rigid stand-ins. The report
+gives, per class, how many were detected and how the detections were called
+(:mod:`svss_proc.products.classify`: man-made, natural, undecided, not classified).
 """
 
 from __future__ import annotations
@@ -25,12 +31,18 @@ from sim_device.track import truth_line
 from svss_daq.config import ConfigError, ProcessingConfig, loads
 from svss_proc import tiles
 from svss_proc.products import detect
+from svss_proc.products.classify import class_text
 from svss_proc.products.run_products import TileView, run_contacts
 
 log = logging.getLogger(__name__)
 
 #: the worker's list of the files it wrote (``svss_proc.run_folder.MANIFEST``)
 MANIFEST = "manifest.json"
+#: materials of config/materials.toml that are rocks: a target of one is natural clutter
+NATURAL_MATERIALS = ("granite", "basalt", "limestone")
+#: the truth classes, and what a detection may be called
+CLASSES = ("man-made", "natural", "other")
+CALLS = ("man-made", "natural", "undecided", "not classified")
 
 
 @dataclass
@@ -95,6 +107,36 @@ def half_extent(target: dict) -> float:
     sphere's or a disc's radius; a point's 0), from :func:`scene_truth`'s ``fields``."""
     f = target.get("fields") or {}
     return max(0.5 * float(f.get("length_m") or 0.0), float(f.get("radius_m") or 0.0))
+
+
+def truth_class(target: dict) -> str:
+    """A true target's class (:func:`scene_truth`'s entry): ``natural`` for a rock
+    (:data:`NATURAL_MATERIALS`), ``man-made`` for any other material, ``other`` for a
+    target without one (a point) or a rigid stand-in."""
+    material = (target.get("fields") or {}).get("material")
+    if not isinstance(material, str) or material == "rigid":
+        return "other"
+    return "natural" if material in NATURAL_MATERIALS else "man-made"
+
+
+def per_class(truth: list[dict]) -> dict:
+    """Per truth class of the scored targets (status not ``outside``): ``targets``,
+    ``detected``, the detections' calls (``man-made``, ``natural``, ``undecided``,
+    ``not classified``), ``detected_fraction`` and ``called_manmade_fraction`` (of the
+    class's targets: a missed target is not called man-made); classes without targets
+    are left out."""
+    out = {}
+    for cls in CLASSES:
+        ts = [t for t in truth if t.get("class") == cls and t.get("status") != "outside"]
+        if not ts:
+            continue
+        det = [t for t in ts if t["status"] == "detected"]
+        row = {"targets": len(ts), "detected": len(det),
+               **{c: sum(1 for t in det if t.get("called") == c) for c in CALLS}}
+        row["detected_fraction"] = row["detected"] / row["targets"]
+        row["called_manmade_fraction"] = row["man-made"] / row["targets"]
+        out[cls] = row
+    return out
 
 
 def scene_truth(scene) -> list[dict]:
@@ -238,12 +280,16 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
                    np.array([half_extent(truth[t]) for t in scored]))
     for t in truth:
         t["status"] = "outside"
+        t["class"] = truth_class(t)
     for t in scored:
         truth[t]["status"] = "missed"
     for ti, di, dist in result.pairs:
         t = truth[scored[ti]]
+        p = det_rows[di].get("p_manmade")
         t.update(status="detected", detection=di, distance_m=dist,
-                 excess_db=det_rows[di]["excess_db"])
+                 excess_db=det_rows[di]["excess_db"],
+                 called=class_text(det_rows[di].get("class", -2)) or "not classified",
+                 p_manmade=None if p is None or p != p else float(p))
     for di in result.false_alarms:
         det_rows[di]["status"] = "false alarm"
     for di in result.duplicates:
@@ -251,6 +297,7 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
     for _, di, _ in result.pairs:
         det_rows[di]["status"] = "hit"
     summary = result.summary()
+    summary["per_class"] = per_class(truth)
     summary["outside"] = int(len(truth) - scored.size)
     per_tile = {p.name: 0 for p in paths}
     for di in result.false_alarms:
@@ -281,13 +328,23 @@ def format_report(r: dict) -> str:
              f"{s.get('false_alarms_per_tile', float('nan')):.2f} per tile, "
              f"{s.get('false_alarms_per_m2') or 0.0:.3g} per m2 of "
              f"{s.get('plan_area_m2', float('nan')):.1f} m2 imaged (plan)",
-             "  target        along_m  cross_m  depth_m  status     dist_m  excess_dB"]
+             ]
+    for cls, row in s.get("per_class", {}).items():
+        lines.append(f"  {cls}: {row['detected']}/{row['targets']} detected; called "
+                     f"man-made {row['man-made']}, natural {row['natural']}, undecided "
+                     f"{row['undecided']}, not classified {row['not classified']} "
+                     f"(man-made {row['called_manmade_fraction']:.2f} of the class)")
+    lines.append("  target        along_m  cross_m  depth_m  status     dist_m  excess_dB"
+                 "  class     called     p_manmade")
     for t in r["truth"]:
         a, c, d = t["scene_m"]
         dist = f"{t['distance_m']:.3f}" if "distance_m" in t else "-"
         exc = f"{t['excess_db']:.1f}" if "excess_db" in t else "-"
+        p = t.get("p_manmade")
+        p = f"{p:.2f}" if isinstance(p, float) and p == p else "-"
         lines.append(f"  {t['table']}[{t['index']}]".ljust(15) + f"{a:7.3f} {c:8.3f} {d:8.3f}"
-                     f"  {t['status']:<9} {dist:>7} {exc:>10}")
+                     f"  {t['status']:<9} {dist:>7} {exc:>10}  {t.get('class', '-'):<9} "
+                     f"{t.get('called', '-'):<14} {p:>5}")
     fa = [d for d in r["detections"] if d.get("status") == "false alarm"]
     if fa:
         lines.append("  false alarms (tile frame):")

@@ -1,0 +1,144 @@
+"""``svss score`` per target class (issue 51): the truth classes from the scene's
+materials, and per class the detected targets and how their contacts were called, on a
+small folder of real tiles whose detections carry a class."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from svss.score import format_report, per_class, score_tiles, truth_class
+from svss_daq.frames import TrackLine
+from svss_proc.imaging.grid import tile_grid
+from svss_proc.products.chain import compute_products
+from svss_proc.products.classify import MANMADE, NATURAL, UNDECIDED
+from svss_proc.tiles import write_tile
+
+from . import VOXEL, make_tile, plant, rayleigh_median, speckle
+from .test_cli import HEADING, SCENE
+
+TARGETS = """
+[[targets]]
+kind = "sphere"
+material = "cast_iron"
+along_m = {a0}
+cross_m = 0.1
+depth_m = 0.3
+radius_m = 0.05
+
+[[targets]]
+kind = "disc"
+material = "granite"
+along_m = {a1}
+cross_m = -0.3
+depth_m = 0.6
+radius_m = 0.1
+thickness_m = 0.05
+axis_heading_deg = 0.0
+axis_tilt_deg = 0.0
+
+[[targets]]
+kind = "shell"
+material = "steel"
+fill = "vacuum"
+along_m = {a2}
+cross_m = 0.2
+depth_m = 0.5
+radius_m = 0.05
+thickness_m = 0.005
+
+[[targets]]
+kind = "disc"
+material = "basalt"
+along_m = {a3}
+cross_m = 0.0
+depth_m = 0.4
+radius_m = 0.1
+thickness_m = 0.05
+axis_heading_deg = 0.0
+axis_tilt_deg = 0.0
+
+[[points]]
+along_m = {a4}
+cross_m = 0.0
+depth_m = 0.5
+target_strength_db = -20.0
+"""
+
+
+def test_truth_classes_from_the_materials():
+    assert truth_class({"fields": {"material": "granite"}}) == "natural"
+    assert truth_class({"fields": {"material": "limestone"}}) == "natural"
+    assert truth_class({"fields": {"material": "aluminium"}}) == "man-made"
+    assert truth_class({"fields": {"material": "cast_iron"}}) == "man-made"
+    assert truth_class({"fields": {"material": "rigid"}}) == "other"
+    assert truth_class({"fields": {"target_strength_db": -20.0}}) == "other"
+    rows = per_class([{"class": "man-made", "status": "detected", "called": "man-made"},
+                      {"class": "man-made", "status": "missed"},
+                      {"class": "natural", "status": "detected", "called": "undecided"},
+                      {"class": "natural", "status": "outside"}])
+    assert rows["man-made"] == {"targets": 2, "detected": 1, "man-made": 1, "natural": 0,
+                                "undecided": 0, "not classified": 0,
+                                "detected_fraction": 0.5, "called_manmade_fraction": 0.5}
+    assert rows["natural"]["targets"] == 1 and rows["natural"]["undecided"] == 1
+    assert "other" not in rows
+
+
+def test_score_reports_detection_and_classification_per_class(tmp_path, hardware,
+                                                              demo_processing):
+    # scene frame: along from the first ping's body origin; the tiles are imaged on a
+    # line starting 0.5 m further along (tile along = scene along - 0.5)
+    along = (1.0, 2.2, 3.4, 4.4, 5.4)
+    scene = tmp_path / "scene.toml"
+    scene.write_text(SCENE + TARGETS.format(**{f"a{i}": a for i, a in enumerate(along)}))
+    shift = 0.5
+    line = TrackLine((100.0 + shift * math.cos(HEADING), 200.0 + shift * math.sin(HEADING)),
+                     HEADING, 0.5 + 2.5)
+    # planted: the shot put (called man-made), the granite slab (natural), the basalt
+    # slab (undecided) and the point; the empty shell is missed
+    planted = [((along[0] - shift, 0.1, 0.3), MANMADE, 0.9),
+               ((along[1] - shift, -0.3, 0.6), NATURAL, 0.1),
+               ((along[3] - shift, 0.0, 0.4), UNDECIDED, 0.5),
+               ((along[4] - shift, 0.0, 0.5), MANMADE, 0.8)]
+    out = tmp_path / "tiles"
+    out.mkdir()
+    rng = np.random.default_rng(51)
+    for k in (0, 1):
+        grid = tile_grid(demo_processing.value.tile, k)
+        axes = (grid.along, grid.cross, grid.depth)
+        img = speckle(grid.shape, rng)
+        for pos, _, _ in planted:
+            plant(img, axes, pos, rayleigh_median(1.0) * 10 ** (30 / 20))
+        prods = compute_products(img, axes, VOXEL, demo_processing.value.products)
+        det = prods.detections
+        for pos, cls, p in planted:        # each planted contact's class, as if measured
+            if len(det):
+                d = np.hypot(det["along_m"] - pos[0], det["cross_m"] - pos[1])
+                i = int(np.argmin(d))
+                if d[i] < 0.1:
+                    det["class"][i], det["p_manmade"][i] = cls, p
+        write_tile(out / f"tile_{k:04d}.h5", make_tile(grid, line, img, range(5)), hardware,
+                   demo_processing, prods)
+    r = score_tiles(out, scene)
+    # the scene's targets in its own order, then its points
+    r["truth"].sort(key=lambda t: (t["table"] != "targets", t["index"]))
+    classes = [t["class"] for t in r["truth"]]
+    assert classes == ["man-made", "natural", "man-made", "natural", "other"]
+    assert [t["status"] for t in r["truth"]] == ["detected", "detected", "missed",
+                                                 "detected", "detected"]
+    assert [t.get("called") for t in r["truth"]] == ["man-made", "natural", None,
+                                                     "undecided", "man-made"]
+    assert r["truth"][0]["p_manmade"] == pytest.approx(0.9, abs=1e-6)
+    pc = r["summary"]["per_class"]
+    assert pc["man-made"] == {"targets": 2, "detected": 1, "man-made": 1, "natural": 0,
+                              "undecided": 0, "not classified": 0,
+                              "detected_fraction": 0.5, "called_manmade_fraction": 0.5}
+    assert pc["natural"]["targets"] == 2 and pc["natural"]["detected"] == 2
+    assert (pc["natural"]["natural"], pc["natural"]["undecided"]) == (1, 1)
+    assert pc["natural"]["called_manmade_fraction"] == 0.0
+    assert pc["other"]["man-made"] == 1
+    text = format_report(r)
+    assert "man-made: 1/2 detected; called man-made 1, natural 0, undecided 0" in text
+    assert "natural: 2/2 detected; called man-made 0, natural 1, undecided 1" in text
