@@ -1,0 +1,211 @@
+#!/usr/bin/env python
+"""Fit the contact classifier (svss_proc.products.classify; docs/contact_features.md,
+"Classification") on simulated training fields, apart from the test fields of
+benchmarks/bench_classify.py.
+
+Each training field (``config/scenes/classify_train_*.toml``: shot puts, steel shells
+empty and filled, aluminium cylinders of 30.5 and 61 cm at several headings, granite
+slabs flat and tilted, proud and buried 0-0.5 m in silt over stiff clay) is simulated
+once into ``--cache`` (``svss simulate``) and processed with ``svss process`` and the
+shipped ``config/processing.toml`` (the sediment's speed estimated from the echoes, as
+a crew would run it). The run's contacts are matched to the scene's targets
+(:func:`svss.score.score_tiles`); each detected target's features (its contact's) and
+its truth class (man-made: metal; natural: rock) make one training row. Rows with a
+missing feature, or a flag of ``undecided_flags``, are left out (the product calls them
+undecided).
+
+The model: a logistic regression on the standardised features (the training rows' mean
+and standard deviation), by maximum likelihood with a small ridge penalty
+(``--l2``, on the standardised coefficients, not the intercept: a separable training
+set has no finite maximum without it). ``--write`` puts ``features``, ``mean``,
+``scale``, ``coefficients`` and ``intercept`` into ``[products.classify]`` of
+config/processing.toml (the thresholds are left as configured).
+
+    python benchmarks/fit_classifier.py --cache /tmp/bench_classify --out benchmarks/results/fit_classifier.json --write
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import minimize
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from bench_false_alarms import _run, simulated_line  # noqa: E402
+from bench_isa import machine_isa  # noqa: E402
+from svss.score import score_tiles  # noqa: E402
+from svss_daq.config import ProcessingConfig, config_path, load  # noqa: E402
+from svss_proc.products.classify import class_text, logistic  # noqa: E402
+from svss_proc.products.contact_features import FEATURE_NAMES, flags_text  # noqa: E402
+
+log = logging.getLogger("fit_classifier")
+
+TRAIN = ("classify_train_1", "classify_train_2", "classify_train_3")
+#: the model's features (physically motivated: docs/contact_features.md)
+FEATURES = ("aspect_width_deg", "late_to_specular_db")
+PROCESSING = ROOT / "config" / "processing.toml"
+
+
+def processed(name: str, cache: Path, processing: Path, tag: str, force: bool) -> Path:
+    """Field ``name`` simulated once into ``cache`` and processed with ``processing``
+    into ``cache/<name>-<tag>`` (reused where its manifest is there, unless ``force``)."""
+    raw = simulated_line(name, cache)
+    out = cache / f"{name}-{tag}"
+    if force or not (out / "manifest.json").is_file():
+        secs = _run([sys.executable, "-m", "svss", "process", str(raw), "--out", str(out),
+                     "--processing", str(processing), "--force"],
+                    cache / f"{name}-{tag}.log")
+        log.info("%s (%s): processed in %.0f s", name, tag, secs)
+    return out
+
+
+def field_rows(name: str, tiles_dir: Path) -> list[dict]:
+    """One row per target of the field's scene: its truth class, status, and where
+    detected its contact's features, class and p_manmade (:func:`score_tiles`)."""
+    scene = ROOT / "config" / "scenes" / f"{name}.toml"
+    r = score_tiles(tiles_dir, scene)
+    rows = []
+    for t in r["truth"]:
+        f = t["fields"]
+        row = {"scene": name, "target": f.get("description") or f.get("kind", t["table"]),
+               "kind": f.get("kind"), "material": f.get("material"),
+               "truth_m": t["scene_m"], "class": t["class"], "status": t["status"]}
+        if t["status"] == "detected":
+            d = r["detections"][t["detection"]]
+            row.update({"excess_db": d["excess_db"], "depth_m": d["depth_m"],
+                        **{n: d[n] for n in FEATURE_NAMES},
+                        "feature_notes": flags_text(int(d["feature_flags"])),
+                        "called": class_text(int(d["class"])) or "not classified",
+                        "p_manmade": None if d["p_manmade"] != d["p_manmade"]
+                        else float(d["p_manmade"])})
+        rows.append(row)
+    return rows
+
+
+def usable(row: dict, features, undecided_flags) -> bool:
+    """A detected man-made or natural target whose features are all measured and not
+    flagged undecided."""
+    if row["status"] != "detected" or row["class"] not in ("man-made", "natural"):
+        return False
+    flags = int(row["feature_flags"])
+    mask = 0
+    for b in undecided_flags:
+        mask |= int(b)
+    return flags >= 0 and not flags & mask and all(
+        row[n] is not None and math.isfinite(row[n]) for n in features)
+
+
+def fit_logistic(x: np.ndarray, y: np.ndarray, l2: float) -> dict:
+    """Logistic regression of ``y`` (1 man-made, 0 natural) on ``x`` (n, k): the
+    features standardised by their mean and (population) standard deviation, maximum
+    likelihood with ``l2`` * |w|^2 / 2 on the standardised weights. Returns mean, scale,
+    coefficients, intercept and the penalised negative log-likelihood."""
+    mean = x.mean(axis=0)
+    scale = x.std(axis=0)
+    scale[scale <= 0] = 1.0
+    z = (x - mean) / scale
+
+    def cost(theta):
+        t = theta[0] + z @ theta[1:]
+        # -log-likelihood: sum log(1 + e^t) - y t, stably
+        nll = np.sum(np.logaddexp(0.0, t) - y * t) + 0.5 * l2 * np.sum(theta[1:] ** 2)
+        g = logistic(t) - y
+        grad = np.concatenate([[g.sum()], z.T @ g + l2 * theta[1:]])
+        return nll, grad
+
+    res = minimize(cost, np.zeros(z.shape[1] + 1), jac=True, method="BFGS")
+    return {"mean": mean.tolist(), "scale": scale.tolist(),
+            "coefficients": res.x[1:].tolist(), "intercept": float(res.x[0]),
+            "neg_log_likelihood": float(res.fun), "converged": bool(res.success)}
+
+
+def _toml_list(v) -> str:
+    return "[" + ", ".join(f'"{x}"' if isinstance(x, str) else f"{x:.4g}" for x in v) + "]"
+
+
+def write_model(model: dict, features, path: Path = PROCESSING) -> None:
+    """Put the fitted ``features``, ``mean``, ``scale``, ``coefficients`` and
+    ``intercept`` into ``[products.classify]`` of ``path`` (each key's line replaced,
+    its comment kept)."""
+    text = path.read_text()
+    start = text.index("[products.classify]")
+    end = text.find("\n[", start + 1)
+    end = len(text) if end < 0 else end
+    block = text[start:end]
+    values = {"features": _toml_list(features), "mean": _toml_list(model["mean"]),
+              "scale": _toml_list(model["scale"]),
+              "coefficients": _toml_list(model["coefficients"]),
+              "intercept": f"{model['intercept']:.4g}"}
+    for key, v in values.items():
+        block, n = re.subn(rf"(?m)^{key} = [^#\n]*?(\s*#.*)?$",
+                           lambda m, k=key, v=v: f"{k} = {v}" + (
+                               m.group(1) if m.group(1) else ""), block, count=1)
+        if n != 1:
+            raise ValueError(f"{path}: [products.classify] has no '{key}' line to replace")
+    path.write_text(text[:start] + block + text[end:])
+    load(ProcessingConfig, path)          # still valid
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--cache", type=Path, required=True)
+    ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--features", nargs="+", default=list(FEATURES))
+    ap.add_argument("--l2", type=float, default=1.0,
+                    help="ridge penalty on the standardised coefficients (default 1)")
+    ap.add_argument("--write", action="store_true",
+                    help="write the fitted model into config/processing.toml")
+    ap.add_argument("--reprocess", action="store_true",
+                    help="process the fields again even where their output is cached")
+    args = ap.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s",
+                        datefmt="%H:%M:%S")
+    args.cache.mkdir(parents=True, exist_ok=True)
+    ccfg = load(ProcessingConfig, config_path("processing.toml")).products.classify
+    flags = ccfg.undecided_flags if ccfg is not None else ()
+    rows = []
+    for name in TRAIN:
+        out = processed(name, args.cache, PROCESSING, "shipped", args.reprocess)
+        rows += field_rows(name, out)
+    train = [r for r in rows if usable(r, args.features, flags)]
+    x = np.array([[r[n] for n in args.features] for r in train], dtype=np.float64)
+    y = np.array([r["class"] == "man-made" for r in train], dtype=np.float64)
+    model = fit_logistic(x, y, args.l2)
+    cfg = type("M", (), {**model, "features": args.features})
+    z = (x - np.array(cfg.mean)) / np.array(cfg.scale)
+    p = logistic(cfg.intercept + z @ np.array(cfg.coefficients))
+    for r, pi in zip(train, p):
+        r["p_fit"] = float(pi)
+    for r in rows:
+        log.info("%-18s %-9s %-8s %-70s aspect %5.1f  L/S %6.1f  tail %5.2f  p %s",
+                 r["scene"], r["class"], r["status"], r["target"][:70],
+                 r.get("aspect_width_deg", np.nan), r.get("late_to_specular_db", np.nan),
+                 r.get("tail_extent_m", np.nan),
+                 f"{r['p_fit']:.2f}" if "p_fit" in r else "-")
+    acc = float(np.mean((p > 0.5) == (y > 0.5))) if len(y) else float("nan")
+    log.info("fitted on %d of %d targets (%d man-made, %d natural): %s; training accuracy "
+             "at 0.5: %.2f", len(train), len(rows), int(y.sum()), int(len(y) - y.sum()),
+             {k: model[k] for k in ("mean", "scale", "coefficients", "intercept")}, acc)
+    if args.write:
+        write_model(model, args.features)
+        log.info("written to %s [products.classify]", PROCESSING)
+    if args.out:
+        args.out.write_text(json.dumps({
+            "machine": machine_isa(), "command": " ".join(["python"] + sys.argv),
+            "fields": list(TRAIN), "features": args.features, "l2": args.l2,
+            "model": model, "training_accuracy_at_0.5": acc, "n_fit": len(train),
+            "rows": rows}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

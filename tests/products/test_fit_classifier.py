@@ -1,0 +1,74 @@
+"""benchmarks/fit_classifier.py (issue 51): the logistic fit recovers a known model, its
+result written into a processing configuration that still loads, and the known-speed
+configuration of benchmarks/bench_classify.py."""
+
+from __future__ import annotations
+
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from svss_daq.config import ProcessingConfig, load
+from svss_proc.products.classify import logistic, probability
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from bench_classify import curve, known_processing  # noqa: E402
+from fit_classifier import PROCESSING, fit_logistic, usable, write_model  # noqa: E402
+
+
+def test_the_fit_recovers_a_known_model():
+    rng = np.random.default_rng(51)
+    x = rng.normal([7.0, -3.0], [3.0, 4.0], size=(20000, 2))
+    z = (x - x.mean(axis=0)) / x.std(axis=0)
+    y = (rng.random(len(x)) < logistic(0.5 + z @ np.array([2.0, -1.0]))).astype(float)
+    m = fit_logistic(x, y, l2=0.0)
+    assert m["converged"]
+    np.testing.assert_allclose(m["coefficients"], [2.0, -1.0], atol=0.08)
+    assert m["intercept"] == pytest.approx(0.5, abs=0.06)
+    # separable data: the ridge keeps the weights finite
+    m = fit_logistic(np.array([[1.0], [2.0], [8.0], [9.0]]), np.array([0, 0, 1, 1.0]), 1.0)
+    assert m["converged"] and 0 < m["coefficients"][0] < 10
+
+
+def test_the_fitted_model_is_written_and_loads(tmp_path):
+    path = tmp_path / "processing.toml"
+    shutil.copy(PROCESSING, path)
+    model = {"mean": [6.5, -2.0], "scale": [3.6, 3.7], "coefficients": [1.56, 1.18],
+             "intercept": -0.095}
+    write_model(model, ["aspect_width_deg", "late_to_specular_db"], path)
+    c = load(ProcessingConfig, path).products.classify
+    assert c.features == ("aspect_width_deg", "late_to_specular_db")
+    assert c.mean == (6.5, -2.0) and c.coefficients == (1.56, 1.18) and c.intercept == -0.095
+    p = probability(np.array([[6.5, -2.0]]), c)[0]
+    assert p == pytest.approx(logistic(np.array([-0.095]))[0])
+    # the other keys and their comments are kept
+    assert "manmade_above" in path.read_text().split("[products.classify]")[1]
+
+
+def test_usable_rows_and_the_curve():
+    row = {"status": "detected", "class": "natural", "feature_flags": 0,
+           "aspect_width_deg": 3.0, "late_to_specular_db": -5.0}
+    assert usable(row, ("aspect_width_deg",), (32,))
+    assert not usable({**row, "feature_flags": 32}, ("aspect_width_deg",), (32,))
+    assert not usable({**row, "aspect_width_deg": float("nan")}, ("aspect_width_deg",), ())
+    assert not usable({**row, "class": "other"}, ("aspect_width_deg",), ())
+    c = curve([{"class": "man-made", "status": "detected", "p_manmade": 0.9},
+               {"class": "man-made", "status": "missed"},
+               {"class": "natural", "status": "detected", "p_manmade": 0.3}])
+    assert c[0] == {"threshold": 0.0, "manmade_called": 0.5, "natural_called": 1.0}
+    assert c[-1]["manmade_called"] == 0.0 and c[-1]["natural_called"] == 0.0
+
+
+def test_the_known_speed_configuration(tmp_path):
+    c = load(ProcessingConfig, known_processing("classify_test_silt", tmp_path))
+    assert c.seabed.speed == "configured"
+    assert c.imaging.sediment_sound_speed_m_s == 1650.0          # stiff clay
+    assert [(la.thickness_m, la.sound_speed_m_s) for la in c.imaging.sediment_layers] == \
+        [(0.6, 1476.0)]                                          # very fine silt
+    c = load(ProcessingConfig, known_processing("classify_test_sand", tmp_path))
+    assert c.imaging.sediment_sound_speed_m_s == 1767.0 and not c.imaging.sediment_layers
