@@ -52,7 +52,7 @@ log = logging.getLogger("fit_classifier")
 
 TRAIN = ("classify_train_1", "classify_train_2", "classify_train_3")
 #: the model's features (physically motivated: docs/contact_features.md)
-FEATURES = ("aspect_width_deg", "late_to_specular_db")
+FEATURES = ("aspect_width_deg", "aspect_cross_width_deg", "late_to_specular_db")
 PROCESSING = ROOT / "config" / "processing.toml"
 
 
@@ -129,6 +129,18 @@ def fit_logistic(x: np.ndarray, y: np.ndarray, l2: float) -> dict:
             "neg_log_likelihood": float(res.fun), "converged": bool(res.success)}
 
 
+def leave_one_out(x: np.ndarray, y: np.ndarray, l2: float) -> np.ndarray:
+    """Each row's p_manmade from the model fitted without it (the training set's own
+    estimate of how the model does on targets it has not seen)."""
+    out = np.full(len(y), np.nan)
+    for i in range(len(y)):
+        keep = np.arange(len(y)) != i
+        m = fit_logistic(x[keep], y[keep], l2)
+        z = (x[i] - np.array(m["mean"])) / np.array(m["scale"])
+        out[i] = logistic(np.array([m["intercept"] + z @ np.array(m["coefficients"])]))[0]
+    return out
+
+
 def _toml_list(v) -> str:
     return "[" + ", ".join(f'"{x}"' if isinstance(x, str) else f"{x:.4g}" for x in v) + "]"
 
@@ -184,15 +196,23 @@ def main() -> None:
     cfg = type("M", (), {**model, "features": args.features})
     z = (x - np.array(cfg.mean)) / np.array(cfg.scale)
     p = logistic(cfg.intercept + z @ np.array(cfg.coefficients))
-    for r, pi in zip(train, p):
-        r["p_fit"] = float(pi)
+    for r, pi, pl in zip(train, p, leave_one_out(x, y, args.l2)):
+        r["p_fit"], r["p_leave_one_out"] = float(pi), float(pl)
     for r in rows:
-        log.info("%-18s %-9s %-8s %-70s aspect %5.1f  L/S %6.1f  tail %5.2f  p %s",
-                 r["scene"], r["class"], r["status"], r["target"][:70],
-                 r.get("aspect_width_deg", np.nan), r.get("late_to_specular_db", np.nan),
-                 r.get("tail_extent_m", np.nan),
-                 f"{r['p_fit']:.2f}" if "p_fit" in r else "-")
+        log.info("%-18s %-9s %-8s %-70s aspect %5.1f across %4.1f  L/S %6.1f  p %s "
+                 "(left out: %s)", r["scene"], r["class"], r["status"], r["target"][:70],
+                 r.get("aspect_width_deg", np.nan), r.get("aspect_cross_width_deg", np.nan),
+                 r.get("late_to_specular_db", np.nan),
+                 f"{r['p_fit']:.2f}" if "p_fit" in r else "-",
+                 f"{r['p_leave_one_out']:.2f}" if "p_leave_one_out" in r else "-")
     acc = float(np.mean((p > 0.5) == (y > 0.5))) if len(y) else float("nan")
+    loo = np.array([r["p_leave_one_out"] for r in train])
+    thr = ccfg.manmade_above if ccfg is not None else 0.5
+    loo_rates = {"manmade_called": float(np.mean(loo[y > 0.5] > thr)),
+                 "natural_called": float(np.mean(loo[y < 0.5] > thr)), "threshold": thr}
+    log.info("leave-one-out on the training targets at p > %.2f: man-made called "
+             "man-made %.2f, natural called man-made %.2f", thr,
+             loo_rates["manmade_called"], loo_rates["natural_called"])
     log.info("fitted on %d of %d targets (%d man-made, %d natural): %s; training accuracy "
              "at 0.5: %.2f", len(train), len(rows), int(y.sum()), int(len(y) - y.sum()),
              {k: model[k] for k in ("mean", "scale", "coefficients", "intercept")}, acc)
@@ -204,6 +224,7 @@ def main() -> None:
             "machine": machine_isa(), "command": " ".join(["python"] + sys.argv),
             "fields": list(TRAIN), "features": args.features, "l2": args.l2,
             "model": model, "training_accuracy_at_0.5": acc, "n_fit": len(train),
+            "leave_one_out": loo_rates,
             "rows": rows}, indent=1))
 
 

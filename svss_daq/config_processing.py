@@ -253,7 +253,7 @@ class FeaturesConfig:
 
 #: contact features a classifier may use (svss_proc.products.contact_features names)
 CLASSIFY_FEATURES = ("tail_extent_m", "tail_decay_db_per_m", "late_to_specular_db",
-                     "aspect_centre_deg", "aspect_width_deg")
+                     "aspect_centre_deg", "aspect_width_deg", "aspect_cross_width_deg")
 
 
 @dataclass(frozen=True)

@@ -22,8 +22,11 @@ resonances die within a few cycles. Measured here, from the normalised level of 
 * the **aspect over the aperture**: the look angles (along-track) the contact's
   response came from, from the complex image's along-track spectrum about it
   (:func:`aspect_spread`: their mean and rms spread; a flat face answers only near its
-  normal, a point or a sphere over the whole aperture); the per-ping levels would give
-  the same with the ping-to-ping variation, and across-track too;
+  normal, a point or a sphere over the whole aperture); and their rms spread
+  across-track, the same on the image with its along- and cross-track axes swapped
+  (the receive array's aperture: a cylinder lying along the track answers over it, a
+  flat face again only near its normal); the per-ping levels would give the same with
+  the ping-to-ping variation;
 * the **late-to-specular ratio**: the background-subtracted energy in the tail window
   below the object over that in its peak window (dB), its uncertainty from the spread of
   the same energies in the reference footprints (the background's fluctuation); where
@@ -82,6 +85,11 @@ FEATURE_FIELDS = (
     ("aspect_width_deg", "f4", "deg", ("rms spread of that look angle: narrow for a "
                                        "specular face, the aperture's for a point")),
     ("aspect_width_err_deg", "f4", "deg", "standard error of aspect_width_deg (jackknife)"),
+    ("aspect_cross_width_deg", "f4", "deg", ("rms spread of the look angle across-track "
+                                             "(the cross-track spectrum, as "
+                                             "aspect_width_deg along; NaN: not measured)")),
+    ("aspect_cross_width_err_deg", "f4", "deg", ("standard error of aspect_cross_width_deg "
+                                                 "(jackknife)")),
     ("feature_flags", "i4", "1", ("bits: 1 tail cut by the tile's bottom, 2 no tail, 4 "
                                   "late-to-specular an upper bound, 8 no reference "
                                   "footprint beside it, 16 tail too short to fit, 32 "
@@ -94,6 +102,7 @@ FEATURE_FILL = {"tail_extent_m": np.nan, "tail_decay_db_per_m": np.nan,
                 "tail_decay_err_db_per_m": np.nan, "late_to_specular_db": np.nan,
                 "late_to_specular_err_db": np.nan, "aspect_centre_deg": np.nan,
                 "aspect_width_deg": np.nan, "aspect_width_err_deg": np.nan,
+                "aspect_cross_width_deg": np.nan, "aspect_cross_width_err_deg": np.nan,
                 "feature_flags": -1}
 #: levels at or below this (dB re background) are voxels no ping reached (drc.MIN_DB)
 _MISSING_DB = -299.0
@@ -388,6 +397,16 @@ def _aspect_background(image: np.ndarray, axes, row, cfg) -> np.ndarray | None:
     return np.concatenate(out) if out else None
 
 
+def _swapped(row) -> np.ndarray:
+    """A detection row with its along- and cross-track position and extent swapped (the
+    across-track aspect is :func:`aspect_spread` on the image with those axes swapped)."""
+    out = np.zeros(1, dtype=row.dtype)      # a copy: a table's row is a view into it
+    out[0] = row
+    for a, b in (("along_m", "cross_m"), ("extent_along_m", "extent_cross_m")):
+        out[a], out[b] = row[b], row[a]
+    return out[0]
+
+
 def contact_features(level: np.ndarray, axes, detections: np.ndarray, cfg,
                      image: np.ndarray | None = None,
                      wavenumber_rad_m: float | None = None) -> ContactFeatures:
@@ -423,6 +442,14 @@ def contact_features(level: np.ndarray, axes, detections: np.ndarray, cfg,
                 cols["aspect_width_err_deg"][i] = asp
         else:
             cols["feature_flags"][i] |= NO_ASPECT
+        if image is not None and wavenumber_rad_m:      # across-track: axes swapped
+            across = _swapped(row)
+            img_t = np.transpose(image, (1, 0, 2))
+            axes_t = (axes[1], axes[0], axes[2])
+            asp = aspect_spread(img_t, axes_t, across, cfg, wavenumber_rad_m,
+                                _aspect_background(img_t, axes_t, across, cfg))
+            cols["aspect_cross_width_deg"][i], cols["aspect_cross_width_err_deg"][i] = \
+                asp[1], asp[2]
         k = min(m, prof.level_db.size)
         profiles[i, :k] = prof.level_db[:k]
     return ContactFeatures(cols, profiles, step)

@@ -143,6 +143,9 @@ CONTACT_FIELDS = (
     ("aspect_width_deg", "deg", ("rms spread of that look angle: narrow for a specular "
                                  "face, the aperture's for a point"), 2),
     ("aspect_width_err_deg", "deg", "standard error of aspect_width_deg", 2),
+    ("aspect_cross_width_deg", "deg", ("rms spread of the look angle across-track (the "
+                                       "receive array's aperture)"), 2),
+    ("aspect_cross_width_err_deg", "deg", "standard error of aspect_cross_width_deg", 2),
     ("feature_flags", "1", ("bits: 1 tail cut by the tile's bottom, 2 no tail, 4 "
                             "late-to-specular an upper bound, 8 no reference beside it, 16 "
                             "tail too short to fit, 32 aspect not measured; -1 not "

@@ -117,7 +117,8 @@ function contactsTable(contacts) {
     ["N m", "north_m"], ["E m", "east_m"], ["closest pass (UTC)", "time_utc"],
     ["tail m", "tail_extent_m"], ["decay dB/m", "tail_decay_db_per_m"],
     ["\u00b1", "tail_decay_err_db_per_m"], ["late/specular dB", "late_to_specular_db"],
-    ["aspect deg", "aspect_width_deg"], ["features", "feature_notes"], ["class", "class"],
+    ["aspect deg", "aspect_width_deg"], ["across deg", "aspect_cross_width_deg"],
+    ["features", "feature_notes"], ["class", "class"],
     ["p man-made", "p_manmade"]];
   const t = el("table", {class: "list"}, el("tr", {}, ...cols.map(([h]) => el("th", {}, h))));
   for (const c of contacts) {
