@@ -13,8 +13,8 @@ Nothing handed over is lost: the worker keeps each tile until the child says it 
 written, and a child that dies (killed, out of memory) is reported; the worker then
 makes the products of every tile it had handed over itself, inline, and goes on inline.
 The child ignores SIGINT and SIGTERM (the worker's own stop writes the open tiles through
-it) and leaves when told, or when the worker is gone (killed: it looks every second
-while idle).
+it) and leaves when told, or when the worker is gone (killed, also half-way through
+handing a tile over: the jobs pipe ends).
 
 The child's time comes back with each tile (the chain's stages, and the whole job as
 ``products.process``), so the manifest's ``stage_times`` keep the products' figures.
@@ -35,7 +35,7 @@ from pathlib import Path
 log = logging.getLogger(__name__)
 
 #: how often an idle products process looks whether its worker is still there, s (the
-#: queue alone does not say: the child holds both of its ends)
+#: jobs pipe's end says so too: the child lets go of its write end)
 PARENT_CHECK_S = 1.0
 #: the child's whole job per tile, CPU and wall (manifest ``stage_times``)
 PROCESS_STAGE = "products.process"
@@ -229,6 +229,10 @@ def serve(jobs, results, hardware, processing, threads: int, log_setup: tuple,
     from .products.chain import Seams, save_tile
     numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
     seams: dict[str, Seams] = {}
+    # the child never puts a job: it lets go of the jobs pipe's write end, so that a
+    # worker killed (even half-way through handing a tile over) ends the pipe and a
+    # read here ends with EOFError rather than waiting for the rest for ever
+    jobs._writer.close()
     parent = multiprocessing.parent_process()
     while True:
         try:
