@@ -34,9 +34,6 @@ from pathlib import Path
 
 log = logging.getLogger(__name__)
 
-#: how often an idle products process looks whether its worker is still there, s (the
-#: jobs pipe's end says so too: the child lets go of its write end)
-PARENT_CHECK_S = 1.0
 #: the child's whole job per tile, CPU and wall (manifest ``stage_times``)
 PROCESS_STAGE = "products.process"
 
@@ -233,16 +230,10 @@ def serve(jobs, results, hardware, processing, threads: int, log_setup: tuple,
     # worker killed (even half-way through handing a tile over) ends the pipe and a
     # read here ends with EOFError rather than waiting for the rest for ever
     jobs._writer.close()
-    parent = multiprocessing.parent_process()
     while True:
         try:
-            msg = jobs.get(timeout=PARENT_CHECK_S)
-        except queue.Empty:
-            if parent is not None and not parent.is_alive():
-                log.warning("the worker (pid %s) is gone: leaving", parent.pid)
-                return
-            continue
-        except (EOFError, OSError):          # the queue is broken
+            msg = jobs.get()
+        except (EOFError, OSError):          # the worker is gone
             return
         if msg is None:
             return
