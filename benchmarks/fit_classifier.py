@@ -46,13 +46,17 @@ from bench_isa import machine_isa  # noqa: E402
 from svss.score import score_tiles  # noqa: E402
 from svss_daq.config import ProcessingConfig, config_path, load  # noqa: E402
 from svss_proc.products.classify import class_text, logistic  # noqa: E402
-from svss_proc.products.contact_features import FEATURE_NAMES, flags_text  # noqa: E402
+from svss_proc.products.contact_features import (FEATURE_NAMES, flags_text,  # noqa: E402
+                                                 point_fraction)
 
 log = logging.getLogger("fit_classifier")
 
-TRAIN = ("classify_train_1", "classify_train_2", "classify_train_3")
+TRAIN = ("classify_train_1", "classify_train_2", "classify_train_3", "classify_train_4",
+         "classify_train_5", "classify_train_6", "classify_train_7")
 #: the model's features (physically motivated: docs/contact_features.md)
-FEATURES = ("aspect_width_deg", "aspect_cross_width_deg", "late_to_specular_db")
+FEATURES = ("aspect_point_fraction", "late_to_specular_db")
+#: targets whose response is a point's both ways: the references of the point fraction
+POINT_KINDS = ("sphere", "shell")
 PROCESSING = ROOT / "config" / "processing.toml"
 
 
@@ -90,6 +94,28 @@ def field_rows(name: str, tiles_dir: Path) -> list[dict]:
                         else float(d["p_manmade"])})
         rows.append(row)
     return rows
+
+
+def point_reference(rows: list[dict]) -> list[float]:
+    """A point scatterer's look-angle spreads (along, across; deg): the median over the
+    detected spheres and shells of ``rows`` (``[products.features] point_aspect_deg``)."""
+    pts = [r for r in rows if r["status"] == "detected" and r["kind"] in POINT_KINDS
+           and all(math.isfinite(r[n]) for n in ("aspect_width_deg", "aspect_cross_width_deg"))]
+    if not pts:
+        raise ValueError("no detected sphere or shell with both aspects measured: no point "
+                         "reference")
+    return [float(np.median([r[n] for r in pts]))
+            for n in ("aspect_width_deg", "aspect_cross_width_deg")]
+
+
+def with_point_fraction(rows: list[dict], ref) -> None:
+    """Each detected row's ``aspect_point_fraction`` (and error) against ``ref``
+    (the fields may have been processed with other references)."""
+    for r in rows:
+        if r["status"] == "detected":
+            r["aspect_point_fraction"], r["aspect_point_fraction_err"] = point_fraction(
+                (r["aspect_width_deg"], r["aspect_cross_width_deg"]),
+                (r["aspect_width_err_deg"], r["aspect_cross_width_err_deg"]), ref)
 
 
 def usable(row: dict, features, undecided_flags) -> bool:
@@ -145,26 +171,34 @@ def _toml_list(v) -> str:
     return "[" + ", ".join(f'"{x}"' if isinstance(x, str) else f"{x:.4g}" for x in v) + "]"
 
 
-def write_model(model: dict, features, path: Path = PROCESSING) -> None:
-    """Put the fitted ``features``, ``mean``, ``scale``, ``coefficients`` and
-    ``intercept`` into ``[products.classify]`` of ``path`` (each key's line replaced,
-    its comment kept)."""
-    text = path.read_text()
-    start = text.index("[products.classify]")
+def _replace_keys(text: str, table: str, values: dict, path: Path) -> str:
+    """``text`` with each ``key = ...`` line of ``[table]`` set to ``values[key]`` (its
+    comment kept)."""
+    start = text.index(f"[{table}]")
     end = text.find("\n[", start + 1)
     end = len(text) if end < 0 else end
     block = text[start:end]
-    values = {"features": _toml_list(features), "mean": _toml_list(model["mean"]),
-              "scale": _toml_list(model["scale"]),
-              "coefficients": _toml_list(model["coefficients"]),
-              "intercept": f"{model['intercept']:.4g}"}
     for key, v in values.items():
         block, n = re.subn(rf"(?m)^{key} = [^#\n]*?(\s*#.*)?$",
                            lambda m, k=key, v=v: f"{k} = {v}" + (
                                m.group(1) if m.group(1) else ""), block, count=1)
         if n != 1:
-            raise ValueError(f"{path}: [products.classify] has no '{key}' line to replace")
-    path.write_text(text[:start] + block + text[end:])
+            raise ValueError(f"{path}: [{table}] has no '{key}' line to replace")
+    return text[:start] + block + text[end:]
+
+
+def write_model(model: dict, features, point_ref, path: Path = PROCESSING) -> None:
+    """Put the fitted ``features``, ``mean``, ``scale``, ``coefficients`` and
+    ``intercept`` into ``[products.classify]`` of ``path``, and the point reference
+    into ``[products.features] point_aspect_deg``."""
+    text = _replace_keys(path.read_text(), "products.classify", {
+        "features": _toml_list(features), "mean": _toml_list(model["mean"]),
+        "scale": _toml_list(model["scale"]),
+        "coefficients": _toml_list(model["coefficients"]),
+        "intercept": f"{model['intercept']:.4g}"}, path)
+    text = _replace_keys(text, "products.features",
+                         {"point_aspect_deg": _toml_list(point_ref)}, path)
+    path.write_text(text)
     load(ProcessingConfig, path)          # still valid
 
 
@@ -189,6 +223,10 @@ def main() -> None:
     for name in TRAIN:
         out = processed(name, args.cache, PROCESSING, "shipped", args.reprocess)
         rows += field_rows(name, out)
+    point_ref = point_reference(rows)
+    with_point_fraction(rows, point_ref)
+    log.info("a point's look-angle spreads (the training spheres' and shells' median): "
+             "%.2f deg along, %.2f across", *point_ref)
     train = [r for r in rows if usable(r, args.features, flags)]
     x = np.array([[r[n] for n in args.features] for r in train], dtype=np.float64)
     y = np.array([r["class"] == "man-made" for r in train], dtype=np.float64)
@@ -199,9 +237,10 @@ def main() -> None:
     for r, pi, pl in zip(train, p, leave_one_out(x, y, args.l2)):
         r["p_fit"], r["p_leave_one_out"] = float(pi), float(pl)
     for r in rows:
-        log.info("%-18s %-9s %-8s %-70s aspect %5.1f across %4.1f  L/S %6.1f  p %s "
-                 "(left out: %s)", r["scene"], r["class"], r["status"], r["target"][:70],
+        log.info("%-18s %-9s %-8s %-70s aspect %5.1f across %4.1f point %4.2f  L/S %6.1f  "
+                 "p %s (left out: %s)", r["scene"], r["class"], r["status"], r["target"][:70],
                  r.get("aspect_width_deg", np.nan), r.get("aspect_cross_width_deg", np.nan),
+                 r.get("aspect_point_fraction", np.nan),
                  r.get("late_to_specular_db", np.nan),
                  f"{r['p_fit']:.2f}" if "p_fit" in r else "-",
                  f"{r['p_leave_one_out']:.2f}" if "p_leave_one_out" in r else "-")
@@ -217,12 +256,13 @@ def main() -> None:
              "at 0.5: %.2f", len(train), len(rows), int(y.sum()), int(len(y) - y.sum()),
              {k: model[k] for k in ("mean", "scale", "coefficients", "intercept")}, acc)
     if args.write:
-        write_model(model, args.features)
+        write_model(model, args.features, point_ref)
         log.info("written to %s [products.classify]", PROCESSING)
     if args.out:
         args.out.write_text(json.dumps({
             "machine": machine_isa(), "command": " ".join(["python"] + sys.argv),
             "fields": list(TRAIN), "features": args.features, "l2": args.l2,
+            "point_aspect_deg": point_ref,
             "model": model, "training_accuracy_at_0.5": acc, "n_fit": len(train),
             "leave_one_out": loo_rates,
             "rows": rows}, indent=1))

@@ -242,6 +242,11 @@ class FeaturesConfig:
     aspect_window_m: float = spec(
         "along-track window about a contact whose spectrum gives its look angles over "
         "the aperture (aspect_centre_deg, aspect_width_deg), m", lo=0.04, hi=20.0)
+    point_aspect_deg: tuple[float, float] | None = spec(
+        "a point scatterer's look-angle spreads (along, across) in this sonar's geometry, "
+        "the references of aspect_point_fraction (measured on the training fields' spheres "
+        "by benchmarks/fit_classifier.py), deg (omitted: the fraction not measured)",
+        length=2, lo=0.01, hi=90.0, default=None)
 
     def config_problem(self) -> tuple[str, str] | None:
         for lo, hi in zip(self.footprint_min_m, self.footprint_max_m):
@@ -253,7 +258,8 @@ class FeaturesConfig:
 
 #: contact features a classifier may use (svss_proc.products.contact_features names)
 CLASSIFY_FEATURES = ("tail_extent_m", "tail_decay_db_per_m", "late_to_specular_db",
-                     "aspect_centre_deg", "aspect_width_deg", "aspect_cross_width_deg")
+                     "aspect_centre_deg", "aspect_width_deg", "aspect_cross_width_deg",
+                     "aspect_point_fraction")
 
 
 @dataclass(frozen=True)

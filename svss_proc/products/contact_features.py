@@ -90,6 +90,14 @@ FEATURE_FIELDS = (
                                              "aspect_width_deg along; NaN: not measured)")),
     ("aspect_cross_width_err_deg", "f4", "deg", ("standard error of aspect_cross_width_deg "
                                                  "(jackknife)")),
+    ("aspect_point_fraction", "f4", "1", ("the broader of the two look-angle spreads "
+                                          "as a fraction of a point scatterer's "
+                                          "(point_aspect_deg, along and across): near 1 "
+                                          "for a sphere and along a cylinder's axis, well "
+                                          "below for a face seen only about its normal "
+                                          "both ways; NaN: an aspect not measured")),
+    ("aspect_point_fraction_err", "f4", "1", ("standard error of aspect_point_fraction "
+                                              "(the broader spread's, over its reference)")),
     ("feature_flags", "i4", "1", ("bits: 1 tail cut by the tile's bottom, 2 no tail, 4 "
                                   "late-to-specular an upper bound, 8 no reference "
                                   "footprint beside it, 16 tail too short to fit, 32 "
@@ -103,6 +111,7 @@ FEATURE_FILL = {"tail_extent_m": np.nan, "tail_decay_db_per_m": np.nan,
                 "late_to_specular_err_db": np.nan, "aspect_centre_deg": np.nan,
                 "aspect_width_deg": np.nan, "aspect_width_err_deg": np.nan,
                 "aspect_cross_width_deg": np.nan, "aspect_cross_width_err_deg": np.nan,
+                "aspect_point_fraction": np.nan, "aspect_point_fraction_err": np.nan,
                 "feature_flags": -1}
 #: levels at or below this (dB re background) are voxels no ping reached (drc.MIN_DB)
 _MISSING_DB = -299.0
@@ -407,6 +416,23 @@ def _swapped(row) -> np.ndarray:
     return out[0]
 
 
+def point_fraction(widths, errors, point_deg) -> tuple[float, float]:
+    """(fraction, its standard error): the broader of the look-angle spreads
+    ``widths`` (along, across; deg) each over a point scatterer's ``point_deg`` (along,
+    across), and that one's error over its reference. A sphere is a point both ways
+    (about 1); a cylinder is one along its axis (about 1 whatever its heading, where
+    either width alone follows the heading); a flat face returns only about its
+    normal, both ways (well below 1). NaN where either width or ``point_deg`` is
+    missing."""
+    if point_deg is None:
+        return float("nan"), float("nan")
+    r = [float(w) / float(p) for w, p in zip(widths, point_deg)]
+    if not all(math.isfinite(x) for x in r):
+        return float("nan"), float("nan")
+    j = int(np.argmax(r))
+    return r[j], float(errors[j]) / float(point_deg[j])
+
+
 def contact_features(level: np.ndarray, axes, detections: np.ndarray, cfg,
                      image: np.ndarray | None = None,
                      wavenumber_rad_m: float | None = None) -> ContactFeatures:
@@ -450,6 +476,11 @@ def contact_features(level: np.ndarray, axes, detections: np.ndarray, cfg,
                                 _aspect_background(img_t, axes_t, across, cfg))
             cols["aspect_cross_width_deg"][i], cols["aspect_cross_width_err_deg"][i] = \
                 asp[1], asp[2]
+        cols["aspect_point_fraction"][i], cols["aspect_point_fraction_err"][i] = \
+            point_fraction((cols["aspect_width_deg"][i], cols["aspect_cross_width_deg"][i]),
+                           (cols["aspect_width_err_deg"][i],
+                            cols["aspect_cross_width_err_deg"][i]),
+                           getattr(cfg, "point_aspect_deg", None))
         k = min(m, prof.level_db.size)
         profiles[i, :k] = prof.level_db[:k]
     return ContactFeatures(cols, profiles, step)

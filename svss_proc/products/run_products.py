@@ -146,6 +146,10 @@ CONTACT_FIELDS = (
     ("aspect_cross_width_deg", "deg", ("rms spread of the look angle across-track (the "
                                        "receive array's aperture)"), 2),
     ("aspect_cross_width_err_deg", "deg", "standard error of aspect_cross_width_deg", 2),
+    ("aspect_point_fraction", "1", ("the broader look-angle spread over a point "
+                                    "scatterer's: near 1 for a sphere or along a "
+                                    "cylinder's axis, well below for a flat face"), 2),
+    ("aspect_point_fraction_err", "1", "standard error of aspect_point_fraction", 2),
     ("feature_flags", "1", ("bits: 1 tail cut by the tile's bottom, 2 no tail, 4 "
                             "late-to-specular an upper bound, 8 no reference beside it, 16 "
                             "tail too short to fit, 32 aspect not measured; -1 not "

@@ -15,14 +15,15 @@ from svss_daq.config import FeaturesConfig
 from svss_proc.products import detect
 from svss_proc.products.contact_features import (LATE_UPPER_BOUND, NO_ASPECT, NO_TAIL,
                                                  SHORT_FIT, TAIL_CUT, contact_features,
-                                                 flags_text, resonance_lines)
+                                                 flags_text, point_fraction,
+                                                 resonance_lines)
 
 VOXEL = 0.02
 CFG = FeaturesConfig(enabled=True, footprint_min_m=(0.06, 0.06),
                      footprint_max_m=(0.3, 0.3), peak_window_m=0.06, tail_window_m=0.5,
                      background_within_db=3.0, below_run_m=0.06, reference_boxes=4,
                      reference_gap_m=0.2, min_fit_points=4, profile_m=1.0,
-                     aspect_window_m=0.6)
+                     aspect_window_m=0.6, point_aspect_deg=None)
 #: Rayleigh magnitude of unit-variance components: its median
 MEDIAN = math.sqrt(2.0 * math.log(2.0))
 
@@ -284,3 +285,35 @@ def test_no_aspect_without_a_complex_image():
     level, row = scene(np.random.default_rng(0))
     c = contact_features(level, axes(level.shape), row, CFG).columns
     assert c["feature_flags"][0] & NO_ASPECT and np.isnan(c["aspect_width_deg"][0])
+    assert np.isnan(c["aspect_point_fraction"][0])
+
+
+def test_point_fraction_is_the_broader_direction_whatever_the_heading():
+    """A cylinder's widths swap with its heading (narrow along-track when its axis lies
+    along the track, narrow across when across); the fraction is the same either way, a
+    sphere's is 1, a flat face's the larger of its two small ratios."""
+    ref = (11.0, 5.0)
+    along_axis = point_fraction((2.75, 5.0), (0.1, 0.2), ref)     # axis along-track
+    across_axis = point_fraction((11.0, 1.25), (0.3, 0.1), ref)   # axis across-track
+    assert along_axis == pytest.approx((1.0, 0.04)) and across_axis == pytest.approx((1.0, 0.3 / 11))
+    assert point_fraction((11.0, 5.0), (0.1, 0.1), ref)[0] == pytest.approx(1.0)
+    assert point_fraction((3.3, 2.5), (0.1, 0.1), ref) == pytest.approx((0.5, 0.02))
+    assert all(np.isnan(point_fraction((3.0, float("nan")), (0.1, 0.1), ref)))
+    assert all(np.isnan(point_fraction((3.0, 2.0), (0.1, 0.1), None)))
+
+
+def test_point_fraction_of_a_synthetic_response_from_the_image():
+    """From the image, through contact_features: a response spread 6 deg along-track
+    over weak speckle, referenced to a point's 12 deg along and its own measured spread
+    across (the same columns' across-track spectrum): the fraction is the along-track
+    width over 12 (the along ratio, here the broader), with its error."""
+    img, row = aperture_image(np.random.default_rng(3), 0.0, 6.0, shape=(100, 40, 40),
+                              at=(1.0, 0.4, 0.4))
+    level = 20 * np.log10(np.abs(img) / 1e-3)
+    cfg = dataclasses.replace(ASPECT_CFG, point_aspect_deg=(12.0, 1e3))
+    f = contact_features(level.astype(np.float32), axes(img.shape), row, cfg, img,
+                         K_W).columns
+    assert f["aspect_point_fraction"][0] == pytest.approx(f["aspect_width_deg"][0] / 12.0)
+    assert f["aspect_point_fraction_err"][0] == pytest.approx(
+        f["aspect_width_err_deg"][0] / 12.0)
+    assert 0.3 < f["aspect_point_fraction"][0] < 0.8

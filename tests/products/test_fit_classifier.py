@@ -40,7 +40,8 @@ def test_the_fitted_model_is_written_and_loads(tmp_path):
     shutil.copy(PROCESSING, path)
     model = {"mean": [6.5, -2.0], "scale": [3.6, 3.7], "coefficients": [1.56, 1.18],
              "intercept": -0.095}
-    write_model(model, ["aspect_width_deg", "late_to_specular_db"], path)
+    write_model(model, ["aspect_width_deg", "late_to_specular_db"], [11.0, 4.5], path)
+    assert load(ProcessingConfig, path).products.features.point_aspect_deg == (11.0, 4.5)
     c = load(ProcessingConfig, path).products.classify
     assert c.features == ("aspect_width_deg", "late_to_specular_db")
     assert c.mean == (6.5, -2.0) and c.coefficients == (1.56, 1.18) and c.intercept == -0.095
