@@ -34,6 +34,7 @@ import re
 import sys
 from pathlib import Path
 
+import h5py
 import numpy as np
 from scipy.optimize import minimize
 
@@ -73,6 +74,31 @@ def processed(name: str, cache: Path, processing: Path, tag: str, force: bool) -
     return out
 
 
+def peak_near(tiles_dir: Path, at_m, radius_m: float = 0.35) -> float | None:
+    """The brightest voxel's level over its background (dB) within ``radius_m`` along,
+    across and in depth of ``at_m`` (along, cross, depth in the tiles' frame: these
+    fields' tracks start at the origin heading north, so the scene's frame), over the
+    tiles that hold it; None where none does. What a missed target reached against the
+    detection threshold."""
+    best = None
+    for path in sorted(Path(tiles_dir).glob("tile_*.h5")):
+        with h5py.File(path, "r") as f:
+            axes = [f[k][:] for k in ("along", "cross", "depth")]
+            box = [np.flatnonzero(np.abs(ax - float(x)) <= radius_m)
+                   for ax, x in zip(axes, at_m)]
+            if any(b.size == 0 for b in box):
+                continue
+            sl = tuple(slice(b[0], b[-1] + 1) for b in box)
+            img = np.abs(f["image"][sl])
+            bg = f["background"][sl]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            level = 20.0 * np.log10(img / bg)
+        level = level[np.isfinite(level)]
+        if level.size:
+            best = max(best if best is not None else -np.inf, float(level.max()))
+    return best
+
+
 def field_rows(name: str, tiles_dir: Path) -> list[dict]:
     """One row per target of the field's scene: its truth class, status, and where
     detected its contact's features, class and p_manmade (:func:`score_tiles`)."""
@@ -92,6 +118,8 @@ def field_rows(name: str, tiles_dir: Path) -> list[dict]:
                         "called": class_text(int(d["class"])) or "not classified",
                         "p_manmade": None if d["p_manmade"] != d["p_manmade"]
                         else float(d["p_manmade"])})
+        elif t["status"] == "missed":
+            row["peak_excess_db"] = peak_near(tiles_dir, t["scene_m"])
         rows.append(row)
     return rows
 

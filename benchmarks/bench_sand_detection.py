@@ -1,0 +1,131 @@
+#!/usr/bin/env python
+"""Why targets in medium sand are missed: each target's brightest level over its
+background against the brightest level of the sand's own clutter, per voxel and averaged
+over boxes of voxels (a detector that integrates over a contact's extent), on the
+classifier's sand fields (issue 51; docs/contact_features.md, "Detection in sand").
+
+The fields (``classify_train_4``, ``classify_train_6``, ``classify_test2_sand``,
+``classify_test_sand``) are simulated and processed as benchmarks/fit_classifier.py and
+bench_classify.py do (shipped configuration, the sediment's speed estimated; reused
+from ``--cache``). Per box (along x across x depth voxels of 2 cm) the normalised power
+(|image| / background)^2 is averaged over the box; a target's level is the maximum
+within 0.35 m of its true position, the clutter's the maximum of each tile over voxels
+0.05-1.0 m below the interface, imaged by at least half the full coverage and more than
+0.8 m (plan) from every target.
+
+    python benchmarks/bench_sand_detection.py --cache /tmp/bench_classify --out benchmarks/results/bench_sand_detection.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import tomllib
+from pathlib import Path
+
+import h5py
+import numpy as np
+from scipy.ndimage import uniform_filter
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from bench_isa import machine_isa  # noqa: E402
+from fit_classifier import PROCESSING, processed  # noqa: E402
+
+log = logging.getLogger("bench_sand_detection")
+
+FIELDS = (("classify_train_4", "shipped"), ("classify_train_6", "shipped"),
+          ("classify_test2_sand", "estimate"), ("classify_test_sand", "estimate"))
+BOXES = ((1, 1, 1), (3, 3, 1), (3, 3, 3), (5, 5, 3), (7, 7, 3))
+TARGET_RADIUS_M, CLEAR_M = 0.35, 0.8
+DEPTHS_M = (0.05, 1.0)
+
+
+def tile_levels(path: Path, targets: np.ndarray, box) -> tuple[list[float], float | None]:
+    """(each target's maximum level inside this tile, dB, for the targets it holds; the
+    clutter's maximum, dB, or None) of one tile, the power averaged over ``box``."""
+    with h5py.File(path, "r") as f:
+        a, c, d = (f[k][:] for k in ("along", "cross", "depth"))
+        img = np.abs(f["image"][:])
+        bg = f["background"][:]
+        cov = f["coverage_pings"][:]
+        full = f["coverage_full_pings"][:]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p = (img / bg) ** 2
+    p[~np.isfinite(p)] = 0.0
+    level = 10.0 * np.log10(np.maximum(uniform_filter(p.astype(np.float32), size=box,
+                                                      mode="nearest"), 1e-12))
+    ok = ((cov >= 0.5 * full[None, None, :])
+          & (d[None, None, :] >= DEPTHS_M[0]) & (d[None, None, :] <= DEPTHS_M[1]))
+    near = np.zeros(level.shape[:2], dtype=bool)
+    found = []
+    for t in targets:
+        ia = np.flatnonzero(np.abs(a - t[0]) <= TARGET_RADIUS_M)
+        ic = np.flatnonzero(np.abs(c - t[1]) <= TARGET_RADIUS_M)
+        iz = np.flatnonzero(np.abs(d - t[2]) <= TARGET_RADIUS_M)
+        if ia.size and ic.size and iz.size:
+            found.append(float(level[ia[0]:ia[-1] + 1, ic[0]:ic[-1] + 1,
+                                     iz[0]:iz[-1] + 1].max()))
+        near |= ((np.abs(a - t[0]) <= CLEAR_M)[:, None]
+                 & (np.abs(c - t[1]) <= CLEAR_M)[None, :])
+    mask = ok & ~near[:, :, None]
+    return found, (float(level[mask].max()) if mask.any() else None)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--cache", type=Path, required=True)
+    ap.add_argument("--out", type=Path, default=None)
+    args = ap.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s",
+                        datefmt="%H:%M:%S")
+    args.cache.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for box in BOXES:
+        targets_db, clutter_db = [], []
+        for name, tag in FIELDS:
+            tiles = processed(name, args.cache, PROCESSING, tag, False)
+            scene = tomllib.loads((ROOT / "config" / "scenes" / f"{name}.toml").read_text())
+            truth = np.array([[t["along_m"], t["cross_m"], t["depth_m"]]
+                              for t in scene["targets"]])
+            best: dict[int, float] = {}
+            for path in sorted(tiles.glob("tile_*.h5")):
+                found, clutter = tile_levels(path, truth, box)
+                if clutter is not None:
+                    clutter_db.append(clutter)
+                # a target in two tiles: its brighter tile
+                held = [i for i, t in enumerate(truth) if _in_tile(path, t)]
+                for i, v in zip(held, found):
+                    best[i] = max(best.get(i, -np.inf), v)
+            targets_db += list(best.values())
+        t = np.sort(targets_db)
+        row = {"box_voxels": list(box), "targets_db_sorted": [round(float(v), 2) for v in t],
+               "clutter_tile_max_db": [round(v, 2) for v in sorted(clutter_db)],
+               "weakest_targets_db": [round(float(v), 2) for v in t[:5]],
+               "clutter_max_db": round(max(clutter_db), 2) if clutter_db else None,
+               "targets_over_clutter_median": int(np.sum(t > np.median(clutter_db)))
+               if clutter_db else None}
+        rows.append(row)
+        log.info("box %s: weakest targets %s dB; clutter per tile %s dB (%d of %d targets "
+                 "over the tiles' median clutter maximum)", box, row["weakest_targets_db"],
+                 row["clutter_tile_max_db"], row["targets_over_clutter_median"], t.size)
+    if args.out:
+        args.out.write_text(json.dumps({"machine": machine_isa(),
+                                        "command": " ".join(["python"] + sys.argv),
+                                        "fields": [f for f, _ in FIELDS], "rows": rows},
+                                       indent=1))
+
+
+def _in_tile(path: Path, t) -> bool:
+    """Whether the tile's box holds the target's position within TARGET_RADIUS_M."""
+    with h5py.File(path, "r") as f:
+        return all(np.any(np.abs(f[k][:] - x) <= TARGET_RADIUS_M)
+                   for k, x in zip(("along", "cross", "depth"), t))
+
+
+if __name__ == "__main__":
+    main()
