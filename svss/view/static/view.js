@@ -118,6 +118,7 @@ function contactsTable(contacts) {
     ["tail m", "tail_extent_m"], ["decay dB/m", "tail_decay_db_per_m"],
     ["\u00b1", "tail_decay_err_db_per_m"], ["late/specular dB", "late_to_specular_db"],
     ["aspect deg", "aspect_width_deg"], ["across deg", "aspect_cross_width_deg"],
+    ["of a point", "aspect_point_fraction"],
     ["features", "feature_notes"], ["class", "class"],
     ["p man-made", "p_manmade"]];
   const t = el("table", {class: "list"}, el("tr", {}, ...cols.map(([h]) => el("th", {}, h))));
