@@ -18,7 +18,6 @@ within 0.35 m of its true position, the clutter's the maximum of each tile over 
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import sys
@@ -33,6 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from bench_false_alarms import line_args  # noqa: E402
 from bench_isa import machine_isa  # noqa: E402
 from fit_classifier import PROCESSING, processed  # noqa: E402
 
@@ -77,13 +77,7 @@ def tile_levels(path: Path, targets: np.ndarray, box) -> tuple[list[float], floa
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--cache", type=Path, required=True)
-    ap.add_argument("--out", type=Path, default=None)
-    args = ap.parse_args()
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s",
-                        datefmt="%H:%M:%S")
-    args.cache.mkdir(parents=True, exist_ok=True)
+    args = line_args(__doc__)
     rows = []
     for box in BOXES:
         targets_db, clutter_db = [], []

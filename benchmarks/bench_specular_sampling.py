@@ -17,7 +17,6 @@ effect; the sediment's speed is configured (known).
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import re
@@ -32,7 +31,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_classify import known_processing  # noqa: E402
-from bench_false_alarms import _run  # noqa: E402
+from bench_false_alarms import _run, line_args  # noqa: E402
 from bench_isa import machine_isa  # noqa: E402
 
 log = logging.getLogger("bench_specular_sampling")
@@ -82,13 +81,7 @@ def peaks(tiles: Path) -> list[dict]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--cache", type=Path, required=True)
-    ap.add_argument("--out", type=Path, default=None)
-    args = ap.parse_args()
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s",
-                        datefmt="%H:%M:%S")
-    args.cache.mkdir(parents=True, exist_ok=True)
+    args = line_args(__doc__)
     proc = known_processing("classify_test_sand", args.cache)
     result = {"machine": machine_isa(), "command": " ".join(["python"] + sys.argv),
               "cylinder": {"length_m": 0.61, "radius_m": 0.076, "depth_m": DEPTH_M,

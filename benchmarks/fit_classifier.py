@@ -5,8 +5,8 @@ benchmarks/bench_classify.py.
 
 Each training field (``config/scenes/classify_train_*.toml``: shot puts, steel shells
 empty and filled, aluminium cylinders of 30.5 and 61 cm at several headings, granite
-slabs flat and tilted, proud and buried 0-0.5 m in silt over stiff clay) is simulated
-once into ``--cache`` (``svss simulate``) and processed with ``svss process`` and the
+slabs flat and tilted, proud and buried 0-0.5 m in silt over stiff clay or medium sand)
+is simulated once into ``--cache`` (``svss simulate``) and processed with ``svss process`` and the
 shipped ``config/processing.toml`` (the sediment's speed estimated from the echoes, as
 a crew would run it). The run's contacts are matched to the scene's targets
 (:func:`svss.score.score_tiles`); each detected target's features (its contact's) and
@@ -55,7 +55,7 @@ log = logging.getLogger("fit_classifier")
 TRAIN = ("classify_train_1", "classify_train_2", "classify_train_3", "classify_train_4",
          "classify_train_5", "classify_train_6", "classify_train_7")
 #: the model's features (physically motivated: docs/contact_features.md)
-FEATURES = ("aspect_point_fraction", "late_to_specular_db")
+FEATURES = ("aspect_width_deg", "late_to_specular_db")
 #: targets whose response is a point's both ways: the references of the point fraction
 POINT_KINDS = ("sphere", "shell")
 PROCESSING = ROOT / "config" / "processing.toml"

@@ -283,7 +283,8 @@ def test_aspect_over_the_aperture_against_the_angular_spectrum_put_in(centre, sp
 
 def test_no_aspect_without_a_complex_image():
     level, row = scene(np.random.default_rng(0))
-    c = contact_features(level, axes(level.shape), row, CFG).columns
+    cfg = dataclasses.replace(CFG, point_aspect_deg=(11.0, 5.0))
+    c = contact_features(level, axes(level.shape), row, cfg).columns
     assert c["feature_flags"][0] & NO_ASPECT and np.isnan(c["aspect_width_deg"][0])
     assert np.isnan(c["aspect_point_fraction"][0])
 
