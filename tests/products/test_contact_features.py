@@ -305,16 +305,20 @@ def test_point_fraction_is_the_broader_direction_whatever_the_heading():
 
 def test_point_fraction_of_a_synthetic_response_from_the_image():
     """From the image, through contact_features: a response spread 6 deg along-track
-    over weak speckle, referenced to a point's 12 deg along and its own measured spread
-    across (the same columns' across-track spectrum): the fraction is the along-track
-    width over 12 (the along ratio, here the broader), with its error."""
+    over weak speckle, referenced to a point's 12 deg along and 5 deg across (the
+    shipped references' scale): the fraction is the larger of the two measured widths
+    over their references, with that ratio's error."""
     img, row = aperture_image(np.random.default_rng(3), 0.0, 6.0, shape=(100, 40, 40),
                               at=(1.0, 0.4, 0.4))
     level = 20 * np.log10(np.abs(img) / 1e-3)
-    cfg = dataclasses.replace(ASPECT_CFG, point_aspect_deg=(12.0, 1e3))
+    cfg = dataclasses.replace(ASPECT_CFG, point_aspect_deg=(12.0, 5.0))
     f = contact_features(level.astype(np.float32), axes(img.shape), row, cfg, img,
                          K_W).columns
-    assert f["aspect_point_fraction"][0] == pytest.approx(f["aspect_width_deg"][0] / 12.0)
-    assert f["aspect_point_fraction_err"][0] == pytest.approx(
-        f["aspect_width_err_deg"][0] / 12.0)
-    assert 0.3 < f["aspect_point_fraction"][0] < 0.8
+    along = f["aspect_width_deg"][0] / 12.0
+    across = f["aspect_cross_width_deg"][0] / 5.0
+    assert np.isfinite(along) and np.isfinite(across) and abs(along - across) > 0.05
+    broader, err = ((along, f["aspect_width_err_deg"][0] / 12.0) if along > across
+                    else (across, f["aspect_cross_width_err_deg"][0] / 5.0))
+    assert f["aspect_point_fraction"][0] == pytest.approx(broader, rel=1e-5)
+    assert f["aspect_point_fraction_err"][0] == pytest.approx(err, rel=1e-5)
+    assert 0.3 < along < 0.8, (along, across)    # the 6 deg put in, widened by the window
