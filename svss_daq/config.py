@@ -30,7 +30,7 @@ from .config_processing import (AutofocusConfig, BackgroundConfig, ClassifyConfi
                                 MicronavConfig,
                                 PingGateConfig, ProcessingConfig, ProductsConfig,
                                 QuicklookConfig, SeabedConfig, SedimentLayerConfig,
-                                TileConfig)
+                                SpectraConfig, TileConfig)
 
 
 # --------------------------------------------------------------------------- hardware
@@ -417,7 +417,8 @@ __all__ = ["CONFIG_ENV", "ConfigError", "spec", "omitted_default", "ReceiveSecti
            "Sequencer", "LeverArms", "HardwareConfig", "TileConfig",
            "ConditioningConfig", "SedimentLayerConfig", "ImagingConfig",
            "BackgroundConfig", "DepthGainConfig", "DrcConfig", "DetectionConfig",
-           "QuicklookConfig", "FeaturesConfig", "ClassifyConfig", "ProductsConfig",
+           "QuicklookConfig", "FeaturesConfig", "ClassifyConfig", "SpectraConfig",
+           "ProductsConfig",
            "PingGateConfig",
            "LimitsConfig",
            "MicronavConfig", "AutofocusConfig", "SeabedConfig", "ProcessingConfig",

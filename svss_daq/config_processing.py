@@ -299,6 +299,25 @@ class ClassifyConfig:
 
 
 @dataclass(frozen=True)
+class SpectraConfig:
+    start_s: float = spec("each ping's series starts this long after the contact's arrival "
+                          "(past its specular echo), s", lo=0.0, hi=0.1)
+    length_s: float = spec("and lasts this long (the ringing), s", lo=1e-4, hi=0.1)
+    min_pings: int = spec("fewest pings whose projector cone held the contact", lo=1,
+                          hi=100000)
+    max_lines: int = spec("lines fitted (the strongest in the band is reported)", lo=1, hi=16)
+    rel_threshold: float = spec("singular values kept, over the largest (the pencil's order)",
+                                lo=1e-9, hi=1.0)
+    reference_m: float = spec("the background's late response: the same series focused this "
+                              "far along-track on either side of the contact, m", lo=0.05,
+                              hi=20.0)
+    min_over_background_db: float = spec(
+        "a line is reported only where the contact's late response stands this far over "
+        "the background's (the pencil finds lines in any band-limited series), dB",
+        lo=-100.0, hi=100.0)
+
+
+@dataclass(frozen=True)
 class ProductsConfig:
     background: BackgroundConfig = spec("background estimation by a 3-D median")
     depth_gain: DepthGainConfig = spec("depth-varying gain")
@@ -313,6 +332,9 @@ class ProductsConfig:
     classify: ClassifyConfig | None = spec(
         "each contact called man-made, natural or undecided from its features "
         "(docs/contact_features.md; omitted: not classified)", default=None)
+    spectra: SpectraConfig | None = spec(
+        "each contact's strongest resonance line from the recorded pings, by svss process "
+        "(docs/contact_features.md; omitted: not measured)", default=None)
 
 
 @dataclass(frozen=True)

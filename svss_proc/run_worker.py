@@ -15,6 +15,7 @@ the stream (docs/worker.md).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 import time
@@ -78,6 +79,10 @@ class Worker:
                  max_listed_gaps: int = MAX_LISTED_GAPS, run_label: str | None = None,
                  live_poses: bool | None = None, live: bool = False):
         self.hardware, self.processing = hardware, processing
+        #: the run products' resonance columns from the recorded pings
+        #: (:func:`~svss_proc.products.run_products.write_run_products`'s ``spectra``;
+        #: None: left empty, as live)
+        self.contact_spectra = None
         #: ranges [first, last] of the run's pings skipped (never imaged: lost on the
         #: stream and not fetched), the first ``max_listed_gaps``; the rest counted
         self.skipped_ranges: list[list[int]] = []
@@ -459,7 +464,8 @@ class Worker:
                             resume=resume)
         atomic_json(self.out / MANIFEST, self.summary(complete))
         with self.clock.stage("run_products"):
-            run_products_at_end(self.out)  # contacts and mosaic of the run (docs/products.md)
+            # contacts and mosaic of the run (docs/products.md)
+            run_products_at_end(self.out, self.contact_spectra)
         return self.written
 
     def summary(self, complete: bool) -> dict:
@@ -596,6 +602,12 @@ def focus_poses(readers: list[RawRunReader], poses: list[NavSnapshot] | None, wh
         outcome.summary()
 
 
+def _contact_spectra(posed, hardware, processing, cfg, total, contacts, line) -> list[dict]:
+    """The run products' ``spectra``: the recorded pings read again, as imaged."""
+    from .products.run_spectra import run_spectra
+    return run_spectra(posed(), hardware, processing, cfg, contacts, line, total)
+
+
 def process_raw(path: str | Path, out_dir: str | Path,
                 processing: Loaded[ProcessingConfig], *, force: bool = False,
                 renavigate: bool | None = None, micronav: bool | None = None,
@@ -620,9 +632,15 @@ def process_raw(path: str | Path, out_dir: str | Path,
                         run_label=run.run_id, live_poses=poses is None)
         worker.autofocus = focus
         worker.seabed = seabed.summary()
-        pings = iter(run) if poses is None else (
-            dataclasses.replace(p, nav=nav) for p, nav in zip(run, poses, strict=True))
-        files = worker.run(pings, total=len(run))
+
+        def posed():
+            return iter(run) if poses is None else (
+                dataclasses.replace(p, nav=nav) for p, nav in zip(run, poses, strict=True))
+        spectra = used.value.products.spectra if used.value.products else None
+        if spectra is not None:
+            worker.contact_spectra = functools.partial(_contact_spectra, posed, run.hardware,
+                                                       used.value, spectra, len(run))
+        files = worker.run(posed(), total=len(run))
     run_id, _ = run_of(Path(path))          # as svss batch names it in its index
     write_survey_index(out_dir, [(run_id, p) for p in files if p.suffix == ".h5"])
     return files

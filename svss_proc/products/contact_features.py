@@ -37,7 +37,8 @@ The spectrum of the returns (resonance lines and their widths) needs the pings: 
 echo windows at the object's range, which the tile does not keep.
 :func:`resonance_lines` measures it on any array of echo samples (a multi-snapshot
 matrix pencil: each line's frequency, width and amplitude, uncertainties from a
-jackknife over the snapshots); the products chain does not call it yet.
+jackknife over the snapshots); :mod:`.contact_spectra` focuses the recorded pings on
+each run contact and calls it (``svss process``).
 
 Pure functions of arrays: no files, no configuration loading. ``cfg`` is a
 :class:`svss_daq.config.FeaturesConfig` (``[products.features]``).

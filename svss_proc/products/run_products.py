@@ -58,6 +58,7 @@ from ..tiles import TileFileError, temporary_path
 from .chain import coverage_settings, footprint_for
 from .classify import CLASS_FILL, CLASS_NAMES, class_text
 from .contact_features import FEATURE_FILL, FEATURE_NAMES, flags_text
+from .contact_spectra import NO_SPECTRA
 from .circumstances import (FALLBACK_REACH_M, KINDS, LABELS, PingTrack, Stretch,
                             circumstances_text, counts_near, is_partial)
 from .detect import Footprint, is_later_echo, sidelobe_filter
@@ -150,6 +151,21 @@ CONTACT_FIELDS = (
                                     "scatterer's: near 1 for a sphere or along a "
                                     "cylinder's axis, well below for a flat face"), 2),
     ("aspect_point_fraction_err", "1", "standard error of aspect_point_fraction", 2),
+    # from the recorded pings (svss process; svss_proc.products.contact_spectra)
+    ("resonance_hz", "Hz", ("frequency of the strongest resonance line inside the band "
+                            "in the pings' late response at the contact (empty: none, or "
+                            "not measured)"), 1),
+    ("resonance_err_hz", "Hz", "standard error of resonance_hz (jackknife over the pings)",
+     1),
+    ("resonance_width_hz", "Hz", ("its full width at half power (decay rate / pi; "
+                                  "Q = resonance_hz / resonance_width_hz)"), 1),
+    ("resonance_width_err_hz", "Hz", "standard error of resonance_width_hz", 1),
+    ("late_over_background_db", "dB", ("the pings' late response at the contact over the "
+                                       "background's beside it (a line is reported only "
+                                       "above [products.spectra] min_over_background_db)"),
+     2),
+    ("resonance_pings", "1", ("pings whose projector cone held the contact (0: not "
+                              "measured)"), None),
     ("feature_flags", "1", ("bits: 1 tail cut by the tile's bottom, 2 no tail, 4 "
                             "late-to-specular an upper bound, 8 no reference beside it, 16 "
                             "tail too short to fit, 32 aspect not measured; -1 not "
@@ -321,7 +337,8 @@ def run_contacts(views: list[TileView],
              "tile_row": r["tile_row"], "n_tiles": r["n_tiles"],
              **{k: r[k] for k in FEATURE_NAMES},
              "feature_notes": flags_text(r["feature_flags"]),
-             "class": class_text(r["class"]), "p_manmade": r["p_manmade"]}
+             "class": class_text(r["class"]), "p_manmade": r["p_manmade"],
+             **NO_SPECTRA}
         out.append({name: _rounded(name, c[name]) for name, *_ in CONTACT_FIELDS})
     summary = {"tiles": len(views), "tile_detections": n_tile_detections,
                "run_id": run_id,
@@ -429,13 +446,17 @@ def contacts_geojson(contacts: list[dict], summary: dict) -> dict:
 
 
 def write_run_products(tiles_dir: str | Path, out_dir: str | Path | None = None,
-                       origin: tuple[float, float, float] | None = None) -> list[Path]:
+                       origin: tuple[float, float, float] | None = None,
+                       spectra=None) -> list[Path]:
     """Write the run products of the tiles in ``tiles_dir`` into ``out_dir`` (default:
     the same folder): ``contacts.csv``, ``contacts.geojson``, ``mosaic.png`` and
     ``mosaic.h5``, and with a survey origin the map products ``mosaic.tif`` (GeoTIFF)
     and ``contacts.gpkg`` (GeoPackage), in the survey's UTM zone. ``origin``: survey origin (lat deg, lon deg, height m) when the
     tiles carry no geodetic reference. Returns the files written (none when the
-    folder has no tiles with products)."""
+    folder has no tiles with products). ``spectra``: a function of the contacts and the
+    tiles' frame (:class:`~svss_daq.frames.TrackLine`) giving each contact's resonance
+    columns (:data:`~.contact_spectra.SPECTRA_FIELDS`, from the recorded pings:
+    :func:`svss_proc.run_worker.process_raw`); None: those columns left empty."""
     tiles_dir = Path(tiles_dir)
     out = Path(out_dir) if out_dir is not None else tiles_dir
     views = load_views(tiles_dir)
@@ -448,6 +469,9 @@ def write_run_products(tiles_dir: str | Path, out_dir: str | Path | None = None,
         return []
     out.mkdir(parents=True, exist_ok=True)
     contacts, summary = run_contacts(views, origin)
+    if spectra is not None and contacts:
+        for c, s in zip(contacts, spectra(contacts, views[0].line), strict=True):
+            c.update({k: _rounded(k, v) for k, v in s.items()})
     origin = summary["origin"]
     track, found = summary["array_track"], summary["stretch_list"]
     m = run_mosaic(views)
@@ -495,11 +519,11 @@ def write_run_products(tiles_dir: str | Path, out_dir: str | Path | None = None,
     return files
 
 
-def run_products_at_end(tiles_dir: str | Path) -> list[Path]:
+def run_products_at_end(tiles_dir: str | Path, spectra=None) -> list[Path]:
     """:func:`write_run_products` for the worker at a run's end: a failure is logged
     (naming the folder), never raised, so that it cannot cost the run's tiles."""
     try:
-        return write_run_products(tiles_dir)
+        return write_run_products(tiles_dir, spectra=spectra)
     except Exception:
         log.exception("%s: writing the run products failed (rewrite them with "
                       "'svss products %s')", tiles_dir, tiles_dir)

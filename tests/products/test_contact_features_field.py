@@ -10,9 +10,11 @@ run checks each feature against synthetic images (test_contact_features.py)."""
 
 from __future__ import annotations
 
+import csv
 import itertools
 import math
 
+import numpy as np
 import pytest
 
 from svss.score import score_tiles
@@ -30,8 +32,8 @@ def test_a_buried_shell_and_slab_told_apart_by_their_features(tmp_path, hardware
     scene = load_scene(SCENE)
     raw = tmp_path / "run.h5"
     with RawRunWriter(raw, hardware, run_attrs={}) as rec:
-        for p in itertools.islice(iter(EnvironmentSource(hardware, scene)),
-                                  scene.track.n_pings):
+        src = EnvironmentSource(hardware, scene)
+        for p in itertools.islice(iter(src), scene.track.n_pings):
             rec.append(p)
     proc = loaded_from_text(ProcessingConfig, open(config_path("processing.toml")).read(),
                             "processing.toml")
@@ -54,3 +56,30 @@ def test_a_buried_shell_and_slab_told_apart_by_their_features(tmp_path, hardware
     # both tails reach beyond the objects' peak windows and are measured
     for f in (shell, slab):
         assert f["feature_flags"] & 1 == 0 and f["tail_extent_m"] > 0.1
+    # resonance lines from the pings (svss process; [products.spectra]): the shell's late
+    # response stands over the silt's and its line lies at a peak of the simulator's
+    # own modal series for this shell (peaks 4.2 kHz apart in the band), within its
+    # half-power width (1.5 kHz)
+    with open(out / "contacts.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    near = min(rows, key=lambda r: math.hypot(float(r["along_m"]) - SHELL_ALONG_M,
+                                              float(r["cross_m"])))
+    assert float(near["late_over_background_db"]) >= 3.0 and int(near["resonance_pings"]) >= 10
+    f_line = float(near["resonance_hz"])
+    peaks = shell_peaks(src)
+    assert min(abs(f_line - p) for p in peaks) < 1500.0, (f_line, peaks)
+
+
+SHELL_ALONG_M = 5.5
+
+
+def shell_peaks(src) -> list[float]:
+    """The local maxima of the shell's monostatic form function |f(pi)| in the band
+    20-35 kHz, from the simulator's modal series (its host: the silt it lies in)."""
+    from sim_device.targets.shells import shell_backscatter
+    [shell] = [t for t in src.targets if t.cfg.kind == "shell"]
+    f = np.arange(19000.0, 36000.0, 25.0)
+    a = np.abs(shell_backscatter(f, shell.radius, shell.thickness, shell.host,
+                                 shell.material, shell.fill))
+    k = np.flatnonzero((a[1:-1] > a[:-2]) & (a[1:-1] >= a[2:])) + 1
+    return [float(x) for x in f[k] if 20000.0 <= x <= 35000.0]
