@@ -14,7 +14,10 @@ written, and a child that dies (killed, out of memory) is reported; the worker t
 makes the products of every tile it had handed over itself, inline, and goes on inline.
 The child ignores SIGINT and SIGTERM (the worker's own stop writes the open tiles through
 it) and leaves when told, or when the worker is gone (killed, also half-way through
-handing a tile over: the jobs pipe ends).
+handing a tile over: the jobs pipe ends). A worker that exits without closing it (an
+exception on its way out) tells it at exit, before multiprocessing's own exit handler
+would wait for ever on a child that ignores its SIGTERM while the worker, still alive,
+holds the jobs pipe open; a child that has not left by then is killed.
 
 The child's time comes back with each tile (the chain's stages, and the whole job as
 ``products.process``), so the manifest's ``stage_times`` keep the products' figures.
@@ -22,6 +25,7 @@ The child's time comes back with each tile (the chain's stages, and the whole jo
 
 from __future__ import annotations
 
+import atexit
 import dataclasses
 import logging
 import multiprocessing
@@ -30,12 +34,29 @@ import pickle
 import queue
 import signal
 import time
+import weakref
 from pathlib import Path
 
 log = logging.getLogger(__name__)
 
 #: the child's whole job per tile, CPU and wall (manifest ``stage_times``)
 PROCESS_STAGE = "products.process"
+#: at the worker's exit, how long a products process not closed may take to write the
+#: tiles handed to it before it is killed, s
+EXIT_WAIT_S = 60.0
+
+#: products processes started and not closed (closed at exit: :func:`_close_at_exit`)
+_OPEN: "weakref.WeakSet[ProductsProcess]" = weakref.WeakSet()
+_exit_hook = False
+
+
+def _close_at_exit() -> None:
+    """Close every products process still open: registered after multiprocessing's own
+    exit handler (at the first start), so it runs before it."""
+    for pp in list(_OPEN):
+        log.warning("exiting with the products process (pid %s) open: closing it",
+                    None if pp._proc is None else pp._proc.pid)
+        pp.close(timeout_s=EXIT_WAIT_S)
 
 
 class ProductsProcessGone(RuntimeError):
@@ -78,6 +99,7 @@ class ProductsProcess:
 
     # ------------------------------------------------------------------ parent side
     def _start(self) -> None:
+        global _exit_hook
         self._jobs = self._ctx.Queue()
         self._results = self._ctx.Queue()
         self._proc = self._ctx.Process(
@@ -85,6 +107,10 @@ class ProductsProcess:
             args=(self._jobs, self._results, self.hardware, self.processing,
                   self.threads, _log_setup(), self.nice))
         self._proc.start()
+        _OPEN.add(self)
+        if not _exit_hook:                  # after multiprocessing's (LIFO: before it)
+            atexit.register(_close_at_exit)
+            _exit_hook = True
         log.info("products process started (pid %d, %d numba thread(s), nice +%d)",
                  self._proc.pid, self.threads, self.nice)
 
@@ -183,11 +209,12 @@ class ProductsProcess:
             except (OSError, ValueError):
                 pass
             self._proc.join(timeout_s)
-            if self._proc.is_alive():
-                log.error("the products process did not leave within %.0f s: ended",
+            if self._proc.is_alive():       # it ignores SIGTERM: killed
+                log.error("the products process did not leave within %.0f s: killed",
                           timeout_s)
-                self._proc.terminate()
+                self._proc.kill()
                 self._proc.join(5.0)
+        _OPEN.discard(self)
         for q in (self._jobs, self._results):
             q.close()
             q.cancel_join_thread()

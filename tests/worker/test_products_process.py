@@ -167,3 +167,40 @@ def test_the_products_process_leaves_when_its_worker_is_killed(tmp_path):
     while _running(child) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not _running(child), f"products process {child} outlived its killed worker"
+
+
+def test_a_worker_leaving_without_closing_it_exits_and_takes_it_along(tmp_path):
+    """A worker on its way out without closing its products process (an exception in
+    its run): multiprocessing's exit handler would wait for ever on a child that
+    ignores its SIGTERM while the worker, still alive, holds the jobs pipe open. The
+    worker exits, and the child with it."""
+    script = tmp_path / "worker.py"
+    script.write_text(
+        "import sys\n"
+        "from svss_daq.config import HardwareConfig, ProcessingConfig, config_path, "
+        "load_with_text\n"
+        "from svss_proc.products_process import ProductsProcess\n"
+        "if __name__ == '__main__':\n"
+        "    pp = ProductsProcess(load_with_text(HardwareConfig, config_path('hardware.toml')),"
+        " load_with_text(ProcessingConfig, config_path('processing.toml')))\n"
+        "    pp._start()\n"
+        "    print(pp._proc.pid, flush=True)\n"
+        # once the child ignores SIGTERM (earlier, multiprocessing's SIGTERM ends it)
+        "    import time\n"
+        "    deadline = time.monotonic() + 60\n"
+        "    while time.monotonic() < deadline:\n"
+        "        st = open(f'/proc/{pp._proc.pid}/status').read()\n"
+        "        ign = int(st.split('SigIgn:')[1].split()[0], 16)\n"
+        "        if ign & (1 << 14):\n"
+        "            break\n"
+        "        time.sleep(0.05)\n"
+        "    raise SystemExit('leaving without pp.close()')\n")
+    res = subprocess.run([sys.executable, str(script)], cwd=ROOT, capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode == 1 and "leaving without" in res.stderr, res.stderr[-2000:]
+    assert "closing it" in res.stderr
+    child = int(res.stdout.split()[0])
+    deadline = time.monotonic() + 30
+    while _running(child) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not _running(child), f"products process {child} outlived its worker"
