@@ -1,8 +1,9 @@
 #!/usr/bin/env python
 """How well the survey samples a long object's specular echo: the image peak of one
 61 cm aluminium cylinder (15.2 cm diameter, centre 25 cm deep in medium sand, axis 150
-deg from the track, 0.3 m off the track's centre line) at several positions along the
-track, at 1 m/s and at 0.5 m/s (10 pings/s, the six projectors in turn).
+deg from the track, 0.3 m off the track's centre line) at seven positions along the
+track, through every phase of the projector cycle, at 1 m/s and at 0.5 m/s (10 pings/s,
+the six projectors in turn).
 
 A cylinder returns its body's echo only to projector-receiver pairs whose bisector lies
 in the plane normal to its axis: over the aperture that is a narrow lobe (about
@@ -37,7 +38,10 @@ from bench_isa import machine_isa  # noqa: E402
 log = logging.getLogger("bench_specular_sampling")
 
 BASE = ROOT / "config" / "scenes" / "classify_test_sand.toml"
-POSITIONS_M = (5.0, 8.0, 11.0, 14.0, 16.0, 18.0, 20.0)
+#: 2.3 m apart: 2.3 m is 0.5 m past a whole number of 0.6 m projector cycles (at 1 m/s),
+#: so the positions step through every 0.1 m phase of the cycle (x mod 0.6: 0.2, 0.1,
+#: 0.0, 0.5, 0.4, 0.3, 0.2): each projector's turn nearest the cylinder at least once
+POSITIONS_M = (5.0, 7.3, 9.6, 11.9, 14.2, 16.5, 18.8)
 CROSS_M, DEPTH_M, HEADING_DEG = -0.3, 0.25, 150.0
 SPEEDS = {"1.0": (1.0, 200), "0.5": (0.5, 400)}      # m/s: (speed, pings over 20 m)
 
@@ -73,7 +77,8 @@ def peaks(tiles: Path) -> list[dict]:
                 iz = np.flatnonzero(d > -0.15)
                 img = np.abs(f["image"][ia[0]:ia[-1] + 1, ic[0]:ic[-1] + 1, iz[0]:])
             k = np.unravel_index(int(np.argmax(img)), img.shape)
-            out.append({"along_m": x, "peak_db": float(20 * np.log10(img.max())),
+            out.append({"along_m": x, "cycle_phase_m": round(x % 0.6, 3),
+                        "peak_db": float(20 * np.log10(img.max())),
                         "at_m": [float(a[ia[0] + k[0]]), float(c[ic[0] + k[1]]),
                                  float(d[iz[0] + k[2]])]})
             break
