@@ -74,12 +74,18 @@ def processed(name: str, cache: Path, processing: Path, tag: str, force: bool) -
     return out
 
 
-def peak_near(tiles_dir: Path, at_m, radius_m: float = 0.35) -> float | None:
-    """The brightest voxel's level over its background (dB) within ``radius_m`` along,
-    across and in depth of ``at_m`` (along, cross, depth in the tiles' frame: these
-    fields' tracks start at the origin heading north, so the scene's frame), over the
-    tiles that hold it; None where none does. What a missed target reached against the
-    detection threshold."""
+#: a voxel this close to the interface (m, either side) is in the interface's own echo
+INTERFACE_LAYER_M = 0.05
+
+
+def peak_near(tiles_dir: Path, at_m, radius_m: float = 0.35) -> dict | None:
+    """The brightest voxel within ``radius_m`` along, across and in depth of ``at_m``
+    (along, cross, depth in the tiles' frame: these fields' tracks start at the origin
+    heading north, so the scene's frame), over the tiles that hold it: its level over its
+    background (``db``), where it is (``at_m``) and whether it lies in the interface's
+    own echo (``interface``: within :data:`INTERFACE_LAYER_M` of it, above or below:
+    then the level may be the interface's, not the target's); None where no tile holds
+    it. What a missed target reached against the detection threshold."""
     best = None
     for path in sorted(Path(tiles_dir).glob("tile_*.h5")):
         with h5py.File(path, "r") as f:
@@ -93,9 +99,12 @@ def peak_near(tiles_dir: Path, at_m, radius_m: float = 0.35) -> float | None:
             bg = f["background"][sl]
         with np.errstate(divide="ignore", invalid="ignore"):
             level = 20.0 * np.log10(img / bg)
-        level = level[np.isfinite(level)]
-        if level.size:
-            best = max(best if best is not None else -np.inf, float(level.max()))
+        level = np.where(np.isfinite(level), level, -np.inf)
+        k = np.unravel_index(int(np.argmax(level)), level.shape)
+        if np.isfinite(level[k]) and (best is None or level[k] > best["db"]):
+            where = [float(ax[b[0] + i]) for ax, b, i in zip(axes, box, k)]
+            best = {"db": float(level[k]), "at_m": where,
+                    "interface": abs(where[2]) <= INTERFACE_LAYER_M}
     return best
 
 
@@ -119,7 +128,11 @@ def field_rows(name: str, tiles_dir: Path) -> list[dict]:
                         "p_manmade": None if d["p_manmade"] != d["p_manmade"]
                         else float(d["p_manmade"])})
         elif t["status"] == "missed":
-            row["peak_excess_db"] = peak_near(tiles_dir, t["scene_m"])
+            peak = peak_near(tiles_dir, t["scene_m"])
+            row.update({"peak_excess_db": None, "peak_at_m": None,
+                        "peak_in_interface_echo": None} if peak is None else
+                       {"peak_excess_db": peak["db"], "peak_at_m": peak["at_m"],
+                        "peak_in_interface_echo": peak["interface"]})
         rows.append(row)
     return rows
 

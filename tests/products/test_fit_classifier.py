@@ -73,3 +73,30 @@ def test_the_known_speed_configuration(tmp_path):
         [(0.6, 1476.0)]                                          # very fine silt
     c = load(ProcessingConfig, known_processing("classify_test_sand", tmp_path))
     assert c.imaging.sediment_sound_speed_m_s == 1767.0 and not c.imaging.sediment_layers
+
+
+def test_peak_near_finds_the_brightest_voxel_and_says_where(tmp_path):
+    """A tile file (real HDF5) with a flat background, an interface echo and a weaker
+    voxel below it: peak_near gives the brightest voxel in its cube, where it is, and
+    whether that is the interface's echo; a cube beside every tile gives None."""
+    import h5py
+    from fit_classifier import peak_near
+    along, cross, depth = (np.arange(0, 2.0, 0.02), np.arange(-0.5, 0.5, 0.02),
+                           np.arange(-0.2, 1.0, 0.02))
+    img = np.ones((along.size, cross.size, depth.size), dtype=np.complex64)
+    iz0 = int(np.argmin(np.abs(depth)))
+    img[50, 25, iz0] = 100.0                       # the interface's echo: 40 dB
+    img[52, 25, iz0 + 10] = 10.0                   # 20 cm deeper: 20 dB
+    with h5py.File(tmp_path / "tile_0000.h5", "w") as f:
+        for k, v in (("along", along), ("cross", cross), ("depth", depth)):
+            f[k] = v
+        f["image"] = img
+        f["background"] = np.ones(img.shape, dtype=np.float32)
+    at = [float(along[51]), float(cross[25]), 0.25]
+    top = peak_near(tmp_path, at)                  # the cube reaches the interface
+    assert top["db"] == pytest.approx(40.0) and top["interface"]
+    assert top["at_m"] == pytest.approx([along[50], cross[25], depth[iz0]])
+    deep = peak_near(tmp_path, [at[0], at[1], 0.5])    # 0.15-0.85 m: not the interface
+    assert deep["db"] == pytest.approx(20.0) and not deep["interface"]
+    assert deep["at_m"][2] == pytest.approx(depth[iz0 + 10])
+    assert peak_near(tmp_path, [5.0, 0.0, 0.2]) is None
