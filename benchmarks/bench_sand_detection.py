@@ -11,7 +11,10 @@ from ``--cache``). Per box (along x across x depth voxels of 2 cm) the normalise
 (|image| / background)^2 is averaged over the box; a target's level is the maximum
 within 0.35 m of its true position, the clutter's the maximum of each tile over voxels
 0.05-1.0 m below the interface, imaged by at least half the full coverage and more than
-0.8 m (plan) from every target.
+0.8 m (plan) from every target. Then the detection threshold's floor
+(``[products.detection] threshold_db``) lowered to each of ``THRESHOLDS_DB``: the fields
+processed again with it and their run contacts scored (:func:`svss.score.score_tiles`):
+targets detected and false alarms.
 
     python benchmarks/bench_sand_detection.py --cache /tmp/bench_classify --out benchmarks/results/bench_sand_detection.json
 """
@@ -34,7 +37,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_false_alarms import line_args  # noqa: E402
 from bench_isa import machine_isa  # noqa: E402
-from fit_classifier import PROCESSING, processed  # noqa: E402
+from fit_classifier import PROCESSING, _replace_keys, processed  # noqa: E402
+from svss.score import score_tiles  # noqa: E402
 
 log = logging.getLogger("bench_sand_detection")
 
@@ -43,6 +47,38 @@ FIELDS = (("classify_train_4", "shipped"), ("classify_train_6", "shipped"),
 BOXES = ((1, 1, 1), (3, 3, 1), (3, 3, 3), (5, 5, 3), (7, 7, 3))
 TARGET_RADIUS_M, CLEAR_M = 0.35, 0.8
 DEPTHS_M = (0.05, 1.0)
+#: detection floors tried besides the shipped one, dB
+THRESHOLDS_DB = (14.0,)
+
+
+def floor_processing(threshold_db: float, cache: Path) -> Path:
+    """The shipped processing with ``[products.detection] threshold_db`` set."""
+    out = cache / f"processing-threshold-{threshold_db:g}.toml"
+    out.write_text(_replace_keys(PROCESSING.read_text(), "products.detection",
+                                 {"threshold_db": f"{threshold_db:.1f}"}, PROCESSING))
+    return out
+
+
+def at_threshold(cache: Path, threshold_db: float | None) -> dict:
+    """Targets detected and false alarms of the sand fields' run contacts with the
+    shipped floor (None) or ``threshold_db``."""
+    out = {"threshold_db": threshold_db, "fields": {}}
+    for name, tag in FIELDS:
+        if threshold_db is None:
+            tiles = processed(name, cache, PROCESSING, tag, False)
+        else:
+            tiles = processed(name, cache, floor_processing(threshold_db, cache),
+                              f"{tag}-floor{threshold_db:g}", False)
+        s = score_tiles(tiles, ROOT / "config" / "scenes" / f"{name}.toml")["summary"]
+        out["fields"][name] = {"targets": s["truth"], "detected": s["hits"],
+                               "false_alarms": s["false_alarms"]}
+    f = out["fields"].values()
+    out.update(targets=sum(v["targets"] for v in f), detected=sum(v["detected"] for v in f),
+               false_alarms=sum(v["false_alarms"] for v in f))
+    log.info("floor %s dB: %d of %d targets detected, %d false alarm(s)",
+             "shipped" if threshold_db is None else f"{threshold_db:g}", out["detected"],
+             out["targets"], out["false_alarms"])
+    return out
 
 
 def tile_levels(path: Path, targets: np.ndarray, box) -> tuple[list[float], float | None]:
@@ -107,11 +143,13 @@ def main() -> None:
         log.info("box %s: weakest targets %s dB; clutter per tile %s dB (%d of %d targets "
                  "over the tiles' median clutter maximum)", box, row["weakest_targets_db"],
                  row["clutter_tile_max_db"], row["targets_over_clutter_median"], t.size)
+    floors = [at_threshold(args.cache, None)] + [at_threshold(args.cache, t)
+                                                  for t in THRESHOLDS_DB]
     if args.out:
         args.out.write_text(json.dumps({"machine": machine_isa(),
                                         "command": " ".join(["python"] + sys.argv),
-                                        "fields": [f for f, _ in FIELDS], "rows": rows},
-                                       indent=1))
+                                        "fields": [f for f, _ in FIELDS], "rows": rows,
+                                        "floors": floors}, indent=1))
 
 
 def _in_tile(path: Path, t) -> bool:

@@ -13,7 +13,7 @@ four man-made and four rocks in a random order.
 - rocks: granite or basalt slabs 20-44 cm across and 4-12 cm thick, half of them flat
   (tilt below 8 deg), half tilted 8-40 deg, at any heading;
 - each target proud (resting on the bed) with probability 1/4, otherwise its centre
-  buried 5-50 cm.
+  buried 5-50 cm deep, its top at least 1 cm under the bed.
 
 ``--sediment silt`` is 0.6 m of very fine silt over stiff clay (the seed's site);
 ``--sediment sand`` a medium-sand half-space.
@@ -49,10 +49,11 @@ ROLES = {
 
 
 def _depth(rng, half_height: float) -> tuple[float, str]:
-    """(centre depth, words): proud (resting on the bed) or buried 5-50 cm."""
+    """(centre depth, words): proud (resting on the bed) or buried, its centre 5-50 cm
+    deep and its top at least 1 cm under the bed (a buried object never pokes out)."""
     if rng.random() < 0.25:
         return -half_height, "proud"
-    d = round(float(rng.uniform(0.05, 0.5)), 2)
+    d = round(float(rng.uniform(max(0.05, half_height + 0.01), 0.5)), 2)
     return d, f"centre {d * 100:.0f} cm deep"
 
 
