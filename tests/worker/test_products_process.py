@@ -140,9 +140,9 @@ def _running(pid: int) -> bool:
         return False
 
 
-def test_the_products_process_leaves_when_its_worker_is_killed(tmp_path):
-    """A worker killed with SIGKILL cannot tell its products process to leave: the
-    process sees it gone and leaves by itself, rather than living on as an orphan."""
+def worker_script(tmp_path: Path, then: str) -> Path:
+    """A worker script: it starts a products process, prints its pid, then runs the
+    lines ``then``."""
     script = tmp_path / "worker.py"
     script.write_text(
         "import sys, time\n"
@@ -153,8 +153,14 @@ def test_the_products_process_leaves_when_its_worker_is_killed(tmp_path):
         "    pp = ProductsProcess(load_with_text(HardwareConfig, config_path('hardware.toml')),"
         " load_with_text(ProcessingConfig, config_path('processing.toml')))\n"
         "    pp._start()\n"
-        "    print(pp._proc.pid, flush=True)\n"
-        "    time.sleep(3600)\n")
+        "    print(pp._proc.pid, flush=True)\n" + then)
+    return script
+
+
+def test_the_products_process_leaves_when_its_worker_is_killed(tmp_path):
+    """A worker killed with SIGKILL cannot tell its products process to leave: the
+    process sees it gone and leaves by itself, rather than living on as an orphan."""
+    script = worker_script(tmp_path, "    time.sleep(3600)\n")
     worker = subprocess.Popen([sys.executable, str(script)], cwd=ROOT,
                               stdout=subprocess.PIPE, text=True)
     try:
@@ -174,19 +180,9 @@ def test_a_worker_leaving_without_closing_it_exits_and_takes_it_along(tmp_path):
     its run): multiprocessing's exit handler would wait for ever on a child that
     ignores its SIGTERM while the worker, still alive, holds the jobs pipe open. The
     worker exits, and the child with it."""
-    script = tmp_path / "worker.py"
-    script.write_text(
-        "import sys\n"
-        "from svss_daq.config import HardwareConfig, ProcessingConfig, config_path, "
-        "load_with_text\n"
-        "from svss_proc.products_process import ProductsProcess\n"
-        "if __name__ == '__main__':\n"
-        "    pp = ProductsProcess(load_with_text(HardwareConfig, config_path('hardware.toml')),"
-        " load_with_text(ProcessingConfig, config_path('processing.toml')))\n"
-        "    pp._start()\n"
-        "    print(pp._proc.pid, flush=True)\n"
+    script = worker_script(
+        tmp_path,
         # once the child ignores SIGTERM (earlier, multiprocessing's SIGTERM ends it)
-        "    import time\n"
         "    deadline = time.monotonic() + 60\n"
         "    while time.monotonic() < deadline:\n"
         "        st = open(f'/proc/{pp._proc.pid}/status').read()\n"
