@@ -58,7 +58,7 @@ from ..tiles import TileFileError, temporary_path
 from .chain import coverage_settings, footprint_for
 from .classify import CLASS_FILL, CLASS_NAMES, class_text
 from .contact_features import FEATURE_FILL, FEATURE_NAMES, flags_text
-from .contact_spectra import NO_SPECTRA
+from .contact_spectra import NO_SPECTRA, SPECTRA_FIELDS
 from .circumstances import (FALLBACK_REACH_M, KINDS, LABELS, PingTrack, Stretch,
                             circumstances_text, counts_near, is_partial)
 from .detect import Footprint, is_later_echo, sidelobe_filter
@@ -383,6 +383,42 @@ def _csv_value(name: str, v) -> str:
     return str(v)
 
 
+def kept_spectra(path: Path, contacts: list[dict]) -> int:
+    """Rewritten without the pings (``svss products``, the worker), the contacts keep the
+    resonance columns the contacts file at ``path`` had for the same tile detection
+    (``tile``, ``tile_row``) at the same place (within 1 cm): they came from the
+    recorded pings (``svss process``), which a rewrite from the tiles cannot measure
+    again. Returns how many contacts kept them."""
+    if not path.is_file():
+        return 0
+    try:
+        with open(path, newline="") as f:
+            old = {(r["tile"], r["tile_row"]): r for r in csv.DictReader(f)
+                   if r.get("resonance_pings") not in (None, "", "0")}
+    except (OSError, csv.Error, KeyError, UnicodeDecodeError) as exc:
+        log.warning("%s: not read (%s); its resonance columns are not kept", path, exc)
+        return 0
+    n = 0
+    for c in contacts:
+        r = old.get((str(c["tile"]), str(c["tile_row"])))
+        if r is None:
+            continue
+        try:
+            same = all(abs(float(r[k]) - float(c[k])) <= 0.01
+                       for k in ("along_m", "cross_m", "depth_below_seabed_m"))
+            values = {k: (float(r[k]) if r[k] != "" else math.nan) for k in SPECTRA_FIELDS}
+        except (KeyError, ValueError):
+            continue
+        if same:
+            values["resonance_pings"] = int(values["resonance_pings"])
+            c.update(values)
+            n += 1
+    if n:
+        log.info("%s: the resonance columns of %d contact(s) kept (measured from the "
+                 "pings by svss process)", path, n)
+    return n
+
+
 def write_contacts_csv(path: Path, contacts: list[dict]) -> Path:
     """One row per contact, :data:`CONTACT_FIELDS` columns, each at its precision (NaN
     written empty)."""
@@ -472,6 +508,8 @@ def write_run_products(tiles_dir: str | Path, out_dir: str | Path | None = None,
     if spectra is not None and contacts:
         for c, s in zip(contacts, spectra(contacts, views[0].line), strict=True):
             c.update({k: _rounded(k, v) for k, v in s.items()})
+    elif contacts:
+        kept_spectra(out / CONTACTS_CSV, contacts)
     origin = summary["origin"]
     track, found = summary["array_track"], summary["stretch_list"]
     m = run_mosaic(views)

@@ -280,6 +280,35 @@ def test_products_command_rewrites_them(demo_run, tmp_path):
 
 
 
+def test_a_rewrite_from_the_tiles_keeps_the_resonance_columns(demo_run, tmp_path):
+    """The resonance columns come from the recorded pings (svss process): the run
+    products written again from the tiles alone (svss products) keep them for the same
+    tile detections, read back from the contacts file they replace."""
+    from svss_proc.products.contact_spectra import SPECTRA_FIELDS
+
+    def measured(contacts, line):
+        return [{"resonance_hz": 25000.0 + 100 * k, "resonance_err_hz": 12.5,
+                 "resonance_width_hz": 800.0, "resonance_width_err_hz": 40.0,
+                 "late_over_background_db": 6.25, "resonance_pings": 20 + k}
+                for k in range(len(contacts))]
+
+    write_run_products(demo_run, tmp_path, ORIGIN, spectra=measured)
+    first = list(csv.DictReader(open(tmp_path / CONTACTS_CSV)))
+    assert len(first) == 6 and first[2]["resonance_hz"] == "25200.0"
+    write_run_products(demo_run, tmp_path, ORIGIN)           # from the tiles alone
+    again = list(csv.DictReader(open(tmp_path / CONTACTS_CSV)))
+    assert [{k: r[k] for k in SPECTRA_FIELDS} for r in again] == \
+        [{k: r[k] for k in SPECTRA_FIELDS} for r in first]
+    gj = json.loads((tmp_path / CONTACTS_GEOJSON).read_text())
+    assert gj["features"][2]["properties"]["resonance_pings"] == 22
+    # a contacts file from elsewhere (other tiles) lends nothing
+    (tmp_path / CONTACTS_CSV).write_text(
+        (tmp_path / CONTACTS_CSV).read_text().replace("tile_0", "tile_9"))
+    write_run_products(demo_run, tmp_path, ORIGIN)
+    third = list(csv.DictReader(open(tmp_path / CONTACTS_CSV)))
+    assert all(r["resonance_hz"] == "" and r["resonance_pings"] == "0" for r in third)
+
+
 def _plane_levels(view):
     """Median over the imaged cross-track cells of each along-track plane of a tile's
     plan view (``mip_depth``, dB re background; NaN for a plane no ping reached)."""
