@@ -53,7 +53,8 @@ def _depth(rng, half_height: float) -> tuple[float, str]:
     deep and its top at least 1 cm under the bed (a buried object never pokes out)."""
     if rng.random() < 0.25:
         return -half_height, "proud"
-    d = round(float(rng.uniform(max(0.05, half_height + 0.01), 0.5)), 2)
+    lo = max(0.05, half_height + 0.01)
+    d = max(round(float(rng.uniform(lo, 0.5)), 2), math.ceil(lo * 100) / 100)
     return d, f"centre {d * 100:.0f} cm deep"
 
 

@@ -56,7 +56,10 @@ def _close_at_exit() -> None:
     for pp in list(_OPEN):
         log.warning("exiting with the products process (pid %s) open: closing it",
                     None if pp._proc is None else pp._proc.pid)
-        pp.close(timeout_s=EXIT_WAIT_S)
+        try:
+            pp.close(timeout_s=EXIT_WAIT_S)
+        except Exception:                 # the next one is closed all the same
+            log.exception("closing the products process failed")
 
 
 class ProductsProcessGone(RuntimeError):

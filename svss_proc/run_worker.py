@@ -464,8 +464,9 @@ class Worker:
                             resume=resume)
         atomic_json(self.out / MANIFEST, self.summary(complete))
         with self.clock.stage("run_products"):
-            # contacts and mosaic of the run (docs/products.md)
-            run_products_at_end(self.out, self.contact_spectra)
+            # contacts and mosaic of the run (docs/products.md); the recorded pings read
+            # again for the contacts' resonance lines only for a run imaged to its end
+            run_products_at_end(self.out, self.contact_spectra if complete else None)
         return self.written
 
     def summary(self, complete: bool) -> dict:

@@ -31,7 +31,7 @@ import numpy as np
 
 from svss_daq.conventions import remodulation
 
-from ..imaging.delays import one_way_time
+from ..imaging.delays import layered_ray, one_way_time
 from .contact_features import resonance_lines
 
 #: the columns each contact gets (run contacts; NaN / 0: not measured)
@@ -45,7 +45,10 @@ NO_SPECTRA = {**{k: math.nan for k in SPECTRA_FIELDS}, "resonance_pings": 0}
 class Focus:
     """What focusing needs besides the ping: water and sediment speeds (m/s), the band's
     centre (Hz), the cones' cosines (projector, receivers; gating), the receive
-    apodisation (None: uniform) and the series' start after the arrival and length (s)."""
+    apodisation (None: uniform), the series' start after the arrival and length (s), and
+    the sediment's layers as the imaging refracts through them (``tops`` m, ``speeds``
+    m/s, :class:`~svss_proc.imaging.delays.SpeedProfile`; None: one half-space at
+    ``sediment_m_s``)."""
     water_m_s: float
     sediment_m_s: float
     center_hz: float
@@ -54,18 +57,29 @@ class Focus:
     apod: np.ndarray | None
     start_s: float
     length_s: float
+    tops: np.ndarray | None = None
+    speeds: np.ndarray | None = None
 
 
 def two_way_times(tx: np.ndarray, rx: np.ndarray, point: np.ndarray, cw: float,
-                  cs: float) -> np.ndarray:
+                  cs: float, surface_m: float = 0.0, tops: np.ndarray | None = None,
+                  speeds: np.ndarray | None = None) -> np.ndarray:
     """Two-way times (s) from projector ``tx`` to ``point`` and back to each receiver of
-    ``rx`` (channels x 3), tile frame (z down, the interface at z = 0; elements above
-    it), refracted through the interface where the point is below it."""
+    ``rx`` (channels x 3), tile frame (z down from the frame's level; elements above
+    it). ``point``'s depth is below the interface of its own column, which lies
+    ``surface_m`` below the level (a sloping or rough bed), so each element's height
+    above that interface is its own plus ``surface_m``, as the imaging kernels take
+    them; refracted through the interface (and through ``tops``/``speeds`` layers where
+    given) where the point is below it."""
     z = float(point[2])
+    layered = tops is not None and speeds is not None and len(speeds) > 1
 
     def one(e):
         rho = math.hypot(float(point[0] - e[0]), float(point[1] - e[1]))
-        return one_way_time(-float(e[2]), rho, z, cw, cs)
+        h = float(surface_m) - float(e[2])
+        if layered:
+            return layered_ray(h, rho, z, cw, tops, speeds)[0]
+        return one_way_time(h, rho, z, cw, cs)
     t_tx = one(tx)
     return np.array([t_tx + one(r) for r in rx])
 
@@ -78,20 +92,23 @@ def in_cone(origin: np.ndarray, bore: np.ndarray, point: np.ndarray, cos_half: f
 
 def focused_echo(baseband: np.ndarray, t0: float, dt: float, tx: np.ndarray,
                  rx: np.ndarray, bore: np.ndarray, point: np.ndarray,
-                 focus: Focus) -> np.ndarray | None:
+                 focus: Focus, surface_m: float = 0.0) -> np.ndarray | None:
     """One ping's response at ``point`` (tile frame) as a complex baseband series,
     ``n = round(length_s / dt)`` samples from ``start_s`` after the arrival, at the
     conditioned rate ``1 / dt``: the channels of ``baseband`` (channels x samples, sample
     m at ``t0 + m dt``) at their two-way times, linearly interpolated, brought to a
     common phase and summed over the receivers whose cone holds the point (weights
     ``focus.apod``). None where the projector's cone does not hold the point, no
-    receiver does, or the series leaves the record."""
+    receiver does, or the series leaves the record. ``surface_m``: the interface's depth
+    below the frame's level at the point's column (:func:`two_way_times`)."""
     point = np.asarray(point, dtype=float)
-    if not in_cone(tx, bore, point, focus.cos_tx):
+    at = point + np.array([0.0, 0.0, surface_m])          # in the frame, for the cones
+    if not in_cone(tx, bore, at, focus.cos_tx):
         return None
-    tau = two_way_times(tx, rx, point, focus.water_m_s, focus.sediment_m_s)
+    tau = two_way_times(tx, rx, point, focus.water_m_s, focus.sediment_m_s, surface_m,
+                        focus.tops, focus.speeds)
     w = np.ones(rx.shape[0]) if focus.apod is None else np.asarray(focus.apod, float)
-    seen = np.array([in_cone(r, bore, point, focus.cos_rx) for r in rx]) & (w != 0)
+    seen = np.array([in_cone(r, bore, at, focus.cos_rx) for r in rx]) & (w != 0)
     if not seen.any():
         return None
     n = max(2, int(round(focus.length_s / dt)))
@@ -112,10 +129,14 @@ class EchoCollector:
     """Each point's focused series over the pings fed to it (:meth:`add`), for
     :func:`contact_lines`, and the same at its references: ``reference_m`` along-track
     on either side, at its cross-track position and depth (the background's late
-    response, :func:`late_over_background_db`). ``points``: tile-frame positions (n x 3)."""
+    response, :func:`late_over_background_db`). ``points``: tile-frame positions (n x 3),
+    their depths below the interface of their own column; ``surface``: that interface's
+    depth below the frame's level at (along, cross) (None: level everywhere,
+    :meth:`~svss_proc.imaging.surface.InterfaceShape.depth`)."""
     points: np.ndarray
     focus: Focus
     reference_m: float = 0.6
+    surface: object = None
     echoes: list[list[np.ndarray]] = field(default_factory=list)
     references: list[list[np.ndarray]] = field(default_factory=list)
 
@@ -124,13 +145,22 @@ class EchoCollector:
         self.echoes = [[] for _ in range(self.points.shape[0])]
         self.references = [[] for _ in range(self.points.shape[0])]
         step = np.array([self.reference_m, 0.0, 0.0])
-        self._refs = [(p - step, p + step) for p in self.points]
+        self._refs = [[(r, self._surface(r)) for r in (p - step, p + step)]
+                      for p in self.points]
+        self._own = [self._surface(p) for p in self.points]
+
+    def _surface(self, p) -> float:
+        if self.surface is None:
+            return 0.0
+        s = float(self.surface(float(p[0]), float(p[1])))
+        return s if math.isfinite(s) else 0.0
 
     def wants(self, tx: np.ndarray, bore: np.ndarray) -> np.ndarray:
         """Indices of the points inside this ping's projector cone (the ping need not be
         conditioned when there are none)."""
         return np.array([k for k, p in enumerate(self.points)
-                         if in_cone(tx, bore, p, self.focus.cos_tx)], dtype=np.int64)
+                         if in_cone(tx, bore, p + np.array([0.0, 0.0, self._own[k]]),
+                                    self.focus.cos_tx)], dtype=np.int64)
 
     def add(self, baseband: np.ndarray, t0: float, dt: float, tx: np.ndarray,
             rx: np.ndarray, bore: np.ndarray, which: np.ndarray | None = None) -> int:
@@ -138,13 +168,14 @@ class EchoCollector:
         their references; returns how many series it gave at the points."""
         got = 0
         for k in (range(self.points.shape[0]) if which is None else which):
-            e = focused_echo(baseband, t0, dt, tx, rx, bore, self.points[k], self.focus)
+            e = focused_echo(baseband, t0, dt, tx, rx, bore, self.points[k], self.focus,
+                             self._own[k])
             if e is None:
                 continue
             self.echoes[k].append(e)
             got += 1
-            for r in self._refs[k]:
-                e = focused_echo(baseband, t0, dt, tx, rx, bore, r, self.focus)
+            for r, s in self._refs[k]:
+                e = focused_echo(baseband, t0, dt, tx, rx, bore, r, self.focus, s)
                 if e is not None:
                     self.references[k].append(e)
         return got

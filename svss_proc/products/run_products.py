@@ -505,8 +505,18 @@ def write_run_products(tiles_dir: str | Path, out_dir: str | Path | None = None,
         return []
     out.mkdir(parents=True, exist_ok=True)
     contacts, summary = run_contacts(views, origin)
+    measured = None
     if spectra is not None and contacts:
-        for c, s in zip(contacts, spectra(contacts, views[0].line), strict=True):
+        try:                 # from the recorded pings: a failure there costs only them
+            measured = spectra(contacts, views[0].line)
+            if len(measured) != len(contacts):
+                raise ValueError(f"{len(measured)} spectra for {len(contacts)} contacts")
+        except Exception:
+            log.exception("%s: the contacts' resonance lines failed; the run products are "
+                          "written without them", tiles_dir)
+            measured = None
+    if measured is not None:
+        for c, s in zip(contacts, measured, strict=True):
             c.update({k: _rounded(k, v) for k, v in s.items()})
     elif contacts:
         kept_spectra(out / CONTACTS_CSV, contacts)

@@ -20,8 +20,12 @@ from svss_daq.progress import Progress
 from svss_daq.waveform import make_waveform
 
 from ..conditioning import Conditioner
+import numpy as np
+
+from ..imaging.delays import SpeedProfile
 from ..imaging.imager import receive_apodisation
 from ..imaging.schedule import ping_frame
+from ..imaging.surface import InterfaceShape
 from .contact_spectra import EchoCollector, Focus, contact_lines
 
 log = logging.getLogger(__name__)
@@ -38,13 +42,17 @@ def run_spectra(pings: Iterable[Ping], hardware: Loaded[HardwareConfig],
     im = processing.imaging
     conditioner = Conditioner(hw.digitiser, make_waveform(hw.waveform),
                               processing.conditioning.decimation, 1)
+    profile = SpeedProfile.of(im)
     focus = Focus(im.water_sound_speed_m_s, im.sediment_sound_speed_m_s,
                   hw.waveform.center_hz, math.cos(geo.projector_half_angle),
                   math.cos(geo.receiver_half_angle),
                   receive_apodisation(geo.receivers, im.apodisation), cfg.start_s,
-                  cfg.length_s)
+                  cfg.length_s, np.asarray(profile.tops, dtype=np.float64),
+                  np.asarray(profile.speeds, dtype=np.float64))
+    shape = InterfaceShape.of(im)           # the bed's slope and relief the tiles used
     points = [[c["along_m"], c["cross_m"], c["depth_below_seabed_m"]] for c in contacts]
-    col = EchoCollector(points, focus, cfg.reference_m)
+    col = EchoCollector(points, focus, cfg.reference_m,
+                        None if shape.level else shape.depth)
     t0, n, used = time.perf_counter(), 0, 0
     dt = None
     progress = Progress("resonance lines", total, log)

@@ -309,6 +309,19 @@ def test_a_rewrite_from_the_tiles_keeps_the_resonance_columns(demo_run, tmp_path
     assert all(r["resonance_hz"] == "" and r["resonance_pings"] == "0" for r in third)
 
 
+def test_resonance_lines_that_fail_cost_only_themselves(demo_run, tmp_path, caplog):
+    """Reading the pings again fails (a damaged recording, say): the contacts and the
+    mosaic are written all the same, the resonance columns empty, and the log says so."""
+    def broken(contacts, line):
+        raise OSError("the recording cannot be read")
+
+    files = write_run_products(demo_run, tmp_path, ORIGIN, spectra=broken)
+    assert {CONTACTS_CSV, CONTACTS_GEOJSON, MOSAIC_PNG} <= {f.name for f in files}
+    rows = list(csv.DictReader(open(tmp_path / CONTACTS_CSV)))
+    assert len(rows) == 6 and all(r["resonance_pings"] == "0" for r in rows)
+    assert "resonance lines failed" in caplog.text and "cannot be read" in caplog.text
+
+
 def _plane_levels(view):
     """Median over the imaged cross-track cells of each along-track plane of a tile's
     plan view (``mip_depth``, dB re background; NaN for a plane no ping reached)."""
