@@ -10,7 +10,9 @@ For each target's contact: the columns ``svss process`` wrote (the shipped windo
 starting later (``--late-start``: the slab's own response is over by then, a ringing
 shell's not); for a shell, the peaks of its monostatic form function in the band from
 the simulator's modal series (the line should sit at one); and the same at empty points
-of the seabed (no target within a metre), the background's own figures.
+of the seabed (no target within a metre), the background's own figures. The cost, side
+by side: ``svss process`` with the shipped configuration and with ``[products.spectra]``
+left out, and the spectra step's own time from its log line.
 
     python benchmarks/bench_contact_spectra.py --cache /tmp/bench_spectra --out benchmarks/results/bench_contact_spectra.json
 """
@@ -75,6 +77,25 @@ def remeasured(raw: Path, tiles: Path, points: list[tuple], start_s: float) -> l
         return run_spectra(iter(run), run.hardware, proc, cfg, contacts, views[0].line)
 
 
+def without_spectra(cache: Path) -> Path:
+    """The shipped processing with its ``[products.spectra]`` table left out."""
+    text = (ROOT / "config" / "processing.toml").read_text()
+    start = text.index("[products.spectra]")
+    end = text.find("\n[", start + 1)
+    out = cache / "processing-no-spectra.toml"
+    out.write_text(text[:start] + (text[end + 1:] if end >= 0 else ""))
+    return out
+
+
+def step_seconds(log_path: Path) -> float | None:
+    """The spectra step's time from ``svss process``'s log ("resonance lines of ... in
+    X s")."""
+    for line in log_path.read_text().splitlines():
+        if "resonance lines of" in line and line.rstrip().endswith(" s"):
+            return float(line.rstrip()[:-2].rsplit(" in ", 1)[1])
+    return None
+
+
 def one_scene(name: str, cache: Path, late_start: float) -> dict:
     from sim_device.environment_source import EnvironmentSource
     from sim_device.scene import load_scene
@@ -83,6 +104,9 @@ def one_scene(name: str, cache: Path, late_start: float) -> dict:
     tiles = cache / f"{name}-tiles"
     took = _run([sys.executable, "-m", "svss", "process", str(raw), "--out", str(tiles),
                  "--force"], cache / f"{name}.process.log")
+    took_off = _run([sys.executable, "-m", "svss", "process", str(raw), "--out",
+                     str(cache / f"{name}-tiles-off"), "--force", "--processing",
+                     str(without_spectra(cache))], cache / f"{name}.process-off.log")
     scene = load_scene(ROOT / "config" / "scenes" / f"{name}.toml")
     targets = EnvironmentSource(load_with_text(HardwareConfig, config_path("hardware.toml")),
                                 scene).targets
@@ -117,7 +141,10 @@ def one_scene(name: str, cache: Path, late_start: float) -> dict:
             k += 1
     empty = [{"at_m": list(p), "shipped": s, "late_window": lt}
              for p, s, lt in zip(EMPTY, shipped_empty, late[k:])]
-    return {"scene": name, "process_s": round(took, 1), "targets": rows, "empty": empty}
+    return {"scene": name, "process_s": round(took, 1),
+            "process_without_spectra_s": round(took_off, 1),
+            "spectra_step_s": step_seconds(cache / f"{name}.process.log"),
+            "targets": rows, "empty": empty}
 
 
 def _shipped_start() -> float:
@@ -142,6 +169,9 @@ def main() -> None:
            "wall_s": None}
     out["wall_s"] = round(time.perf_counter() - t0, 1)
     for s in out["scenes"]:
+        log.info("%s: svss process %.1f s, without the spectra %.1f s (ratio %.3f); the "
+                 "step %s s", s["scene"], s["process_s"], s["process_without_spectra_s"],
+                 s["process_s"] / s["process_without_spectra_s"], s["spectra_step_s"])
         for r in s["targets"] + s["empty"]:
             what = r.get("kind", f"empty {r.get('at_m')}")
             sh, lt = r.get("shipped"), r.get("late_window")

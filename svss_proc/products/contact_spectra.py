@@ -148,6 +148,8 @@ class EchoCollector:
         self._refs = [[(r, self._surface(r)) for r in (p - step, p + step)]
                       for p in self.points]
         self._own = [self._surface(p) for p in self.points]
+        #: the points in the frame (their depths below its level), for the cones
+        self._at = self.points + np.array([[0.0, 0.0, 1.0]]) * np.array(self._own)[:, None]
 
     def _surface(self, p) -> float:
         if self.surface is None:
@@ -158,9 +160,8 @@ class EchoCollector:
     def wants(self, tx: np.ndarray, bore: np.ndarray) -> np.ndarray:
         """Indices of the points inside this ping's projector cone (the ping need not be
         conditioned when there are none)."""
-        return np.array([k for k, p in enumerate(self.points)
-                         if in_cone(tx, bore, p + np.array([0.0, 0.0, self._own[k]]),
-                                    self.focus.cos_tx)], dtype=np.int64)
+        return np.array([k for k, p in enumerate(self._at)
+                         if in_cone(tx, bore, p, self.focus.cos_tx)], dtype=np.int64)
 
     def add(self, baseband: np.ndarray, t0: float, dt: float, tx: np.ndarray,
             rx: np.ndarray, bore: np.ndarray, which: np.ndarray | None = None) -> int:

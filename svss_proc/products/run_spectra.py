@@ -12,6 +12,8 @@ import math
 import time
 from collections.abc import Iterable
 
+import numpy as np
+
 from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig, SpectraConfig
 from svss_daq.frames import TrackLine
 from svss_daq.geometry import array_geometry, place_array
@@ -20,8 +22,6 @@ from svss_daq.progress import Progress
 from svss_daq.waveform import make_waveform
 
 from ..conditioning import Conditioner
-import numpy as np
-
 from ..imaging.delays import SpeedProfile
 from ..imaging.imager import receive_apodisation
 from ..imaging.schedule import ping_frame
@@ -69,6 +69,7 @@ def run_spectra(pings: Iterable[Ping], hardware: Loaded[HardwareConfig],
         used += 1
         col.add(c.data, c.t0_s, c.dt_s, placed.tx, placed.rx, placed.bore, which)
     band = (hw.waveform.f_start_hz, hw.waveform.f_stop_hz)
+    # dt is None only where no ping saw any contact: then every contact has no series
     out = [contact_lines(e, dt or 1.0, hw.waveform.center_hz, band, cfg.min_pings,
                          cfg.max_lines, cfg.rel_threshold, r, cfg.min_over_background_db)
            for e, r in zip(col.echoes, col.references)]
