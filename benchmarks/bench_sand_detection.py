@@ -16,6 +16,13 @@ within 0.35 m of its true position, the clutter's the maximum of each tile over 
 processed again with it and their run contacts scored (:func:`svss.score.score_tiles`):
 targets detected and false alarms.
 
+The whole curve: the fields, and the held-out and seen silt fields beside them,
+processed once more with the floor at ``LOW_FLOOR_DB`` and each depth layer's clutter
+rate raised to ``LOW_LAYER_RATE`` (so that no layer's own threshold stands above the
+floor), their run contacts scored, then every floor from there to 17.5 dB applied to
+the scored contacts' excess: per sediment, the targets detected, the false alarms, how
+many of those the classifier calls man-made, and the false alarms per 100 m of track.
+
     python benchmarks/bench_sand_detection.py --cache /tmp/bench_classify --out benchmarks/results/bench_sand_detection.json
 """
 
@@ -38,6 +45,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from bench_false_alarms import line_args  # noqa: E402
 from bench_isa import machine_isa  # noqa: E402
 from fit_classifier import PROCESSING, _replace_keys, processed  # noqa: E402
+from sim_device.scene import load_scene  # noqa: E402
+from svss_daq.config import HardwareConfig, config_path, load  # noqa: E402
 from svss.score import score_tiles  # noqa: E402
 
 log = logging.getLogger("bench_sand_detection")
@@ -49,6 +58,13 @@ TARGET_RADIUS_M, CLEAR_M = 0.35, 0.8
 DEPTHS_M = (0.05, 1.0)
 #: detection floors tried besides the shipped one, dB
 THRESHOLDS_DB = (14.0,)
+#: the curve: floor and per-layer clutter rate (per m^3) of its one processing, the
+#: floors applied to its contacts, and the fields per sediment
+LOW_FLOOR_DB, LOW_LAYER_RATE = 12.0, 1.0
+CURVE_FLOORS_DB = tuple(np.arange(12.0, 17.51, 0.5))
+CURVE_FIELDS = (("sand", ("classify_train_4", "classify_train_6", "classify_test2_sand",
+                          "classify_test_sand")),
+                ("silt", ("classify_test2_silt", "classify_test_silt")))
 
 
 def floor_processing(threshold_db: float, cache: Path) -> Path:
@@ -78,6 +94,66 @@ def at_threshold(cache: Path, threshold_db: float | None) -> dict:
     log.info("floor %s dB: %d of %d targets detected, %d false alarm(s)",
              "shipped" if threshold_db is None else f"{threshold_db:g}", out["detected"],
              out["targets"], out["false_alarms"])
+    return out
+
+
+def low_processing(cache: Path) -> Path:
+    """The shipped processing with the floor at LOW_FLOOR_DB and the layers' clutter
+    rate at LOW_LAYER_RATE."""
+    out = cache / f"processing-low-{LOW_FLOOR_DB:g}.toml"
+    out.write_text(_replace_keys(PROCESSING.read_text(), "products.detection",
+                                 {"threshold_db": f"{LOW_FLOOR_DB:.1f}",
+                                  "layer_false_alarms_per_m3": f"{LOW_LAYER_RATE:g}"},
+                                 PROCESSING))
+    return out
+
+
+def floor_curve(scored: dict[str, dict], track_m: dict[str, float]) -> list[dict]:
+    """Per floor of CURVE_FLOORS_DB: the targets of ``scored`` (name: score_tiles
+    report of the low processing) detected at it (their matched contact's excess at
+    least the floor), the false alarms at or over it, those called man-made, and the
+    false alarms per 100 m of the fields' ``track_m``."""
+    rows = []
+    length = sum(track_m[n] for n in scored)
+    for floor in CURVE_FLOORS_DB:
+        det = tot = fa = fa_manmade = 0
+        for rep in scored.values():
+            inside = [t for t in rep["truth"] if t["status"] != "outside"]
+            tot += len(inside)
+            det += sum(t["status"] == "detected" and t["excess_db"] >= floor
+                       for t in inside)
+            alarms = [d for d in rep["detections"]
+                      if d.get("status") == "false alarm" and d["excess_db"] >= floor]
+            fa += len(alarms)
+            fa_manmade += sum(int(d.get("class", -2)) == 1 for d in alarms)
+        rows.append({"floor_db": round(float(floor), 2), "targets": tot,
+                     "detected": int(det), "false_alarms": fa,
+                     "false_alarms_called_manmade": fa_manmade,
+                     "false_alarms_per_100m": round(100.0 * fa / length, 1)})
+    return rows
+
+
+def curves(cache: Path) -> dict:
+    """floor_curve per sediment of CURVE_FIELDS, each field processed once with
+    low_processing."""
+    proc = low_processing(cache)
+    interval = load(HardwareConfig, config_path("hardware.toml")).sequencer.ping_interval_s
+    out = {"low_floor_db": LOW_FLOOR_DB, "low_layer_rate_per_m3": LOW_LAYER_RATE}
+    for sediment, names in CURVE_FIELDS:
+        scored, track_m = {}, {}
+        for name in names:
+            scene_path = ROOT / "config" / "scenes" / f"{name}.toml"
+            tiles = processed(name, cache, proc, f"low{LOW_FLOOR_DB:g}", False)
+            scored[name] = score_tiles(tiles, scene_path)
+            track = load_scene(scene_path).track
+            track_m[name] = track.n_pings * track.speed_m_s * interval
+        out[sediment] = {"fields": list(names), "track_m": round(sum(track_m.values()), 1),
+                         "rows": floor_curve(scored, track_m)}
+        for r in out[sediment]["rows"]:
+            log.info("%s, floor %.1f dB: %d of %d detected, %d false alarms (%d called "
+                     "man-made; %.1f per 100 m)", sediment, r["floor_db"], r["detected"],
+                     r["targets"], r["false_alarms"], r["false_alarms_called_manmade"],
+                     r["false_alarms_per_100m"])
     return out
 
 
@@ -149,7 +225,8 @@ def main() -> None:
         args.out.write_text(json.dumps({"machine": machine_isa(),
                                         "command": " ".join(["python"] + sys.argv),
                                         "fields": [f for f, _ in FIELDS], "rows": rows,
-                                        "floors": floors}, indent=1))
+                                        "floors": floors, "curve": curves(args.cache)},
+                                       indent=1))
 
 
 def _in_tile(path: Path, t) -> bool:
