@@ -115,12 +115,13 @@ def curve(rows: list[dict]) -> list[dict]:
 def main() -> None:
     args = line_args(__doc__)
     pcfg = load(ProcessingConfig, PROCESSING)
-    ccfg = pcfg.products.classify
+    keys = ("features", "mean", "scale", "coefficients", "intercept", "manmade_above",
+            "natural_below", "undecided_flags")
+    models = {name: None if m is None else {k: getattr(m, k) for k in keys}
+              for name, m in (("model", pcfg.products.classify),
+                              ("model_pings", pcfg.products.classify_pings))}
     report = {"machine": machine_isa(), "command": " ".join(["python"] + sys.argv),
-              "model": None if ccfg is None else {
-                  k: getattr(ccfg, k) for k in ("features", "mean", "scale", "coefficients",
-                                                "intercept", "manmade_above",
-                                                "natural_below", "undecided_flags")},
+              **models,
               "fields": list(TEST), "seen_fields": list(SEEN), "cases": {}}
     for case in CASES:
         report["cases"][case] = {}
@@ -145,9 +146,17 @@ def main() -> None:
                 continue
             by_field = {name: per_class([r for r in rows if r["scene"] == name])
                         for name in names if any(r["scene"] == name for r in rows)}
+            image = [{**r, "called": r.get("called_image", r.get("called")),
+                      "p_manmade": r.get("p_manmade_image", r.get("p_manmade"))}
+                     for r in rows]
             report["cases"][case][group] = {"per_class": per_class(rows),
                                             "per_field": by_field, "curve": curve(rows),
-                                            "rows": rows}
+                                            "per_class_image": per_class(image),
+                                            "curve_image": curve(image), "rows": rows}
+            for cls, row in per_class(image).items():
+                log.info("%s, %s: %s: the image's call alone: called man-made %d (%.2f), "
+                         "natural %d, undecided %d", case, group, cls, row["man-made"],
+                         row["called_manmade_fraction"], row["natural"], row["undecided"])
             for cls, row in per_class(rows).items():
                 log.info("%s, %s: %s: %d/%d detected, called man-made %d (%.2f), natural "
                          "%d, undecided %d", case, group, cls, row["detected"],

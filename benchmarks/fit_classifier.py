@@ -21,7 +21,13 @@ set has no finite maximum without it). ``--write`` puts ``features``, ``mean``,
 ``scale``, ``coefficients`` and ``intercept`` into ``[products.classify]`` of
 config/processing.toml (the thresholds are left as configured).
 
+``--table products.classify_pings`` fits the run-level model instead, whose features may
+include the recorded pings' (``late_over_background_db``, measured by ``svss process``
+at the run's end and read from the run's contacts file): on the training targets with
+every one of its features measured, written into ``[products.classify_pings]``.
+
     python benchmarks/fit_classifier.py --cache /tmp/bench_classify --out benchmarks/results/fit_classifier.json --write
+    python benchmarks/fit_classifier.py --cache /tmp/bench_classify --table products.classify_pings --features aspect_width_deg late_to_specular_db late_over_background_db --out benchmarks/results/fit_classifier_pings.json --write
 """
 
 from __future__ import annotations
@@ -123,10 +129,16 @@ def field_rows(name: str, tiles_dir: Path) -> list[dict]:
             d = r["detections"][t["detection"]]
             row.update({"excess_db": d["excess_db"], "depth_m": d["depth_m"],
                         **{n: d[n] for n in FEATURE_NAMES},
+                        "late_over_background_db": d.get("late_over_background_db",
+                                                         math.nan),
                         "feature_notes": flags_text(int(d["feature_flags"])),
                         "called": class_text(int(d["class"])) or "not classified",
-                        "p_manmade": None if d["p_manmade"] != d["p_manmade"]
-                        else float(d["p_manmade"])})
+                        "called_image": class_text(int(d.get("class_image", d["class"])))
+                        or "not classified",
+                        "class_from": d.get("class_from", ""),
+                        "p_manmade": _probability(d["p_manmade"]),
+                        "p_manmade_image": _probability(d.get("p_manmade_image",
+                                                              d["p_manmade"]))})
         elif t["status"] == "missed":
             peak = peak_near(tiles_dir, t["scene_m"])
             row.update({"peak_excess_db": None, "peak_at_m": None,
@@ -135,6 +147,10 @@ def field_rows(name: str, tiles_dir: Path) -> list[dict]:
                         "peak_in_interface_echo": peak["interface"]})
         rows.append(row)
     return rows
+
+
+def _probability(p) -> float | None:
+    return None if p is None or p != p else float(p)
 
 
 def point_reference(rows: list[dict]) -> list[float]:
@@ -228,11 +244,12 @@ def _replace_keys(text: str, table: str, values: dict, path: Path) -> str:
     return text[:start] + block + text[end:]
 
 
-def write_model(model: dict, features, point_ref, path: Path = PROCESSING) -> None:
+def write_model(model: dict, features, point_ref, path: Path = PROCESSING,
+                table: str = "products.classify") -> None:
     """Put the fitted ``features``, ``mean``, ``scale``, ``coefficients`` and
-    ``intercept`` into ``[products.classify]`` of ``path``, and the point reference
-    into ``[products.features] point_aspect_deg``."""
-    text = _replace_keys(path.read_text(), "products.classify", {
+    ``intercept`` into ``[table]`` of ``path``, and the point reference into
+    ``[products.features] point_aspect_deg``."""
+    text = _replace_keys(path.read_text(), table, {
         "features": _toml_list(features), "mean": _toml_list(model["mean"]),
         "scale": _toml_list(model["scale"]),
         "coefficients": _toml_list(model["coefficients"]),
@@ -252,6 +269,11 @@ def main() -> None:
                     help="ridge penalty on the standardised coefficients (default 1)")
     ap.add_argument("--write", action="store_true",
                     help="write the fitted model into config/processing.toml")
+    ap.add_argument("--table", default="products.classify",
+                    choices=("products.classify", "products.classify_pings"),
+                    help="the model fitted and written: the image's (default) or the "
+                         "run's, which may use the pings' features and is fitted on the "
+                         "targets they were measured for")
     ap.add_argument("--reprocess", action="store_true",
                     help="process the fields again even where their output is cached")
     args = ap.parse_args()
@@ -297,12 +319,13 @@ def main() -> None:
              "at 0.5: %.2f", len(train), len(rows), int(y.sum()), int(len(y) - y.sum()),
              {k: model[k] for k in ("mean", "scale", "coefficients", "intercept")}, acc)
     if args.write:
-        write_model(model, args.features, point_ref)
-        log.info("written to %s [products.classify]", PROCESSING)
+        write_model(model, args.features, point_ref, table=args.table)
+        log.info("written to %s [%s]", PROCESSING, args.table)
     if args.out:
         args.out.write_text(json.dumps({
             "machine": machine_isa(), "command": " ".join(["python"] + sys.argv),
-            "fields": list(TRAIN), "features": args.features, "l2": args.l2,
+            "fields": list(TRAIN), "table": args.table, "features": args.features,
+            "l2": args.l2,
             "point_aspect_deg": point_ref,
             "model": model, "training_accuracy_at_0.5": acc, "n_fit": len(train),
             "leave_one_out": loo_rates,

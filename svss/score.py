@@ -18,6 +18,7 @@ gives, per class, how many were detected and how the detections were called
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import json
 import logging
@@ -31,8 +32,8 @@ from sim_device.track import truth_line
 from svss_daq.config import ConfigError, ProcessingConfig, loads
 from svss_proc import tiles
 from svss_proc.products import detect
-from svss_proc.products.classify import class_text
-from svss_proc.products.run_products import TileView, run_contacts
+from svss_proc.products.classify import CLASS_TEXT, class_text
+from svss_proc.products.run_products import CONTACTS_CSV, TileView, run_contacts
 
 log = logging.getLogger(__name__)
 
@@ -213,7 +214,8 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
     """Score the tiles of ``tiles_dir`` (:func:`tile_paths`) against the scene's
     targets. ``level``: ``"run"`` scores the run's contacts (the tiles' detections
     filtered across tiles: :mod:`svss_proc.products.run_products`, what an operator
-    gets), ``"tile"`` every tile's own detections. The match radius is ``radius_m`` or
+    gets, with the calls of the run's contacts file where it has them: :func:`run_calls`),
+    ``"tile"`` every tile's own detections and calls. The match radius is ``radius_m`` or
     the ``products.detection.match_radius_m`` the tiles were processed with. A tile that
     cannot be read, or has no detections (processed without products), is an error
     naming it. Returns a JSON-serialisable report, with false alarms per tile and per
@@ -275,6 +277,8 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
                 det_rows.append({"tile": path.name, "row": i,
                                  **{k: row[k].item() for k in detect.DTYPE.names}})
     det_ned = np.concatenate(det_ned) if det_ned else np.zeros((0, 3))
+    if level == "run":
+        run_calls(tiles_dir / CONTACTS_CSV, det_rows)
     scored = np.flatnonzero(covered)
     result = score(det_ned, truth_ned[scored], radius_m,
                    np.array([half_extent(truth[t]) for t in scored]))
@@ -309,6 +313,40 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
     return {"tiles_dir": str(tiles_dir), "scene": str(scene_path), "scene_name":
             scene.scene.name, "tiles": [p.name for p in paths], "match_radius_m": radius_m,
             "summary": summary, "truth": truth, "detections": det_rows}
+
+
+def run_calls(path: Path, det_rows: list[dict]) -> int:
+    """Each scored run contact's call as the run's contacts file gives it (``class``,
+    ``p_manmade``, ``class_from``, and the pings' ``late_over_background_db``; the tile's
+    own as ``class_image`` and ``p_manmade_image``): the call
+    made at the run's end with the pings' features (``[products.classify_pings]``) where
+    ``svss process`` measured them, what the operator gets. Matched by tile and row, the
+    same excess within 0.01 dB; a file missing or from other tiles changes nothing.
+    Returns how many rows took the file's call."""
+    if not path.is_file():
+        return 0
+    try:
+        with open(path, newline="") as f:
+            rows = {(r["tile"], r["tile_row"]): r for r in csv.DictReader(f)}
+    except (OSError, csv.Error, KeyError, UnicodeDecodeError) as exc:
+        log.warning("%s: not read (%s); the tiles' calls are scored", path, exc)
+        return 0
+    codes = {text: code for code, text in CLASS_TEXT.items()}
+    n = 0
+    for d in det_rows:
+        r = rows.get((d["tile"], str(d["row"])))
+        try:
+            if r is None or abs(float(r["excess_db"]) - d["excess_db"]) > 0.01:
+                continue
+            d.update({"class_image": d.get("class"), "p_manmade_image": d.get("p_manmade"),
+                      "class": codes[r["class"]], "class_from": r.get("class_from", ""),
+                      "p_manmade": float(r["p_manmade"]) if r["p_manmade"] else float("nan"),
+                      "late_over_background_db": float(r["late_over_background_db"])
+                      if r.get("late_over_background_db") else float("nan")})
+        except (KeyError, ValueError):
+            continue
+        n += 1
+    return n
 
 
 def _f(v) -> str:

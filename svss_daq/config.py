@@ -27,7 +27,7 @@ from .config_processing import (AutofocusConfig, BackgroundConfig, ClassifyConfi
                                 ConditioningConfig,
                                 DepthGainConfig, DetectionConfig, DrcConfig,
                                 FeaturesConfig, ImagingConfig, LimitsConfig,
-                                MicronavConfig,
+                                MicronavConfig, PingClassifyConfig,
                                 PingGateConfig, ProcessingConfig, ProductsConfig,
                                 QuicklookConfig, SeabedConfig, SedimentLayerConfig,
                                 SpectraConfig, TileConfig)
@@ -417,7 +417,8 @@ __all__ = ["CONFIG_ENV", "ConfigError", "spec", "omitted_default", "ReceiveSecti
            "Sequencer", "LeverArms", "HardwareConfig", "TileConfig",
            "ConditioningConfig", "SedimentLayerConfig", "ImagingConfig",
            "BackgroundConfig", "DepthGainConfig", "DrcConfig", "DetectionConfig",
-           "QuicklookConfig", "FeaturesConfig", "ClassifyConfig", "SpectraConfig",
+           "QuicklookConfig", "FeaturesConfig", "ClassifyConfig", "PingClassifyConfig",
+           "SpectraConfig",
            "ProductsConfig",
            "PingGateConfig",
            "LimitsConfig",

@@ -260,6 +260,9 @@ class FeaturesConfig:
 CLASSIFY_FEATURES = ("tail_extent_m", "tail_decay_db_per_m", "late_to_specular_db",
                      "aspect_centre_deg", "aspect_width_deg", "aspect_cross_width_deg",
                      "aspect_point_fraction")
+#: and those measured from the recorded pings at a run's end (contact_spectra), which
+#: only the run-level model ([products.classify_pings]) may use
+PING_FEATURES = ("late_over_background_db",)
 
 
 @dataclass(frozen=True)
@@ -299,6 +302,16 @@ class ClassifyConfig:
 
 
 @dataclass(frozen=True)
+class PingClassifyConfig(ClassifyConfig):
+    """The run-level model: the same keys, its features may include the pings' own
+    (PING_FEATURES); it calls the contacts whose ping features were measured."""
+    features: tuple[str, ...] = spec("the model's features, columns of the contacts (the "
+                                     "image's and the pings')",
+                                     choices=CLASSIFY_FEATURES + PING_FEATURES,
+                                     min_length=1)
+
+
+@dataclass(frozen=True)
 class SpectraConfig:
     start_s: float = spec("each ping's series starts this long after the contact's arrival "
                           "(past its specular echo), s", lo=0.0, hi=0.1)
@@ -335,6 +348,10 @@ class ProductsConfig:
     spectra: SpectraConfig | None = spec(
         "each contact's strongest resonance line from the recorded pings, by svss process "
         "(docs/contact_features.md; omitted: not measured)", default=None)
+    classify_pings: PingClassifyConfig | None = spec(
+        "the run's contacts called again where the pings' features were measured (svss "
+        "process; docs/contact_features.md; omitted: the image's call stands)",
+        default=None)
 
 
 @dataclass(frozen=True)

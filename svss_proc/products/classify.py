@@ -21,7 +21,13 @@ A contact is **man-made** where ``p_manmade > manmade_above``, **natural** where
 probability NaN) where one of its features is not a number or its ``feature_flags``
 carry one of ``undecided_flags`` (or are -1: features not measured).
 
-Pure functions of arrays; ``cfg`` is a :class:`svss_daq.config.ClassifyConfig`.
+A run's contacts are called again at its end (:func:`call_with_pings`) where the
+recorded pings' own features were measured (``svss process``;
+:mod:`.contact_spectra`), by a second model of the same form that may use them
+(``[products.classify_pings]``); the others keep the image's call.
+
+Pure functions of arrays; ``cfg`` is a :class:`svss_daq.config.ClassifyConfig` (or its
+:class:`~svss_daq.config.PingClassifyConfig`).
 """
 
 from __future__ import annotations
@@ -117,3 +123,53 @@ def with_class(detections: np.ndarray, cfg) -> np.ndarray:
     cls, p = classify(out, cfg)
     out["class"], out["p_manmade"] = cls, p
     return out
+
+
+#: ``class_from`` of a contact: which model called it
+FROM_IMAGE, FROM_PINGS = "image", "image and pings"
+
+
+def call_with_pings(contacts: list[dict], cfg) -> int:
+    """Call again, in place, each run contact (a dict with the feature columns,
+    ``feature_flags``, ``class`` as text, ``p_manmade``) whose ping features
+    (those of ``cfg.features`` in ``PING_FEATURES``) were all measured: its ``class``,
+    ``p_manmade`` and ``class_from`` from the run-level model ``cfg``. Returns how many
+    were called."""
+    from svss_daq.config_processing import PING_FEATURES
+    ping = [n for n in cfg.features if n in PING_FEATURES]
+    chosen = [c for c in contacts
+              if ping and all(_finite(c.get(n)) for n in ping)]
+    if not chosen:
+        return 0
+    table = {n: np.array([_number(c.get(n)) for c in chosen])
+             for n in (*cfg.features, "feature_flags")}
+    x = feature_matrix(_Columns(table, len(chosen)), cfg)
+    p = probability(x, cfg)
+    p[~np.all(np.isfinite(x), axis=1)] = np.nan
+    for c, code, pi in zip(chosen, decide(p, cfg), p):
+        c.update({"class": class_text(code), "class_from": FROM_PINGS,
+                  "p_manmade": round(float(pi), 3) if np.isfinite(pi) else float("nan")})
+    return len(chosen)
+
+
+class _Columns(dict):
+    """Named columns with a ``dtype.names``, as :func:`feature_matrix` reads a table."""
+
+    def __init__(self, columns: dict, n: int):
+        super().__init__(columns)
+        self.n = n
+        self.dtype = type("D", (), {"names": tuple(columns)})
+
+    def __len__(self) -> int:
+        return self.n
+
+
+def _number(v) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def _finite(v) -> bool:
+    return bool(np.isfinite(_number(v)))

@@ -129,7 +129,7 @@ def write_mosaic_geotiff(path: Path, m: dict, epsg: int, description: str) -> Pa
 _INT_FIELDS = ("contact", "tile_row", "n_tiles", "pings_missing", "poses_dead_reckoned",
                "poses_held", "feature_flags")
 _TEXT_FIELDS = ("run_id", "tile", "time_utc", "circumstances", "feature_notes",
-                "class")
+                "class", "class_from")
 
 
 def write_contacts_gpkg(path: Path, contacts: list[dict], fields: list[str],

@@ -56,7 +56,8 @@ from svss_daq.navigation import ned_to_geodetic
 
 from ..tiles import TileFileError, temporary_path
 from .chain import coverage_settings, footprint_for
-from .classify import CLASS_FILL, CLASS_NAMES, class_text
+from .classify import (CLASS_FILL, CLASS_NAMES, FROM_IMAGE, NOT_CLASSIFIED,
+                       call_with_pings, class_text)
 from .contact_features import FEATURE_FILL, FEATURE_NAMES, flags_text
 from .contact_spectra import NO_SPECTRA, SPECTRA_FIELDS
 from .circumstances import (FALLBACK_REACH_M, KINDS, LABELS, PingTrack, Stretch,
@@ -177,6 +178,10 @@ CONTACT_FIELDS = (
     ("p_manmade", "1", ("probability that the contact is man-made (logistic regression on "
                         "its features, [products.classify]; empty: not classified or a "
                         "feature missing)"), 3),
+    ("class_from", "", ("the model that called it: 'image' (the tile's features, "
+                        "[products.classify]) or 'image and pings' (with the pings' "
+                        "features too, [products.classify_pings], svss process); empty: "
+                        "not classified"), None),
 )
 _DECIMALS = {name: d for name, _, _, d in CONTACT_FIELDS}
 
@@ -338,6 +343,7 @@ def run_contacts(views: list[TileView],
              **{k: r[k] for k in FEATURE_NAMES},
              "feature_notes": flags_text(r["feature_flags"]),
              "class": class_text(r["class"]), "p_manmade": r["p_manmade"],
+             "class_from": FROM_IMAGE if r["class"] != NOT_CLASSIFIED else "",
              **NO_SPECTRA}
         out.append({name: _rounded(name, c[name]) for name, *_ in CONTACT_FIELDS})
     summary = {"tiles": len(views), "tile_detections": n_tile_detections,
@@ -520,6 +526,10 @@ def write_run_products(tiles_dir: str | Path, out_dir: str | Path | None = None,
             c.update({k: _rounded(k, v) for k, v in s.items()})
     elif contacts:
         kept_spectra(out / CONTACTS_CSV, contacts)
+    if pcfg.classify_pings is not None and pcfg.classify_pings.enabled and contacts:
+        n = call_with_pings(contacts, pcfg.classify_pings)
+        log.info("%s: %d of %d contact(s) called with the pings' features too "
+                 "([products.classify_pings])", tiles_dir, n, len(contacts))
     origin = summary["origin"]
     track, found = summary["array_track"], summary["stretch_list"]
     m = run_mosaic(views)

@@ -14,13 +14,15 @@ import h5py
 import numpy as np
 import pytest
 
-from svss_daq.config import ClassifyConfig, ConfigError, ProcessingConfig, loaded_from_text
-from svss_daq.config_processing import CLASSIFY_FEATURES
+from svss_daq.config import (ClassifyConfig, ConfigError, PingClassifyConfig, ProcessingConfig,
+                             loaded_from_text)
+from svss_daq.config_processing import CLASSIFY_FEATURES, PING_FEATURES
 from svss_proc.products import detect
 from svss_proc.products.chain import save_tile
-from svss_proc.products.classify import (CLASS_FILL, MANMADE, NATURAL, NOT_CLASSIFIED,
-                                         UNDECIDED, classify, logistic, probability,
-                                         with_class)
+from svss_proc.products.classify import (CLASS_FILL, FROM_IMAGE, FROM_PINGS, MANMADE,
+                                         NATURAL, NOT_CLASSIFIED, UNDECIDED,
+                                         call_with_pings, classify, logistic,
+                                         probability, with_class)
 from svss_proc.products.contact_features import FEATURE_NAMES, LATE_UPPER_BOUND, NO_ASPECT
 from svss_proc.products.quicklook import _detection_lines
 from svss_proc.products.run_products import (CONTACTS_CSV, CONTACTS_GEOJSON, CONTACTS_GPKG,
@@ -164,3 +166,107 @@ def test_the_class_in_the_tile_file_run_contacts_and_quicklook(
     write_run_products(tmp_path, tmp_path / "run2")
     with open(tmp_path / "run2" / CONTACTS_CSV) as f:
         assert all(r["class"] == "" and r["p_manmade"] == "" for r in csv.DictReader(f))
+
+
+PING_CFG = PingClassifyConfig(
+    enabled=True, features=("aspect_width_deg", "late_to_specular_db",
+                            "late_over_background_db"),
+    mean=(6.0, -3.0, 1.0), scale=(3.0, 4.0, 2.0), coefficients=(2.0, 1.0, -1.0),
+    intercept=-0.5, manmade_above=0.6, natural_below=0.4, undecided_flags=(NO_ASPECT,))
+
+
+def _contact(aspect, late, lob, flags=0):
+    return {"aspect_width_deg": aspect, "late_to_specular_db": late,
+            "late_over_background_db": lob, "feature_flags": flags,
+            "class": "man-made", "p_manmade": 0.9, "class_from": "image"}
+
+
+def test_the_run_model_calls_again_where_the_pings_were_measured():
+    # hand-computed: z = (1, 1, 1): t = -0.5 + 2 + 1 - 1 = 1.5, p = 0.817574;
+    # z = (1, 1, 3): t = -0.5, p = 0.377541
+    contacts = [_contact(9.0, 1.0, 3.0), _contact(9.0, 1.0, 7.0),
+                _contact(9.0, 1.0, math.nan), _contact(9.0, 1.0, 3.0, NO_ASPECT),
+                _contact(9.0, 1.0, "")]
+    assert call_with_pings(contacts, PING_CFG) == 3
+    assert [c["class"] for c in contacts] == ["man-made", "natural", "man-made",
+                                              "undecided", "man-made"]
+    assert contacts[0]["p_manmade"] == pytest.approx(0.818, abs=5e-4)
+    assert contacts[1]["p_manmade"] == pytest.approx(0.378, abs=5e-4)
+    assert math.isnan(contacts[3]["p_manmade"])
+    assert [c["class_from"] for c in contacts] == [FROM_PINGS] * 2 + [FROM_IMAGE] \
+        + [FROM_PINGS, FROM_IMAGE]
+    # the image's call stands where the pings were not read
+    assert contacts[2]["p_manmade"] == 0.9 and contacts[4]["p_manmade"] == 0.9
+    # a model without a ping feature calls nothing again
+    assert call_with_pings([_contact(9.0, 1.0, 3.0)], dataclasses.replace(
+        PING_CFG, features=CFG.features, mean=CFG.mean, scale=CFG.scale,
+        coefficients=CFG.coefficients)) == 0
+
+
+CLASSIFY_PINGS = """
+[products.classify_pings]
+enabled = true
+features = ["aspect_width_deg", "late_over_background_db"]
+mean = [0.0, 0.0]
+scale = [1.0, 1.0]
+coefficients = [0.0, -1.0]
+intercept = 2.0
+manmade_above = 0.6
+natural_below = 0.4
+undecided_flags = [32]
+"""
+
+
+def test_only_the_run_model_may_use_the_pings_features(demo_processing):
+    assert set(PING_FEATURES).isdisjoint(CLASSIFY_FEATURES)
+    with pytest.raises(ConfigError, match=r"bad\.toml.*products\.classify\.features\[0\]"):
+        loaded_from_text(ProcessingConfig, demo_processing.text + FEATURES + CLASSIFY.replace(
+            '"aspect_width_deg"', '"late_over_background_db"'), "bad.toml")
+    cfg = loaded_from_text(ProcessingConfig, demo_processing.text + FEATURES + CLASSIFY
+                           + CLASSIFY_PINGS, "good.toml").value
+    assert cfg.products.classify_pings.features[1] == "late_over_background_db"
+    from svss_daq.config import config_path, load
+    shipped = load(ProcessingConfig, config_path("processing.toml")).products
+    assert shipped.classify_pings is not None and shipped.classify_pings.enabled
+    assert set(shipped.classify_pings.features) & set(PING_FEATURES)
+
+
+def test_the_run_calls_with_the_pings_in_every_contact_format(
+        ringing_tile, demo_processing, hardware, tmp_path):  # noqa: F811
+    """The run's contacts whose pings were read (the spectra step of svss process) are
+    called by [products.classify_pings]: p = logistic(2 - 6.25) = 0.014064, natural,
+    where the image's model said man-made (0.881); the others keep the image's call. A
+    rewrite from the tiles alone calls them the same from the kept columns."""
+    processing = loaded_from_text(ProcessingConfig, demo_processing.text + FEATURES
+                                  + CLASSIFY + CLASSIFY_PINGS, "classify")
+    tile, _, _ = ringing_tile
+    save_tile(tile, tmp_path, hardware, processing)
+
+    def measured(contacts, line):
+        # the pings read for the first contact whose aspect was measured
+        first = next(k for k, c in enumerate(contacts) if c["class"] == "man-made")
+        return [{"resonance_hz": math.nan, "resonance_err_hz": math.nan,
+                 "resonance_width_hz": math.nan, "resonance_width_err_hz": math.nan,
+                 "late_over_background_db": 6.25 if k == first else math.nan,
+                 "resonance_pings": 12 if k == first else 0}
+                for k in range(len(contacts))]
+
+    run = tmp_path / "run"
+    write_run_products(tmp_path, run, origin=ORIGIN, spectra=measured)
+    rows = list(csv.DictReader(open(run / CONTACTS_CSV)))
+    pinged = [r for r in rows if r["class_from"] == FROM_PINGS]
+    assert [(r["class"], r["p_manmade"]) for r in pinged] == [("natural", "0.014")]
+    others = [r for r in rows if r is not pinged[0]]
+    assert all(r["class_from"] == FROM_IMAGE for r in others)
+    assert len(rows) == 1 or any(r["class"] in ("man-made", "undecided") for r in others)
+    props = [f["properties"] for f in json.loads((run / CONTACTS_GEOJSON).read_text())
+             ["features"] if f["properties"]["kind"] == "contact"]
+    assert [p["class_from"] for p in props] == [r["class_from"] for r in rows]
+    import pyogrio.raw
+    _, _, _, data = pyogrio.raw.read(str(run / CONTACTS_GPKG), layer="contacts")
+    cols = list(pyogrio.read_info(str(run / CONTACTS_GPKG), layer="contacts")["fields"])
+    assert list(data[cols.index("class_from")]) == [r["class_from"] for r in rows]
+    write_run_products(tmp_path, run, origin=ORIGIN)          # svss products
+    again = list(csv.DictReader(open(run / CONTACTS_CSV)))
+    assert [(r["class"], r["p_manmade"], r["class_from"]) for r in again] == \
+        [(r["class"], r["p_manmade"], r["class_from"]) for r in rows]

@@ -142,3 +142,39 @@ def test_score_reports_detection_and_classification_per_class(tmp_path, hardware
     text = format_report(r)
     assert "man-made: 1/2 detected; called man-made 1, natural 0, undecided 0" in text
     assert "natural: 2/2 detected; called man-made 0, natural 1, undecided 1" in text
+    # the run's contacts file (written by svss process) may call a contact again with the
+    # pings' features: the run-level score takes its call, the tile level the tile's
+    import csv
+
+    from svss_proc.products.run_products import CONTACTS_CSV, write_run_products
+    write_run_products(out)
+    rows = list(csv.DictReader(open(out / CONTACTS_CSV)))
+    slab = min(rows, key=lambda c: abs(float(c["along_m"]) - (along[1] - shift))
+               + abs(float(c["cross_m"]) + 0.3))
+    assert slab["class"] == "natural" and slab["class_from"] == "image"
+    slab.update({"class": "man-made", "p_manmade": "0.770", "class_from": "image and pings",
+                 "late_over_background_db": "4.50"})
+    with open(out / CONTACTS_CSV, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    again = score_tiles(out, scene)
+    again["truth"].sort(key=lambda t: (t["table"] != "targets", t["index"]))
+    assert [t.get("called") for t in again["truth"]] == ["man-made", "man-made", None,
+                                                         "undecided", "man-made"]
+    assert again["truth"][1]["p_manmade"] == pytest.approx(0.77)
+    det = again["detections"][again["truth"][1]["detection"]]
+    assert (det["class_image"], det["class_from"]) == (NATURAL, "image and pings")
+    assert det["late_over_background_db"] == 4.5
+    tile_level = score_tiles(out, scene, level="tile")
+    tile_level["truth"].sort(key=lambda t: (t["table"] != "targets", t["index"]))
+    assert tile_level["truth"][1]["called"] == "natural"
+    # a file whose excess differs (another processing) lends no call
+    slab["excess_db"] = f"{float(slab['excess_db']) + 1.0:.2f}"
+    with open(out / CONTACTS_CSV, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    stale = score_tiles(out, scene)
+    stale["truth"].sort(key=lambda t: (t["table"] != "targets", t["index"]))
+    assert stale["truth"][1]["called"] == "natural"
