@@ -255,9 +255,10 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
         table, attrs = header["detections"], header["attrs"]
         voxel = float(attrs["voxel_m"])
         area += (header["along"].size * voxel) * (header["cross"].size * voxel)
-        if kept is not None:
-            table = table[[(path.name, i) in kept for i in range(len(table))]] \
-                if len(table) else table
+        index = np.arange(len(table))         # each row's place in the tile's table
+        if kept is not None and len(table):
+            index = index[[(path.name, i) in kept for i in range(len(table))]]
+            table = table[index]
         line = tiles.tile_line(attrs)
         axes = [header[d] for d in tiles.DIMS]
         t_tile = line.ned_to_tile(truth_ned)
@@ -273,12 +274,14 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
         if len(table):
             xyz = np.stack([table["along_m"], table["cross_m"], table["depth_m"]], axis=1)
             det_ned.append(line.tile_to_ned(xyz))
-            for i, row in enumerate(table):
-                det_rows.append({"tile": path.name, "row": i,
+            for i, row in zip(index, table):
+                det_rows.append({"tile": path.name, "row": int(i),
                                  **{k: row[k].item() for k in detect.DTYPE.names}})
     det_ned = np.concatenate(det_ned) if det_ned else np.zeros((0, 3))
-    if level == "run":
-        run_calls(tiles_dir / CONTACTS_CSV, det_rows)
+    if level == "run" and (tiles_dir / CONTACTS_CSV).is_file():
+        n = run_calls(tiles_dir / CONTACTS_CSV, det_rows)
+        log.info("%s: the calls of %d of %d contact(s) from %s", tiles_dir, n,
+                 len(det_rows), CONTACTS_CSV)
     scored = np.flatnonzero(covered)
     result = score(det_ned, truth_ned[scored], radius_m,
                    np.array([half_extent(truth[t]) for t in scored]))
@@ -321,7 +324,8 @@ def run_calls(path: Path, det_rows: list[dict]) -> int:
     own as ``class_image`` and ``p_manmade_image``): the call
     made at the run's end with the pings' features (``[products.classify_pings]``) where
     ``svss process`` measured them, what the operator gets. Matched by tile and row, the
-    same excess within 0.01 dB; a file missing or from other tiles changes nothing.
+    the same excess within 0.01 dB and depth within 1 cm; a file missing or from other
+    tiles changes nothing.
     Returns how many rows took the file's call."""
     if not path.is_file():
         return 0
@@ -336,7 +340,8 @@ def run_calls(path: Path, det_rows: list[dict]) -> int:
     for d in det_rows:
         r = rows.get((d["tile"], str(d["row"])))
         try:
-            if r is None or abs(float(r["excess_db"]) - d["excess_db"]) > 0.01:
+            if r is None or abs(float(r["excess_db"]) - d["excess_db"]) > 0.01 \
+                    or abs(float(r["depth_below_seabed_m"]) - d["depth_m"]) > 0.01:
                 continue
             d.update({"class_image": d.get("class"), "p_manmade_image": d.get("p_manmade"),
                       "class": codes[r["class"]], "class_from": r.get("class_from", ""),

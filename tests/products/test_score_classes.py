@@ -14,7 +14,7 @@ from svss_daq.frames import TrackLine
 from svss_proc.imaging.grid import tile_grid
 from svss_proc.products.chain import compute_products
 from svss_proc.products.classify import MANMADE, NATURAL, UNDECIDED
-from svss_proc.tiles import write_tile
+from svss_proc.tiles import read_tile, write_tile
 
 from . import VOXEL, make_tile, plant, rayleigh_median, speckle
 from .test_cli import HEADING, SCENE
@@ -178,3 +178,46 @@ def test_score_reports_detection_and_classification_per_class(tmp_path, hardware
     stale = score_tiles(out, scene)
     stale["truth"].sort(key=lambda t: (t["table"] != "targets", t["index"]))
     assert stale["truth"][1]["called"] == "natural"
+
+
+def test_the_run_calls_pair_with_each_tile_row_the_run_kept(tmp_path, hardware,
+                                                          demo_processing):
+    """The run drops a tile's detection (one object seen by two tiles across their
+    seam): the scored rows keep their places in the tiles' tables, so the run's
+    contacts file pairs with every one of them."""
+    import csv
+
+    from svss_proc.products.run_products import CONTACTS_CSV, write_run_products
+    scene = tmp_path / "scene.toml"
+    scene.write_text(SCENE + TARGETS.format(a0=1.0, a1=2.2, a2=3.4, a3=4.4, a4=5.4))
+    line = TrackLine((100.0, 200.0), HEADING, 3.0)
+    out = tmp_path / "tiles"
+    out.mkdir()
+    rng = np.random.default_rng(52)
+    points = [((1.0, 0.1, 0.3), 25), ((2.99, -0.2, 0.4), 40), ((4.4, 0.0, 0.4), 25)]
+    for k in (0, 1):
+        grid = tile_grid(demo_processing.value.tile, k)
+        axes = (grid.along, grid.cross, grid.depth)
+        img = speckle(grid.shape, rng)
+        for pos, db in points:
+            plant(img, axes, pos, rayleigh_median(1.0) * 10 ** (db / 20))
+        prods = compute_products(img, axes, VOXEL, demo_processing.value.products)
+        write_tile(out / f"tile_{k:04d}.h5", make_tile(grid, line, img, range(5)), hardware,
+                   demo_processing, prods)
+    tables = {p.name: read_tile(p)["detections"] for p in sorted(out.glob("tile_*.h5"))}
+    r = score_tiles(out, scene, level="run")
+    assert len(r["detections"]) < sum(len(t) for t in tables.values())   # one dropped
+    for d in r["detections"]:
+        assert tables[d["tile"]]["excess_db"][d["row"]] == pytest.approx(d["excess_db"])
+    write_run_products(out)
+    rows = list(csv.DictReader(open(out / CONTACTS_CSV)))
+    for row in rows:
+        row.update({"class": "natural", "p_manmade": "0.100", "class_from": "image and pings"})
+    with open(out / CONTACTS_CSV, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    again = score_tiles(out, scene, level="run")
+    assert len(again["detections"]) == len(rows)
+    assert all(d["class_from"] == "image and pings" and d["class"] == NATURAL
+               for d in again["detections"])
