@@ -247,15 +247,17 @@ def _replace_keys(text: str, table: str, values: dict, path: Path) -> str:
 def write_model(model: dict, features, point_ref, path: Path = PROCESSING,
                 table: str = "products.classify") -> None:
     """Put the fitted ``features``, ``mean``, ``scale``, ``coefficients`` and
-    ``intercept`` into ``[table]`` of ``path``, and the point reference into
-    ``[products.features] point_aspect_deg``."""
+    ``intercept`` into ``[table]`` of ``path``, and with the image's model
+    (``products.classify``) the point reference into ``[products.features]
+    point_aspect_deg``."""
     text = _replace_keys(path.read_text(), table, {
         "features": _toml_list(features), "mean": _toml_list(model["mean"]),
         "scale": _toml_list(model["scale"]),
         "coefficients": _toml_list(model["coefficients"]),
         "intercept": f"{model['intercept']:.4g}"}, path)
-    text = _replace_keys(text, "products.features",
-                         {"point_aspect_deg": _toml_list(point_ref)}, path)
+    if table == "products.classify":
+        text = _replace_keys(text, "products.features",
+                             {"point_aspect_deg": _toml_list(point_ref)}, path)
     path.write_text(text)
     load(ProcessingConfig, path)          # still valid
 
@@ -280,7 +282,8 @@ def main() -> None:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s",
                         datefmt="%H:%M:%S")
     args.cache.mkdir(parents=True, exist_ok=True)
-    ccfg = load(ProcessingConfig, config_path("processing.toml")).products.classify
+    ccfg = getattr(load(ProcessingConfig, config_path("processing.toml")).products,
+                   args.table.split(".")[1])
     flags = ccfg.undecided_flags if ccfg is not None else ()
     rows = []
     for name in TRAIN:

@@ -32,7 +32,7 @@ from sim_device.track import truth_line
 from svss_daq.config import ConfigError, ProcessingConfig, loads
 from svss_proc import tiles
 from svss_proc.products import detect
-from svss_proc.products.classify import CLASS_TEXT, class_text
+from svss_proc.products.classify import CLASS_CODE, class_text
 from svss_proc.products.run_products import CONTACTS_CSV, TileView, run_contacts
 
 log = logging.getLogger(__name__)
@@ -335,7 +335,6 @@ def run_calls(path: Path, det_rows: list[dict]) -> int:
     except (OSError, csv.Error, KeyError, UnicodeDecodeError) as exc:
         log.warning("%s: not read (%s); the tiles' calls are scored", path, exc)
         return 0
-    codes = {text: code for code, text in CLASS_TEXT.items()}
     n = 0
     for d in det_rows:
         r = rows.get((d["tile"], str(d["row"])))
@@ -344,7 +343,7 @@ def run_calls(path: Path, det_rows: list[dict]) -> int:
                     or abs(float(r["depth_below_seabed_m"]) - d["depth_m"]) > 0.01:
                 continue
             d.update({"class_image": d.get("class"), "p_manmade_image": d.get("p_manmade"),
-                      "class": codes[r["class"]], "class_from": r.get("class_from", ""),
+                      "class": CLASS_CODE[r["class"]], "class_from": r.get("class_from", ""),
                       "p_manmade": float(r["p_manmade"]) if r["p_manmade"] else float("nan"),
                       "late_over_background_db": float(r["late_over_background_db"])
                       if r.get("late_over_background_db") else float("nan")})

@@ -310,6 +310,12 @@ class PingClassifyConfig(ClassifyConfig):
                                      choices=CLASSIFY_FEATURES + PING_FEATURES,
                                      min_length=1)
 
+    def config_problem(self) -> tuple[str, str] | None:
+        if not set(self.features) & set(PING_FEATURES):
+            return ("features", f"{list(self.features)} names none of the pings' features "
+                    f"{list(PING_FEATURES)}: this model would call no contact again")
+        return super().config_problem()
+
 
 @dataclass(frozen=True)
 class SpectraConfig:

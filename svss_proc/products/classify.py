@@ -137,31 +137,21 @@ def call_with_pings(contacts: list[dict], cfg) -> int:
     were called."""
     from svss_daq.config_processing import PING_FEATURES
     ping = [n for n in cfg.features if n in PING_FEATURES]
-    chosen = [c for c in contacts
-              if ping and all(_finite(c.get(n)) for n in ping)]
+    chosen = [c for c in contacts if ping and all(np.isfinite(_number(c.get(n)))
+                                                  for n in ping)]
     if not chosen:
         return 0
-    table = {n: np.array([_number(c.get(n)) for c in chosen])
-             for n in (*cfg.features, "feature_flags")}
-    x = feature_matrix(_Columns(table, len(chosen)), cfg)
-    p = probability(x, cfg)
-    p[~np.all(np.isfinite(x), axis=1)] = np.nan
-    for c, code, pi in zip(chosen, decide(p, cfg), p):
+    table = np.zeros(len(chosen), dtype=[(n, "f8") for n in cfg.features]
+                     + [("feature_flags", "i8")])
+    for i, c in enumerate(chosen):
+        for n in cfg.features:
+            table[n][i] = _number(c.get(n))
+        table["feature_flags"][i] = int(c.get("feature_flags", -1))
+    codes, p = classify(table, cfg)
+    for c, code, pi in zip(chosen, codes, p):
         c.update({"class": class_text(code), "class_from": FROM_PINGS,
                   "p_manmade": round(float(pi), 3) if np.isfinite(pi) else float("nan")})
     return len(chosen)
-
-
-class _Columns(dict):
-    """Named columns with a ``dtype.names``, as :func:`feature_matrix` reads a table."""
-
-    def __init__(self, columns: dict, n: int):
-        super().__init__(columns)
-        self.n = n
-        self.dtype = type("D", (), {"names": tuple(columns)})
-
-    def __len__(self) -> int:
-        return self.n
 
 
 def _number(v) -> float:
@@ -171,5 +161,5 @@ def _number(v) -> float:
         return float("nan")
 
 
-def _finite(v) -> bool:
-    return bool(np.isfinite(_number(v)))
+#: ``class`` codes by their text (the contacts files')
+CLASS_CODE = {text: code for code, text in CLASS_TEXT.items()}

@@ -49,6 +49,17 @@ def test_the_fitted_model_is_written_and_loads(tmp_path):
     assert p == pytest.approx(logistic(np.array([-0.095]))[0])
     # the other keys and their comments are kept
     assert "manmade_above" in path.read_text().split("[products.classify]")[1]
+    # the run's model goes into its own table and leaves the point reference alone
+    pings = {**model, "mean": [6.5, -2.0, 0.9], "scale": [3.6, 3.7, 1.9],
+             "coefficients": [1.1, 0.8, -0.8]}
+    write_model(pings, ["aspect_width_deg", "late_to_specular_db",
+                        "late_over_background_db"], [99.0, 99.0], path,
+                table="products.classify_pings")
+    got = load(ProcessingConfig, path).products
+    assert got.classify_pings.features[2] == "late_over_background_db"
+    assert got.classify_pings.coefficients == (1.1, 0.8, -0.8)
+    assert got.classify.coefficients == (1.56, 1.18)
+    assert got.features.point_aspect_deg == (11.0, 4.5)
 
 
 def test_usable_rows_and_the_curve():

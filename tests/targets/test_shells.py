@@ -169,18 +169,18 @@ def test_hayek_equation_as_written_gives_the_published_frequencies():
 def test_free_steel_sphere_rings_at_the_published_frequencies():
     """The exact elastic shell in air (its loading shifts these by < 0.01 %) against
     the published table, for the orders where n t / R <= 0.2 (the shell theory's
-    domain): measured -0.016, -0.077, -0.18, -0.34 %. The shell theory leaves out
+    domain): measured -0.016, -0.077, -0.18, -0.34 %, each held to about twice that. The shell theory leaves out
     the wall's shear and rotary inertia, which lower the exact frequencies like
     (n t / R)^2 (next test)."""
-    for n in (2, 3, 4, 5):
+    for n, tol in ((2, 5e-4), (3, 1.5e-3), (4, 3e-3), (5, 5e-3)):
         got = _resonance_hz(n, SDLS07_HZ[n], SDLS07_R, SDLS07_T, span=(0.994, 1.002))
-        assert got == pytest.approx(SDLS07_HZ[n], rel=4e-3)
+        assert -tol < got / SDLS07_HZ[n] - 1 < 0, n   # below: the wall's shear
 
 
 def test_thinner_walls_converge_on_the_shell_theory():
     """Orders 6-10 at t/R = 0.02 and 0.01: within 0.5 % and 0.15 % of Hayek's
     frequencies (measured up to 0.45 % and 0.094 %), the difference falling by more
-    than 3.5 for each halving of the wall (measured 4.0-4.7: (t/R)^2); the breathing
+    than 3.5 for each halving of the wall (measured 4.0-4.8: (t/R)^2); the breathing
     mode and the first order's upper branch against the membrane values
     Omega^2 = 2(1 + nu) and 3(1 + nu) (Junger & Feit, *Sound, Structures, and Their
     Interaction*, ch. 7) at t/R = 0.01."""
@@ -235,10 +235,11 @@ def test_breathing_order_in_water_tends_to_the_membrane_shell():
 def _breathing_b0_50_digits(freq, radius, wall, fluid, material):
     """The breathing order of an empty elastic shell solved in 50-digit arithmetic
     from its three conditions (no shear wave at n = 0): the solid's potential
-    A j_0(k_L r) + B y_0(k_L r), u_r = phi', sigma_rr = -(lambda + 2 mu) k_L^2 phi
-    - 4 mu k_L phi'/r... written out: u_r(a) = p'(a)/(rho omega^2), sigma_rr(a) = -p(a),
+    phi = A j_0(k_L r) + B y_0(k_L r), u_r = d phi/dr,
+    sigma_rr = -(lambda + 2 mu) k_L^2 phi - (4 mu / r) d phi/dr;
+    u_r(a) = p'(a)/(rho omega^2), sigma_rr(a) = -p(a),
     sigma_rr(b) = 0, with p = j_0(kr) + b_0 h_0(kr)."""
-    mp = pytest.importorskip("mpmath")
+    import mpmath as mp
     with mp.workdps(50):
         a = mp.mpf(radius)
         b = a - mp.mpf(wall)
