@@ -19,15 +19,17 @@ targets detected and false alarms.
 The whole curve: the fields, and the held-out and seen silt fields beside them,
 processed once more with the floor at ``LOW_FLOOR_DB`` and each depth layer's clutter
 rate raised to ``LOW_LAYER_RATE`` (so that no layer's own threshold stands above the
-floor), their run contacts scored, then every floor from there to 17.5 dB applied to
-the scored contacts' excess: per sediment, the targets detected, the false alarms, how
-many of those the classifier calls man-made, and the false alarms per 100 m of track.
+floor), then every floor from there to 17.5 dB applied to their run contacts and those
+over it scored: per sediment, the targets detected, the false alarms, how many of those
+the contacts' call (the run's, with the pings) says man-made, and the false alarms per
+100 m of track. Without ``--out`` the curve is left out.
 
     python benchmarks/bench_sand_detection.py --cache /tmp/bench_classify --out benchmarks/results/bench_sand_detection.json
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import sys
@@ -108,25 +110,25 @@ def low_processing(cache: Path) -> Path:
     return out
 
 
-def floor_curve(scored: dict[str, dict], track_m: dict[str, float]) -> list[dict]:
-    """Per floor of CURVE_FLOORS_DB: the targets of ``scored`` (name: score_tiles
-    report of the low processing) detected at it (their matched contact's excess at
-    least the floor), the false alarms at or over it, those called man-made, and the
-    false alarms per 100 m of the fields' ``track_m``."""
+def floor_curve(tiles: dict[str, Path], track_m: dict[str, float]) -> list[dict]:
+    """Per floor of CURVE_FLOORS_DB, the fields' run contacts of the low processing
+    (name: tiles folder) at or over it scored again (``score_tiles`` with
+    ``min_excess_db``, so that a target whose nearest contact falls under the floor
+    can still be found by another): the targets detected, the false alarms, those
+    called man-made, and the false alarms per 100 m of the fields' ``track_m``."""
     rows = []
-    length = sum(track_m[n] for n in scored)
+    length = sum(track_m[n] for n in tiles)
     for floor in CURVE_FLOORS_DB:
         det = tot = fa = fa_manmade = 0
-        for rep in scored.values():
-            inside = [t for t in rep["truth"] if t["status"] != "outside"]
-            tot += len(inside)
-            det += sum(t["status"] == "detected" and t["excess_db"] >= floor
-                       for t in inside)
-            alarms = [d for d in rep["detections"]
-                      if d.get("status") == "false alarm" and d["excess_db"] >= floor]
+        for name, folder in tiles.items():
+            rep = score_tiles(folder, ROOT / "config" / "scenes" / f"{name}.toml",
+                              min_excess_db=float(floor))
+            tot += rep["summary"]["truth"]
+            det += rep["summary"]["hits"]
+            alarms = [d for d in rep["detections"] if d.get("status") == "false alarm"]
             fa += len(alarms)
             fa_manmade += sum(int(d.get("class", -2)) == 1 for d in alarms)
-        rows.append({"floor_db": round(float(floor), 2), "targets": tot,
+        rows.append({"floor_db": round(float(floor), 2), "targets": int(tot),
                      "detected": int(det), "false_alarms": fa,
                      "false_alarms_called_manmade": fa_manmade,
                      "false_alarms_per_100m": round(100.0 * fa / length, 1)})
@@ -135,20 +137,19 @@ def floor_curve(scored: dict[str, dict], track_m: dict[str, float]) -> list[dict
 
 def curves(cache: Path) -> dict:
     """floor_curve per sediment of CURVE_FIELDS, each field processed once with
-    low_processing."""
+    low_processing (cached under a tag of that file's contents)."""
     proc = low_processing(cache)
+    tag = f"low{LOW_FLOOR_DB:g}-{hashlib.sha256(proc.read_bytes()).hexdigest()[:8]}"
     interval = load(HardwareConfig, config_path("hardware.toml")).sequencer.ping_interval_s
     out = {"low_floor_db": LOW_FLOOR_DB, "low_layer_rate_per_m3": LOW_LAYER_RATE}
     for sediment, names in CURVE_FIELDS:
-        scored, track_m = {}, {}
+        folders, track_m = {}, {}
         for name in names:
-            scene_path = ROOT / "config" / "scenes" / f"{name}.toml"
-            tiles = processed(name, cache, proc, f"low{LOW_FLOOR_DB:g}", False)
-            scored[name] = score_tiles(tiles, scene_path)
-            track = load_scene(scene_path).track
+            folders[name] = processed(name, cache, proc, tag, False)
+            track = load_scene(ROOT / "config" / "scenes" / f"{name}.toml").track
             track_m[name] = track.n_pings * track.speed_m_s * interval
         out[sediment] = {"fields": list(names), "track_m": round(sum(track_m.values()), 1),
-                         "rows": floor_curve(scored, track_m)}
+                         "rows": floor_curve(folders, track_m)}
         for r in out[sediment]["rows"]:
             log.info("%s, floor %.1f dB: %d of %d detected, %d false alarms (%d called "
                      "man-made; %.1f per 100 m)", sediment, r["floor_db"], r["detected"],

@@ -210,7 +210,8 @@ def tile_paths(tiles_dir: str | Path) -> list[Path]:
 
 
 def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
-                radius_m: float | None = None, level: str = "run") -> dict:
+                radius_m: float | None = None, level: str = "run",
+                min_excess_db: float | None = None) -> dict:
     """Score the tiles of ``tiles_dir`` (:func:`tile_paths`) against the scene's
     targets. ``level``: ``"run"`` scores the run's contacts (the tiles' detections
     filtered across tiles: :mod:`svss_proc.products.run_products`, what an operator
@@ -218,7 +219,9 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
     ``"tile"`` every tile's own detections and calls. The match radius is ``radius_m`` or
     the ``products.detection.match_radius_m`` the tiles were processed with. A tile that
     cannot be read, or has no detections (processed without products), is an error
-    naming it. Returns a JSON-serialisable report, with false alarms per tile and per
+    naming it. ``min_excess_db``: only the detections at least this far over their
+    background are scored (a higher detection floor applied afterwards, as
+    benchmarks/bench_sand_detection.py sweeps it). Returns a JSON-serialisable report, with false alarms per tile and per
     square metre of the tiles' plan area."""
     if level not in ("run", "tile"):
         raise ValueError(f"level is {level!r}; expected 'run' or 'tile'")
@@ -258,7 +261,9 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
         index = np.arange(len(table))         # each row's place in the tile's table
         if kept is not None and len(table):
             index = index[[(path.name, i) in kept for i in range(len(table))]]
-            table = table[index]
+        if min_excess_db is not None and len(table):
+            index = index[table["excess_db"][index] >= min_excess_db]
+        table = table[index] if len(table) else table
         line = tiles.tile_line(attrs)
         axes = [header[d] for d in tiles.DIMS]
         t_tile = line.ned_to_tile(truth_ned)
@@ -280,7 +285,7 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
     det_ned = np.concatenate(det_ned) if det_ned else np.zeros((0, 3))
     if level == "run" and (tiles_dir / CONTACTS_CSV).is_file():
         n = run_calls(tiles_dir / CONTACTS_CSV, det_rows)
-        log.info("%s: the calls of %d of %d contact(s) from %s", tiles_dir, n,
+        log.debug("%s: the calls of %d of %d contact(s) from %s", tiles_dir, n,
                  len(det_rows), CONTACTS_CSV)
     scored = np.flatnonzero(covered)
     result = score(det_ned, truth_ned[scored], radius_m,

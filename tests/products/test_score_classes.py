@@ -209,6 +209,11 @@ def test_the_run_calls_pair_with_each_tile_row_the_run_kept(tmp_path, hardware,
     assert len(r["detections"]) < sum(len(t) for t in tables.values())   # one dropped
     for d in r["detections"]:
         assert tables[d["tile"]]["excess_db"][d["row"]] == pytest.approx(d["excess_db"])
+    # a higher floor applied afterwards: only the bright point's contact is scored
+    high = score_tiles(out, scene, level="run", min_excess_db=35.0)
+    assert len(high["detections"]) == 1 and high["detections"][0]["excess_db"] >= 35.0
+    assert all(tables[d["tile"]]["excess_db"][d["row"]] == pytest.approx(d["excess_db"])
+               for d in high["detections"])
     write_run_products(out)
     rows = list(csv.DictReader(open(out / CONTACTS_CSV)))
     for row in rows:
