@@ -21,6 +21,7 @@ missed target, or one left undecided for a missing feature, is never called man-
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import re
@@ -115,9 +116,7 @@ def curve(rows: list[dict]) -> list[dict]:
 def main() -> None:
     args = line_args(__doc__)
     pcfg = load(ProcessingConfig, PROCESSING)
-    keys = ("features", "mean", "scale", "coefficients", "intercept", "manmade_above",
-            "natural_below", "undecided_flags")
-    models = {name: None if m is None else {k: getattr(m, k) for k in keys}
+    models = {name: None if m is None else dataclasses.asdict(m)
               for name, m in (("model", pcfg.products.classify),
                               ("model_pings", pcfg.products.classify_pings))}
     report = {"machine": machine_isa(), "command": " ".join(["python"] + sys.argv),

@@ -18,7 +18,6 @@ gives, per class, how many were detected and how the detections were called
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import logging
@@ -33,7 +32,8 @@ from svss_daq.config import ConfigError, ProcessingConfig, loads
 from svss_proc import tiles
 from svss_proc.products import detect
 from svss_proc.products.classify import CLASS_CODE, class_text
-from svss_proc.products.run_products import CONTACTS_CSV, TileView, run_contacts
+from svss_proc.products.run_products import (CONTACTS_CSV, TileView, contacts_by_row,
+                                             run_contacts)
 
 log = logging.getLogger(__name__)
 
@@ -283,7 +283,7 @@ def score_tiles(tiles_dir: str | Path, scene_path: str | Path,
                 det_rows.append({"tile": path.name, "row": int(i),
                                  **{k: row[k].item() for k in detect.DTYPE.names}})
     det_ned = np.concatenate(det_ned) if det_ned else np.zeros((0, 3))
-    if level == "run" and (tiles_dir / CONTACTS_CSV).is_file():
+    if level == "run":
         n = run_calls(tiles_dir / CONTACTS_CSV, det_rows)
         log.debug("%s: the calls of %d of %d contact(s) from %s", tiles_dir, n,
                  len(det_rows), CONTACTS_CSV)
@@ -328,18 +328,10 @@ def run_calls(path: Path, det_rows: list[dict]) -> int:
     ``p_manmade``, ``class_from``, and the pings' ``late_over_background_db``; the tile's
     own as ``class_image`` and ``p_manmade_image``): the call
     made at the run's end with the pings' features (``[products.classify_pings]``) where
-    ``svss process`` measured them, what the operator gets. Matched by tile and row, the
+    ``svss process`` measured them, what the operator gets. Matched by tile and row,
     the same excess within 0.01 dB and depth within 1 cm; a file missing or from other
-    tiles changes nothing.
-    Returns how many rows took the file's call."""
-    if not path.is_file():
-        return 0
-    try:
-        with open(path, newline="") as f:
-            rows = {(r["tile"], r["tile_row"]): r for r in csv.DictReader(f)}
-    except (OSError, csv.Error, KeyError, UnicodeDecodeError) as exc:
-        log.warning("%s: not read (%s); the tiles' calls are scored", path, exc)
-        return 0
+    tiles changes nothing. Returns how many rows took the file's call."""
+    rows = contacts_by_row(path, "the tiles' calls are scored")
     n = 0
     for d in det_rows:
         r = rows.get((d["tile"], str(d["row"])))

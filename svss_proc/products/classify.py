@@ -34,6 +34,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from svss_daq.config_processing import PING_FEATURES
+
 #: the ``class`` column's codes
 MANMADE, NATURAL, UNDECIDED, NOT_CLASSIFIED = 1, 0, -1, -2
 CLASS_TEXT = {MANMADE: "man-made", NATURAL: "natural", UNDECIDED: "undecided",
@@ -135,7 +137,6 @@ def call_with_pings(contacts: list[dict], cfg) -> int:
     (those of ``cfg.features`` in ``PING_FEATURES``) were all measured: its ``class``,
     ``p_manmade`` and ``class_from`` from the run-level model ``cfg``. Returns how many
     were called."""
-    from svss_daq.config_processing import PING_FEATURES
     ping = [n for n in cfg.features if n in PING_FEATURES]
     chosen = [c for c in contacts if ping and all(np.isfinite(_number(c.get(n)))
                                                   for n in ping)]

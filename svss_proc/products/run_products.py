@@ -389,21 +389,28 @@ def _csv_value(name: str, v) -> str:
     return str(v)
 
 
+def contacts_by_row(path: Path, otherwise: str) -> dict[tuple[str, str], dict]:
+    """The rows of a contacts file (CSV text) by their tile detection (``tile``,
+    ``tile_row``); none, with a warning ending in ``otherwise``, where the file is
+    missing a column or cannot be read (a missing file: none, silently)."""
+    if not path.is_file():
+        return {}
+    try:
+        with open(path, newline="") as f:
+            return {(r["tile"], r["tile_row"]): r for r in csv.DictReader(f)}
+    except (OSError, csv.Error, KeyError, UnicodeDecodeError) as exc:
+        log.warning("%s: not read (%s); %s", path, exc, otherwise)
+        return {}
+
+
 def kept_spectra(path: Path, contacts: list[dict]) -> int:
     """Rewritten without the pings (``svss products``, the worker), the contacts keep the
     resonance columns the contacts file at ``path`` had for the same tile detection
     (``tile``, ``tile_row``) at the same place (within 1 cm): they came from the
     recorded pings (``svss process``), which a rewrite from the tiles cannot measure
     again. Returns how many contacts kept them."""
-    if not path.is_file():
-        return 0
-    try:
-        with open(path, newline="") as f:
-            old = {(r["tile"], r["tile_row"]): r for r in csv.DictReader(f)
-                   if r.get("resonance_pings") not in (None, "", "0")}
-    except (OSError, csv.Error, KeyError, UnicodeDecodeError) as exc:
-        log.warning("%s: not read (%s); its resonance columns are not kept", path, exc)
-        return 0
+    old = contacts_by_row(path, "its resonance columns are not kept")
+    old = {k: r for k, r in old.items() if r.get("resonance_pings") not in (None, "", "0")}
     n = 0
     for c in contacts:
         r = old.get((str(c["tile"]), str(c["tile_row"])))

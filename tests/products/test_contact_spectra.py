@@ -18,7 +18,7 @@ from svss_daq.geometry import array_geometry
 from svss_proc.imaging.imager import receive_apodisation
 from svss_proc.products.contact_spectra import (EchoCollector, Focus, contact_lines,
                                                 focused_echo, two_way_times)
-from tests.references import refracted_time
+from tests.references import layered_time, refracted_time
 
 CW, CS = 1480.0, 1650.0                     # water; medium sand
 FC, BAND = 27500.0, (20000.0, 35000.0)
@@ -71,6 +71,23 @@ def test_two_way_times_are_the_references_fermat_times(geo):
     t_tx = refracted_time(tx, POINT, CW, CS)
     want = np.array([t_tx + refracted_time(r, POINT, CW, CS) for r in rx])
     assert np.max(np.abs(got - want)) < 1e-10
+
+
+def test_layered_two_way_times_are_fermat_times_under_a_lower_bed(geo):
+    """Silt 0.2 m over sand, the bed 7 cm below the frame's level at the contact: the
+    times through the layers (the imaging's ray) against an independent least-time
+    minimisation over both crossing points, every eighth receiver."""
+    tx, rx, _ = placed(geo, 300.0)
+    rx = rx[::8]
+    tops, speeds, surface = np.array([0.0, 0.2]), np.array([1476.0, 1767.0]), 0.07
+    got = two_way_times(tx, rx, POINT, CW, CS, surface, tops, speeds)
+
+    def ref(e):
+        rho = math.hypot(POINT[0] - e[0], POINT[1] - e[1])
+        return layered_time(rho, [surface - e[2], 0.2, POINT[2] - 0.2],
+                            [CW, 1476.0, 1767.0])
+    want = np.array([ref(tx) + ref(r) for r in rx])
+    assert np.max(np.abs(got - want)) < 1e-10               # measured 1e-18
 
 
 def test_the_focused_series_is_the_response_put_in(geo):

@@ -4,6 +4,7 @@ small folder of real tiles whose detections carry a class."""
 
 from __future__ import annotations
 
+import csv
 import math
 
 import numpy as np
@@ -14,10 +15,19 @@ from svss_daq.frames import TrackLine
 from svss_proc.imaging.grid import tile_grid
 from svss_proc.products.chain import compute_products
 from svss_proc.products.classify import MANMADE, NATURAL, UNDECIDED
+from svss_proc.products.run_products import CONTACTS_CSV, write_run_products
 from svss_proc.tiles import read_tile, write_tile
 
 from . import VOXEL, make_tile, plant, rayleigh_median, speckle
 from .test_cli import HEADING, SCENE
+
+def _rewrite(path, rows: list[dict]) -> None:
+    """A run's contacts file written again with ``rows`` (as an edited file)."""
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+
 
 TARGETS = """
 [[targets]]
@@ -144,9 +154,6 @@ def test_score_reports_detection_and_classification_per_class(tmp_path, hardware
     assert "natural: 2/2 detected; called man-made 0, natural 1, undecided 1" in text
     # the run's contacts file (written by svss process) may call a contact again with the
     # pings' features: the run-level score takes its call, the tile level the tile's
-    import csv
-
-    from svss_proc.products.run_products import CONTACTS_CSV, write_run_products
     write_run_products(out)
     rows = list(csv.DictReader(open(out / CONTACTS_CSV)))
     slab = min(rows, key=lambda c: abs(float(c["along_m"]) - (along[1] - shift))
@@ -154,10 +161,7 @@ def test_score_reports_detection_and_classification_per_class(tmp_path, hardware
     assert slab["class"] == "natural" and slab["class_from"] == "image"
     slab.update({"class": "man-made", "p_manmade": "0.770", "class_from": "image and pings",
                  "late_over_background_db": "4.50"})
-    with open(out / CONTACTS_CSV, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    _rewrite(out / CONTACTS_CSV, rows)
     again = score_tiles(out, scene)
     again["truth"].sort(key=lambda t: (t["table"] != "targets", t["index"]))
     assert [t.get("called") for t in again["truth"]] == ["man-made", "man-made", None,
@@ -171,10 +175,7 @@ def test_score_reports_detection_and_classification_per_class(tmp_path, hardware
     assert tile_level["truth"][1]["called"] == "natural"
     # a file whose excess differs (another processing) lends no call
     slab["excess_db"] = f"{float(slab['excess_db']) + 1.0:.2f}"
-    with open(out / CONTACTS_CSV, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    _rewrite(out / CONTACTS_CSV, rows)
     stale = score_tiles(out, scene)
     stale["truth"].sort(key=lambda t: (t["table"] != "targets", t["index"]))
     assert stale["truth"][1]["called"] == "natural"
@@ -185,9 +186,6 @@ def test_the_run_calls_pair_with_each_tile_row_the_run_kept(tmp_path, hardware,
     """The run drops a tile's detection (one object seen by two tiles across their
     seam): the scored rows keep their places in the tiles' tables, so the run's
     contacts file pairs with every one of them."""
-    import csv
-
-    from svss_proc.products.run_products import CONTACTS_CSV, write_run_products
     scene = tmp_path / "scene.toml"
     scene.write_text(SCENE + TARGETS.format(a0=1.0, a1=2.2, a2=3.4, a3=4.4, a4=5.4))
     line = TrackLine((100.0, 200.0), HEADING, 3.0)
@@ -218,10 +216,7 @@ def test_the_run_calls_pair_with_each_tile_row_the_run_kept(tmp_path, hardware,
     rows = list(csv.DictReader(open(out / CONTACTS_CSV)))
     for row in rows:
         row.update({"class": "natural", "p_manmade": "0.100", "class_from": "image and pings"})
-    with open(out / CONTACTS_CSV, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    _rewrite(out / CONTACTS_CSV, rows)
     again = score_tiles(out, scene, level="run")
     assert len(again["detections"]) == len(rows)
     assert all(d["class_from"] == "image and pings" and d["class"] == NATURAL
