@@ -2,7 +2,7 @@
 """Why targets in medium sand are missed: each target's brightest level over its
 background against the brightest level of the sand's own clutter, per voxel and averaged
 over boxes of voxels (a detector that integrates over a contact's extent), on the
-classifier's sand fields (issue 51; docs/contact_features.md, "Detection in sand").
+classifier's sand fields (issue 51; docs/classification.md, "Detection in sand").
 
 The fields (``classify_train_4``, ``classify_train_6``, ``classify_test2_sand``,
 ``classify_test_sand``) are simulated and processed as benchmarks/fit_classifier.py and

@@ -1,6 +1,6 @@
 #!/usr/bin/env python
-"""Fit the contact classifier (svss_proc.products.classify; docs/contact_features.md,
-"Classification") on simulated training fields, apart from the test fields of
+"""Fit the contact classifier (svss_proc.products.classify; docs/classification.md) on
+simulated training fields, apart from the test fields of
 benchmarks/bench_classify.py.
 
 Each training field (``config/scenes/classify_train_*.toml``: shot puts, steel shells
@@ -60,7 +60,7 @@ log = logging.getLogger("fit_classifier")
 
 TRAIN = ("classify_train_1", "classify_train_2", "classify_train_3", "classify_train_4",
          "classify_train_5", "classify_train_6", "classify_train_7")
-#: the model's features (physically motivated: docs/contact_features.md)
+#: the model's features (physically motivated: docs/classification.md)
 FEATURES = ("aspect_width_deg", "late_to_specular_db")
 #: targets whose response is a point's both ways: the references of the point fraction
 POINT_KINDS = ("sphere", "shell")

@@ -2,7 +2,7 @@
 """Write classifier fields (``config/scenes/classify_*.toml``) drawn from one seeded
 distribution of seed-like targets, so that training and test fields come from the same
 population and only the random draw and the sediment set them apart (issue 51;
-docs/contact_features.md, "Classification").
+docs/classification.md).
 
 Each field: eight targets 2 m apart (6-20 m along, cross-track alternately +-0.3 m),
 four man-made and four rocks in a random order.

@@ -268,7 +268,7 @@ PING_FEATURES = ("late_over_background_db",)
 @dataclass(frozen=True)
 class ClassifyConfig:
     enabled: bool = spec("call each contact man-made, natural or undecided from its "
-                         "features (docs/contact_features.md, classification)")
+                         "features (docs/classification.md)")
     features: tuple[str, ...] = spec("the model's features, columns of the contacts",
                                      choices=CLASSIFY_FEATURES, min_length=1)
     mean: tuple[float, ...] = spec("each feature's mean over the training contacts "
@@ -350,13 +350,13 @@ class ProductsConfig:
         default=None)
     classify: ClassifyConfig | None = spec(
         "each contact called man-made, natural or undecided from its features "
-        "(docs/contact_features.md; omitted: not classified)", default=None)
+        "(docs/classification.md; omitted: not classified)", default=None)
     spectra: SpectraConfig | None = spec(
         "each contact's strongest resonance line from the recorded pings, by svss process "
         "(docs/contact_features.md; omitted: not measured)", default=None)
     classify_pings: PingClassifyConfig | None = spec(
         "the run's contacts called again where the pings' features were measured (svss "
-        "process; docs/contact_features.md; omitted: the image's call stands)",
+        "process; docs/classification.md; omitted: the image's call stands)",
         default=None)
 
 

@@ -1,5 +1,5 @@
 """Each contact called man-made, natural or undecided from its features (issue 51;
-docs/contact_features.md, "Classification").
+docs/classification.md).
 
 The model is a logistic regression on a few of the contact's features
 (:mod:`.contact_features`), each standardised by the mean and standard deviation of the
