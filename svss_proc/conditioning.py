@@ -99,16 +99,29 @@ class Conditioner:
         return SampleAxis(arrival.start_s, self.decimation / (self.fs * self.upsample),
                           self.n_out)
 
+    def checked_axis(self, axis: SampleAxis | None) -> SampleAxis:
+        """``axis`` (None: the configured window), refused unless its samples are at the
+        configured rate."""
+        axis = self.sample_axis if axis is None else axis
+        if abs(axis.step_s * self.fs - 1.0) > 1e-9:
+            raise ValueError(f"conditioning: samples at {1 / axis.step_s:g} Hz, the "
+                             f"digitiser is configured for {self.fs:g} Hz")
+        return axis
+
+    def operator(self) -> np.ndarray:
+        """The conditioning as one matrix (``n_in`` x ``n_out``, complex128): the analytic
+        samples of codes x of the configured length are ``x @ operator()`` (what
+        :meth:`__call__` computes with FFTs, linear in the codes; the GPU conditions
+        so, :mod:`svss_proc.imaging.gpu_conditioning`)."""
+        return self(np.eye(self.n_in)).analytic
+
     def ping(self, ping: Ping) -> Conditioned:
         """Condition a ping on its own sample axis."""
         return self(ping.samples, ping.sample_axis)
 
     def __call__(self, codes: np.ndarray, axis: SampleAxis | None = None) -> Conditioned:
         """Condition ADC codes taken on ``axis`` (default: the configured window)."""
-        axis = self.sample_axis if axis is None else axis
-        if abs(axis.step_s * self.fs - 1.0) > 1e-9:
-            raise ValueError(f"conditioning: samples at {1 / axis.step_s:g} Hz, the "
-                             f"digitiser is configured for {self.fs:g} Hz")
+        axis = self.checked_axis(axis)
         x = sfft.rfft(np.asarray(codes, dtype=np.float64), self.n_fft, axis=-1)
         z = np.zeros((x.shape[0], self.m_out), dtype=np.complex128)
         z[:, self.slots] = x[:, self.bins] * self.filter

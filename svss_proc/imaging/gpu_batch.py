@@ -38,6 +38,7 @@ from numba import cuda
 
 from .gpu_kernel import _BUFFERS, _math, _delays_to_device, cross_range, run_ping_gpu
 from .gpu_shared import THREADS, block_count_for
+from .gpu_staging import StagedRows, on_device
 from .kernel_args import (ConeGate, DelayModel, ImageSlice, KernelArgs, KernelData,
                           PingArray, TapPlanes, VoxelGeometry, check_call, kernel_args)
 from .kernel_math import kernel_one
@@ -74,7 +75,7 @@ _KERNELS: dict = {}
 
 def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
     @cuda.jit
-    def kernel(img_re, img_im, planes, rows, rows64, ranges, nk, tt, surf, surf64, na,
+    def kernel(img_re, img_im, ring, rows, rows64, ranges, nk, tt, surf, surf64, na,
                nc, nch, ia0, ia1, ic0, ic1, count):
         i = cuda.grid(1)
         ncb = ic1 - ic0
@@ -86,7 +87,7 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
             rem = i % (ncb * nd)
             ic = ic0 + rem // nd
             iz = rem % nd
-            one = kernel_one(planes[0, 0])          # the kernel precision
+            one = kernel_one(ring[0, 0])            # the kernel precision
             acc_re = one - one
             acc_im = one - one
             o_c = na
@@ -103,9 +104,9 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
                     continue
                 g = rows[k]
                 f = rows64[k]
+                p = ranges[k, 4]                     # the ping's slot in the ring
                 args = KernelArgs(
-                    TapPlanes(planes[k, 0], planes[k, 1], g[o_s + 3], g[o_s + 4],
-                              g[o_s + 5]),
+                    TapPlanes(ring[p, 0], ring[p, 1], g[o_s + 3], g[o_s + 4], g[o_s + 5]),
                     VoxelGeometry(g[0:o_c], g[o_c:o_d], g[o_d:o_x], g[o_s], g[o_x:o_y],
                                   g[o_y:o_h], g[o_h:o_w], g[o_w:o_b], g[o_b:o_s],
                                   g[o_s + 1], g[o_s + 2], surf),
@@ -134,7 +135,8 @@ def kernel_for(interp: int, mode: int, gating: bool, halvings: int):
 
 @dataclass
 class _Queue:
-    """The pings queued for one tile: their kernel arguments and voxel ranges."""
+    """The pings queued for one tile: their kernel arguments, voxel ranges and ring
+    slots."""
     out: ImageSlice
     count: object
     key: tuple
@@ -143,24 +145,40 @@ class _Queue:
     ranges: list = field(default_factory=list)
 
 
-class _Staging:
-    """Host arrays a batch is packed into (page-locked on a GPU, so that uploads go at
-    the bus's speed), kept while the batch's shapes stay."""
+class PlaneRing:
+    """The device tap planes of the pings queued (module docstring): ``capacity`` slots
+    of one plane shape and dtype, each held by reference counts: the queues it is in
+    (until their launch is enqueued) and whoever made it (the imager, until the ping is
+    imaged). Planes made on the host go up through page-locked staging
+    (:class:`~.gpu_staging.StagedRows`); planes made on the device
+    (:mod:`~.gpu_conditioning`) are written into their slot there."""
 
-    def __init__(self):
-        self.key = None
-        self.planes = self.rows = self.rows64 = self.ranges = None
+    def __init__(self, capacity: int, plane_shape: tuple, dtype, stream):
+        self.capacity = int(capacity)
+        self.staged = StagedRows(capacity, (2,) + tuple(plane_shape), dtype, stream)
+        self.refs = np.zeros(self.capacity, dtype=np.int64)
+        self.of: dict[int, tuple] = {}        # id(kernel data): (kernel data, slot)
 
-    def arrays(self, k: int, plane_shape: tuple, row: int, dtype):
-        key = (k, plane_shape, row, np.dtype(dtype))
-        if key != self.key:
-            alloc = cuda.pinned_array
-            self.planes = alloc((k, 2) + plane_shape, dtype=dtype)
-            self.rows = alloc((k, row), dtype=dtype)
-            self.rows64 = alloc((k, row), dtype=np.float64)
-            self.ranges = alloc((k, 4), dtype=np.int64)
-            self.key = key
-        return self.planes, self.rows, self.rows64, self.ranges
+    @property
+    def device(self):
+        """The ring, (capacity, 2, taps, channels, samples) on the device."""
+        return self.staged.device
+
+    def fits(self, plane_shape: tuple, dtype) -> bool:
+        return self.staged.fits((2,) + tuple(plane_shape), dtype)
+
+    def free_slot(self) -> int | None:
+        free = np.flatnonzero(self.refs == 0)
+        return None if free.size == 0 else int(free[0])
+
+    def drop(self, slot: int) -> None:
+        """One reference of ``slot`` less; the slot is free at none."""
+        self.refs[slot] -= 1
+        if self.refs[slot] <= 0:
+            self.refs[slot] = 0
+            for key, (_, s) in list(self.of.items()):
+                if s == slot:
+                    del self.of[key]
 
 
 class PingBatcher:
@@ -168,14 +186,20 @@ class PingBatcher:
     signature of :func:`~svss_proc.imaging.gpu_kernel.run_ping_gpu`; with a device
     counter (``count=``) it queues the ping and launches when ``pings_per_launch`` are
     queued for the tile; without one it runs the ping alone and waits, as
-    ``run_ping_gpu`` does. :meth:`flush` launches what is queued."""
+    ``run_ping_gpu`` does. :meth:`flush` launches what is queued. Uploads and launches
+    go on :attr:`stream`, without waiting (:mod:`~.gpu_staging`); a ping's planes go up
+    once however many tiles it reaches, or are made on the device
+    (:meth:`device_planes`)."""
 
     def __init__(self, pings_per_launch: int):
         if pings_per_launch < 1:
             raise ValueError(f"pings_per_launch {pings_per_launch}, expected 1 or more")
         self.pings_per_launch = int(pings_per_launch)
         self._queues: dict[int, _Queue] = {}     # id(image plane re): queue
-        self._staging = _Staging()
+        #: the CUDA stream everything of the batches is enqueued on
+        self.stream = cuda.stream()
+        self._ring: PlaneRing | None = None
+        self._rows: dict[str, StagedRows] = {}
         #: launches made and pings they imaged (for benchmarks)
         self.launches = 0
         self.pings = 0
@@ -194,17 +218,90 @@ class PingBatcher:
             return None
         key = (kd.interp, delays.code, bool(gating), kd.halvings, kd.planes.re.shape,
                id(count), id(delays.table), id(args.gate.surf))
+        slot = self._slot_for(kd)            # (may launch every queue for room)
         q = self._queues.get(id(out.re))
         if q is not None and (q.key != key or q.delays.table is not delays.table):
             self._launch(q)
             q = None
         if q is None:
             q = self._queues[id(out.re)] = _Queue(out, count, key, delays)
+        self._ring.refs[slot] += 1
         q.args.append(args)
-        q.ranges.append((out.ia0, out.ia1, ic0, ic1))
+        q.ranges.append((out.ia0, out.ia1, ic0, ic1, slot))
         if len(q.args) >= self.pings_per_launch:
             self._launch(q)
         return None
+
+    # the ring of planes
+    def _ring_for(self, plane_shape: tuple, dtype) -> PlaneRing:
+        """The ring, made (again, after launching every queue) for these planes."""
+        r = self._ring
+        if r is None or not r.fits(plane_shape, dtype):
+            self.flush()
+            if r is not None and r.refs.any():
+                raise RuntimeError("GPU planes of another shape are still held")
+            # every tile a ping reaches may hold a full queue, and a ping is held while
+            # it is imaged: room for three tiles' queues before a forced launch
+            r = self._ring = PlaneRing(3 * self.pings_per_launch + 2, plane_shape, dtype,
+                                       self.stream)
+        return r
+
+    def _claim(self, plane_shape: tuple, dtype) -> int:
+        """A free slot (launching every queue when none is), held once."""
+        ring = self._ring_for(plane_shape, dtype)
+        slot = ring.free_slot()
+        if slot is None:
+            self.flush()
+            slot = ring.free_slot()
+            if slot is None:
+                raise RuntimeError(f"all {ring.capacity} GPU plane slots are held")
+        ring.refs[slot] += 1
+        return slot
+
+    def _slot_for(self, kd: KernelData) -> int:
+        """The ring slot of ``kd``'s planes: its own (made on the device, or uploaded
+        for an earlier tile) or a new one they are uploaded into."""
+        ring = self._ring
+        if ring is not None and id(kd) in ring.of:
+            return ring.of[id(kd)][1]
+        p = kd.planes
+        if on_device(p.re):
+            raise ValueError("device tap planes not made by this batcher")
+        slot = self._claim(p.re.shape, p.re.dtype)
+        host = self._ring.staged.host_row(slot)
+        host[0] = p.re
+        host[1] = p.im
+        self._ring.staged.send(slot)
+        self._ring.of[id(kd)] = (kd, slot)
+        self._ring.refs[slot] -= 1           # held by the queues it goes into only
+        return slot
+
+    def device_planes(self, conditioner, codes: np.ndarray, axis) -> KernelData:
+        """A ping's tap planes made on the device by ``conditioner``
+        (:class:`~.gpu_conditioning.DeviceConditioner`) from its ADC codes (channels x
+        samples) taken on ``axis``, in a ring slot held until :meth:`release`."""
+        codes = np.asarray(codes)
+        shape = conditioner.plane_shape(codes.shape[0])
+        slot = self._claim(shape, conditioner.dtype)
+        ring = self._ring
+        key = "codes"
+        st = self._rows.get(key)
+        wide = (codes.shape[0], conditioner.n_in)
+        if st is None or not st.fits(wide, np.int32) or st.capacity != ring.capacity:
+            st = self._rows[key] = StagedRows(ring.capacity, wide, np.int32, self.stream)
+        row = st.host_row(slot)
+        row[:, :codes.shape[1]] = codes
+        d_codes = st.send(slot)
+        kd = conditioner(d_codes, codes.shape[1], axis, ring.device, slot, self.stream)
+        ring.of[id(kd)] = (kd, slot)
+        return kd
+
+    def release(self, kd: KernelData) -> None:
+        """Let go of planes made by :meth:`device_planes` (their slot is free once the
+        launches that read them are enqueued)."""
+        ring = self._ring
+        if ring is not None and id(kd) in ring.of:
+            ring.drop(ring.of[id(kd)][1])
 
     def flush(self, image_re=None) -> None:
         """Launch the pings queued for the tile whose real image plane is ``image_re``
@@ -215,6 +312,16 @@ class PingBatcher:
             if q is not None:
                 self._launch(q)
 
+    def _staged(self, role: str, shape: tuple, dtype) -> StagedRows:
+        """Page-locked staging of one launch's ``role`` rows (two launches' worth, so
+        that packing a launch does not wait for the last one's copy)."""
+        st = self._rows.get(role)
+        if st is None or not st.fits(shape, dtype):
+            st = self._rows[role] = StagedRows(2, shape, dtype, self.stream)
+        st.turn ^= 1
+        st.host_row(st.turn)
+        return st
+
     def _launch(self, q: _Queue) -> None:
         self._queues.pop(id(q.out.re), None)
         nk = len(q.args)
@@ -224,27 +331,29 @@ class PingBatcher:
         g0 = a0.geometry
         na, nc, nd, nch = g0.ax.size, g0.cy.size, g0.dz.size, g0.rx_dx.size
         dtype = a0.planes.re.dtype
-        planes, rows, rows64, ranges = self._staging.arrays(
-            self.pings_per_launch, a0.planes.re.shape, row_length(na, nc, nd, nch), dtype)
-        for k, a in enumerate(q.args):
-            planes[k, 0] = a.planes.re
-            planes[k, 1] = a.planes.im
-            pack_row(rows[k], a.geometry, a.planes)
-            pack_row(rows64[k], a.gate, None)
-            ranges[k] = q.ranges[k]
-        r = np.asarray(q.ranges[:nk])
+        k = self.pings_per_launch
+        row = row_length(na, nc, nd, nch)
+        s_rows = self._staged("rows", (k, row), dtype)
+        s_rows64 = self._staged("rows64", (k, row), np.float64)
+        s_ranges = self._staged("ranges", (k, 5), np.int64)
+        rows, rows64, ranges = (s.host[s.turn] for s in (s_rows, s_rows64, s_ranges))
+        for j, a in enumerate(q.args):
+            pack_row(rows[j], a.geometry, a.planes)
+            pack_row(rows64[j], a.gate, None)
+            ranges[j] = q.ranges[j]
+        ranges[nk:] = 0
+        r = np.asarray(q.ranges)
         ia0, ia1 = int(r[:, 0].min()), int(r[:, 1].max())
         ic0, ic1 = int(r[:, 2].min()), int(r[:, 3].max())
         interp, mode, gating, halvings = q.key[:4]
-        d_planes = _BUFFERS.upload_rows("batch_planes", planes[:nk], dtype)
-        d_rows = _BUFFERS.upload_rows("batch_rows", rows[:nk], dtype)
-        d_rows64 = _BUFFERS.upload_rows("batch_rows64", rows64[:nk], np.float64)
-        d_ranges = _BUFFERS.upload_rows("batch_ranges", ranges[:nk], np.int64)
+        d_rows, d_rows64, d_ranges = (s.send(s.turn) for s in (s_rows, s_rows64, s_ranges))
         n = (ia1 - ia0) * (ic1 - ic0) * nd
         kernel = kernel_for(interp, mode, gating, halvings)
-        kernel[math.ceil(n / THREADS), THREADS](
-            q.out.re, q.out.im, d_planes, d_rows, d_rows64, d_ranges, nk,
+        kernel[math.ceil(n / THREADS), THREADS, self.stream](
+            q.out.re, q.out.im, self._ring.device, d_rows, d_rows64, d_ranges, nk,
             _delays_to_device(a0.delays), _BUFFERS.table(g0.surf),
             _BUFFERS.table(a0.gate.surf), na, nc, nch, ia0, ia1, ic0, ic1, q.count)
+        for rr in q.ranges:                  # the launch is enqueued: slots let go
+            self._ring.drop(rr[4])
         self.launches += 1
         self.pings += nk

@@ -36,6 +36,7 @@ from .kernel_args import (ConeGate, DelayModel, ImageSlice, KernelArgs, KernelDa
                           kernel_args)
 from .kernel_math import build, kernel_one
 from .gpu_shared import THREADS, DeviceBuffers, block_count_for
+from .gpu_staging import on_device
 
 _dev = cuda.jit(device=True)
 _math = build(_dev, build_refraction(_dev))
@@ -85,6 +86,8 @@ _BUFFERS = DeviceBuffers()
 def _planes_to_device(p: TapPlanes) -> TapPlanes:
     """Tap planes on the device: one copy when re and im are the two halves of one
     buffer, two otherwise."""
+    if on_device(p.re):                 # made on the device
+        return p
     base = p.re.base
     if (base is not None and base is p.im.base and base.flags.c_contiguous
             and base.shape == (2,) + p.re.shape and np.shares_memory(base[0], p.re)

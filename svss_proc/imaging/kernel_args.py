@@ -163,24 +163,39 @@ class DelayModel:
         return DELAY[self.mode]
 
 
+def tap_theta(center_hz: float, step_s: float) -> float:
+    """The tap planes' phase step per sample, rad (signed by the convention)."""
+    return REMODULATION_SIGN * 2.0 * math.pi * center_hz * step_s
+
+
+def tap_phases(code: int, theta: float) -> np.ndarray:
+    """Each tap's phase factor exp(-j theta (k - s)) (complex128, one per tap of
+    :data:`TAPS`)."""
+    return np.exp(-1j * theta * (np.asarray(TAPS[code], dtype=np.float64) - SHIFT[code]))
+
+
+def phase_halvings(theta: float) -> int:
+    """Angle halvings the kernel makes before its phase series (|w - s| <= 1/2 for every
+    interpolation, so the largest angle is theta / 2)."""
+    max_angle = 0.5 * abs(theta)
+    return max(0, math.ceil(math.log2(max(max_angle, 1e-12) / MAX_HALF_ANGLE)))
+
+
 def prepare(cond: Conditioned, interp: str, dtype) -> KernelData:
     """Tap planes of a conditioned ping for interpolation ``interp`` in precision
-    ``dtype`` (float32 or float64)."""
+    ``dtype`` (float32 or float64). (On the GPU the same planes are made on the device
+    from the ping's codes: :mod:`svss_proc.imaging.gpu_conditioning`.)"""
     code = INTERP[interp]
     a = cond.analytic
     n = a.shape[1]
-    theta = REMODULATION_SIGN * 2.0 * math.pi * cond.center_hz * cond.axis.step_s
-    s = SHIFT[code]
-    taps = TAPS[code]
-    planes = np.zeros((len(taps), a.shape[0], n), dtype=np.complex128)
-    for i, k in enumerate(taps):
+    theta = tap_theta(cond.center_hz, cond.axis.step_s)
+    planes = np.zeros((len(TAPS[code]), a.shape[0], n), dtype=np.complex128)
+    for i, (k, phase) in enumerate(zip(TAPS[code], tap_phases(code, theta))):
         if k >= 0:
             planes[i, :, : n - k] = a[:, k:]
         else:
             planes[i, :, -k:] = a[:, :k]
-        planes[i] *= np.exp(-1j * theta * (k - s))
-    max_angle = 0.5 * abs(theta)     # |w - s| <= 1/2 for every interpolation
-    halvings = max(0, math.ceil(math.log2(max(max_angle, 1e-12) / MAX_HALF_ANGLE)))
+        planes[i] *= phase
     ft = np.dtype(dtype).type
     # real and imaginary planes are the two halves of one buffer: the GPU path uploads
     # them in one copy
@@ -189,7 +204,7 @@ def prepare(cond: Conditioned, interp: str, dtype) -> KernelData:
     both[1] = planes.imag
     return KernelData(TapPlanes(both[0], both[1], ft(cond.axis.start_s),
                                 ft(1.0 / cond.axis.step_s), ft(theta)),
-                      code, halvings)
+                      code, phase_halvings(theta))
 
 
 #: largest coordinate the kernels accept, m (float32 keeps 0.1 mm at 1 km)
