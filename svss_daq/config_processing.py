@@ -91,6 +91,14 @@ class ImagingConfig:
     gpu_pings_per_launch: int | None = spec(
         "on the GPU, pings of a tile imaged by one kernel launch (each voxel summed over "
         "them, then added once); omitted: 16", lo=1, hi=256, default=16)
+    gpu_conditioning: str | None = spec(
+        "on the GPU, where a ping's tap planes are made: 'device' (its ADC codes go up "
+        "and the device conditions them) or 'host' (conditioned on the CPU, the planes "
+        "uploaded); omitted: device", choices=("device", "host"), default="device")
+    gpu_coverage: str | None = spec(
+        "on the GPU, where a tile's coverage (pings and channels per voxel) is counted: "
+        "'device' or 'host'; omitted: device", choices=("device", "host"),
+        default="device")
     interface_slope_deg: tuple[float, float] | None = spec(
         "the interface as a plane: its slope along the track line and across it, deg, "
         "positive where it deepens ahead and to starboard (voxel depths are then below "

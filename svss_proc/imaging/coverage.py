@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
@@ -135,51 +136,64 @@ def _add(pings, channels, ia, ic, iz, n):
         channels[ia, ic, iz] = min(np.int64(channels[ia, ic, iz]) + n, SATURATE)
 
 
+@nb.njit(inline="always", cache=True)
+def _column(pings, channels, ia, ic, ax, cy, dz, surf, tx, rx, corners, b0, b1, b2, h_tx,
+            h_min, cos_tx, cos_rx, gating, t_lo, t_hi, inv_cw, inv_cs, rho_max):
+    """One voxel column's coverage (``_accumulate``); the CPU's loop and the GPU's
+    thread (:mod:`~svss_proc.imaging.gpu_coverage`) run it alike."""
+    nd, nch = dz.size, rx.shape[0]
+    xa = ax[ia]
+    x = xa - tx[0]
+    yc = cy[ic]
+    y = yc - tx[1]
+    if x * x + y * y > rho_max * rho_max:       # outside the cone at every depth
+        return
+    s = surf[ia, ic]
+    first = -1
+    for iz in range(nd):
+        n, full = _count(x, y, dz[iz], s, xa, yc, h_tx + s, h_min + s, rx, corners,
+                         b0, b1, b2, cos_tx, cos_rx, gating, t_lo, t_hi, inv_cw,
+                         inv_cs)
+        _add(pings, channels, ia, ic, iz, n)
+        if full:
+            first = iz
+            break
+    if first < 0:
+        return
+    last = nd - 1
+    while last > first:
+        n, full = _count(x, y, dz[last], s, xa, yc, h_tx + s, h_min + s, rx,
+                         corners, b0, b1, b2, cos_tx, cos_rx, gating, t_lo, t_hi,
+                         inv_cw, inv_cs)
+        _add(pings, channels, ia, ic, last, n)
+        if full:
+            break
+        last -= 1
+    for iz in range(first + 1, last):
+        _add(pings, channels, ia, ic, iz, nch)
+
+
+def lowest_receiver(rx: np.ndarray) -> float:
+    """The lowest receive element's height above the interface's level, m."""
+    return float(np.min(-np.asarray(rx, dtype=np.float64)[:, 2]))
+
+
 @nb.njit(parallel=True, cache=True)
 def _accumulate(pings, channels, ax, cy, dz, surf, ia0, ia1, tx, rx, corners, bore, cos_tx,
-                cos_rx, gating, t_lo, t_hi, inv_cw, inv_cs, rho_max):
+                cos_rx, gating, t_lo, t_hi, inv_cw, inv_cs, rho_max, h_min):
     """Per voxel column, the voxels every channel reaches form one depth interval (the
     intersection of the beam cones, convex, with a vertical line, and a window on a
     travel time that grows with depth): it is found by testing from the top down and
     from the bottom up until a voxel passes; the voxels between are counted without
     testing."""
-    nc, nd, nch = cy.size, dz.size, rx.shape[0]
+    nc = cy.size
     h_tx = -tx[2]
     b0, b1, b2 = bore[0], bore[1], bore[2]
-    h_min = -rx[0, 2]
-    for j in range(nch):
-        h_min = min(h_min, -rx[j, 2])
     for ia in nb.prange(ia0, ia1):
-        xa = ax[ia]
-        x = xa - tx[0]
         for ic in range(nc):
-            yc = cy[ic]
-            y = yc - tx[1]
-            if x * x + y * y > rho_max * rho_max:       # outside the cone at every depth
-                continue
-            s = surf[ia, ic]
-            first = -1
-            for iz in range(nd):
-                n, full = _count(x, y, dz[iz], s, xa, yc, h_tx + s, h_min + s, rx, corners,
-                                 b0, b1, b2, cos_tx, cos_rx, gating, t_lo, t_hi, inv_cw,
-                                 inv_cs)
-                _add(pings, channels, ia, ic, iz, n)
-                if full:
-                    first = iz
-                    break
-            if first < 0:
-                continue
-            last = nd - 1
-            while last > first:
-                n, full = _count(x, y, dz[last], s, xa, yc, h_tx + s, h_min + s, rx,
-                                 corners, b0, b1, b2, cos_tx, cos_rx, gating, t_lo, t_hi,
-                                 inv_cw, inv_cs)
-                _add(pings, channels, ia, ic, last, n)
-                if full:
-                    break
-                last -= 1
-            for iz in range(first + 1, last):
-                _add(pings, channels, ia, ic, iz, nch)
+            _column(pings, channels, ia, ic, ax, cy, dz, surf, tx, rx, corners, b0, b1, b2,
+                    h_tx, h_min, cos_tx, cos_rx, gating, t_lo, t_hi, inv_cw, inv_cs,
+                    rho_max)
 
 
 def new_coverage(shape: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -203,20 +217,60 @@ def add_ping(pings: np.ndarray, channels: np.ndarray, along: np.ndarray,
     equal to the water's for straight-ray delays); ``surface``: the interface's depth
     at each column below the level the array's heights are from (None: flat;
     :func:`~svss_proc.imaging.kernel_args.surface_of`)."""
+    count_cpu(pings, channels, coverage_args(along, cross, depth, tx, rx, corners, bore,
+                                             half_tx_rad, half_rx_rad, gating, window_s,
+                                             water_m_s, sediment_m_s, surface), ia0, ia1)
+
+
+def count_cpu(pings: np.ndarray, channels: np.ndarray, a: "CoverageArgs", ia0: int,
+              ia1: int) -> None:
+    """Count one ping's coverage ``a`` (:func:`coverage_args`) into the host volumes
+    over along-track voxels ``ia0:ia1``."""
+    _accumulate(pings, channels, a.ax, a.cy, a.dz, a.surf, int(ia0), int(ia1), a.tx, a.rx,
+                a.corners, a.bore, a.cos_tx, a.cos_rx, a.gating, a.t_lo, a.t_hi, a.inv_cw,
+                a.inv_cs, a.rho_max, a.h_min)
+
+
+class CoverageArgs(NamedTuple):
+    """One ping's coverage inputs as the counting code takes them (float64 arrays)."""
+    ax: np.ndarray
+    cy: np.ndarray
+    dz: np.ndarray
+    surf: np.ndarray
+    tx: np.ndarray
+    rx: np.ndarray
+    corners: np.ndarray
+    bore: np.ndarray
+    cos_tx: float
+    cos_rx: float
+    gating: bool
+    t_lo: float
+    t_hi: float
+    inv_cw: float
+    inv_cs: float
+    rho_max: float
+    h_min: float
+
+
+def coverage_args(along, cross, depth, tx, rx, corners, bore, half_tx_rad, half_rx_rad,
+                  gating, window_s, water_m_s, sediment_m_s, surface) -> CoverageArgs:
+    """:func:`add_ping`'s arguments as the counting code takes them (CPU and GPU)."""
     surf = surface_of(VoxelAxes(along, cross, depth, surface))
     # the widest the projector cone gets within the tile: a column further away is
     # outside it at every depth (its tilt added to the half-angle, as the imager does)
     lowest = max(float(np.max(depth)) + float(surf.max(initial=0.0)), 0.0)
     rho_max = (cone_reach(lowest - float(tx[2]), float(bore[2]), half_tx_rad) + 1e-9
                if gating else math.inf)
-    _accumulate(pings, channels, np.ascontiguousarray(along, dtype=np.float64),
-                np.ascontiguousarray(cross, dtype=np.float64),
-                np.ascontiguousarray(depth, dtype=np.float64), surf, int(ia0), int(ia1),
-                np.asarray(tx, dtype=np.float64), np.ascontiguousarray(rx, dtype=np.float64),
-                np.asarray(corners, dtype=np.int64), np.asarray(bore, dtype=np.float64),
-                math.cos(half_tx_rad), math.cos(half_rx_rad), bool(gating),
-                float(window_s[0]), float(window_s[1]), 1.0 / water_m_s, 1.0 / sediment_m_s,
-                rho_max)
+    rx = np.ascontiguousarray(rx, dtype=np.float64)
+    return CoverageArgs(np.ascontiguousarray(along, dtype=np.float64),
+                        np.ascontiguousarray(cross, dtype=np.float64),
+                        np.ascontiguousarray(depth, dtype=np.float64), surf,
+                        np.asarray(tx, dtype=np.float64), rx,
+                        np.asarray(corners, dtype=np.int64),
+                        np.asarray(bore, dtype=np.float64), math.cos(half_tx_rad),
+                        math.cos(half_rx_rad), bool(gating), float(window_s[0]),
+                        float(window_s[1]), 1.0 / water_m_s, 1.0 / sediment_m_s, rho_max,
+                        lowest_receiver(rx))
 
 
 @dataclass
@@ -246,9 +300,21 @@ class Coverage:
                 if not (callable(v) and hasattr(type(self), k))}
 
     @classmethod
-    def new(cls, shape: tuple[int, int, int], receivers_body: np.ndarray) -> Coverage:
-        return cls(*new_coverage(shape), int(receivers_body.shape[0]),
+    def new(cls, shape: tuple[int, int, int], receivers_body: np.ndarray,
+            zeros=None) -> Coverage:
+        """Empty coverage; ``zeros(shape, dtype)`` makes its volumes (None: host arrays;
+        on the GPU, device arrays)."""
+        volumes = (new_coverage(shape) if zeros is None
+                   else (zeros(shape, np.uint16), zeros(shape, np.uint16)))
+        return cls(*volumes, int(receivers_body.shape[0]),
                    aperture_corners(receivers_body))
+
+    def to_host(self) -> Coverage:
+        """Bring device-resident volumes (GPU coverage) back to host memory."""
+        if hasattr(self.pings, "copy_to_host"):
+            self.pings, self.channels = (self.pings.copy_to_host(),
+                                         self.channels.copy_to_host())
+        return self
 
     @property
     def mean_height_m(self) -> float:
@@ -256,19 +322,22 @@ class Coverage:
         return self.height_sum_m / self.n_pings if self.n_pings else float("nan")
 
     def add(self, grid, ia0: int, ia1: int, placed, geometry, window_s: tuple[float, float],
-            imaging, nav) -> None:
+            imaging, nav, counter=None) -> None:
         """Add one ping: ``grid`` the tile's :class:`~svss_proc.imaging.grid.TileGrid`,
         ``ia0:ia1`` the along-track voxels the kernel was given, ``placed`` the
         :class:`~svss_daq.geometry.PlacedArray` in the tile frame, ``geometry`` the
         :class:`~svss_daq.geometry.ArrayGeometry`, ``window_s`` the receive window
         (s after transmit), ``imaging`` the processing configuration's ``[imaging]``,
-        ``nav`` the ping's pose."""
+        ``nav`` the ping's pose; ``counter(pings, channels, args, ia0, ia1)`` counts
+        (None: :func:`count_cpu`; on the GPU,
+        :class:`~svss_proc.imaging.gpu_coverage.DeviceCounter`)."""
         cw = imaging.water_sound_speed_m_s
         cs = cw if imaging.delays == "straight" else imaging.sediment_sound_speed_m_s
-        add_ping(self.pings, self.channels, grid.along, grid.cross, grid.depth, ia0, ia1,
-                 placed.tx, placed.rx, self.corners, placed.bore,
-                 geometry.projector_half_angle, geometry.receiver_half_angle,
-                 imaging.beam_gating, window_s, cw, cs, getattr(grid, "surface", None))
+        args = coverage_args(grid.along, grid.cross, grid.depth, placed.tx, placed.rx,
+                             self.corners, placed.bore, geometry.projector_half_angle,
+                             geometry.receiver_half_angle, imaging.beam_gating, window_s,
+                             cw, cs, getattr(grid, "surface", None))
+        (counter or count_cpu)(self.pings, self.channels, args, ia0, ia1)
         self.height_sum_m += float(-placed.tx[2])
         self.tx_along_min_m = min(self.tx_along_min_m, float(placed.tx[0]))
         self.tx_along_max_m = max(self.tx_along_max_m, float(placed.tx[0]))

@@ -19,8 +19,8 @@ import numpy as np
 
 from svss_daq.config import HardwareConfig, Loaded, ProcessingConfig
 from svss_daq.frames import TrackLine
-from svss_daq.geometry import array_geometry
-from svss_daq.ping import Ping
+from svss_daq.geometry import PlacedArray, array_geometry
+from svss_daq.ping import Ping, SampleAxis
 from svss_daq.ping_gate import PingRejected, checked_ping_problem
 from svss_daq.waveform import make_waveform
 
@@ -33,7 +33,8 @@ from .grid import kernel_voxels, tile_grid
 from .handback import Handback
 from .surface import InterfaceShape
 from .tile import Tile
-from .kernel_args import DelayModel, ImageSlice, PingArray, VoxelAxes, prepare
+from .kernel_args import (DelayModel, ImageSlice, KernelData, PingArray, VoxelAxes,
+                          prepare)
 from .pose_check import check_pose_flags
 from .schedule import PingStep, TileSchedule
 
@@ -111,11 +112,24 @@ class PingAccumulator:
         #: ``imaging.gpu_pings_per_launch`` at a time (:mod:`.gpu_batch`); the queue is
         #: launched before a tile's counts or planes are read (:meth:`settle`)
         self._batcher = None
+        #: on the GPU with ``imaging.gpu_conditioning = "device"``, a ping's tap planes
+        #: are made on the device from its codes (:mod:`.gpu_conditioning`)
+        self._device_conditioner = None
+        #: on the GPU with ``imaging.gpu_coverage = "device"``, coverage is counted there
+        #: (:mod:`.gpu_coverage`; None: on the CPU)
+        self._coverage_counter = None
         if processing.imaging.device == "cuda":
             from . import gpu_batch, gpu_kernel      # numba-cuda only when asked for
             self._batcher = gpu_batch.PingBatcher(processing.imaging.gpu_pings_per_launch)
             kernel, self._zeros = self._batcher.run_ping, gpu_kernel.device_zeros
             self._device_counter = gpu_kernel.device_counter
+            if im.gpu_conditioning == "device":
+                from .gpu_conditioning import DeviceConditioner
+                self._device_conditioner = DeviceConditioner(
+                    self._conditioner, im.interpolation, self._dtype)
+            if im.gpu_coverage == "device":
+                from .gpu_coverage import DeviceCounter
+                self._coverage_counter = DeviceCounter(self._batcher.stream)
         else:
             kernel, self._zeros = run_ping, np.zeros
         #: the kernel's front door, ``kernel(out: ImageSlice, kd, array: PingArray,
@@ -183,6 +197,14 @@ class PingAccumulator:
                          self._zeros((2, 2, 2), dtype=self._dtype),    # axis is also F order)
                          VoxelAxes(np.zeros(2), np.zeros(2), np.array([0.4, 0.5])), 0, 2)
         self.image_slice(out, kd, array, delays, gating=im.beam_gating)
+        if self._device_conditioner is not None:          # its kernel too
+            self._batcher.release(self._batcher.device_planes(
+                self._device_conditioner, np.zeros((geo.receivers.shape[0], 1), np.int32),
+                None))
+        if self._coverage_counter is not None:
+            cov = Coverage.new((2, 2, 2), geo.receivers, self._zeros)
+            cov.add(out.axes, 0, 2, PlacedArray(tx, array.rx, array.bore, 0), geo,
+                    (axis.start_s, axis.end_s), im, None, counter=self._coverage_counter)
 
     def image_slice(self, out: ImageSlice, kd, array: PingArray, delays: DelayModel, *,
                     gating: bool) -> int:
@@ -205,6 +227,20 @@ class PingAccumulator:
         return PingArray(tx, rx, bore, math.cos(geo.projector_half_angle),
                          math.cos(geo.receiver_half_angle), self._apod), delays
 
+    def kernel_data(self, ping: Ping, cond: Conditioned | None = None
+                    ) -> tuple[KernelData, SampleAxis, bool]:
+        """The ping's kernel data and its samples' arrival-time axis, and whether the
+        planes were made on the device (to be let go of after imaging:
+        :meth:`~.gpu_batch.PingBatcher.release`). ``cond``: the ping conditioned
+        already (None: conditioned here, on the device where so configured)."""
+        dc = self._device_conditioner
+        if cond is None and dc is not None and dc.accepts(ping.samples):
+            codes = ping.samples if self._channels is None else ping.samples[self._channels]
+            kd = self._batcher.device_planes(dc, codes, ping.sample_axis)
+            return kd, self._conditioner.output_axis(ping.sample_axis), True
+        cond = self.condition(ping) if cond is None else cond
+        return prepare(cond, self._proc.imaging.interpolation, self._dtype), cond.axis, False
+
     def condition(self, ping: Ping) -> Conditioned:
         """The ping's analytic signal at its arrival times (its channels)."""
         c = self._conditioner.ping(ping)
@@ -217,14 +253,17 @@ class PingAccumulator:
         grid = tile_grid(self._proc.tile, index, InterfaceShape.of(self._proc.imaging))
         return Tile(grid, line, self._zeros(grid.shape, dtype=self._dtype),
                     self._zeros(grid.shape, dtype=self._dtype),
-                    coverage=Coverage.new(grid.shape, self._geometry.receivers),
+                    coverage=Coverage.new(grid.shape, self._geometry.receivers,
+                                          None if self._coverage_counter is None
+                                          else self._zeros),
                     method=self.method)
 
-    def image(self, ping: Ping, cond: Conditioned, step: PingStep,
+    def image(self, ping: Ping, cond: Conditioned | None, step: PingStep,
               tiles: dict[int, Tile]) -> int:
-        """Image ``ping`` (conditioned ``cond``) into the slices of ``step`` (tiles by
-        index); returns the voxel-channel updates (0 on the GPU, where they are counted
-        on the device: :meth:`settle`)."""
+        """Image ``ping`` (conditioned ``cond``; None: conditioned here,
+        :meth:`kernel_data`) into the slices of ``step`` (tiles by index); returns the
+        voxel-channel updates (0 on the GPU, where they are counted on the device:
+        :meth:`settle`)."""
         if not step.slices:
             return 0
         im, geo = self._proc.imaging, self._geometry
@@ -232,8 +271,8 @@ class PingAccumulator:
         if self._channels is not None:
             placed = dataclasses.replace(placed, rx=placed.rx[self._channels])
         array, delays = self.ping_inputs(placed.tx, placed.rx, placed.bore, step.reach_m)
-        kd = prepare(cond, im.interpolation, self._dtype)
-        window = (cond.axis.start_s, cond.axis.end_s - cond.axis.step_s)
+        kd, axis, made = self.kernel_data(ping, cond)
+        window = (axis.start_s, axis.end_s - axis.step_s)
         total = 0
         for s in step.slices:
             tile = tiles[s.tile]
@@ -247,12 +286,15 @@ class PingAccumulator:
             else:
                 n = self.image_slice(out, kd, array, delays, gating=im.beam_gating)
             # which voxels this ping reached (geometry only; the image is not touched)
-            tile.coverage.add(tile.grid, s.ia0, s.ia1, placed, geo, window, im, ping.nav)
+            tile.coverage.add(tile.grid, s.ia0, s.ia1, placed, geo, window, im, ping.nav,
+                              counter=self._coverage_counter)
             tile.pings.append(ping.sequence)
             tile.track.append((int(ping.transmit_time_ns), float(ping.nav.north_m),
                                float(ping.nav.east_m), int(ping.nav.quality)))
             tile.updates += int(n)
             total += int(n)
+        if made:
+            self._batcher.release(kd)
         self._updates += total
         return total
 
@@ -387,7 +429,6 @@ class TileImager:
             if k not in self._tiles:
                 self._tiles[k] = self.accumulator.new_tile(k, self.schedule.line)
         if step.slices:
-            cond = cond or self.accumulator.condition(ping)
             self.accumulator.image(ping, cond, step, self._tiles)
         return out + [self._hand_back(k, after) for k, after
                       in self._handback.step(step, self.schedule.n_pings, early=False)]
@@ -406,7 +447,10 @@ class TileImager:
         z = np.empty(re.shape, dtype=np.complex64)   # as Tile.image, so that the
         z.real, z.imag = re, im                       # magnitude is bit for bit the
         mag = np.abs(z).astype(np.float32)            # products' own (compute_products)
-        ch = None if nxt.coverage is None else nxt.coverage.channels[:n].copy()
+        ch = None
+        if nxt.coverage is not None:
+            ch = nxt.coverage.channels[:n]
+            ch = ch.copy_to_host() if hasattr(ch, "copy_to_host") else ch.copy()
         return mag, ch
 
     def _hand_back(self, k: int, after=None) -> Tile:

@@ -70,4 +70,6 @@ class Tile:
         """Bring device-resident planes (GPU imaging) back to host memory."""
         if hasattr(self.re, "copy_to_host"):
             self.re, self.im = self.re.copy_to_host(), self.im.copy_to_host()
+        if self.coverage is not None:
+            self.coverage.to_host()
         return self
