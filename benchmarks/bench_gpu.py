@@ -21,8 +21,9 @@ demo's points, default processing but ``imaging.device = "cuda"``), pings 90-339
 4. PTX: the float32 kernel compiled for sm_90 (no GPU needed): counts of float64
    instructions (0 expected) and of the main float32 ones.
 
-``--quick``: 1 m x 0.4 m x 0.4 m tiles of 10 cm voxels and 3 pings near the first point, for
-checking that the script works (under the CUDA simulator: its rates mean nothing).
+``--quick``: 1 m x 0.4 m x 0.4 m tiles of 10 cm voxels, 3 pings near the first point and
+a receive window of 384 samples from 2 ms, for checking that the script works (under the
+CUDA simulator: its rates mean nothing).
 """
 
 from __future__ import annotations
@@ -45,8 +46,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.bench_imaging import scene_for  # noqa: E402
 from sim_device.environment_source import EnvironmentSource  # noqa: E402
-from svss_daq.config import (HardwareConfig, ProcessingConfig, config_path, load,  # noqa: E402
-                             load_with_text)
+from svss_daq.config import (HardwareConfig, Loaded, ProcessingConfig,  # noqa: E402
+                             config_path, load, load_with_text)
 from svss_proc.imaging.imager import TileImager  # noqa: E402
 from svss_proc.imaging.kernel_args import STRAIGHT  # noqa: E402
 
@@ -57,6 +58,42 @@ SIMULATOR = os.environ.get("NUMBA_ENABLE_CUDASIM", "0") == "1"
 def settings(proc: ProcessingConfig, device: str, precision: str) -> ProcessingConfig:
     return dataclasses.replace(proc, imaging=dataclasses.replace(
         proc.imaging, device=device, precision=precision))
+
+
+def stages(proc: ProcessingConfig, conditioning: str, coverage: str) -> ProcessingConfig:
+    """The GPU's conditioning and coverage where given ('device' or 'host')."""
+    return dataclasses.replace(proc, imaging=dataclasses.replace(
+        proc.imaging, gpu_conditioning=conditioning, gpu_coverage=coverage))
+
+
+#: where the GPU's conditioning and coverage run, compared side by side
+STAGES = (("device", "device"), ("host", "device"), ("device", "host"), ("host", "host"))
+
+
+def stage_rates(hw, proc, pings, repeat, ref_tile) -> dict:
+    """The end-to-end pass (best of ``repeat``) with the conditioning and the coverage on
+    the device or the host (:data:`STAGES`), side by side in one run, as ratios to both
+    on the host; each one's image and coverage against the first's."""
+    out, first = {}, None
+    for cond, cov in STAGES:
+        sproc = stages(proc, cond, cov)
+        image(hw, sproc, pings[:2])                        # compile outside the timing
+        runs = [image(hw, sproc, pings) for _ in range(repeat)]
+        tile, n, _, _ = runs[0]
+        el = min(r[2] for r in runs)
+        row = {"seconds": el, "updates": n, "updates_per_s": n / el,
+               **agreement(tile.image, ref_tile)}
+        if first is None:
+            first = tile
+        row["coverage_equal_first"] = bool(
+            np.array_equal(tile.coverage.pings, first.coverage.pings)
+            and np.array_equal(tile.coverage.channels, first.coverage.channels))
+        out[f"conditioning_{cond}_coverage_{cov}"] = row
+        log.info("conditioning on the %s, coverage on the %s: %s", cond, cov, row)
+    base = out["conditioning_host_coverage_host"]["seconds"]
+    for row in out.values():
+        row["speed_over_both_on_host"] = base / row["seconds"]
+    return out
 
 
 def image(hw, proc, pings, record=False, wait_each_ping=False):
@@ -281,6 +318,10 @@ def main(argv=None) -> int:
                 else str(dev.name)
         except Exception as exc:                       # noqa: BLE001 - reported
             result["machine"]["gpu"] = f"none ({exc.__class__.__name__})"
+    if args.quick:        # the tile's echoes in a shorter window (the simulator's time)
+        hw = Loaded(dataclasses.replace(hw.value, digitiser=dataclasses.replace(
+            hw.value.digitiser, window_start_s=0.002, window_samples=384)), hw.text,
+            hw.source)
     src = EnvironmentSource(hw, scene_for(340))
     if args.quick:
         proc = dataclasses.replace(proc, tile=dataclasses.replace(
@@ -312,11 +353,11 @@ def main(argv=None) -> int:
     for precision in ("float32", "float64"):
         gproc = settings(proc, "cuda", precision)
         image(hw, gproc, pings[:1])                    # compile outside the timing
-        passes = []
-        for _ in range(args.repeat if not SIMULATOR else 1):
-            tile, n, el, calls = image(hw, gproc, pings, record=not passes)
-            passes.append((tile, n, el, calls))
+        passes = [image(hw, gproc, pings) for _ in range(args.repeat if not SIMULATOR
+                                                         else 1)]
         tile, n, _, _ = passes[0]
+        # the kernel calls of a pass with the planes made on the host, for the replays
+        calls = image(hw, stages(gproc, "host", "host"), pings, record=True)[3]
         el = min(p[2] for p in passes)
         row = {"updates": n, "seconds": el, "seconds_all_passes": [p[2] for p in passes],
                "end_to_end_updates_per_s": n / el, **agreement(tile.image, ref),
@@ -330,10 +371,13 @@ def main(argv=None) -> int:
             "updates": waits[0][1], "seconds": el_wait, "updates_per_s": waits[0][1] / el_wait,
             "deferred_over_waiting_speed": el_wait / el}
         # every tile has the same shape: the calls replay into one pair of planes
-        row.update(kernel_only(passes[0][3], args.repeat if not SIMULATOR else 1))
+        row.update(kernel_only(calls, args.repeat if not SIMULATOR else 1))
+        if precision == "float32":
+            row["stages"] = stage_rates(hw, gproc, pings, args.repeat if not SIMULATOR
+                                        else 1, ref)
         if precision == "float32" and args.per_launch:
             row["pings_per_launch"] = per_launch_rates(
-                hw, gproc, pings, passes[0][3],
+                hw, gproc, pings, calls,
                 [int(k) for k in args.per_launch.split(",")],
                 args.repeat if not SIMULATOR else 1)
         if args.profile and precision == "float32":
@@ -363,6 +407,11 @@ def main(argv=None) -> int:
             print(f"    {k:>3} pings per launch: end to end {v['end_to_end_updates_per_s']:.3e} "
                   f"updates/s ({v['end_to_end_speed_over_first']:.2f}x), kernel calls "
                   f"replayed {v['replay_updates_per_s']:.3e} ({v['replay_speed_over_first']:.2f}x)")
+        for k, v in r.get("stages", {}).items():
+            print(f"    {k}: {v['updates_per_s']:.3e} updates/s "
+                  f"({v['speed_over_both_on_host']:.2f}x both on the host), max error "
+                  f"{v['max_error_over_peak']:.2e} of peak, coverage equal: "
+                  f"{v['coverage_equal_first']}")
         w = r["waiting_for_each_kernel"]
         print(f"    waiting for each kernel and its count: {w['updates_per_s']:.3e} "
               f"updates/s (counts on the device: {w['deferred_over_waiting_speed']:.2f}x)")

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The GPU check of issue 33 in one run on a lent GPU machine (see ../shared/tools/gpu-wheels.sh
+# The GPU check of issues 33 and 52 in one run on a lent GPU machine (see ../shared/tools/gpu-wheels.sh
 # and docs/imaging.md, "The GPU path" and "Current figures"): the real-GPU tests, then bench_gpu.py (with a profile of
 # one pass), bench_gpu_synthesis.py and bench_threads.py, each bounded in time, results and
 # logs under $OUT (at most 8 files come back).
@@ -18,10 +18,10 @@ STAGES=${STAGES:-"tests bench_gpu bench_gpu_synthesis bench_threads"}
   python3 -c "import sys, numpy, numba, numba_cuda; from numba import cuda; \
 print(sys.version.split()[0], 'numpy', numpy.__version__, 'numba', numba.__version__, \
 'numba-cuda', numba_cuda.__version__, 'gpu', cuda.is_available())"
-} > "$OUT/machine.txt" 2>&1
-cat "$OUT/machine.txt"
+} > "$OUT/tests.log" 2>&1
+cat "$OUT/tests.log"          # (the machine heads the tests' log: 8 files come back at most)
 stage() { local name=$1 limit=$2; shift 2; local t0=$SECONDS
-  timeout "$limit" "$@" > "$OUT/$name.log" 2>&1; local rc=$?
+  timeout "$limit" "$@" >> "$OUT/$name.log" 2>&1; local rc=$?
   echo "== $name rc=$rc $((SECONDS - t0)) s"; tail -n 25 "$OUT/$name.log"; }
 # pytest-timeout (on the GPU machine's image): a stuck test fails with its stack and the rest
 # run; the real-GPU tests first, in their own pytest run, so that a slow simulator test
@@ -36,11 +36,12 @@ to=""; python3 -c "import pytest_timeout" 2>/dev/null && to="-p timeout --timeou
 # (GPU_TESTS=...: a subset, where device time is short)
 ALL_GPU_TESTS="tests/test_gpu_float32.py tests/test_gpu_kernel.py tests/sim/test_gpu_synthesis.py"
 ALL_GPU_TESTS="$ALL_GPU_TESTS tests/test_gpu_imager.py tests/test_cone_edges.py tests/test_gpu_batch.py"
+ALL_GPU_TESTS="$ALL_GPU_TESTS tests/test_gpu_conditioning.py"
 GPU_TESTS=${GPU_TESTS:-$ALL_GPU_TESTS}
 SIM_TESTS=${SIM_TESTS:-0}
 for st in $STAGES; do case $st in
   tests) stage tests "$T_TESTS" bash -c "python3 -m pytest -q -p no:cacheprovider -rfEs \
-    --tb=short --durations=8 $to -k real_gpu $GPU_TESTS; r=\$?; if [ $SIM_TESTS = 1 ]; then \
+    --tb=short --durations=8 $to --junitxml=$OUT/tests.xml -k real_gpu $GPU_TESTS; r=\$?; if [ $SIM_TESTS = 1 ]; then \
     python3 -m pytest -q -p no:cacheprovider -rfEs --tb=short --durations=8 $to \
     -k 'not real_gpu' $GPU_TESTS || r=1; fi; exit \$r" ;;
   bench_gpu) stage bench_gpu "$T_GPU" python3 benchmarks/bench_gpu.py --repeat 2 --profile \

@@ -200,9 +200,12 @@ class PingBatcher:
         self.stream = cuda.stream()
         self._ring: PlaneRing | None = None
         self._rows: dict[str, StagedRows] = {}
-        #: launches made and pings they imaged (for benchmarks)
+        #: launches made and pings they imaged, ping planes uploaded from the host and
+        #: made on the device (for benchmarks and tests)
         self.launches = 0
         self.pings = 0
+        self.planes_uploaded = 0
+        self.planes_made = 0
 
     def run_ping(self, out: ImageSlice, kd: KernelData, array: PingArray,
                  delays: DelayModel, *, gating: bool = True, count=None) -> int | None:
@@ -272,6 +275,7 @@ class PingBatcher:
         host[0] = p.re
         host[1] = p.im
         self._ring.staged.send(slot)
+        self.planes_uploaded += 1
         self._ring.of[id(kd)] = (kd, slot)
         self._ring.refs[slot] -= 1           # held by the queues it goes into only
         return slot
@@ -294,6 +298,7 @@ class PingBatcher:
         d_codes = st.send(slot)
         kd = conditioner(d_codes, codes.shape[1], axis, ring.device, slot, self.stream)
         ring.of[id(kd)] = (kd, slot)
+        self.planes_made += 1
         return kd
 
     def release(self, kd: KernelData) -> None:
