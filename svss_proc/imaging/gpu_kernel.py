@@ -68,9 +68,20 @@ def _make_kernel(interp: int, mode: int, gating: bool, halvings: int):
     return kernel
 
 
+@cuda.jit
+def _zero(flat):
+    i = cuda.grid(1)
+    if i < flat.size:
+        flat[i] = 0
+
+
 def device_zeros(shape, dtype) -> "cuda.devicearray.DeviceNDArray":
-    """A zeroed image plane on the GPU."""
-    return cuda.to_device(np.zeros(shape, dtype=dtype))
+    """A zeroed array on the GPU (a tile's image plane or coverage volume), zeroed
+    there: no host array is made or uploaded (a tile's four volumes are 90 MB)."""
+    d = cuda.device_array(shape, dtype=dtype)
+    if d.size:
+        _zero[math.ceil(d.size / THREADS), THREADS](d.reshape(d.size))
+    return d
 
 
 def kernel_for(interp: int, mode: int, gating: bool, halvings: int):
