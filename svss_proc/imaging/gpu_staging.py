@@ -27,12 +27,20 @@ class StagedRows:
         self.shape = tuple(int(n) for n in shape)
         self.dtype = np.dtype(dtype)
         self.stream = stream
-        self.host = cuda.pinned_array((self.capacity,) + self.shape, dtype=self.dtype)
+        self._host = None
         self.device = cuda.device_array((self.capacity,) + self.shape, dtype=self.dtype)
         self._events: list = [None] * self.capacity
         self._rows = [self.device[i] for i in range(self.capacity)]
         #: the row a caller that alternates between rows last used
         self.turn = 0
+
+    @property
+    def host(self) -> np.ndarray:
+        """The page-locked staging rows, made when first used (a ring whose planes are
+        all made on the device never stages any)."""
+        if self._host is None:
+            self._host = cuda.pinned_array((self.capacity,) + self.shape, dtype=self.dtype)
+        return self._host
 
     def fits(self, shape: tuple, dtype) -> bool:
         return tuple(shape) == self.shape and np.dtype(dtype) == self.dtype
