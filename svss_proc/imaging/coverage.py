@@ -110,7 +110,10 @@ def _count(x, y, z, s, xa, yc, h_tx, h_min, rx, corners, b0, b1, b2, cos_tx, cos
         return 0, False
     # corners first: all of them inside the cone and the window's end, and the nearest
     # possible element (straight below) not before its start, means every element is
-    ok = t1 + (z + h_min) * min(inv_cw, inv_cs) >= t_lo
+    # (the least slowness; no min() here or in _add: the GPU compiles this source too,
+    # gpu_coverage, and min's CUDA overload needs a device to compile for)
+    least = inv_cw if inv_cw < inv_cs else inv_cs
+    ok = t1 + (z + h_min) * least >= t_lo
     for k in range(corners.size):
         if not ok:
             break
@@ -133,7 +136,8 @@ def _add(pings, channels, ia, ic, iz, n):
     if n > 0:
         if pings[ia, ic, iz] < SATURATE:
             pings[ia, ic, iz] += 1
-        channels[ia, ic, iz] = min(np.int64(channels[ia, ic, iz]) + n, SATURATE)
+        total = np.int64(channels[ia, ic, iz]) + n
+        channels[ia, ic, iz] = total if total < SATURATE else SATURATE
 
 
 @nb.njit(inline="always", cache=True)

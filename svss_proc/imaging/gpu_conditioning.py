@@ -60,8 +60,11 @@ def _condition(codes, n_codes, op_re, op_im, taps, ph_re, ph_im, ring, slot):
                 v = 1.0 * codes[c0 + c, n]
             buf[c, t] = v
         cuda.syncthreads()
+        top = n_codes - n0                  # (no min(): its CUDA overload is compiled
+        if top > THREADS:                   # for the current device, which PTX checks
+            top = THREADS                   # without a GPU do not have)
         if m < n_out:
-            for j in range(min(THREADS, n_codes - n0)):
+            for j in range(top):
                 mr = op_re[n0 + j, m]
                 mi = op_im[n0 + j, m]
                 for c in range(CHANNELS_PER_THREAD):

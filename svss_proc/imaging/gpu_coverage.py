@@ -36,40 +36,48 @@ def _device_functions() -> dict:
 _column = _device_functions()["_column"]
 
 
+#: the placed row's layout (:func:`placed_row`): projector, boresight, the ping's scalars,
+#: then the receivers (x, y, z each)
+_TX, _BORE, _SCALARS, _RX = 0, 3, 6, 15
+
+
 @cuda.jit
-def _accumulate(pings, channels, ax, cy, dz, surf, ia0, ia1, tx, rx, corners, b0, b1, b2,
-                cos_tx, cos_rx, gating, t_lo, t_hi, inv_cw, inv_cs, rho_max, h_min):
+def _accumulate(pings, channels, ax, cy, dz, surf, corners, ia0, ia1, row):
     i = cuda.grid(1)
     nc = cy.size
     if i < (ia1 - ia0) * nc:
+        nch = (row.size - _RX) // 3
+        rx = row[_RX:_RX + 3 * nch].reshape((nch, 3))
+        tx = row[_TX:_TX + 3]
+        s = _SCALARS
         _column(pings, channels, ia0 + i // nc, i % nc, ax, cy, dz, surf, tx, rx, corners,
-                b0, b1, b2, -tx[2], h_min, cos_tx, cos_rx, gating, t_lo, t_hi, inv_cw,
-                inv_cs, rho_max)
+                row[_BORE], row[_BORE + 1], row[_BORE + 2], -tx[2], row[s + 8], row[s],
+                row[s + 1], row[s + 2] != 0.0, row[s + 3], row[s + 4], row[s + 5],
+                row[s + 6], row[s + 7])
 
 
-def add_ping_device(pings, channels, a: _cpu.CoverageArgs, ia0: int, ia1: int, placed,
+def placed_row(a: _cpu.CoverageArgs) -> np.ndarray:
+    """The ping's array and scalars in one float64 row, the one upload a ping's coverage
+    needs (and few launch arguments): projector, boresight, cos_tx, cos_rx, gating,
+    t_lo, t_hi, 1/c_w, 1/c_s, rho_max, h_min, receivers."""
+    return np.concatenate([a.tx, a.bore, [a.cos_tx, a.cos_rx, float(a.gating), a.t_lo,
+                                          a.t_hi, a.inv_cw, a.inv_cs, a.rho_max, a.h_min],
+                           a.rx.ravel()])
+
+
+def add_ping_device(pings, channels, a: _cpu.CoverageArgs, ia0: int, ia1: int, row,
                     buffers, stream) -> None:
     """:func:`~svss_proc.imaging.coverage.add_ping` on the device: ``pings`` and
     ``channels`` device volumes, ``a`` the ping's
-    :func:`~svss_proc.imaging.coverage.coverage_args`; ``placed`` the ping's array, a
-    (3 + 3 + channels x 3) float64 device row: projector, boresight, receivers
-    (:func:`placed_row`); the tile's axes and surface from ``buffers``
+    :func:`~svss_proc.imaging.coverage.coverage_args`, ``row`` its :func:`placed_row`
+    on the device; the tile's axes, surface and aperture corners from ``buffers``
     (:class:`~svss_daq.gpu_shared.DeviceBuffers`, uploaded once per array)."""
     n = (int(ia1) - int(ia0)) * a.cy.size
     if n <= 0:
         return
-    nch = a.rx.shape[0]
-    tx, rx = placed[0:3], placed[6:6 + 3 * nch].reshape(nch, 3)
     _accumulate[math.ceil(n / THREADS), THREADS, stream](
         pings, channels, buffers.table(a.ax), buffers.table(a.cy), buffers.table(a.dz),
-        buffers.table(a.surf), int(ia0), int(ia1), tx, rx, buffers.table(a.corners),
-        float(a.bore[0]), float(a.bore[1]), float(a.bore[2]), a.cos_tx, a.cos_rx,
-        a.gating, a.t_lo, a.t_hi, a.inv_cw, a.inv_cs, a.rho_max, a.h_min)
-
-
-def placed_row(a: _cpu.CoverageArgs) -> np.ndarray:
-    """The ping's projector, boresight and receivers in one float64 row."""
-    return np.concatenate([a.tx, a.bore, a.rx.ravel()])
+        buffers.table(a.surf), buffers.table(a.corners), int(ia0), int(ia1), row)
 
 
 class DeviceCounter:
