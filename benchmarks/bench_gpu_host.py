@@ -65,25 +65,24 @@ def host_only_imager(hw, proc, conditioning="device", coverage="device") -> Tile
     planes, copied into staging; the CPU's coverage count)."""
     imager = TileImager(hw, proc)
     acc = imager.accumulator
-    cond = acc._conditioner
-    axis0 = cond.output_axis()
+    conditioner = acc._conditioner
+    axis0 = conditioner.output_axis()
     code = INTERP[proc.imaging.interpolation]
-    theta = tap_theta(cond.fc, axis0.step_s)
+    theta = tap_theta(conditioner.fc, axis0.step_s)
     planes = np.empty((2, 2, acc.geometry.receivers.shape[0], axis0.n), dtype=acc.dtype)
-    staging = np.empty((acc.geometry.receivers.shape[0], cond.n_in), dtype=np.int32)
+    staging = np.empty((acc.geometry.receivers.shape[0], conditioner.n_in), dtype=np.int32)
     rows: dict = {}
     ft = np.dtype(acc.dtype).type
-
     host_planes = np.empty_like(planes)
 
-    def kernel_data(ping, c=None):
+    def kernel_data(ping, conditioned=None):
         if conditioning == "host":
             kd = prepare(acc.condition(ping), proc.imaging.interpolation, acc.dtype)
             host_planes[0, :kd.planes.re.shape[0]] = kd.planes.re   # the staging copy
             host_planes[1, :kd.planes.im.shape[0]] = kd.planes.im
-            return kd, cond.output_axis(ping.sample_axis), False
+            return kd, conditioner.output_axis(ping.sample_axis), False
         staging[:, :ping.samples.shape[1]] = ping.samples        # the staging copy
-        axis = cond.output_axis(cond.checked_axis(ping.sample_axis))
+        axis = conditioner.output_axis(conditioner.checked_axis(ping.sample_axis))
         kd = KernelData(TapPlanes(planes[0], planes[1], ft(axis.start_s),
                                   ft(1.0 / axis.step_s), ft(theta)), code,
                         phase_halvings(theta))
