@@ -63,6 +63,8 @@ SCRIPT = textwrap.dedent("""
             out[key + "_image"] = np.stack([t.image for t in tiles])
             out[key + "_pings"] = np.stack([t.coverage.pings for t in tiles])
             out[key + "_channels"] = np.stack([t.coverage.channels for t in tiles])
+            out[key + "_shared"] = np.array(max(len(set(a.pings) & set(b.pings))
+                                                for a, b in zip(tiles, tiles[1:])))
     np.savez(sys.argv[1], **out)
 """)
 
@@ -84,7 +86,7 @@ def _run(tmp_path, simulator: bool, precisions: str, per_launch: int = 2,
     return np.load(out)
 
 
-def _compare(r, precisions, stages=("device",)):
+def _compare(r, precisions, stages=("device",), coverage_exact=True):
     for prec, tol in (("float32", 1e-4), ("float64", 1e-9)):
         if prec not in precisions:
             continue
@@ -94,15 +96,25 @@ def _compare(r, precisions, stages=("device",)):
         assert len(r[cpu + "_index"]) >= 2 and np.all(r[cpu + "_updates"] > 0)
         assert int(r[cpu + "_total"]) == int(r[cpu + "_updates"].sum())
         assert np.any(r[cpu + "_channels"] % r[cpu + "_channels"].max() != 0)
+        assert int(r[cpu + "_shared"]) >= 1        # a ping reached two tiles
         for st in stages:
             gpu = f"cuda-{st}_{prec}"
             np.testing.assert_array_equal(r[gpu + "_index"], r[cpu + "_index"])
             # counted on the device, read when each tile was handed back
             np.testing.assert_array_equal(r[gpu + "_updates"], r[cpu + "_updates"])
             assert int(r[gpu + "_total"]) == int(r[cpu + "_total"])
-            # coverage, counted on the device or on the host, exactly the CPU's
-            np.testing.assert_array_equal(r[gpu + "_pings"], r[cpu + "_pings"])
-            np.testing.assert_array_equal(r[gpu + "_channels"], r[cpu + "_channels"])
+            # coverage, counted on the device or on the host: the CPU's, exactly under
+            # the simulator; on a GPU fused multiply-adds may round a voxel on a cone or
+            # window edge the other way (one ping, its channels), at a few voxels
+            for c in ("_pings", "_channels"):
+                got, ref = r[gpu + c].astype(np.int64), r[cpu + c].astype(np.int64)
+                if coverage_exact:
+                    np.testing.assert_array_equal(got, ref, err_msg=gpu + c)
+                else:
+                    off = got != ref
+                    assert off.mean() <= 1e-3, (gpu + c, off.sum())
+                    step = 1 if c == "_pings" else int(ref.max())
+                    assert np.abs(got - ref).max(initial=0) <= step, (gpu + c)
             ref = r[cpu + "_image"]
             np.testing.assert_allclose(r[gpu + "_image"], ref, rtol=0,
                                        atol=tol * np.abs(ref).max(), err_msg=prec + st)
@@ -127,4 +139,5 @@ def test_gpu_conditioning_and_coverage_under_the_simulator_match_the_cpu(tmp_pat
 @requires_cuda
 def test_real_gpu_imager_matches_the_cpu_imager(tmp_path):
     _compare(_run(tmp_path, simulator=False, precisions="float32,float64",
-                  stages=("device", "host")), "float32,float64", stages=("device", "host"))
+                  stages=("device", "host")), "float32,float64", stages=("device", "host"),
+             coverage_exact=False)

@@ -176,9 +176,13 @@ class PlaneRing:
         self.refs[slot] -= 1
         if self.refs[slot] <= 0:
             self.refs[slot] = 0
-            for key, (_, s) in list(self.of.items()):
-                if s == slot:
-                    del self.of[key]
+            self.forget(slot)
+
+    def forget(self, slot: int) -> None:
+        """No kernel data names ``slot`` any more."""
+        for key, (_, s) in list(self.of.items()):
+            if s == slot:
+                del self.of[key]
 
 
 class PingBatcher:
@@ -258,6 +262,7 @@ class PingBatcher:
             slot = ring.free_slot()
             if slot is None:
                 raise RuntimeError(f"all {ring.capacity} GPU plane slots are held")
+        ring.forget(slot)
         ring.refs[slot] += 1
         return slot
 
@@ -271,10 +276,14 @@ class PingBatcher:
         if on_device(p.re):
             raise ValueError("device tap planes not made by this batcher")
         slot = self._claim(p.re.shape, p.re.dtype)
-        host = self._ring.staged.host_row(slot)
-        host[0] = p.re
-        host[1] = p.im
-        self._ring.staged.send(slot)
+        try:
+            host = self._ring.staged.host_row(slot)
+            host[0] = p.re
+            host[1] = p.im
+            self._ring.staged.send(slot)
+        except BaseException:
+            self._ring.drop(slot)
+            raise
         self.planes_uploaded += 1
         self._ring.of[id(kd)] = (kd, slot)
         self._ring.refs[slot] -= 1           # held by the queues it goes into only
@@ -285,18 +294,27 @@ class PingBatcher:
         (:class:`~.gpu_conditioning.DeviceConditioner`) from its ADC codes (channels x
         samples) taken on ``axis``, in a ring slot held until :meth:`release`."""
         codes = np.asarray(codes)
+        if not conditioner.accepts(codes):
+            raise ValueError(f"codes of shape {codes.shape}: the device conditions at most "
+                             f"{conditioner.n_in} samples a channel")
+        axis = conditioner.conditioner.checked_axis(axis)   # before a slot is held
         shape = conditioner.plane_shape(codes.shape[0])
         slot = self._claim(shape, conditioner.dtype)
         ring = self._ring
-        key = "codes"
-        st = self._rows.get(key)
-        wide = (codes.shape[0], conditioner.n_in)
-        if st is None or not st.fits(wide, np.int32) or st.capacity != ring.capacity:
-            st = self._rows[key] = StagedRows(ring.capacity, wide, np.int32, self.stream)
-        row = st.host_row(slot)
-        row[:, :codes.shape[1]] = codes
-        d_codes = st.send(slot)
-        kd = conditioner(d_codes, codes.shape[1], axis, ring.device, slot, self.stream)
+        try:
+            st = self._rows.get("codes")
+            wide = (codes.shape[0], conditioner.n_in)
+            if st is None or not st.fits(wide, np.int32) or st.capacity != ring.capacity:
+                st = self._rows["codes"] = StagedRows(ring.capacity, wide, np.int32,
+                                                      self.stream)
+            row = st.host_row(slot)
+            row[:, :codes.shape[1]] = codes
+            d_codes = st.send(slot)
+            kd = conditioner(d_codes, codes.shape[1], axis, ring.device, slot,
+                             self.stream)
+        except BaseException:
+            ring.drop(slot)                  # nothing holds it: free again
+            raise
         ring.of[id(kd)] = (kd, slot)
         self.planes_made += 1
         return kd
@@ -332,33 +350,36 @@ class PingBatcher:
         nk = len(q.args)
         if nk == 0:
             return
-        a0 = q.args[0]
-        g0 = a0.geometry
-        na, nc, nd, nch = g0.ax.size, g0.cy.size, g0.dz.size, g0.rx_dx.size
-        dtype = a0.planes.re.dtype
-        k = self.pings_per_launch
-        row = row_length(na, nc, nd, nch)
-        s_rows = self._staged("rows", (k, row), dtype)
-        s_rows64 = self._staged("rows64", (k, row), np.float64)
-        s_ranges = self._staged("ranges", (k, 5), np.int64)
-        rows, rows64, ranges = (s.host[s.turn] for s in (s_rows, s_rows64, s_ranges))
-        for j, a in enumerate(q.args):
-            pack_row(rows[j], a.geometry, a.planes)
-            pack_row(rows64[j], a.gate, None)
-            ranges[j] = q.ranges[j]
-        ranges[nk:] = 0
-        r = np.asarray(q.ranges)
-        ia0, ia1 = int(r[:, 0].min()), int(r[:, 1].max())
-        ic0, ic1 = int(r[:, 2].min()), int(r[:, 3].max())
-        interp, mode, gating, halvings = q.key[:4]
-        d_rows, d_rows64, d_ranges = (s.send(s.turn) for s in (s_rows, s_rows64, s_ranges))
-        n = (ia1 - ia0) * (ic1 - ic0) * nd
-        kernel = kernel_for(interp, mode, gating, halvings)
-        kernel[math.ceil(n / THREADS), THREADS, self.stream](
-            q.out.re, q.out.im, self._ring.device, d_rows, d_rows64, d_ranges, nk,
-            _delays_to_device(a0.delays), _BUFFERS.table(g0.surf),
-            _BUFFERS.table(a0.gate.surf), na, nc, nch, ia0, ia1, ic0, ic1, q.count)
-        for rr in q.ranges:                  # the launch is enqueued: slots let go
-            self._ring.drop(rr[4])
-        self.launches += 1
-        self.pings += nk
+        try:
+            a0 = q.args[0]
+            g0 = a0.geometry
+            na, nc, nd, nch = g0.ax.size, g0.cy.size, g0.dz.size, g0.rx_dx.size
+            dtype = a0.planes.re.dtype
+            k = self.pings_per_launch
+            row = row_length(na, nc, nd, nch)
+            s_rows = self._staged("rows", (k, row), dtype)
+            s_rows64 = self._staged("rows64", (k, row), np.float64)
+            s_ranges = self._staged("ranges", (k, 5), np.int64)
+            rows, rows64, ranges = (s.host[s.turn] for s in (s_rows, s_rows64, s_ranges))
+            for j, a in enumerate(q.args):
+                pack_row(rows[j], a.geometry, a.planes)
+                pack_row(rows64[j], a.gate, None)
+                ranges[j] = q.ranges[j]
+            ranges[nk:] = 0
+            r = np.asarray(q.ranges)
+            ia0, ia1 = int(r[:, 0].min()), int(r[:, 1].max())
+            ic0, ic1 = int(r[:, 2].min()), int(r[:, 3].max())
+            interp, mode, gating, halvings = q.key[:4]
+            d_rows, d_rows64, d_ranges = (s.send(s.turn)
+                                          for s in (s_rows, s_rows64, s_ranges))
+            n = (ia1 - ia0) * (ic1 - ic0) * nd
+            kernel = kernel_for(interp, mode, gating, halvings)
+            kernel[math.ceil(n / THREADS), THREADS, self.stream](
+                q.out.re, q.out.im, self._ring.device, d_rows, d_rows64, d_ranges, nk,
+                _delays_to_device(a0.delays), _BUFFERS.table(g0.surf),
+                _BUFFERS.table(a0.gate.surf), na, nc, nch, ia0, ia1, ic0, ic1, q.count)
+            self.launches += 1
+            self.pings += nk
+        finally:                             # enqueued (or failed): its slots let go
+            for rr in q.ranges:
+                self._ring.drop(rr[4])

@@ -5,7 +5,9 @@ on the device while it forms (brought back with its image planes).
 
 One source: the device functions are the CPU functions' own Python code, given a
 namespace in which the functions they call are the device versions. A column is one
-thread's alone, so the counts need no atomics and equal the CPU's exactly.
+thread's alone, so the counts need no atomics. They equal the CPU's except where the
+GPU's fused multiply-adds round a voxel lying on a cone's or the window's edge the other
+way (the simulator, which runs the Python, gives the CPU's exactly).
 """
 
 from __future__ import annotations

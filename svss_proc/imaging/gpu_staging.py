@@ -9,6 +9,15 @@ staging memory is written again only once that copy has been made (the event wai
 for, almost always long past). Work on one stream runs in the order it was enqueued, so
 a kernel enqueued after a row's copy reads the copied data, and a copy enqueued after a
 kernel does not overwrite what the kernel reads.
+
+What runs on the legacy default stream (a tile's volumes zeroed, its update counter
+made, the tables uploaded once each, the tile's planes, counts and coverage read back)
+is ordered against the batcher's stream because numba makes that stream a blocking one:
+the legacy default stream waits for its work, and it for the default stream's. Per-thread
+default streams (``NUMBA_CUDA_PER_THREAD_DEFAULT_STREAM=1``) would break that ordering,
+and the imager does not support them. Each such call also drains the batcher's stream,
+so a new tile or a new refraction table (one per centimetre of array height) costs one
+wait for the GPU.
 """
 
 from __future__ import annotations

@@ -274,27 +274,30 @@ class PingAccumulator:
         kd, axis, made = self.kernel_data(ping, cond)
         window = (axis.start_s, axis.end_s - axis.step_s)
         total = 0
-        for s in step.slices:
-            tile = tiles[s.tile]
-            out = ImageSlice(tile.re, tile.im, tile.grid, s.ia0, s.ia1)
-            if self._device_counter is not None:
-                entry = self._pending.get(id(tile))
-                if entry is None:
-                    entry = self._pending[id(tile)] = (tile, self._device_counter())
-                self.kernel(out, kd, array, delays, gating=im.beam_gating, count=entry[1])
-                n = 0
-            else:
-                n = self.image_slice(out, kd, array, delays, gating=im.beam_gating)
-            # which voxels this ping reached (geometry only; the image is not touched)
-            tile.coverage.add(tile.grid, s.ia0, s.ia1, placed, geo, window, im, ping.nav,
-                              counter=self._coverage_counter)
-            tile.pings.append(ping.sequence)
-            tile.track.append((int(ping.transmit_time_ns), float(ping.nav.north_m),
-                               float(ping.nav.east_m), int(ping.nav.quality)))
-            tile.updates += int(n)
-            total += int(n)
-        if made:
-            self._batcher.release(kd)
+        try:
+            for s in step.slices:
+                tile = tiles[s.tile]
+                out = ImageSlice(tile.re, tile.im, tile.grid, s.ia0, s.ia1)
+                if self._device_counter is not None:
+                    entry = self._pending.get(id(tile))
+                    if entry is None:
+                        entry = self._pending[id(tile)] = (tile, self._device_counter())
+                    self.kernel(out, kd, array, delays, gating=im.beam_gating,
+                                count=entry[1])
+                    n = 0
+                else:
+                    n = self.image_slice(out, kd, array, delays, gating=im.beam_gating)
+                # which voxels this ping reached (geometry only; the image is not touched)
+                tile.coverage.add(tile.grid, s.ia0, s.ia1, placed, geo, window, im,
+                                  ping.nav, counter=self._coverage_counter)
+                tile.pings.append(ping.sequence)
+                tile.track.append((int(ping.transmit_time_ns), float(ping.nav.north_m),
+                                   float(ping.nav.east_m), int(ping.nav.quality)))
+                tile.updates += int(n)
+                total += int(n)
+        finally:
+            if made:                   # its ring slot, held while it was imaged
+                self._batcher.release(kd)
         self._updates += total
         return total
 
