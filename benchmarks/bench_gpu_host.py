@@ -28,7 +28,6 @@ import dataclasses
 import json
 import logging
 import os
-import platform
 import pstats
 import sys
 import time
@@ -39,6 +38,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.bench_imaging import scene_for  # noqa: E402
+from benchmarks.bench_isa import machine_isa  # noqa: E402
 from sim_device.environment_source import EnvironmentSource  # noqa: E402
 from svss_daq.config import (HardwareConfig, ProcessingConfig, config_path, load,  # noqa: E402
                              load_with_text)
@@ -166,8 +166,7 @@ def main(argv=None) -> int:
             "host_seconds_over_both_on_device": b / best}
     result = {
         "command": " ".join([os.path.basename(sys.executable)] + sys.argv),
-        "machine": {"cpu": platform.processor() or platform.machine(),
-                    "cores": os.cpu_count(), "load_after": load_avg},
+        "machine": {**machine_isa(), "load_after": load_avg},
         "pings": len(pings), "updates": updates, "variants": variants,
         "host_seconds_best": best, "host_ms_per_ping": 1e3 * best / len(pings),
         "ceiling_updates_per_s": updates / best, "profile_top": top}

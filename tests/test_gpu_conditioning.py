@@ -165,9 +165,9 @@ def test_real_gpu_tap_planes_are_the_cpus(tmp_path):
     _compare(_run(tmp_path, simulator=False, n_in=1500))
 
 
-def test_a_longer_ping_than_the_window_is_conditioned_on_the_host(hardware):
-    # (accepts: the operator covers the configured window; the device path is not taken
-    # for a longer one, which the host conditions)
+def test_the_device_takes_codes_no_longer_than_the_window(hardware):
+    # (the operator covers the configured window: the imager conditions a longer ping on
+    # the host, and the batcher refuses it before holding a slot)
     from svss_proc.imaging import gpu_conditioning
     hw = hardware.value
     dig = dataclasses.replace(hw.digitiser, window_samples=64)

@@ -6,9 +6,12 @@ Why: on an H100 the one-ping launch (:mod:`~svss_proc.imaging.gpu_kernel`) spent
 host time per ping preparing the launch's ~50 array arguments (0.56 s per 250 pings)
 and making three uploads (0.43 s) than the GPU spent in the kernel (0.35 s). A batch
 packs each ping's geometry into one row of one array in the kernel precision and one
-in float64 (the cone decisions at an edge), the tap planes into one more, and their
-along- and cross-track ranges into a fourth: four uploads and one launch per batch,
-and the image read and written once per batch instead of once per ping.
+in float64 (the cone decisions at an edge), and their along- and cross-track ranges and
+ring slot into a third: three uploads and one launch per batch, and the image read and
+written once per batch instead of once per ping. Each ping's tap planes sit in one slot
+of a device ring (:class:`PlaneRing`), uploaded once however many tiles the ping
+reaches, or made there from its codes (:mod:`~.gpu_conditioning`, issue 52); the
+kernel reads them through the slot number.
 
 Row layout, both precisions (``n_a``, ``n_c``, ``n_d`` voxels along, across, in
 depth; ``n_ch`` channels), offsets from the projector as in
@@ -204,11 +207,10 @@ class PingBatcher:
         self.stream = cuda.stream()
         self._ring: PlaneRing | None = None
         self._rows: dict[str, StagedRows] = {}
-        #: launches made and pings they imaged, ping planes uploaded from the host and
-        #: made on the device (for benchmarks and tests)
+        #: launches made and pings they imaged, ping planes made on the device (for
+        #: benchmarks and tests)
         self.launches = 0
         self.pings = 0
-        self.planes_uploaded = 0
         self.planes_made = 0
 
     def run_ping(self, out: ImageSlice, kd: KernelData, array: PingArray,
@@ -284,7 +286,6 @@ class PingBatcher:
         except BaseException:
             self._ring.drop(slot)
             raise
-        self.planes_uploaded += 1
         self._ring.of[id(kd)] = (kd, slot)
         self._ring.refs[slot] -= 1           # held by the queues it goes into only
         return slot
